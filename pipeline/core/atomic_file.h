@@ -1,0 +1,18 @@
+// Atomic writes: data goes to "<path>.tmp.<pid>" in the same folder, then rename(2) replaces
+// the target in one step, so a process killed halfway leaves the previous good file.
+#pragma once
+
+#include <functional>
+#include <string>
+
+namespace ibmr {
+
+// Writes `bytes` to `path` atomically; creates parent folders. Throws IoError.
+void WriteFileAtomic(const std::string& path, const std::string& bytes);
+// Calls `write(tmp_path)` to produce the file under a temporary name, then renames it onto
+// `path`. For writers that need a path of their own (cv::imwrite). Throws IoError.
+void WriteViaTemporary(const std::string& path, const std::function<void(const std::string& tmp_path)>& write);
+// Reads a whole file; throws IoError naming the path when it cannot.
+std::string ReadFile(const std::string& path);
+
+}  // namespace ibmr

@@ -1,0 +1,13 @@
+// Content hashes for the stage cache: XXH3-64 of file bytes, hex encoded. A folder hashes the
+// sorted list of its files' relative paths and contents, so renaming a file changes the hash.
+#pragma once
+
+#include <string>
+
+namespace ibmr {
+
+std::string HashBytes(const std::string& bytes);
+// Hash of a file or folder; "missing" when the path does not exist.
+std::string HashPath(const std::string& path);
+
+}  // namespace ibmr

@@ -1,0 +1,42 @@
+// A small triangle rasterizer for visibility and rendering: z-buffer, pixel-centre sampling
+// (COLMAP convention: pixel (c, r) is sampled at (c + 0.5, r + 0.5)), and perspective-correct
+// interpolation of per-vertex attributes. Pinhole only: distortion is removed beforehand
+// (Camera::Undistorted). Triangles are clipped against the near plane.
+#pragma once
+
+#include <Eigen/Core>
+#include <vector>
+
+#include "pipeline/core/camera.h"
+#include "pipeline/core/float_map.h"
+#include "pipeline/core/mesh.h"
+#include "pipeline/core/rigid3.h"
+
+namespace ibmr {
+
+struct RasterizeOptions {
+  double near_z = 1e-3;  // scene units; geometry closer than this is clipped
+  bool cull_backfaces = false;  // drop faces whose vertices appear clockwise in the image
+};
+
+struct RasterResult {
+  DepthMap depth;              // z along the optical axis; 0 where no triangle covers the pixel
+  std::vector<int> face_id;    // width*height, row-major; -1 where uncovered
+  FloatMap barycentric;        // 3 channels: perspective-correct weights of the face's vertices
+};
+
+// Rasterizes `mesh` seen by `camera` (intrinsics; distortion ignored) at pose `cam_from_world`.
+RasterResult Rasterize(const TriangleMesh& mesh, const Camera& camera, const Rigid3d& cam_from_world,
+                       const RasterizeOptions& options = RasterizeOptions());
+
+// Perspective-correct interpolation of a per-vertex attribute at a covered pixel.
+template <typename T>
+T InterpolateAttribute(const RasterResult& raster, const TriangleMesh& mesh, const std::vector<T>& attribute,
+                       int x, int y) {
+  const int f = raster.face_id[static_cast<size_t>(y) * raster.depth.width + x];
+  const Eigen::Vector3i& face = mesh.faces[f];
+  return attribute[face[0]] * raster.barycentric.At(x, y, 0) + attribute[face[1]] * raster.barycentric.At(x, y, 1) +
+         attribute[face[2]] * raster.barycentric.At(x, y, 2);
+}
+
+}  // namespace ibmr

@@ -1,0 +1,79 @@
+// The contract between a stage and the runner. A stage (stages/<name>/<name>_stage.cc) declares
+// its parameters, inputs and outputs, checks parameter values, and runs on a StageContext. The
+// runner owns config parsing, caching, records, holdout, progress display and logs; the stage
+// only calls the context. Stages register themselves through `RegisterStage_<name>(registry)`,
+// which the build calls from a generated list, so pipeline/runner names no stage.
+#pragma once
+
+#include <memory>
+#include <nlohmann/json.hpp>
+#include <optional>
+#include <set>
+#include <string>
+#include <vector>
+
+#include "pipeline/core/params.h"
+#include "pipeline/core/progress.h"
+#include "pipeline/core/sparse_model.h"
+#include "pipeline/core/view_checkpoint.h"
+#include "pipeline/core/workspace.h"
+
+namespace ibmr {
+
+// How a stage treats held-out views (the config's holdout policy).
+enum class HoldoutRole {
+  kAllViews,       // import, synth: sees every view; the holdout set does not affect it
+  kTrainingOnly,   // reconstruction (silhouettes, carving, stereo, fusion, texturing): never sees held-out views
+  kScoring,        // render/score: reads the trained model and the held-out views' cameras and photos
+};
+
+struct StageContext {
+  Workspace workspace;
+  Params params;
+  std::string config_dir;                  // folder of the config file (relative paths resolve here)
+  HoldoutRole role = HoldoutRole::kAllViews;
+  std::set<std::string> heldout_images;    // names of held-out images (empty: no holdout)
+  ProgressReporter* progress = nullptr;    // never null while running
+  ViewCheckpoint checkpoint;               // per-view resumption for this run's cache key
+  nlohmann::json metrics = nlohmann::json::object();  // the stage's own metrics, kept in the record
+  int num_threads = -1;                    // -1: all cores
+
+  bool IsHeldOut(const std::string& image_name) const { return heldout_images.count(image_name) > 0; }
+  // Reads workspace sparse/. For kTrainingOnly stages the held-out images are removed (and their
+  // observations from the tracks), which is how the runner keeps them out of reconstruction.
+  SparseModel LoadModel() const;
+  // Names of the views this stage may reconstruct from, sorted (held-out views removed for
+  // kTrainingOnly stages).
+  std::vector<std::string> TrainingImageNames(const SparseModel& model) const;
+};
+
+class Stage {
+ public:
+  virtual ~Stage() = default;
+  virtual std::string Name() const = 0;
+  virtual std::string Summary() const = 0;  // one line for `ibmr stages`
+  // Bump when the code's results change: a new version makes the stage and all downstream stale.
+  virtual std::string Version() const = 0;
+  virtual std::vector<ParamSpec> Parameters() const = 0;
+  virtual HoldoutRole Role() const = 0;
+  // Maps params to the stage's Options and calls their Check(); nullopt when valid.
+  virtual std::optional<ParamError> CheckParams(const Params& params) const = 0;
+  // Files or folders read and written: workspace-relative ("sparse") or absolute (external input).
+  // Inputs are hashed for the cache; an optional input that does not exist hashes as "missing".
+  virtual std::vector<std::string> Inputs(const StageContext& context) const = 0;
+  virtual std::vector<std::string> Outputs(const StageContext& context) const = 0;
+  // Does the work. Throws IoError / InputError with a message for the user on failure.
+  virtual void Run(StageContext& context) const = 0;
+};
+
+class StageRegistry {
+ public:
+  void Add(std::unique_ptr<Stage> stage);
+  const Stage* Find(const std::string& name) const;  // nullptr when unknown
+  std::vector<std::string> Names() const;
+
+ private:
+  std::vector<std::unique_ptr<Stage>> stages_;
+};
+
+}  // namespace ibmr

@@ -1,0 +1,49 @@
+// Workspace layout: the files on disk are the interface between stages. COLMAP's names where
+// COLMAP has one, so COLMAP, OpenMVS and nerfstudio tools read what the pipeline writes:
+//   images/                       input images (copied or rendered), names as in images.txt
+//   sparse/                       COLMAP text model (cameras.txt, images.txt, points3D.txt)
+//   masks/<image name>.png        foreground masks, 0 background, 255 foreground
+//   dense/images/, dense/sparse/  undistorted images and model
+//   dense/stereo/depth_maps/<image name>.{photometric,geometric}.bin   COLMAP arrays
+//   dense/stereo/normal_maps/...  idem, 3 channels
+//   dense/fused.ply               fused points
+//   ground_truth/                 synthetic truth: depth/<image name>.bin, mesh.ply
+//   hull/, layers/, surfels/, texture/, renders/, scores/, report/   per-representation folders
+//   records/<stage>.json          one record per stage run; logs/ the run logs
+#pragma once
+
+#include <string>
+
+namespace ibmr {
+
+class Workspace {
+ public:
+  Workspace() = default;
+  explicit Workspace(std::string root) : root_(std::move(root)) {}
+
+  const std::string& root() const { return root_; }
+  // Absolute path of a workspace-relative path ("sparse/cameras.txt").
+  std::string Path(const std::string& relative) const { return root_ + "/" + relative; }
+
+  std::string ImagesDir() const { return Path("images"); }
+  std::string SparseDir() const { return Path("sparse"); }
+  std::string MasksDir() const { return Path("masks"); }
+  std::string MaskPath(const std::string& image_name) const { return Path("masks/" + image_name + ".png"); }
+  std::string DepthMapPath(const std::string& image_name, const std::string& kind) const {
+    return Path("dense/stereo/depth_maps/" + image_name + "." + kind + ".bin");
+  }
+  std::string NormalMapPath(const std::string& image_name, const std::string& kind) const {
+    return Path("dense/stereo/normal_maps/" + image_name + "." + kind + ".bin");
+  }
+  std::string GroundTruthDepthPath(const std::string& image_name) const {
+    return Path("ground_truth/depth/" + image_name + ".bin");
+  }
+  std::string GroundTruthMeshPath() const { return Path("ground_truth/mesh.ply"); }
+  std::string RecordsDir() const { return Path("records"); }
+  std::string LogsDir() const { return Path("logs"); }
+
+ private:
+  std::string root_;
+};
+
+}  // namespace ibmr
