@@ -5,6 +5,8 @@
 // which the build calls from a generated list, so pipeline/runner names no stage.
 #pragma once
 
+#include <functional>
+#include <map>
 #include <memory>
 #include <nlohmann/json.hpp>
 #include <optional>
@@ -31,6 +33,7 @@ struct StageContext {
   Workspace workspace;
   Params params;
   std::string config_dir;                  // folder of the config file (relative paths resolve here)
+  std::map<std::string, std::string> inputs;  // the config's named inputs (absolute paths)
   HoldoutRole role = HoldoutRole::kAllViews;
   std::set<std::string> heldout_images;    // names of held-out images (empty: no holdout)
   ProgressReporter* progress = nullptr;    // never null while running
@@ -66,14 +69,25 @@ class Stage {
   virtual void Run(StageContext& context) const = 0;
 };
 
+// A command a stage offers beside `ibmr run` (e.g. `ibmr stereo-pair LEFT RIGHT ...`). It gets
+// the arguments after its name, parses them itself (--help included) and returns an exit code.
+struct StageCommand {
+  std::string name;
+  std::string help;
+  std::function<int(const std::vector<std::string>& args)> main;
+};
+
 class StageRegistry {
  public:
   void Add(std::unique_ptr<Stage> stage);
+  void AddCommand(StageCommand command) { commands_.push_back(std::move(command)); }
   const Stage* Find(const std::string& name) const;  // nullptr when unknown
   std::vector<std::string> Names() const;
+  const std::vector<StageCommand>& Commands() const { return commands_; }
 
  private:
   std::vector<std::unique_ptr<Stage>> stages_;
+  std::vector<StageCommand> commands_;
 };
 
 }  // namespace ibmr

@@ -1,0 +1,97 @@
+// Atomic file writes (temporary file in the same folder, then rename(2)) and whole-file reads.
+// rename within one file system replaces the target in one step, so readers and a later run
+// only ever see the previous complete file or the new complete file.
+#include "pipeline/core/atomic_file.h"
+
+#include <unistd.h>
+
+#include <cerrno>
+#include <cstdio>
+#include <cstring>
+#include <filesystem>
+#include <system_error>
+
+#include "pipeline/core/errors.h"
+
+namespace ibmr {
+namespace {
+
+namespace fs = std::filesystem;
+
+std::string ErrnoText() { return std::strerror(errno); }
+
+void CreateParentFolders(const std::string& path) {
+  const fs::path parent = fs::path(path).parent_path();
+  if (parent.empty()) return;
+  std::error_code ec;
+  fs::create_directories(parent, ec);
+  if (ec) throw IoError("cannot create folder " + parent.string() + " for " + path + ": " + ec.message());
+}
+
+// Renames `tmp_path` onto `path`; removes the temporary and throws when that fails.
+void CommitTemporary(const std::string& tmp_path, const std::string& path) {
+  if (std::rename(tmp_path.c_str(), path.c_str()) != 0) {
+    const std::string reason = ErrnoText();
+    std::remove(tmp_path.c_str());
+    throw IoError("cannot rename " + tmp_path + " to " + path + ": " + reason);
+  }
+}
+
+// "dir/x.png" -> "dir/x.tmp<pid>.png": the extension stays last so that writers choosing a
+// codec by extension (cv::imwrite) still choose the right one.
+std::string TemporaryKeepingExtension(const std::string& path) {
+  const fs::path p(path);
+  const std::string tmp_name = p.stem().string() + ".tmp" + std::to_string(::getpid()) + p.extension().string();
+  return (p.parent_path() / tmp_name).string();
+}
+
+}  // namespace
+
+void WriteFileAtomic(const std::string& path, const std::string& bytes) {
+  CreateParentFolders(path);
+  const std::string tmp_path = path + ".tmp." + std::to_string(::getpid());
+  std::FILE* file = std::fopen(tmp_path.c_str(), "wb");
+  if (file == nullptr) throw IoError("cannot write " + path + " (temporary " + tmp_path + "): " + ErrnoText());
+  const size_t written = bytes.empty() ? 0 : std::fwrite(bytes.data(), 1, bytes.size(), file);
+  const bool write_ok = written == bytes.size();
+  const std::string write_error = write_ok ? "" : ErrnoText();
+  const bool close_ok = std::fclose(file) == 0;
+  if (!write_ok || !close_ok) {
+    const std::string reason = write_ok ? ErrnoText() : write_error;
+    std::remove(tmp_path.c_str());
+    throw IoError("cannot write " + path + " (temporary " + tmp_path + "): " + reason);
+  }
+  CommitTemporary(tmp_path, path);
+}
+
+void WriteViaTemporary(const std::string& path, const std::function<void(const std::string& tmp_path)>& write) {
+  CreateParentFolders(path);
+  const std::string tmp_path = TemporaryKeepingExtension(path);
+  try {
+    write(tmp_path);
+  } catch (...) {
+    std::remove(tmp_path.c_str());
+    throw;
+  }
+  std::error_code ec;
+  if (!fs::is_regular_file(tmp_path, ec)) {
+    throw IoError("cannot write " + path + ": the writer produced no file " + tmp_path);
+  }
+  CommitTemporary(tmp_path, path);
+}
+
+std::string ReadFile(const std::string& path) {
+  std::FILE* file = std::fopen(path.c_str(), "rb");
+  if (file == nullptr) throw IoError("cannot read " + path + ": " + ErrnoText());
+  std::string bytes;
+  char buffer[1 << 16];
+  size_t n;
+  while ((n = std::fread(buffer, 1, sizeof(buffer), file)) > 0) bytes.append(buffer, n);
+  const bool failed = std::ferror(file) != 0;
+  const std::string reason = failed ? ErrnoText() : "";
+  std::fclose(file);
+  if (failed) throw IoError("cannot read " + path + ": " + reason);
+  return bytes;
+}
+
+}  // namespace ibmr

@@ -1,0 +1,103 @@
+// Tests for atomic writes: contents, parent folders, no temporaries left behind, the extension
+// kept by WriteViaTemporary, and errors that name the path.
+#include "pipeline/core/atomic_file.h"
+
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <filesystem>
+#include <fstream>
+
+#include "pipeline/core/errors.h"
+
+namespace ibmr {
+namespace {
+
+namespace fs = std::filesystem;
+
+fs::path MakeTestDir(const std::string& name) {
+  const fs::path dir = fs::temp_directory_path() / ("ibmr_atomic_file_" + name + "_" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  return dir;
+}
+
+int CountFiles(const fs::path& dir) {
+  int n = 0;
+  for (const auto& entry : fs::recursive_directory_iterator(dir)) n += entry.is_regular_file() ? 1 : 0;
+  return n;
+}
+
+TEST(AtomicFile, WritesCreatesFoldersAndOverwrites) {
+  const fs::path dir = MakeTestDir("write");
+  const std::string path = (dir / "a" / "b" / "file.bin").string();
+  const std::string bytes("binary\0data\n", 12);
+  WriteFileAtomic(path, bytes);
+  EXPECT_EQ(ReadFile(path), bytes);
+  WriteFileAtomic(path, "second");
+  EXPECT_EQ(ReadFile(path), "second");
+  WriteFileAtomic(path, "");
+  EXPECT_EQ(ReadFile(path), "");
+  EXPECT_EQ(CountFiles(dir), 1) << "a temporary was left behind";
+}
+
+TEST(AtomicFile, ReadMissingNamesPath) {
+  const fs::path dir = MakeTestDir("missing");
+  const std::string path = (dir / "nothing.txt").string();
+  try {
+    ReadFile(path);
+    FAIL() << "expected IoError";
+  } catch (const IoError& e) {
+    EXPECT_NE(std::string(e.what()).find(path), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("No such file"), std::string::npos) << e.what();
+  }
+}
+
+TEST(AtomicFile, WriteFailureNamesPath) {
+  const fs::path dir = MakeTestDir("fail");
+  WriteFileAtomic((dir / "plain").string(), "x");
+  // A regular file where a folder is needed.
+  const std::string path = (dir / "plain" / "child.txt").string();
+  try {
+    WriteFileAtomic(path, "y");
+    FAIL() << "expected IoError";
+  } catch (const IoError& e) {
+    EXPECT_NE(std::string(e.what()).find(path), std::string::npos) << e.what();
+  }
+}
+
+TEST(AtomicFile, WriteViaTemporaryKeepsExtension) {
+  const fs::path dir = MakeTestDir("via");
+  const std::string path = (dir / "sub" / "x.png").string();
+  std::string seen;
+  WriteViaTemporary(path, [&](const std::string& tmp_path) {
+    seen = tmp_path;
+    std::ofstream(tmp_path) << "payload";
+  });
+  EXPECT_NE(seen, path);
+  EXPECT_EQ(fs::path(seen).extension(), ".png") << seen;
+  EXPECT_EQ(fs::path(seen).parent_path(), fs::path(path).parent_path()) << "rename must stay on one file system";
+  EXPECT_NE(seen.find(".tmp"), std::string::npos) << seen;
+  EXPECT_EQ(ReadFile(path), "payload");
+  EXPECT_FALSE(fs::exists(seen));
+}
+
+TEST(AtomicFile, FailedWriterLeavesOldFile) {
+  const fs::path dir = MakeTestDir("keep");
+  const std::string path = (dir / "x.txt").string();
+  WriteFileAtomic(path, "good");
+  EXPECT_THROW(WriteViaTemporary(path,
+                                 [](const std::string& tmp_path) {
+                                   std::ofstream(tmp_path) << "half";
+                                   throw IoError("writer failed");
+                                 }),
+               IoError);
+  EXPECT_EQ(ReadFile(path), "good");
+  EXPECT_EQ(CountFiles(dir), 1) << "the temporary must be removed";
+  // A writer that produces nothing is an error too.
+  EXPECT_THROW(WriteViaTemporary(path, [](const std::string&) {}), IoError);
+  EXPECT_EQ(ReadFile(path), "good");
+}
+
+}  // namespace
+}  // namespace ibmr

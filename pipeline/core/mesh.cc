@@ -1,0 +1,61 @@
+// Helpers on TriangleMesh: area-weighted vertex normals, bounds, and a consistency check that
+// names the first problem (used after reading a PLY and before writing one).
+#include "pipeline/core/mesh.h"
+
+#include <Eigen/Geometry>
+#include <cmath>
+
+namespace ibmr {
+
+void TriangleMesh::ComputeVertexNormals() {
+  normals.assign(vertices.size(), Eigen::Vector3f::Zero());
+  const int num_vertices = static_cast<int>(vertices.size());
+  for (const Eigen::Vector3i& face : faces) {
+    if ((face.array() < 0).any() || (face.array() >= num_vertices).any()) continue;
+    // The unnormalised cross product has length 2 * area, so summing it weights by area.
+    const Eigen::Vector3f weighted = (vertices[face[1]] - vertices[face[0]]).cross(vertices[face[2]] - vertices[face[0]]);
+    for (int k = 0; k < 3; ++k) normals[face[k]] += weighted;
+  }
+  for (Eigen::Vector3f& n : normals) {
+    const float length = n.norm();
+    // Isolated vertices or those on degenerate faces only get a zero normal rather than NaN.
+    n = length > 0.f ? Eigen::Vector3f(n / length) : Eigen::Vector3f::Zero();
+  }
+}
+
+bool TriangleMesh::Bounds(Eigen::Vector3f* min, Eigen::Vector3f* max) const {
+  if (vertices.empty()) return false;
+  Eigen::Vector3f lo = vertices[0], hi = vertices[0];
+  for (const Eigen::Vector3f& v : vertices) {
+    lo = lo.cwiseMin(v);
+    hi = hi.cwiseMax(v);
+  }
+  *min = lo;
+  *max = hi;
+  return true;
+}
+
+std::string TriangleMesh::Validate() const {
+  const size_t n = vertices.size();
+  if (!normals.empty() && normals.size() != n) {
+    return "mesh has " + std::to_string(normals.size()) + " normals for " + std::to_string(n) + " vertices";
+  }
+  if (!colors.empty() && colors.size() != n) {
+    return "mesh has " + std::to_string(colors.size()) + " colours for " + std::to_string(n) + " vertices";
+  }
+  for (size_t v = 0; v < n; ++v) {
+    if (!vertices[v].allFinite()) return "vertex " + std::to_string(v) + " has a non-finite coordinate";
+  }
+  for (size_t f = 0; f < faces.size(); ++f) {
+    for (int k = 0; k < 3; ++k) {
+      const int index = faces[f][k];
+      if (index < 0 || static_cast<size_t>(index) >= n) {
+        return "face " + std::to_string(f) + " refers to vertex " + std::to_string(index) + " but the mesh has " +
+               std::to_string(n) + " vertices";
+      }
+    }
+  }
+  return "";
+}
+
+}  // namespace ibmr

@@ -1,0 +1,211 @@
+// Z-buffer triangle rasterizer in the COLMAP pixel convention (pixel (c, r) is sampled at
+// (c + 0.5, r + 0.5)).
+//
+// Per face: transform to the camera frame, clip against the plane z = near_z (giving up to two
+// triangles whose vertices carry their weights over the original face's vertices), project,
+// then walk the clamped bounding box and test each pixel centre against the three edge
+// functions. Watertightness: an edge function is always evaluated from the edge's endpoints in a
+// canonical order, so the two faces sharing an edge see bit-identical values of opposite sign,
+// and a centre exactly on the edge goes to one side only (a top-left style tie rule on the edge
+// direction). Depth and barycentrics are perspective-correct: screen-space weights divided by
+// z, renormalised; 1 / sum(weight / z) is exactly the ray-plane intersection depth.
+#include "pipeline/core/rasterizer.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <string>
+
+#include "pipeline/core/errors.h"
+
+namespace ibmr {
+namespace {
+
+// A vertex of a (possibly clipped) triangle in the camera frame, with its weights over the
+// three vertices of the original face.
+struct ClipVertex {
+  Eigen::Vector3d point;
+  Eigen::Vector3d weights;
+};
+
+// A strict order on coordinates: shared vertices are bit-identical in every face that uses them,
+// so ordering an edge's endpoints by it gives every face the same computation.
+bool Before(double ax, double ay, double az, double bx, double by, double bz) {
+  if (ax != bx) return ax < bx;
+  if (ay != by) return ay < by;
+  return az < bz;
+}
+
+struct Intrinsics {
+  double fx, fy, cx, cy;
+  int width, height;
+};
+
+// The point where edge (a, b) crosses z = near, computed from the endpoints in canonical order
+// so that both faces sharing the edge get exactly the same point.
+ClipVertex Intersect(const ClipVertex& a_in, const ClipVertex& b_in, double near_z) {
+  const Eigen::Vector3d& pa = a_in.point;
+  const Eigen::Vector3d& pb = b_in.point;
+  const bool swap = Before(pb.x(), pb.y(), pb.z(), pa.x(), pa.y(), pa.z());
+  const ClipVertex& a = swap ? b_in : a_in;
+  const ClipVertex& b = swap ? a_in : b_in;
+  const double t = (near_z - a.point.z()) / (b.point.z() - a.point.z());
+  ClipVertex out;
+  out.point = a.point + t * (b.point - a.point);
+  out.point.z() = near_z;
+  out.weights = a.weights + t * (b.weights - a.weights);
+  return out;
+}
+
+// Sutherland-Hodgman against z >= near_z. Returns the number of polygon vertices (0, 3 or 4),
+// in the input's winding order.
+int ClipNear(const ClipVertex in[3], double near_z, ClipVertex out[4]) {
+  int n = 0;
+  for (int i = 0; i < 3; ++i) {
+    const ClipVertex& current = in[i];
+    const ClipVertex& next = in[(i + 1) % 3];
+    const bool current_in = current.point.z() >= near_z;
+    const bool next_in = next.point.z() >= near_z;
+    if (current_in) out[n++] = current;
+    if (current_in != next_in) out[n++] = Intersect(current, next, near_z);
+  }
+  return n;
+}
+
+struct ScreenVertex {
+  double x, y;         // pixel coordinates
+  double inv_z;        // 1 / camera-frame depth
+};
+
+// One edge's function, evaluated in canonical endpoint order and signed so that the triangle's
+// interior is positive.
+struct Edge {
+  double ax, ay, dx, dy;
+  double sign;
+  bool owns_ties;  // whether a centre exactly on the edge belongs to this triangle
+
+  double Evaluate(double px, double py) const { return sign * (dx * (py - ay) - dy * (px - ax)); }
+  bool Inside(double e) const { return e > 0.0 || (e == 0.0 && owns_ties); }
+};
+
+// Edge from `from` to `to` of a triangle whose interior lies on the positive side when
+// `orientation` multiplies the edge function taken in that direction.
+Edge MakeEdge(const ScreenVertex& from, const ScreenVertex& to, double orientation) {
+  const bool canonical = Before(from.x, from.y, from.inv_z, to.x, to.y, to.inv_z);
+  const ScreenVertex& a = canonical ? from : to;
+  const ScreenVertex& b = canonical ? to : from;
+  Edge edge;
+  edge.ax = a.x;
+  edge.ay = a.y;
+  edge.dx = b.x - a.x;
+  edge.dy = b.y - a.y;
+  edge.sign = canonical ? orientation : -orientation;
+  // Direction of the edge with the interior on its positive side; the two faces sharing the
+  // edge traverse it in opposite directions, so exactly one of them owns ties.
+  const double ux = edge.sign * edge.dx, uy = edge.sign * edge.dy;
+  edge.owns_ties = uy > 0.0 || (uy == 0.0 && ux < 0.0);
+  return edge;
+}
+
+ScreenVertex Project(const ClipVertex& v, const Intrinsics& k) {
+  const double inv_z = 1.0 / v.point.z();
+  return {k.fx * v.point.x() * inv_z + k.cx, k.fy * v.point.y() * inv_z + k.cy, inv_z};
+}
+
+// Rasterizes one clipped triangle of face `face_id`; `weights[i]` maps vertex i of this
+// triangle to the original face's vertices.
+void RasterizeTriangle(const ClipVertex tri[3], int face_id, const Intrinsics& k, RasterResult* result) {
+  const ScreenVertex v[3] = {Project(tri[0], k), Project(tri[1], k), Project(tri[2], k)};
+  const double area = (v[1].x - v[0].x) * (v[2].y - v[0].y) - (v[1].y - v[0].y) * (v[2].x - v[0].x);
+  if (!(std::abs(area) > 0.0)) return;  // degenerate (or NaN)
+  const double orientation = area > 0.0 ? 1.0 : -1.0;
+  // Edge i is opposite vertex i, so its function is proportional to vertex i's weight.
+  const Edge edges[3] = {MakeEdge(v[1], v[2], orientation), MakeEdge(v[2], v[0], orientation),
+                         MakeEdge(v[0], v[1], orientation)};
+
+  const double min_x = std::min({v[0].x, v[1].x, v[2].x}), max_x = std::max({v[0].x, v[1].x, v[2].x});
+  const double min_y = std::min({v[0].y, v[1].y, v[2].y}), max_y = std::max({v[0].y, v[1].y, v[2].y});
+  // Pixel c is sampled at c + 0.5: the covered columns are ceil(min - 0.5) .. floor(max - 0.5).
+  const int c0 = static_cast<int>(std::max(0.0, std::ceil(min_x - 0.5)));
+  const int c1 = static_cast<int>(std::min(k.width - 1.0, std::floor(max_x - 0.5)));
+  const int r0 = static_cast<int>(std::max(0.0, std::ceil(min_y - 0.5)));
+  const int r1 = static_cast<int>(std::min(k.height - 1.0, std::floor(max_y - 0.5)));
+  if (c0 > c1 || r0 > r1) return;
+
+  const bool identity = tri[0].weights == Eigen::Vector3d::UnitX() && tri[1].weights == Eigen::Vector3d::UnitY() &&
+                        tri[2].weights == Eigen::Vector3d::UnitZ();
+  const size_t plane = static_cast<size_t>(k.width) * k.height;
+  float* depth = result->depth.data.data();
+  int* ids = result->face_id.data();
+  float* bary = result->barycentric.data.data();
+  for (int r = r0; r <= r1; ++r) {
+    const double py = r + 0.5;
+    for (int c = c0; c <= c1; ++c) {
+      const double px = c + 0.5;
+      const double e0 = edges[0].Evaluate(px, py), e1 = edges[1].Evaluate(px, py), e2 = edges[2].Evaluate(px, py);
+      if (!edges[0].Inside(e0) || !edges[1].Inside(e1) || !edges[2].Inside(e2)) continue;
+      // Screen weights e_i / sum, then divided by z_i for perspective correctness.
+      const double w0 = e0 * v[0].inv_z, w1 = e1 * v[1].inv_z, w2 = e2 * v[2].inv_z;
+      const double sum_w = w0 + w1 + w2;
+      const double sum_e = e0 + e1 + e2;
+      if (!(sum_w > 0.0)) continue;
+      const double z = sum_e / sum_w;
+      const size_t index = static_cast<size_t>(r) * k.width + c;
+      if (ids[index] >= 0 && !(z < depth[index])) continue;
+      Eigen::Vector3d b(w0 / sum_w, w1 / sum_w, w2 / sum_w);
+      if (!identity) b = b[0] * tri[0].weights + b[1] * tri[1].weights + b[2] * tri[2].weights;
+      depth[index] = static_cast<float>(z);
+      ids[index] = face_id;
+      for (int i = 0; i < 3; ++i) bary[i * plane + index] = static_cast<float>(b[i]);
+    }
+  }
+}
+
+Intrinsics IntrinsicsOf(const Camera& camera) {
+  if (camera.width <= 0 || camera.height <= 0) {
+    throw InputError("Rasterize: camera " + std::to_string(camera.camera_id) + " has no image size (" +
+                     std::to_string(camera.width) + "x" + std::to_string(camera.height) + ")");
+  }
+  return {camera.FocalX(), camera.FocalY(), camera.PrincipalX(), camera.PrincipalY(), camera.width, camera.height};
+}
+
+}  // namespace
+
+RasterResult Rasterize(const TriangleMesh& mesh, const Camera& camera, const Rigid3d& cam_from_world,
+                       const RasterizeOptions& options) {
+  if (!(options.near_z > 0.0)) {
+    throw InputError("Rasterize: near_z must be > 0 (got " + std::to_string(options.near_z) + ")");
+  }
+  const Intrinsics k = IntrinsicsOf(camera);
+  RasterResult result;
+  result.depth = DepthMap(k.width, k.height, 1, 0.f);
+  result.face_id.assign(static_cast<size_t>(k.width) * k.height, -1);
+  result.barycentric = FloatMap(k.width, k.height, 3, 0.f);
+
+  const Eigen::Matrix3d rotation = cam_from_world.R();
+  std::vector<Eigen::Vector3d> points_in_cam(mesh.vertices.size());
+  for (size_t i = 0; i < mesh.vertices.size(); ++i) {
+    points_in_cam[i] = rotation * mesh.vertices[i].cast<double>() + cam_from_world.translation;
+  }
+  const int num_vertices = static_cast<int>(mesh.vertices.size());
+  for (size_t f = 0; f < mesh.faces.size(); ++f) {
+    const Eigen::Vector3i& face = mesh.faces[f];
+    if ((face.array() < 0).any() || (face.array() >= num_vertices).any()) continue;
+    ClipVertex in[3];
+    for (int i = 0; i < 3; ++i) in[i] = {points_in_cam[face[i]], Eigen::Vector3d::Unit(i)};
+    if (options.cull_backfaces) {
+      // Facing away when the normal of the counter-clockwise face points away from the centre.
+      const Eigen::Vector3d normal = (in[1].point - in[0].point).cross(in[2].point - in[0].point);
+      if (normal.dot(in[0].point) >= 0.0) continue;
+    }
+    ClipVertex polygon[4];
+    const int n = ClipNear(in, options.near_z, polygon);
+    for (int t = 1; t + 1 < n; ++t) {
+      const ClipVertex tri[3] = {polygon[0], polygon[t], polygon[t + 1]};
+      RasterizeTriangle(tri, static_cast<int>(f), k, &result);
+    }
+  }
+  return result;
+}
+
+}  // namespace ibmr

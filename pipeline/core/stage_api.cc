@@ -1,0 +1,80 @@
+// The stage registry and the context's holdout-aware model loading.
+#include "pipeline/core/stage_api.h"
+
+#include <algorithm>
+#include <stdexcept>
+
+#include "pipeline/core/colmap_text_io.h"
+
+namespace ibmr {
+
+namespace {
+
+// Removes held-out images and every observation of them from the points' tracks; points left
+// with fewer than two observations are dropped (they were triangulated with held-out views).
+void RemoveImages(const std::set<std::string>& names, SparseModel* model) {
+  std::set<int> removed;
+  for (auto it = model->images.begin(); it != model->images.end();) {
+    if (names.count(it->second.name)) {
+      removed.insert(it->first);
+      it = model->images.erase(it);
+    } else {
+      ++it;
+    }
+  }
+  if (removed.empty()) return;
+  for (auto it = model->points.begin(); it != model->points.end();) {
+    auto& track = it->second.track;
+    track.erase(std::remove_if(track.begin(), track.end(),
+                               [&](const TrackElement& e) { return removed.count(e.image_id) > 0; }),
+                track.end());
+    if (track.size() < 2) {
+      for (auto& [id, image] : model->images) {
+        for (Point2D& p : image.points2D) {
+          if (p.point3D_id == it->first) p.point3D_id = -1;
+        }
+      }
+      it = model->points.erase(it);
+    } else {
+      ++it;
+    }
+  }
+}
+
+}  // namespace
+
+SparseModel StageContext::LoadModel() const {
+  SparseModel model = ReadSparseModelText(workspace.SparseDir());
+  if (role == HoldoutRole::kTrainingOnly) RemoveImages(heldout_images, &model);
+  return model;
+}
+
+std::vector<std::string> StageContext::TrainingImageNames(const SparseModel& model) const {
+  std::vector<std::string> names;
+  for (int id : model.ImageIdsByName()) {
+    const std::string& name = model.images.at(id).name;
+    if (role == HoldoutRole::kTrainingOnly && IsHeldOut(name)) continue;
+    names.push_back(name);
+  }
+  return names;
+}
+
+void StageRegistry::Add(std::unique_ptr<Stage> stage) {
+  if (Find(stage->Name())) throw std::logic_error("stage '" + stage->Name() + "' registered twice");
+  stages_.push_back(std::move(stage));
+}
+
+const Stage* StageRegistry::Find(const std::string& name) const {
+  for (const auto& stage : stages_) {
+    if (stage->Name() == name) return stage.get();
+  }
+  return nullptr;
+}
+
+std::vector<std::string> StageRegistry::Names() const {
+  std::vector<std::string> names;
+  for (const auto& stage : stages_) names.push_back(stage->Name());
+  return names;
+}
+
+}  // namespace ibmr

@@ -1,0 +1,63 @@
+// Tests for per-view checkpoints: marks count only with the same key, Clear removes them, and a
+// default-constructed checkpoint does nothing.
+#include "pipeline/core/view_checkpoint.h"
+
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <filesystem>
+
+#include "pipeline/core/atomic_file.h"
+
+namespace ibmr {
+namespace {
+
+namespace fs = std::filesystem;
+
+fs::path MakeTestDir(const std::string& name) {
+  const fs::path dir = fs::temp_directory_path() / ("ibmr_view_checkpoint_" + name + "_" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  return dir;
+}
+
+TEST(ViewCheckpoint, MarksCountOnlyWithTheSameKey) {
+  const std::string folder = (MakeTestDir("key") / "records" / "plane_sweep.views").string();
+  const ViewCheckpoint checkpoint(folder, "key-1");
+  EXPECT_FALSE(checkpoint.Done("img_001.jpg"));
+  checkpoint.MarkDone("img_001.jpg");
+  EXPECT_TRUE(checkpoint.Done("img_001.jpg"));
+  EXPECT_FALSE(checkpoint.Done("img_002.jpg"));
+  EXPECT_EQ(ReadFile(folder + "/img_001.jpg.done"), "key-1");
+
+  const ViewCheckpoint changed(folder, "key-2");
+  EXPECT_FALSE(changed.Done("img_001.jpg"));
+  const ViewCheckpoint prefix(folder, "key-");
+  EXPECT_FALSE(prefix.Done("img_001.jpg")) << "the content must equal the key, not start with it";
+  changed.MarkDone("img_001.jpg");
+  EXPECT_FALSE(checkpoint.Done("img_001.jpg"));
+  EXPECT_TRUE(changed.Done("img_001.jpg"));
+}
+
+TEST(ViewCheckpoint, ClearRemovesTheFolder) {
+  const fs::path dir = MakeTestDir("clear");
+  const std::string folder = (dir / "views").string();
+  const ViewCheckpoint checkpoint(folder, "k");
+  checkpoint.MarkDone("a");
+  checkpoint.MarkDone("b");
+  checkpoint.Clear();
+  EXPECT_FALSE(fs::exists(folder));
+  EXPECT_FALSE(checkpoint.Done("a"));
+  checkpoint.Clear();  // clearing twice is fine
+}
+
+TEST(ViewCheckpoint, DefaultIsInert) {
+  const ViewCheckpoint inert;
+  inert.MarkDone("a");
+  EXPECT_FALSE(inert.Done("a"));
+  EXPECT_FALSE(fs::exists("a.done"));
+  inert.Clear();
+}
+
+}  // namespace
+}  // namespace ibmr

@@ -1,0 +1,369 @@
+// Loading and validating the YAML run configuration (see config.h).
+#include "pipeline/runner/config.h"
+
+#include <yaml-cpp/yaml.h>
+
+#include <algorithm>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <regex>
+#include <sstream>
+
+namespace fs = std::filesystem;
+
+namespace ibmr {
+
+namespace {
+
+// Formats "FILE:LINE: key 'K': MESSAGE".
+std::string Where(const std::string& file, int line, const std::string& key, const std::string& message) {
+  std::ostringstream out;
+  out << file;
+  if (line > 0) out << ":" << line;
+  out << ": ";
+  if (!key.empty()) out << "key '" << key << "': ";
+  out << message;
+  return out.str();
+}
+
+int LineOf(const YAML::Node& node) { return node.Mark().line >= 0 ? node.Mark().line + 1 : 0; }
+
+std::string Suggest(const std::string& key, const std::vector<std::string>& valid) {
+  std::string best;
+  int best_distance = 1 << 30;
+  for (const std::string& candidate : valid) {
+    const int d = EditDistance(key, candidate);
+    if (d < best_distance) {
+      best_distance = d;
+      best = candidate;
+    }
+  }
+  std::string out;
+  if (!best.empty() && best_distance <= std::max<int>(2, static_cast<int>(key.size()) / 3)) {
+    out = "did you mean '" + best + "'? ";
+  }
+  std::string list;
+  for (const std::string& v : valid) list += (list.empty() ? "" : ", ") + v;
+  return out + "Valid keys: " + list + ".";
+}
+
+std::string ResolvePath(const std::string& dir, const std::string& value) {
+  if (value.empty()) return value;
+  fs::path p(value);
+  if (p.is_relative()) p = fs::path(dir) / p;
+  return p.lexically_normal().string();
+}
+
+// Converts one YAML node to the declared type; on failure returns false with `error` set.
+bool ToValue(const YAML::Node& node, const ParamSpec& spec, const std::string& dir, ParamValue* value,
+             std::string* error) {
+  const std::string expected = "expected " + ParamTypeName(spec.type);
+  auto scalar_text = [&]() { return node.IsScalar() ? "'" + node.Scalar() + "'" : std::string("a map or list"); };
+  try {
+    switch (spec.type) {
+      case ParamType::kInt: {
+        if (!node.IsScalar()) throw YAML::Exception(YAML::Mark(), "");
+        const std::string s = node.Scalar();
+        size_t pos = 0;
+        const long long v = std::stoll(s, &pos);
+        if (pos != s.size()) throw std::invalid_argument(s);
+        *value = static_cast<int64_t>(v);
+        return true;
+      }
+      case ParamType::kDouble: {
+        if (!node.IsScalar()) throw YAML::Exception(YAML::Mark(), "");
+        const std::string s = node.Scalar();
+        size_t pos = 0;
+        const double v = std::stod(s, &pos);
+        if (pos != s.size()) throw std::invalid_argument(s);
+        *value = v;
+        return true;
+      }
+      case ParamType::kBool:
+        *value = node.as<bool>();
+        return true;
+      case ParamType::kString:
+      case ParamType::kPath: {
+        if (!node.IsScalar()) throw YAML::Exception(YAML::Mark(), "");
+        std::string s = node.Scalar();
+        if (!spec.choices.empty() && std::find(spec.choices.begin(), spec.choices.end(), s) == spec.choices.end()) {
+          std::string list;
+          for (const auto& c : spec.choices) list += (list.empty() ? "" : ", ") + c;
+          *error = "'" + s + "' is not one of: " + list;
+          return false;
+        }
+        *value = spec.type == ParamType::kPath ? ResolvePath(dir, s) : s;
+        return true;
+      }
+      case ParamType::kIntList:
+      case ParamType::kDoubleList:
+      case ParamType::kStringList: {
+        if (!node.IsSequence() && !node.IsNull()) throw YAML::Exception(YAML::Mark(), "");
+        if (spec.type == ParamType::kIntList) {
+          std::vector<int64_t> v;
+          for (const auto& item : node) v.push_back(item.as<int64_t>());
+          *value = v;
+        } else if (spec.type == ParamType::kDoubleList) {
+          std::vector<double> v;
+          for (const auto& item : node) v.push_back(item.as<double>());
+          *value = v;
+        } else {
+          std::vector<std::string> v;
+          for (const auto& item : node) v.push_back(item.as<std::string>());
+          *value = v;
+        }
+        return true;
+      }
+    }
+  } catch (const std::exception&) {
+    *error = expected + ", got " + scalar_text();
+    return false;
+  }
+  return false;
+}
+
+void FillDefaults(const Stage& stage, const std::string& dir, StageConfig* config) {
+  for (const ParamSpec& spec : stage.Parameters()) {
+    ParamValue value;
+    std::string error;
+    const YAML::Node node = YAML::Load(spec.default_yaml.empty() ? "\"\"" : spec.default_yaml);
+    if (!ToValue(node, spec, dir, &value, &error)) {
+      throw std::logic_error("stage '" + stage.Name() + "' declares a bad default for '" + spec.key + "': " + error);
+    }
+    config->params.Set(spec.key, value);
+  }
+}
+
+void CheckStage(const Stage& stage, const std::string& file, const StageConfig& config) {
+  if (auto problem = stage.CheckParams(config.params)) {
+    auto it = config.key_lines.find(problem->key);
+    const int line = it != config.key_lines.end() ? it->second : config.line;
+    throw ConfigError(Where(file, line, config.name + "." + problem->key, problem->message));
+  }
+}
+
+StageConfig ParseStage(const YAML::Node& entry, const StageRegistry& registry, const Config& config) {
+  StageConfig stage_config;
+  stage_config.line = LineOf(entry);
+  YAML::Node params_node;
+  if (entry.IsScalar()) {
+    stage_config.name = entry.Scalar();
+  } else if (entry.IsMap() && entry.size() == 1) {
+    stage_config.name = entry.begin()->first.as<std::string>();
+    params_node = entry.begin()->second;
+  } else {
+    throw ConfigError(Where(config.path, stage_config.line, "stages",
+                            "each entry is a stage name with its parameters, e.g. '- carve: {levels: 7}'"));
+  }
+  const Stage* stage = registry.Find(stage_config.name);
+  if (!stage) {
+    throw ConfigError(Where(config.path, stage_config.line, "stages",
+                            "unknown stage '" + stage_config.name + "'; " + Suggest(stage_config.name, registry.Names())));
+  }
+  FillDefaults(*stage, config.dir, &stage_config);
+  if (params_node && !params_node.IsNull()) {
+    if (!params_node.IsMap()) {
+      throw ConfigError(Where(config.path, LineOf(params_node), stage_config.name, "expected a map of parameters"));
+    }
+    const std::vector<ParamSpec> specs = stage->Parameters();
+    std::vector<std::string> valid;
+    for (const auto& s : specs) valid.push_back(s.key);
+    for (const auto& kv : params_node) {
+      const std::string key = kv.first.as<std::string>();
+      const int line = LineOf(kv.first);
+      auto spec = std::find_if(specs.begin(), specs.end(), [&](const ParamSpec& s) { return s.key == key; });
+      if (spec == specs.end()) {
+        throw ConfigError(Where(config.path, line, stage_config.name + "." + key,
+                                "unknown parameter of stage '" + stage_config.name + "'; " + Suggest(key, valid)));
+      }
+      ParamValue value;
+      std::string error;
+      if (!ToValue(kv.second, *spec, config.dir, &value, &error)) {
+        throw ConfigError(Where(config.path, LineOf(kv.second), stage_config.name + "." + key, error));
+      }
+      stage_config.params.Set(key, value);
+      stage_config.key_lines[key] = line;
+    }
+  }
+  CheckStage(*stage, config.path, stage_config);
+  return stage_config;
+}
+
+void ParseHoldout(const YAML::Node& node, Config* config) {
+  if (!node.IsMap()) throw ConfigError(Where(config->path, LineOf(node), "holdout", "expected a map (every, offset, images)"));
+  const std::vector<std::string> valid = {"every", "offset", "images"};
+  for (const auto& kv : node) {
+    const std::string key = kv.first.as<std::string>();
+    const int line = LineOf(kv.first);
+    try {
+      if (key == "every") {
+        config->holdout.every = kv.second.as<int>();
+        if (config->holdout.every < 0 || config->holdout.every == 1) {
+          throw ConfigError(Where(config->path, line, "holdout.every", "must be 0 (off) or >= 2, got " + kv.second.Scalar()));
+        }
+      } else if (key == "offset") {
+        config->holdout.offset = kv.second.as<int>();
+      } else if (key == "images") {
+        config->holdout.images = kv.second.as<std::vector<std::string>>();
+      } else {
+        throw ConfigError(Where(config->path, line, "holdout." + key, "unknown key; " + Suggest(key, valid)));
+      }
+    } catch (const YAML::Exception&) {
+      throw ConfigError(Where(config->path, LineOf(kv.second), "holdout." + key,
+                              key == "images" ? "expected a list of image names" : "expected integer"));
+    }
+  }
+  if (config->holdout.every > 0 && (config->holdout.offset < 0 || config->holdout.offset >= config->holdout.every)) {
+    throw ConfigError(Where(config->path, 0, "holdout.offset", "must be in [0, every)"));
+  }
+}
+
+}  // namespace
+
+int EditDistance(const std::string& a, const std::string& b) {
+  std::vector<int> row(b.size() + 1);
+  for (size_t j = 0; j <= b.size(); ++j) row[j] = static_cast<int>(j);
+  for (size_t i = 1; i <= a.size(); ++i) {
+    int diagonal = row[0];
+    row[0] = static_cast<int>(i);
+    for (size_t j = 1; j <= b.size(); ++j) {
+      const int up = row[j];
+      row[j] = std::min({row[j] + 1, row[j - 1] + 1, diagonal + (a[i - 1] == b[j - 1] ? 0 : 1)});
+      diagonal = up;
+    }
+  }
+  return row[b.size()];
+}
+
+std::string ExpandVariables(const std::string& text) {
+  static const std::regex pattern(R"(\$\{([A-Za-z_][A-Za-z0-9_]*)(:-([^}]*))?\})");
+  std::string out;
+  auto begin = std::sregex_iterator(text.begin(), text.end(), pattern);
+  size_t last = 0;
+  for (auto it = begin; it != std::sregex_iterator(); ++it) {
+    const std::smatch& m = *it;
+    out += text.substr(last, m.position(0) - last);
+    const char* env = std::getenv(m[1].str().c_str());
+    out += (env && *env) ? std::string(env) : m[3].str();
+    last = m.position(0) + m.length(0);
+  }
+  out += text.substr(last);
+  return out;
+}
+
+std::set<std::string> HoldoutPolicy::Select(const std::vector<std::string>& sorted_names) const {
+  std::set<std::string> out(images.begin(), images.end());
+  if (every > 0) {
+    for (size_t i = 0; i < sorted_names.size(); ++i) {
+      if (static_cast<int>(i % every) == offset) out.insert(sorted_names[i]);
+    }
+  }
+  return out;
+}
+
+std::string HoldoutPolicy::Describe() const {
+  if (!Active()) return "none";
+  std::string s;
+  if (every > 0) s = "every " + std::to_string(every) + " from index " + std::to_string(offset);
+  if (!images.empty()) s += (s.empty() ? "" : " and ") + std::to_string(images.size()) + " named";
+  return s;
+}
+
+const StageConfig* Config::FindStage(const std::string& name) const {
+  for (const auto& s : stages) {
+    if (s.name == name) return &s;
+  }
+  return nullptr;
+}
+
+Config LoadConfig(const std::string& path, const StageRegistry& registry) {
+  Config config;
+  config.path = path;
+  std::ifstream in(path);
+  if (!in) throw ConfigError(path + ": cannot read the config file (does it exist?)");
+  std::stringstream text;
+  text << in.rdbuf();
+  config.dir = fs::absolute(fs::path(path)).parent_path().lexically_normal().string();
+
+  YAML::Node root;
+  try {
+    root = YAML::Load(ExpandVariables(text.str()));
+  } catch (const YAML::ParserException& e) {
+    throw ConfigError(Where(path, e.mark.line + 1, "", "YAML syntax error: " + e.msg));
+  }
+  if (!root.IsMap()) throw ConfigError(Where(path, 1, "", "expected a map with keys workspace, inputs, holdout, stages"));
+  const std::vector<std::string> valid = {"workspace", "inputs", "holdout", "stages"};
+  for (const auto& kv : root) {
+    const std::string key = kv.first.as<std::string>();
+    if (std::find(valid.begin(), valid.end(), key) == valid.end()) {
+      throw ConfigError(Where(path, LineOf(kv.first), key, "unknown key; " + Suggest(key, valid)));
+    }
+  }
+  if (!root["workspace"] || !root["workspace"].IsScalar()) {
+    throw ConfigError(Where(path, 0, "workspace", "missing: give the folder where results go, e.g. 'workspace: ../workspaces/demo'"));
+  }
+  config.workspace = ResolvePath(config.dir, root["workspace"].Scalar());
+  if (const YAML::Node inputs = root["inputs"]) {
+    if (!inputs.IsMap()) throw ConfigError(Where(path, LineOf(inputs), "inputs", "expected a map of name: path"));
+    for (const auto& kv : inputs) {
+      config.inputs[kv.first.as<std::string>()] = ResolvePath(config.dir, kv.second.as<std::string>());
+    }
+  }
+  if (const YAML::Node holdout = root["holdout"]) ParseHoldout(holdout, &config);
+  const YAML::Node stages = root["stages"];
+  if (!stages || !stages.IsSequence() || stages.size() == 0) {
+    throw ConfigError(Where(path, stages ? LineOf(stages) : 0, "stages", "expected a non-empty list of stages"));
+  }
+  for (const auto& entry : stages) {
+    StageConfig stage = ParseStage(entry, registry, config);
+    if (config.FindStage(stage.name)) {
+      throw ConfigError(Where(path, stage.line, "stages", "stage '" + stage.name + "' appears twice"));
+    }
+    config.stages.push_back(std::move(stage));
+  }
+  return config;
+}
+
+void ApplyOverride(const std::string& assignment, const StageRegistry& registry, Config* config) {
+  const size_t eq = assignment.find('=');
+  const size_t dot = assignment.find('.');
+  if (eq == std::string::npos || dot == std::string::npos || dot > eq) {
+    throw ConfigError("--set " + assignment + ": expected stage.key=value, e.g. --set plane_sweep.planes=128");
+  }
+  const std::string stage_name = assignment.substr(0, dot);
+  const std::string key = assignment.substr(dot + 1, eq - dot - 1);
+  const std::string value_text = assignment.substr(eq + 1);
+  StageConfig* target = nullptr;
+  for (auto& s : config->stages) {
+    if (s.name == stage_name) target = &s;
+  }
+  std::vector<std::string> names;
+  for (const auto& s : config->stages) names.push_back(s.name);
+  if (!target) throw ConfigError("--set " + assignment + ": stage '" + stage_name + "' is not in " + config->path + "; " + Suggest(stage_name, names));
+  const Stage* stage = registry.Find(stage_name);
+  const std::vector<ParamSpec> specs = stage->Parameters();
+  std::vector<std::string> valid;
+  for (const auto& s : specs) valid.push_back(s.key);
+  auto spec = std::find_if(specs.begin(), specs.end(), [&](const ParamSpec& s) { return s.key == key; });
+  if (spec == specs.end()) throw ConfigError("--set " + assignment + ": unknown parameter; " + Suggest(key, valid));
+  ParamValue value;
+  std::string error;
+  YAML::Node node;
+  try {
+    node = YAML::Load(value_text);
+  } catch (const YAML::Exception& e) {
+    throw ConfigError("--set " + assignment + ": cannot parse the value: " + e.msg);
+  }
+  // Paths given on the command line are relative to the current folder.
+  if (!ToValue(node, *spec, fs::current_path().string(), &value, &error)) {
+    throw ConfigError("--set " + assignment + ": " + error);
+  }
+  target->params.Set(key, value);
+  target->key_lines.erase(key);
+  if (auto problem = stage->CheckParams(target->params)) {
+    throw ConfigError("--set " + assignment + ": " + stage_name + "." + problem->key + ": " + problem->message);
+  }
+}
+
+}  // namespace ibmr

@@ -1,0 +1,68 @@
+// Two tiny stages for runner tests: `produce` writes a.txt from an external file and an
+// integer parameter; `consume` copies a.txt to b.txt. Both count their runs.
+#pragma once
+
+#include <atomic>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <stdexcept>
+
+#include "pipeline/core/atomic_file.h"
+#include "pipeline/core/stage_api.h"
+
+namespace ibmr {
+namespace testing_stages {
+
+inline std::atomic<int> produce_runs{0};
+inline std::atomic<int> consume_runs{0};
+
+class Produce : public Stage {
+ public:
+  std::string Name() const override { return "produce"; }
+  std::string Summary() const override { return "test: writes a.txt"; }
+  std::string Version() const override { return "1"; }
+  HoldoutRole Role() const override { return HoldoutRole::kAllViews; }
+  std::vector<ParamSpec> Parameters() const override {
+    return {{"value", ParamType::kInt, "1", "any integer >= 0"},
+            {"source", ParamType::kPath, "source.txt", "external input"},
+            {"threads", ParamType::kInt, "1", "resource knob", {}, false},
+            {"fail", ParamType::kBool, "false", "throw halfway"}};
+  }
+  std::optional<ParamError> CheckParams(const Params& params) const override {
+    if (params.Int("value") < 0) return ParamError{"value", "must be >= 0, got " + std::to_string(params.Int("value"))};
+    return std::nullopt;
+  }
+  std::vector<std::string> Inputs(const StageContext& c) const override { return {c.params.String("source")}; }
+  std::vector<std::string> Outputs(const StageContext&) const override { return {"a.txt"}; }
+  void Run(StageContext& c) const override {
+    ++produce_runs;
+    if (c.params.Bool("fail")) throw std::runtime_error("produce: asked to fail");
+    WriteFileAtomic(c.workspace.Path("a.txt"), ReadFile(c.params.String("source")) + std::to_string(c.params.Int("value")));
+    c.metrics["bytes"] = 1;
+  }
+};
+
+class Consume : public Stage {
+ public:
+  std::string Name() const override { return "consume"; }
+  std::string Summary() const override { return "test: copies a.txt to b.txt"; }
+  std::string Version() const override { return "1"; }
+  HoldoutRole Role() const override { return HoldoutRole::kTrainingOnly; }
+  std::vector<ParamSpec> Parameters() const override { return {{"suffix", ParamType::kString, "x", "appended"}}; }
+  std::optional<ParamError> CheckParams(const Params&) const override { return std::nullopt; }
+  std::vector<std::string> Inputs(const StageContext&) const override { return {"a.txt"}; }
+  std::vector<std::string> Outputs(const StageContext&) const override { return {"b.txt"}; }
+  void Run(StageContext& c) const override {
+    ++consume_runs;
+    WriteFileAtomic(c.workspace.Path("b.txt"), ReadFile(c.workspace.Path("a.txt")) + c.params.String("suffix"));
+  }
+};
+
+inline void Register(StageRegistry* registry) {
+  registry->Add(std::make_unique<Produce>());
+  registry->Add(std::make_unique<Consume>());
+}
+
+}  // namespace testing_stages
+}  // namespace ibmr

@@ -1,0 +1,116 @@
+// The ibmr command line: run a config, list stages, show what is stale. Thin: parses
+// arguments, sets up logging, and calls the runner.
+#include <CLI/CLI.hpp>
+#include <spdlog/sinks/basic_file_sink.h>
+#include <spdlog/sinks/stdout_color_sinks.h>
+#include <spdlog/spdlog.h>
+#include <unistd.h>
+
+#include <filesystem>
+#include <iostream>
+
+#include "pipeline/core/errors.h"
+#include "pipeline/runner/builtin_stages.h"
+#include "pipeline/runner/config.h"
+#include "pipeline/runner/runner.h"
+#include "pipeline/runner/stage_listing.h"
+
+namespace {
+
+// Terminal and logs/ibmr.log in the workspace.
+void SetUpLogging(const std::string& workspace) {
+  auto console = std::make_shared<spdlog::sinks::stderr_color_sink_mt>();
+  console->set_pattern("%^%L%$ %H:%M:%S %v");
+  std::vector<spdlog::sink_ptr> sinks{console};
+  if (!workspace.empty()) {
+    std::error_code ec;
+    std::filesystem::create_directories(workspace + "/logs", ec);
+    if (!ec) {
+      auto file = std::make_shared<spdlog::sinks::basic_file_sink_mt>(workspace + "/logs/ibmr.log");
+      file->set_pattern("%Y-%m-%d %H:%M:%S.%e %l [pid %P] %v");
+      sinks.push_back(file);
+    }
+  }
+  auto logger = std::make_shared<spdlog::logger>("ibmr", sinks.begin(), sinks.end());
+  logger->flush_on(spdlog::level::info);
+  spdlog::set_default_logger(logger);
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"ibmr: photographs to 3D models and image-based renderings, stage by stage"};
+  app.require_subcommand(1);
+
+  std::string config_path, workspace;
+  std::vector<std::string> overrides;
+  ibmr::RunOptions options;
+  auto* run = app.add_subcommand("run", "Run the stale stages of a config (a finished config does no work)");
+  run->add_option("config", config_path, "YAML config")->required()->check(CLI::ExistingFile);
+  run->add_option("--workspace", workspace, "Workspace folder (overrides the config's)");
+  run->add_option("--only", options.only, "Run only this stage");
+  run->add_option("--from", options.from, "Run from this stage on");
+  run->add_option("--to", options.to, "Run up to this stage");
+  run->add_flag("--force", options.force, "Run the selected stages even when up to date");
+  run->add_option("--set", overrides, "Override a parameter: stage.key=value (repeatable)");
+  run->add_flag("--dry-run", options.dry_run, "List what would run and why; change nothing");
+  run->add_option("--jobs", options.jobs, "Worker threads (default: all cores)")->check(CLI::PositiveNumber);
+
+  auto* status = app.add_subcommand("status", "Show which stages are up to date and why the others are stale");
+  status->add_option("config", config_path, "YAML config")->required()->check(CLI::ExistingFile);
+  status->add_option("--workspace", workspace, "Workspace folder (overrides the config's)");
+  status->add_option("--set", overrides, "Override a parameter: stage.key=value (repeatable)");
+
+  auto* stages = app.add_subcommand("stages", "List every stage: inputs, outputs, parameters with defaults");
+
+  ibmr::StageRegistry registry;
+  ibmr::RegisterBuiltinStages(&registry);
+  std::vector<std::pair<CLI::App*, const ibmr::StageCommand*>> commands;
+  for (const ibmr::StageCommand& command : registry.Commands()) {
+    CLI::App* sub = app.add_subcommand(command.name, command.help);
+    sub->prefix_command();  // the stage parses its own arguments, --help included
+    sub->set_help_flag();
+    commands.emplace_back(sub, &command);
+  }
+  CLI11_PARSE(app, argc, argv);
+  for (const auto& [sub, command] : commands) {
+    if (!sub->parsed()) continue;
+    SetUpLogging("");
+    try {
+      return command->main(sub->remaining());
+    } catch (const std::exception& e) {
+      spdlog::error("{}", e.what());
+      return 1;
+    }
+  }
+
+  if (stages->parsed()) {
+    std::cout << ibmr::DescribeStages(registry);
+    return 0;
+  }
+
+  ibmr::Config config;
+  try {
+    config = ibmr::LoadConfig(config_path, registry);
+    if (!workspace.empty()) config.workspace = std::filesystem::absolute(workspace).lexically_normal().string();
+    for (const std::string& assignment : overrides) ibmr::ApplyOverride(assignment, registry, &config);
+  } catch (const ibmr::ConfigError& e) {
+    std::cerr << "error: " << e.what() << "\n";
+    return 2;
+  }
+  SetUpLogging(config.workspace);
+  ibmr::Runner runner(config, registry);
+  try {
+    if (status->parsed()) {
+      for (const auto& s : runner.Status()) {
+        std::cout << (s.up_to_date ? "  ok     " : "  stale  ") << s.name << ": " << s.reason << "\n";
+      }
+      return 0;
+    }
+    options.interactive = isatty(STDERR_FILENO);
+    return runner.Run(options);
+  } catch (const std::exception& e) {
+    spdlog::error("{}", e.what());
+    return 1;
+  }
+}

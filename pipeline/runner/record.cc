@@ -1,0 +1,50 @@
+// Reading and writing stage records (see record.h).
+#include "pipeline/runner/record.h"
+
+#include <filesystem>
+
+#include "pipeline/core/atomic_file.h"
+
+namespace ibmr {
+
+nlohmann::json StageRecord::ToJson() const {
+  return {{"stage", stage},       {"version", version},     {"status", status},
+          {"key", key},           {"params", params},       {"inputs", inputs},
+          {"outputs", outputs},   {"heldout", heldout},     {"metrics", metrics},
+          {"error", error},       {"started", started},     {"wall_seconds", wall_seconds},
+          {"cpu_seconds", cpu_seconds}, {"peak_memory_mb", peak_memory_mb}};
+}
+
+StageRecord StageRecord::FromJson(const nlohmann::json& j) {
+  StageRecord r;
+  r.stage = j.value("stage", "");
+  r.version = j.value("version", "");
+  r.status = j.value("status", "");
+  r.key = j.value("key", "");
+  r.params = j.value("params", nlohmann::json::object());
+  r.inputs = j.value("inputs", nlohmann::json::object());
+  r.outputs = j.value("outputs", nlohmann::json::array());
+  r.heldout = j.value("heldout", nlohmann::json::array());
+  r.metrics = j.value("metrics", nlohmann::json::object());
+  r.error = j.value("error", "");
+  r.started = j.value("started", "");
+  r.wall_seconds = j.value("wall_seconds", 0.0);
+  r.cpu_seconds = j.value("cpu_seconds", 0.0);
+  r.peak_memory_mb = j.value("peak_memory_mb", 0.0);
+  return r;
+}
+
+std::optional<StageRecord> ReadRecord(const std::string& path) {
+  if (!std::filesystem::exists(path)) return std::nullopt;
+  try {
+    return StageRecord::FromJson(nlohmann::json::parse(ReadFile(path)));
+  } catch (const std::exception&) {
+    return std::nullopt;
+  }
+}
+
+void WriteRecord(const std::string& path, const StageRecord& record) {
+  WriteFileAtomic(path, record.ToJson().dump(2) + "\n");
+}
+
+}  // namespace ibmr

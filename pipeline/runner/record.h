@@ -1,0 +1,37 @@
+// One record per stage run, records/<stage>.json: what ran (inputs with content hashes,
+// parameters, code version, holdout set), how it went (status, error), what it cost (wall and
+// CPU seconds, peak memory in MB) and the stage's own metrics. The runner compares a stored
+// record's cache key with the current one to decide what is stale. Written atomically.
+#pragma once
+
+#include <nlohmann/json.hpp>
+#include <optional>
+#include <string>
+
+namespace ibmr {
+
+struct StageRecord {
+  std::string stage;
+  std::string version;
+  std::string status;  // "running", "ok" or "failed"
+  std::string key;     // cache key: hash of version, result parameters, holdout set, input hashes
+  nlohmann::json params = nlohmann::json::object();
+  nlohmann::json inputs = nlohmann::json::object();  // path -> content hash
+  nlohmann::json outputs = nlohmann::json::array();
+  nlohmann::json heldout = nlohmann::json::array();
+  nlohmann::json metrics = nlohmann::json::object();
+  std::string error;
+  std::string started;  // ISO 8601, local time
+  double wall_seconds = 0;
+  double cpu_seconds = 0;
+  double peak_memory_mb = 0;
+
+  nlohmann::json ToJson() const;
+  static StageRecord FromJson(const nlohmann::json& json);
+};
+
+// nullopt when the record is absent or unreadable (treated as "never ran").
+std::optional<StageRecord> ReadRecord(const std::string& path);
+void WriteRecord(const std::string& path, const StageRecord& record);
+
+}  // namespace ibmr

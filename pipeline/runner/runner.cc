@@ -1,0 +1,283 @@
+// The stage graph, cache decisions and stage execution (see runner.h).
+#include "pipeline/runner/runner.h"
+
+#include <spdlog/spdlog.h>
+#include <tbb/global_control.h>
+
+#include <chrono>
+#include <ctime>
+#include <filesystem>
+#include <memory>
+#include <thread>
+
+#include "pipeline/core/colmap_text_io.h"
+#include "pipeline/core/content_hash.h"
+#include "pipeline/runner/record.h"
+#include "pipeline/runner/resource_usage.h"
+#include "pipeline/runner/terminal_progress.h"
+
+namespace fs = std::filesystem;
+
+namespace ibmr {
+
+namespace {
+
+std::string NowIso() {
+  const std::time_t t = std::time(nullptr);
+  char buffer[32];
+  std::strftime(buffer, sizeof(buffer), "%Y-%m-%dT%H:%M:%S", std::localtime(&t));
+  return buffer;
+}
+
+// Absolute, normalised form of a declared input/output (workspace-relative unless absolute).
+std::string Resolve(const Workspace& workspace, const std::string& path) {
+  fs::path p(path);
+  if (p.is_relative()) p = fs::path(workspace.root()) / p;
+  std::string s = p.lexically_normal().string();
+  while (s.size() > 1 && s.back() == '/') s.pop_back();
+  return s;
+}
+
+// True when one path is the other or lies inside it.
+bool Overlaps(const std::string& a, const std::string& b) {
+  auto inside = [](const std::string& child, const std::string& parent) {
+    return child == parent || (child.size() > parent.size() && child.compare(0, parent.size(), parent) == 0 &&
+                                child[parent.size()] == '/');
+  };
+  return inside(a, b) || inside(b, a);
+}
+
+std::vector<std::string> SortedImageNames(const Workspace& workspace) {
+  std::vector<std::string> names;
+  if (!fs::exists(workspace.Path("sparse/images.txt"))) return names;
+  try {
+    const SparseModel model = ReadSparseModelText(workspace.SparseDir());
+    for (int id : model.ImageIdsByName()) names.push_back(model.images.at(id).name);
+  } catch (const std::exception& e) {
+    spdlog::warn("cannot read the image list for the holdout policy: {}", e.what());
+  }
+  return names;
+}
+
+}  // namespace
+
+std::string Runner::RecordPath(const std::string& stage) const {
+  return Workspace(config_.workspace).RecordsDir() + "/" + stage + ".json";
+}
+
+StageContext Runner::MakeContext(const Stage& stage, const StageConfig& stage_config) const {
+  StageContext context;
+  context.workspace = Workspace(config_.workspace);
+  context.params = stage_config.params;
+  context.config_dir = config_.dir;
+  context.inputs = config_.inputs;
+  context.role = stage.Role();
+  if (context.role != HoldoutRole::kAllViews && config_.holdout.Active()) {
+    context.heldout_images = config_.holdout.Select(SortedImageNames(context.workspace));
+  }
+  return context;
+}
+
+std::string Runner::CacheKey(const Stage& stage, const StageContext& context, nlohmann::json* input_hashes) const {
+  *input_hashes = nlohmann::json::object();
+  for (const std::string& input : stage.Inputs(context)) {
+    const std::string path = Resolve(context.workspace, input);
+    (*input_hashes)[input] = HashPath(path);
+  }
+  nlohmann::json key_source = {{"stage", stage.Name()},
+                               {"version", stage.Version()},
+                               {"params", context.params.ResultJson(stage.Parameters())},
+                               {"heldout", context.heldout_images},
+                               {"inputs", *input_hashes}};
+  return HashBytes(key_source.dump());
+}
+
+std::string Runner::OwnStaleness(const Stage& stage, const StageContext& context, const std::string& key) const {
+  const auto record = ReadRecord(RecordPath(stage.Name()));
+  if (!record) return "never ran";
+  if (record->status == "running") return "interrupted while running (will resume)";
+  if (record->status != "ok") return "last run failed: " + record->error;
+  if (record->key == key) {
+    for (const std::string& output : stage.Outputs(context)) {
+      if (!fs::exists(Resolve(context.workspace, output))) return "output '" + output + "' is missing";
+    }
+    return "";
+  }
+  if (record->version != stage.Version()) return "code version changed (" + record->version + " -> " + stage.Version() + ")";
+  const nlohmann::json params = context.params.ResultJson(stage.Parameters());
+  for (auto it = params.begin(); it != params.end(); ++it) {
+    if (!record->params.contains(it.key()) || record->params[it.key()] != it.value()) {
+      return "parameter '" + it.key() + "' changed (" +
+             (record->params.contains(it.key()) ? record->params[it.key()].dump() : "unset") + " -> " +
+             it.value().dump() + ")";
+    }
+  }
+  if (record->heldout != nlohmann::json(context.heldout_images)) return "holdout set changed";
+  nlohmann::json inputs;
+  CacheKey(stage, context, &inputs);
+  for (auto it = inputs.begin(); it != inputs.end(); ++it) {
+    if (!record->inputs.contains(it.key()) || record->inputs[it.key()] != it.value()) {
+      return "input '" + it.key() + "' changed";
+    }
+  }
+  return "cache key changed";
+}
+
+std::vector<size_t> Runner::Upstream(size_t index) const {
+  const Stage* stage = registry_.Find(config_.stages[index].name);
+  const StageContext context = MakeContext(*stage, config_.stages[index]);
+  std::vector<size_t> upstream;
+  for (size_t j = 0; j < index; ++j) {
+    const Stage* earlier = registry_.Find(config_.stages[j].name);
+    const StageContext earlier_context = MakeContext(*earlier, config_.stages[j]);
+    bool depends = false;
+    for (const std::string& in : stage->Inputs(context)) {
+      for (const std::string& out : earlier->Outputs(earlier_context)) {
+        depends |= Overlaps(Resolve(context.workspace, in), Resolve(context.workspace, out));
+      }
+    }
+    if (depends) upstream.push_back(j);
+  }
+  return upstream;
+}
+
+std::vector<StageStatus> Runner::Status() const {
+  std::vector<StageStatus> statuses;
+  for (size_t i = 0; i < config_.stages.size(); ++i) {
+    const Stage* stage = registry_.Find(config_.stages[i].name);
+    const StageContext context = MakeContext(*stage, config_.stages[i]);
+    nlohmann::json inputs;
+    StageStatus status{stage->Name(), false, OwnStaleness(*stage, context, CacheKey(*stage, context, &inputs))};
+    if (status.reason.empty()) {
+      for (size_t j : Upstream(i)) {
+        if (!statuses[j].up_to_date) status.reason = "upstream stage '" + statuses[j].name + "' is stale";
+      }
+    }
+    status.up_to_date = status.reason.empty();
+    if (status.up_to_date) status.reason = "up to date";
+    statuses.push_back(status);
+  }
+  return statuses;
+}
+
+bool Runner::Execute(const Stage& stage, StageContext& context, const std::string& key, const nlohmann::json& inputs,
+                     bool interactive) {
+  TerminalProgress progress(stage.Name(), interactive);
+  context.progress = &progress;
+  context.checkpoint = ViewCheckpoint(context.workspace.RecordsDir() + "/" + stage.Name() + ".views", key);
+
+  StageRecord record;
+  record.stage = stage.Name();
+  record.version = stage.Version();
+  record.key = key;
+  record.params = context.params.ResultJson(stage.Parameters());
+  record.inputs = inputs;
+  record.heldout = context.heldout_images;
+  record.outputs = stage.Outputs(context);
+  record.started = NowIso();
+  record.status = "running";
+  WriteRecord(RecordPath(stage.Name()), record);
+
+  spdlog::info("[{}] running (version {}, params {})", stage.Name(), stage.Version(), context.params.ToJson().dump());
+  if (!context.heldout_images.empty()) {
+    spdlog::info("[{}] {} held-out views are kept out", stage.Name(), context.heldout_images.size());
+  }
+  ResetPeakMemory();
+  const double cpu_start = CpuSeconds();
+  const auto wall_start = std::chrono::steady_clock::now();
+  try {
+    stage.Run(context);
+    record.status = "ok";
+  } catch (const std::exception& e) {
+    record.status = "failed";
+    record.error = e.what();
+  }
+  record.wall_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall_start).count();
+  record.cpu_seconds = CpuSeconds() - cpu_start;
+  record.peak_memory_mb = PeakMemoryMb();
+  record.metrics = context.metrics;
+  if (record.status == "ok") {
+    WriteRecord(RecordPath(stage.Name()), record);
+    context.checkpoint.Clear();
+    spdlog::info("[{}] done in {:.2f}s wall, {:.2f}s CPU, peak {:.0f} MB", stage.Name(), record.wall_seconds,
+                 record.cpu_seconds, record.peak_memory_mb);
+    return true;
+  }
+  WriteRecord(RecordPath(stage.Name()), record);
+  spdlog::error("[{}] failed: {}", stage.Name(), record.error);
+  spdlog::error("[{}] outputs of earlier runs are kept; fix the problem and run again", stage.Name());
+  return false;
+}
+
+int Runner::Run(const RunOptions& options) {
+  const auto start = std::chrono::steady_clock::now();
+  auto index_of = [&](const std::string& name) -> int {
+    for (size_t i = 0; i < config_.stages.size(); ++i) {
+      if (config_.stages[i].name == name) return static_cast<int>(i);
+    }
+    return -1;
+  };
+  for (const std::string* name : {&options.only, &options.from, &options.to}) {
+    if (!name->empty() && index_of(*name) < 0) {
+      std::string list;
+      for (const auto& s : config_.stages) list += (list.empty() ? "" : ", ") + s.name;
+      spdlog::error("stage '{}' is not in {} (stages: {})", *name, config_.path, list);
+      return 2;
+    }
+  }
+  int first = 0;
+  int last = static_cast<int>(config_.stages.size()) - 1;
+  if (!options.only.empty()) first = last = index_of(options.only);
+  if (!options.from.empty()) first = index_of(options.from);
+  if (!options.to.empty()) last = index_of(options.to);
+
+  std::unique_ptr<tbb::global_control> threads;
+  if (options.jobs > 0) {
+    threads = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism, options.jobs);
+  }
+  fs::create_directories(Workspace(config_.workspace).RecordsDir());
+
+  int ran = 0;
+  std::vector<bool> stale_before(config_.stages.size(), false);
+  for (int i = 0; i < static_cast<int>(config_.stages.size()); ++i) {
+    const Stage& stage = *registry_.Find(config_.stages[i].name);
+    StageContext context = MakeContext(stage, config_.stages[i]);
+    nlohmann::json inputs;
+    const std::string key = CacheKey(stage, context, &inputs);
+    std::string reason = OwnStaleness(stage, context, key);
+    if (reason.empty() && options.dry_run) {
+      for (size_t j : Upstream(i)) {
+        if (stale_before[j]) reason = "upstream stage '" + config_.stages[j].name + "' will run";
+      }
+    }
+    const bool selected = i >= first && i <= last;
+    if (selected && options.force && reason.empty()) reason = "--force";
+    stale_before[i] = !reason.empty() && selected;
+    if (!selected) {
+      if (!reason.empty() && i < first) spdlog::warn("[{}] is stale ({}) but not selected", stage.Name(), reason);
+      continue;
+    }
+    if (reason.empty()) {
+      spdlog::info("[{}] up to date", stage.Name());
+      continue;
+    }
+    if (options.dry_run) {
+      spdlog::info("[{}] would run: {}", stage.Name(), reason);
+      continue;
+    }
+    spdlog::info("[{}] runs: {}", stage.Name(), reason);
+    ++ran;
+    if (!Execute(stage, context, key, inputs, options.interactive)) return 1;
+  }
+  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  if (options.dry_run) {
+    spdlog::info("dry run: nothing was changed ({:.2f}s)", seconds);
+  } else if (ran == 0) {
+    spdlog::info("nothing to do: all selected stages are up to date ({:.2f}s)", seconds);
+  } else {
+    spdlog::info("{} stage(s) ran in {:.1f}s; workspace {}", ran, seconds, config_.workspace);
+  }
+  return 0;
+}
+
+}  // namespace ibmr

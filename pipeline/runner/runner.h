@@ -1,0 +1,55 @@
+// Runs a config's stages in order with a content-hash cache. A stage runs again only when its
+// cache key changes: code version, result-affecting parameters, the holdout set (for stages that
+// respect it) or the content hash of an input file. Stages that depend on a stale stage (their
+// inputs overlap its outputs) are stale too. Each run leaves records/<stage>.json.
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include "pipeline/core/stage_api.h"
+#include "pipeline/runner/config.h"
+
+namespace ibmr {
+
+struct RunOptions {
+  std::string only;   // run just this stage
+  std::string from;   // run this stage and all after it
+  std::string to;     // run up to and including this stage
+  bool force = false; // run the selected stages even when up to date
+  bool dry_run = false;
+  int jobs = -1;      // TBB threads; -1: all cores
+  bool interactive = false;  // draw progress bars (stderr is a terminal)
+};
+
+struct StageStatus {
+  std::string name;
+  bool up_to_date = false;
+  std::string reason;  // why stale, or "up to date"
+};
+
+class Runner {
+ public:
+  Runner(Config config, const StageRegistry& registry) : config_(std::move(config)), registry_(registry) {}
+
+  // What is up to date and what is stale, and why (no work done).
+  std::vector<StageStatus> Status() const;
+  // Runs the selected stale stages. Returns 0 on success, 1 when a stage failed, 2 on a usage error.
+  int Run(const RunOptions& options);
+
+ private:
+  StageContext MakeContext(const Stage& stage, const StageConfig& stage_config) const;
+  std::string CacheKey(const Stage& stage, const StageContext& context, nlohmann::json* input_hashes) const;
+  // Own staleness of one stage, ignoring upstream; "" when up to date.
+  std::string OwnStaleness(const Stage& stage, const StageContext& context, const std::string& key) const;
+  // Indices of the earlier stages whose outputs a stage reads.
+  std::vector<size_t> Upstream(size_t index) const;
+  std::string RecordPath(const std::string& stage) const;
+  bool Execute(const Stage& stage, StageContext& context, const std::string& key, const nlohmann::json& inputs,
+               bool interactive);
+
+  Config config_;
+  const StageRegistry& registry_;
+};
+
+}  // namespace ibmr

@@ -1,0 +1,50 @@
+// Formats the stage listing (see stage_listing.h).
+#include "pipeline/runner/stage_listing.h"
+
+#include <sstream>
+
+namespace ibmr {
+
+namespace {
+std::string RoleText(HoldoutRole role) {
+  switch (role) {
+    case HoldoutRole::kAllViews: return "all views";
+    case HoldoutRole::kTrainingOnly: return "training views only (held-out views are kept out)";
+    case HoldoutRole::kScoring: return "scores held-out views";
+  }
+  return "";
+}
+
+std::string Join(const std::vector<std::string>& items) {
+  std::string out;
+  for (const auto& item : items) out += (out.empty() ? "" : ", ") + item;
+  return out.empty() ? "(none)" : out;
+}
+}  // namespace
+
+std::string DescribeStages(const StageRegistry& registry) {
+  std::ostringstream out;
+  for (const std::string& name : registry.Names()) {
+    const Stage* stage = registry.Find(name);
+    StageContext context;  // default parameters: the declared paths for a typical run
+    context.workspace = Workspace(".");
+    out << name << " (version " << stage->Version() << "): " << stage->Summary() << "\n";
+    out << "  views:   " << RoleText(stage->Role()) << "\n";
+    out << "  inputs:  " << Join(stage->Inputs(context)) << "\n";
+    out << "  outputs: " << Join(stage->Outputs(context)) << "\n";
+    out << "  parameters:\n";
+    for (const ParamSpec& spec : stage->Parameters()) {
+      out << "    " << spec.key << " (" << ParamTypeName(spec.type) << ", default " << spec.default_yaml << ")";
+      if (!spec.choices.empty()) out << " one of " << Join(spec.choices);
+      if (!spec.affects_result) out << " [resource knob: never makes the stage stale]";
+      out << "\n      " << spec.doc << "\n";
+    }
+    out << "\n";
+  }
+  for (const StageCommand& command : registry.Commands()) {
+    out << "command ibmr " << command.name << ": " << command.help << "\n";
+  }
+  return out.str();
+}
+
+}  // namespace ibmr

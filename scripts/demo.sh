@@ -1,0 +1,7 @@
+#!/usr/bin/env bash
+# Set-up, then the main job on the embedded default: a synthetic scene the project renders
+# itself (configs/demo.yaml). A second run does no work.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+scripts/setup.sh
+build/ibmr run configs/demo.yaml "$@"

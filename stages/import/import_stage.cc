@@ -1,0 +1,227 @@
+// Adapter of the import stage: reads a capture folder, writes images/, sparse/ and
+// image_list.txt into the workspace (see import.h for the formats).
+#include <spdlog/spdlog.h>
+
+#include <algorithm>
+#include <filesystem>
+#include <fstream>
+#include <opencv2/imgcodecs.hpp>
+
+#include "pipeline/core/atomic_file.h"
+#include "pipeline/core/colmap_text_io.h"
+#include "pipeline/core/errors.h"
+#include "pipeline/core/stage_api.h"
+#include "stages/import/import.h"
+
+namespace fs = std::filesystem;
+
+namespace ibmr {
+
+namespace {
+
+const std::vector<std::string> kFormatNames = {"auto", "folder", "middlebury", "strecha", "colmap"};
+
+bool IsImageFile(const fs::path& path) {
+  std::string ext = path.extension().string();
+  std::transform(ext.begin(), ext.end(), ext.begin(), ::tolower);
+  static const std::vector<std::string> kExtensions = {".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".ppm", ".pgm"};
+  return std::find(kExtensions.begin(), kExtensions.end(), ext) != kExtensions.end();
+}
+
+std::vector<std::string> ListImages(const std::string& folder) {
+  std::vector<std::string> names;
+  for (const auto& entry : fs::directory_iterator(folder)) {
+    if (entry.is_regular_file() && IsImageFile(entry.path())) names.push_back(entry.path().filename().string());
+  }
+  std::sort(names.begin(), names.end());
+  return names;
+}
+
+std::pair<int, int> ImageSize(const std::string& path) {
+  const cv::Mat image = cv::imread(path, cv::IMREAD_UNCHANGED);
+  if (image.empty()) throw IoError(path + ": cannot read this image (missing or not an image file)");
+  return {image.cols, image.rows};
+}
+
+// Hard link when possible (same file system), else a copy under a temporary name, then rename.
+void PlaceImage(const fs::path& from, const fs::path& to) {
+  const fs::path tmp = to.string() + ".tmp.import";
+  std::error_code ec;
+  fs::remove(tmp, ec);
+  fs::create_hard_link(from, tmp, ec);
+  if (ec) fs::copy_file(from, tmp, fs::copy_options::overwrite_existing);
+  fs::rename(tmp, to);
+}
+
+class ImportStage : public Stage {
+ public:
+  std::string Name() const override { return "import"; }
+  std::string Summary() const override {
+    return "Image folder (EXIF focal), Middlebury _par.txt, Strecha .camera or COLMAP model into sparse/ and images/";
+  }
+  std::string Version() const override { return "1"; }
+  HoldoutRole Role() const override { return HoldoutRole::kAllViews; }
+
+  std::vector<ParamSpec> Parameters() const override {
+    return {
+        {"source", ParamType::kPath, "\"\"", "Capture folder; empty: the config's inputs.images"},
+        {"format", ParamType::kString, "auto", "Source format; auto detects _par.txt, gt_dense_cameras/, cameras.txt",
+         kFormatNames},
+        {"images", ParamType::kPath, "\"\"", "Image folder for a COLMAP model source; empty: <source>/../images"},
+        {"focal_prior", ParamType::kDouble, "1.2", "Focal length without EXIF, times max(width, height); > 0"},
+        {"folder_camera_model", ParamType::kString, "SIMPLE_RADIAL", "Camera model for a plain image folder",
+         {"SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV"}},
+    };
+  }
+
+  std::optional<ParamError> CheckParams(const Params& params) const override {
+    std::string error;
+    if (!ToOptions(params).Check(&error)) return ParamError{error.substr(0, error.find(':')), error.substr(error.find(':') + 2)};
+    return std::nullopt;
+  }
+
+  std::vector<std::string> Inputs(const StageContext& context) const override {
+    const std::string source = Source(context);
+    return source.empty() ? std::vector<std::string>{} : std::vector<std::string>{source};
+  }
+  std::vector<std::string> Outputs(const StageContext&) const override {
+    return {"images", "sparse", "image_list.txt"};
+  }
+
+  void Run(StageContext& context) const override {
+    const std::string source = Source(context);
+    if (source.empty()) throw InputError("import: no source folder; set import.source or inputs.images in the config");
+    if (!fs::is_directory(source)) throw InputError("import.source: '" + source + "' is not a folder");
+    ImportOptions options = ToOptions(context.params);
+    if (options.format == ImportFormat::kAuto) options.format = DetectFormat(source);
+    const Capture capture = ReadCapture(source, options, context.params);
+    CopyImages(capture, context);
+    WriteSparseModelText(context.workspace.SparseDir(), capture.model);
+    std::string list_text;
+    for (const std::string& name : capture.names) list_text += name + "\n";
+    WriteFileAtomic(context.workspace.Path("image_list.txt"), list_text);
+    const std::string format = kFormatNames[static_cast<int>(options.format)];
+    context.metrics["images"] = capture.names.size();
+    context.metrics["cameras"] = capture.model.cameras.size();
+    context.metrics["posed_images"] = capture.model.images.size();
+    context.metrics["format"] = format;
+    spdlog::info("[import] {} format: {} images, {} posed, {} cameras{}", format, capture.names.size(),
+                 capture.model.images.size(), capture.model.cameras.size(),
+                 capture.model.images.empty() ? " (no poses: run sfm next)" : "");
+  }
+
+ private:
+  static ImportOptions ToOptions(const Params& params) {
+    ImportOptions options;
+    const std::string& format = params.String("format");
+    options.format = static_cast<ImportFormat>(std::find(kFormatNames.begin(), kFormatNames.end(), format) - kFormatNames.begin());
+    options.focal_prior = params.Double("focal_prior");
+    options.folder_camera_model = params.String("folder_camera_model");
+    return options;
+  }
+
+  static std::string Source(const StageContext& context) {
+    if (context.params.Has("source") && !context.params.String("source").empty()) return context.params.String("source");
+    auto it = context.inputs.find("images");
+    return it != context.inputs.end() ? it->second : "";
+  }
+
+  // What a source holds: the model, the image names and the folder they are in.
+  struct Capture {
+    SparseModel model;
+    std::vector<std::string> names;
+    std::string image_dir;
+  };
+
+  Capture ReadCapture(const std::string& source, const ImportOptions& options, const Params& params) const {
+    Capture capture;
+    capture.image_dir = source;
+    switch (options.format) {
+      case ImportFormat::kMiddlebury: capture.model = ReadMiddlebury(source); break;
+      case ImportFormat::kStrecha:
+        capture.image_dir = (fs::path(source) / "images").string();
+        capture.model = ReadStrecha(source, capture.image_dir);
+        break;
+      case ImportFormat::kColmap:
+        capture.image_dir = params.String("images").empty() ? (fs::path(source).parent_path() / "images").string()
+                                                            : params.String("images");
+        capture.model = ReadSparseModelText(source);
+        break;
+      default:
+        capture.names = ListImages(source);
+        capture.model = ReadFolder(source, capture.names, options);
+        return capture;
+    }
+    for (int id : capture.model.ImageIdsByName()) capture.names.push_back(capture.model.images.at(id).name);
+    return capture;
+  }
+
+  SparseModel ReadMiddlebury(const std::string& source) const {
+    for (const auto& entry : fs::directory_iterator(source)) {
+      const std::string name = entry.path().filename().string();
+      if (name.size() > 8 && name.compare(name.size() - 8, 8, "_par.txt") == 0) {
+        return ParseMiddleburyPar(ReadFile(entry.path().string()), entry.path().string(),
+                                  [&](const std::string& image) { return ImageSize(source + "/" + image); });
+      }
+    }
+    throw InputError(source + ": no *_par.txt file; is this a Middlebury multi-view folder?");
+  }
+
+  SparseModel ReadStrecha(const std::string& source, const std::string& image_dir) const {
+    SparseModel model;
+    for (const std::string& name : ListImages(image_dir)) {
+      const fs::path camera_path = fs::path(source) / "gt_dense_cameras" / (name + ".camera");
+      if (!fs::exists(camera_path)) {
+        spdlog::warn("[import] {}: no camera file {}; image skipped", name, camera_path.string());
+        continue;
+      }
+      Image image;
+      Camera camera;
+      ParseStrechaCamera(ReadFile(camera_path.string()), camera_path.string(), &camera, &image.cam_from_world);
+      camera.camera_id = image.image_id = static_cast<int>(model.images.size()) + 1;
+      image.camera_id = camera.camera_id;
+      image.name = name;
+      model.cameras[camera.camera_id] = camera;
+      model.images[image.image_id] = image;
+    }
+    if (model.images.empty()) throw InputError(source + ": no image of images/ has a gt_dense_cameras/<image>.camera file");
+    return model;
+  }
+
+  SparseModel ReadFolder(const std::string& source, const std::vector<std::string>& names,
+                         const ImportOptions& options) const {
+    SparseModel model;
+    if (names.empty()) throw InputError(source + ": no images (png, jpg, tif, bmp, ppm, pgm) in this folder");
+    for (const std::string& name : names) {
+      const std::string path = source + "/" + name;
+      const auto [width, height] = ImageSize(path);
+      Camera camera = FolderCamera(width, height, ExifFocalPixels(path, width, height), options);
+      camera.camera_id = static_cast<int>(model.cameras.size()) + 1;
+      model.cameras[camera.camera_id] = camera;
+    }
+    return model;
+  }
+
+  void CopyImages(const Capture& capture, const StageContext& context) const {
+    const fs::path target = context.workspace.ImagesDir();
+    fs::create_directories(target);
+    for (const std::string& name : capture.names) {
+      const fs::path from = fs::path(capture.image_dir) / name;
+      if (!fs::exists(from)) throw InputError(from.string() + ": image named in the camera file is missing");
+      PlaceImage(from, target / name);
+    }
+    // Images of an earlier import that are not part of this one would confuse later stages.
+    for (const auto& entry : fs::directory_iterator(target)) {
+      const std::string name = entry.path().filename().string();
+      if (std::find(capture.names.begin(), capture.names.end(), name) == capture.names.end()) {
+        fs::remove_all(entry.path());
+      }
+    }
+  }
+};
+
+}  // namespace
+
+void RegisterStage_import(StageRegistry* registry) { registry->Add(std::make_unique<ImportStage>()); }
+
+}  // namespace ibmr
