@@ -1,0 +1,128 @@
+// End-to-end tests of the ibmr executable: a finished config does no work on a second run,
+// a stage killed with SIGKILL halfway resumes without redoing finished views, config errors
+// reach the user with file and line, and `status` explains staleness.
+#include <gtest/gtest.h>
+#include <signal.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <opencv2/imgcodecs.hpp>
+#include <thread>
+
+namespace fs = std::filesystem;
+
+namespace {
+
+struct CommandResult {
+  int exit_code = -1;
+  std::string output;
+};
+
+CommandResult RunCommand(const std::string& command) {
+  CommandResult result;
+  FILE* pipe = ::popen((command + " 2>&1").c_str(), "r");
+  char buffer[4096];
+  while (pipe && std::fgets(buffer, sizeof(buffer), pipe)) result.output += buffer;
+  const int status = pipe ? ::pclose(pipe) : -1;
+  result.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  return result;
+}
+
+size_t CountFiles(const fs::path& dir, const std::string& suffix) {
+  if (!fs::exists(dir)) return 0;
+  size_t n = 0;
+  for (const auto& e : fs::directory_iterator(dir)) {
+    const std::string name = e.path().filename().string();
+    if (name.size() >= suffix.size() && name.compare(name.size() - suffix.size(), suffix.size(), suffix) == 0) ++n;
+  }
+  return n;
+}
+
+class CliTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = fs::temp_directory_path() / ("ibmr_cli_test_" + std::to_string(::getpid()) + "_" +
+                                        ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    fs::remove_all(dir_);
+    fs::create_directories(dir_);
+  }
+  void TearDown() override { fs::remove_all(dir_); }
+
+  std::string WriteConfig(const std::string& synth_params) {
+    const fs::path path = dir_ / "c.yaml";
+    std::ofstream(path) << "workspace: ws\nstages:\n  - synth:\n" << synth_params;
+    return path.string();
+  }
+  std::string Ibmr(const std::string& args) { return std::string(IBMR_BINARY) + " " + args; }
+
+  fs::path dir_;
+};
+
+TEST_F(CliTest, SecondRunDoesNoWorkAndStatusIsClean) {
+  const std::string config = WriteConfig("      views: 4\n      width: 64\n      height: 48\n");
+  CommandResult first = RunCommand(Ibmr("run " + config));
+  ASSERT_EQ(first.exit_code, 0) << first.output;
+  const auto written = fs::last_write_time(dir_ / "ws" / "images" / "view_000.png");
+  CommandResult second = RunCommand(Ibmr("run " + config));
+  ASSERT_EQ(second.exit_code, 0) << second.output;
+  EXPECT_NE(second.output.find("nothing to do"), std::string::npos) << second.output;
+  EXPECT_EQ(fs::last_write_time(dir_ / "ws" / "images" / "view_000.png"), written);
+  CommandResult status = RunCommand(Ibmr("status " + config));
+  EXPECT_NE(status.output.find("ok     synth: up to date"), std::string::npos) << status.output;
+  status = RunCommand(Ibmr("status " + config + " --set synth.seed=9"));
+  EXPECT_NE(status.output.find("parameter 'seed' changed"), std::string::npos) << status.output;
+  EXPECT_TRUE(fs::exists(dir_ / "ws" / "records" / "synth.json"));
+  EXPECT_TRUE(fs::exists(dir_ / "ws" / "logs" / "ibmr.log"));
+}
+
+TEST_F(CliTest, ConfigErrorNamesFileLineAndKey) {
+  const std::string config = WriteConfig("      views: 4\n      widht: 64\n");
+  CommandResult result = RunCommand(Ibmr("run " + config));
+  EXPECT_EQ(result.exit_code, 2);
+  EXPECT_NE(result.output.find("c.yaml:5"), std::string::npos) << result.output;
+  EXPECT_NE(result.output.find("synth.widht"), std::string::npos) << result.output;
+  EXPECT_NE(result.output.find("did you mean 'width'"), std::string::npos) << result.output;
+}
+
+TEST_F(CliTest, ResumesAfterSigkillKeepingFinishedViews) {
+  // Enough work that the kill lands halfway: many views at a high supersampling factor.
+  const int views = 48;
+  const std::string config = WriteConfig("      views: " + std::to_string(views) +
+                                         "\n      width: 640\n      height: 480\n      supersample: 4\n");
+  const pid_t pid = ::fork();
+  ASSERT_GE(pid, 0);
+  if (pid == 0) {
+    ::execl(IBMR_BINARY, IBMR_BINARY, "run", config.c_str(), "--jobs", "2", static_cast<char*>(nullptr));
+    ::_exit(127);
+  }
+  const fs::path marks = dir_ / "ws" / "records" / "synth.views";
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(120);
+  while (CountFiles(marks, ".done") < 4 && std::chrono::steady_clock::now() < deadline) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  }
+  ::kill(pid, SIGKILL);
+  int status = 0;
+  ::waitpid(pid, &status, 0);
+  ASSERT_TRUE(WIFSIGNALED(status)) << "the run finished before it could be killed; make it longer";
+  const size_t done = CountFiles(marks, ".done");
+  ASSERT_GE(done, 4u);
+  ASSERT_LT(done, static_cast<size_t>(views)) << "killed too late to test resumption";
+  // Every image already there is whole (written under a temporary name, then renamed).
+  for (const auto& e : fs::directory_iterator(dir_ / "ws" / "images")) {
+    if (e.path().extension() == ".png") EXPECT_FALSE(cv::imread(e.path().string()).empty()) << e.path();
+  }
+  CommandResult resumed = RunCommand(Ibmr("run " + config + " --jobs 2"));
+  ASSERT_EQ(resumed.exit_code, 0) << resumed.output;
+  EXPECT_NE(resumed.output.find("interrupted while running"), std::string::npos) << resumed.output;
+  EXPECT_NE(resumed.output.find("resuming, "), std::string::npos) << resumed.output;
+  EXPECT_EQ(CountFiles(dir_ / "ws" / "images", ".png"), static_cast<size_t>(views));
+  EXPECT_FALSE(fs::exists(marks)) << "checkpoints are cleared once the stage finished";
+  CommandResult again = RunCommand(Ibmr("run " + config));
+  EXPECT_NE(again.output.find("nothing to do"), std::string::npos) << again.output;
+}
+
+}  // namespace
