@@ -237,6 +237,17 @@ class ValueReader {
 
   double Next(PlyType type) { return ascii_ ? NextAscii() : NextBinary(type); }
 
+  // A list length: a whole number in [0, 2^24]; anything else means a corrupt file (and
+  // checking here keeps the conversion to an integer well defined).
+  size_t NextCount(PlyType type) {
+    const double n = Next(type);
+    if (!(n >= 0.0 && n <= static_cast<double>(1 << 24)) || n != std::floor(n)) {
+      throw IoError(path_ + ": element \"" + *element_ + "\" record " + std::to_string(record_) +
+                    ": bad list length " + std::to_string(n));
+    }
+    return static_cast<size_t>(n);
+  }
+
  private:
   template <typename T>
   double Load() {
@@ -327,8 +338,8 @@ void SkipProperty(const PlyProperty& property, ValueReader* reader) {
     reader->Next(property.type);
     return;
   }
-  const double n = reader->Next(property.count_type);
-  for (long long i = 0; i < static_cast<long long>(n); ++i) reader->Next(property.type);
+  const size_t n = reader->NextCount(property.count_type);
+  for (size_t i = 0; i < n; ++i) reader->Next(property.type);
 }
 
 void ReadVertices(const std::string& path, const PlyElement& element, ValueReader* reader, PlyContents* out) {
@@ -372,13 +383,13 @@ int ToIndex(double value) {
   return value >= 0 && value <= static_cast<double>(std::numeric_limits<int>::max()) ? static_cast<int>(value) : -1;
 }
 
-constexpr long long kMaxPolygonCorners = 1 << 16;
-
 void ReadFaces(const std::string& path, const PlyElement& element, ValueReader* reader, PlyContents* out) {
   int list = -1;
   for (size_t p = 0; p < element.properties.size(); ++p) {
     const PlyProperty& property = element.properties[p];
-    if (property.is_list && (property.name == "vertex_indices" || property.name == "vertex_index")) list = p;
+    if (property.is_list && (property.name == "vertex_indices" || property.name == "vertex_index")) {
+      list = static_cast<int>(p);
+    }
   }
   if (list < 0) throw IoError(path + ": element \"face\" has no list property vertex_indices");
   out->faces.reserve(element.count);
@@ -391,15 +402,12 @@ void ReadFaces(const std::string& path, const PlyElement& element, ValueReader* 
         SkipProperty(property, reader);
         continue;
       }
-      const long long n = static_cast<long long>(reader->Next(property.count_type));
+      const size_t n = reader->NextCount(property.count_type);
       if (n < 3) throw IoError(path + ": face " + std::to_string(i) + " has " + std::to_string(n) + " corners");
-      if (n > kMaxPolygonCorners) {
-        throw IoError(path + ": face " + std::to_string(i) + " claims " + std::to_string(n) + " corners (corrupt file?)");
-      }
       polygon.resize(n);
-      for (long long k = 0; k < n; ++k) polygon[k] = ToIndex(reader->Next(property.type));
+      for (size_t k = 0; k < n; ++k) polygon[k] = ToIndex(reader->Next(property.type));
       // Fan triangulation keeps the winding of convex polygons.
-      for (long long k = 1; k + 1 < n; ++k) out->faces.emplace_back(polygon[0], polygon[k], polygon[k + 1]);
+      for (size_t k = 1; k + 1 < n; ++k) out->faces.emplace_back(polygon[0], polygon[k], polygon[k + 1]);
     }
   }
 }

@@ -113,10 +113,9 @@ TEST(Rasterizer, NearerTriangleWinsInEitherOrder) {
   }
 }
 
-TEST(Rasterizer, SharedEdgesThroughPixelCentresLeaveNoCracks) {
-  // Vertices project exactly onto pixel centres (u = 64 x + 32.5 with x = k / 64), so many
-  // centres lie exactly on edges and vertices: only a consistent tie rule covers them all.
-  const Camera camera = Camera::Pinhole(64, 64, 64, 64, 32.5, 32.5);
+// A fronto-parallel grid at z = 1 whose vertices project exactly onto pixel centres
+// (u = 64 x + 32.5 with x = k / 64), so many centres lie exactly on edges and vertices.
+TriangleMesh PixelAlignedGrid() {
   TriangleMesh mesh;
   const int n = 8;
   for (int j = 0; j <= n; ++j)
@@ -133,13 +132,34 @@ TEST(Rasterizer, SharedEdgesThroughPixelCentresLeaveNoCracks) {
       }
     }
   }
-  const RasterResult result = Rasterize(mesh, camera, Rigid3d());
+  return mesh;
+}
+
+Camera PixelAlignedCamera() { return Camera::Pinhole(64, 64, 64, 64, 32.5, 32.5); }
+
+TEST(Rasterizer, SharedEdgesThroughPixelCentresLeaveNoCracks) {
+  const RasterResult result = Rasterize(PixelAlignedGrid(), PixelAlignedCamera(), Rigid3d());
   // Columns/rows whose centres are strictly inside the grid: u in (16.5, 48.5).
   for (int r = 17; r <= 47; ++r)
     for (int c = 17; c <= 47; ++c) EXPECT_GE(result.face_id[r * 64 + c], 0) << "crack at " << c << "," << r;
   for (int r = 0; r < 64; ++r) {
     EXPECT_EQ(result.face_id[r * 64 + 10], -1);
     EXPECT_EQ(result.face_id[r * 64 + 55], -1);
+  }
+}
+
+TEST(Rasterizer, CentresOnSharedEdgesGoToOneFaceWhateverTheOrder) {
+  // Both faces have the same depth on a shared edge, so with a rule that gave a centre on the
+  // edge to both, the first face drawn would keep it and reversing the faces would change the
+  // answer. A fill rule decides by geometry alone.
+  TriangleMesh mesh = PixelAlignedGrid();
+  const RasterResult forward = Rasterize(mesh, PixelAlignedCamera(), Rigid3d());
+  const int num_faces = static_cast<int>(mesh.faces.size());
+  std::reverse(mesh.faces.begin(), mesh.faces.end());
+  const RasterResult backward = Rasterize(mesh, PixelAlignedCamera(), Rigid3d());
+  for (size_t i = 0; i < forward.face_id.size(); ++i) {
+    const int expected = forward.face_id[i] < 0 ? -1 : num_faces - 1 - forward.face_id[i];
+    ASSERT_EQ(backward.face_id[i], expected) << "pixel " << i % 64 << "," << i / 64;
   }
 }
 
