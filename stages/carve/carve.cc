@@ -1,0 +1,461 @@
+// Octree carving from silhouettes with the O(1) distance-map cube test (seed 000 lines 4136-4258,
+// Szeliski 1993), the brute-force reference on a dense grid, hull projection, depth bounds and the
+// octree file format. See carve.h.
+#include "stages/carve/carve.h"
+
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstring>
+#include <limits>
+#include <opencv2/imgproc.hpp>
+#include <stdexcept>
+
+namespace ibmr {
+
+namespace {
+
+enum class Verdict { kEmpty, kFull, kUnknown, kPartial };
+
+// A view with its projection and the two chessboard distance maps of the O(1) test.
+struct PreparedView {
+  const CarveView* view = nullptr;
+  Eigen::Matrix3d rotation;
+  Eigen::Vector3d translation;
+  bool pinhole = true;
+  double fx = 1, fy = 1, cx = 0, cy = 0;
+  int width = 0, height = 0;
+  bool outside_empty = true;
+  cv::Mat dist_to_silhouette;  // CV_32F: chessboard distance to the nearest silhouette pixel
+  cv::Mat dist_to_background;  // CV_32F: ... to the nearest background pixel
+  cv::Mat silhouette;          // CV_8UC1 0/1
+};
+
+PreparedView Prepare(const CarveView& view, bool outside_empty, bool with_distance_maps) {
+  if (view.mask.empty() || view.mask.type() != CV_8UC1 || view.mask.cols != view.camera.width ||
+      view.mask.rows != view.camera.height) {
+    throw std::invalid_argument("view " + view.name + ": the mask is " + std::to_string(view.mask.cols) + "x" +
+                                std::to_string(view.mask.rows) + " (8-bit, one channel expected) but the camera is " +
+                                std::to_string(view.camera.width) + "x" + std::to_string(view.camera.height));
+  }
+  PreparedView p;
+  p.view = &view;
+  p.rotation = view.cam_from_world.rotation.toRotationMatrix();
+  p.translation = view.cam_from_world.translation;
+  p.pinhole = !view.camera.HasDistortion();
+  p.fx = view.camera.FocalX();
+  p.fy = view.camera.FocalY();
+  p.cx = view.camera.PrincipalX();
+  p.cy = view.camera.PrincipalY();
+  p.width = view.camera.width;
+  p.height = view.camera.height;
+  p.outside_empty = outside_empty;
+  p.silhouette = (view.mask != 0) / 255;  // 0/1
+  if (with_distance_maps) {
+    // distanceTransform measures the distance to the nearest zero pixel.
+    cv::distanceTransform(p.silhouette == 0, p.dist_to_silhouette, cv::DIST_C, cv::DIST_MASK_3, CV_32F);
+    cv::distanceTransform(p.silhouette, p.dist_to_background, cv::DIST_C, cv::DIST_MASK_3, CV_32F);
+  }
+  return p;
+}
+
+struct PixelRect {
+  int c0, c1, r0, r1;  // inclusive
+};
+
+// True when every pixel of `rect` is farther than 0 from the distance map's target set: the rect is
+// covered by odd-sided squares of the shorter side, each tested in O(1) at its centre pixel.
+bool NoTargetInRect(const cv::Mat& distance, const PixelRect& rect) {
+  const int w = rect.c1 - rect.c0 + 1, h = rect.r1 - rect.r0 + 1;
+  int side = std::min(w, h);
+  if (side % 2 == 0) --side;
+  const int radius = (side - 1) / 2;
+  for (int r = rect.r0;; r += side) {
+    const int top = std::min(r, rect.r1 - side + 1);
+    const float* row = distance.ptr<float>(top + radius);
+    for (int c = rect.c0;; c += side) {
+      const int left = std::min(c, rect.c1 - side + 1);
+      if (row[left + radius] <= radius) return false;
+      if (left + side - 1 >= rect.c1) break;
+    }
+    if (top + side - 1 >= rect.r1) break;
+  }
+  return true;
+}
+
+// Brute force: scans every pixel of the rect.
+bool NoValueInRect(const cv::Mat& silhouette, const PixelRect& rect, uint8_t value) {
+  for (int r = rect.r0; r <= rect.r1; ++r) {
+    const uint8_t* row = silhouette.ptr<uint8_t>(r);
+    for (int c = rect.c0; c <= rect.c1; ++c) {
+      if (row[c] == value) return false;
+    }
+  }
+  return true;
+}
+
+constexpr double kBig = 1e9;
+
+// The per-view verdict on the cube [min, min + size]^3 (see carve.h for the rules).
+template <bool kBruteForce>
+Verdict ClassifyInView(const PreparedView& v, const Eigen::Vector3d& min, double size) {
+  double u0 = kBig, u1 = -kBig, w0 = kBig, w1 = -kBig;
+  int behind = 0;
+  const Eigen::Vector3d base = v.rotation * min + v.translation;
+  const Eigen::Matrix3d steps = v.rotation * size;
+  for (int i = 0; i < 8; ++i) {
+    Eigen::Vector3d x = base;
+    if (i & 1) x += steps.col(0);
+    if (i & 2) x += steps.col(1);
+    if (i & 4) x += steps.col(2);
+    if (x.z() <= 1e-12) {
+      ++behind;
+      continue;
+    }
+    double u, w;
+    if (v.pinhole) {
+      u = v.fx * x.x() / x.z() + v.cx;
+      w = v.fy * x.y() / x.z() + v.cy;
+    } else {
+      const Eigen::Vector2d pixel = v.view->camera.ImgFromCam(x);
+      u = pixel.x();
+      w = pixel.y();
+    }
+    u0 = std::min(u0, u);
+    u1 = std::max(u1, u);
+    w0 = std::min(w0, w);
+    w1 = std::max(w1, w);
+  }
+  if (behind == 8) return v.outside_empty ? Verdict::kEmpty : Verdict::kUnknown;
+  if (behind > 0) return Verdict::kPartial;
+  const auto to_pixel = [](double value) { return static_cast<int>(std::floor(std::clamp(value, -kBig, kBig))); };
+  PixelRect rect{to_pixel(u0), to_pixel(u1), to_pixel(w0), to_pixel(w1)};
+  const bool inside = rect.c0 >= 0 && rect.r0 >= 0 && rect.c1 < v.width && rect.r1 < v.height;
+  rect.c0 = std::max(rect.c0, 0);
+  rect.r0 = std::max(rect.r0, 0);
+  rect.c1 = std::min(rect.c1, v.width - 1);
+  rect.r1 = std::min(rect.r1, v.height - 1);
+  if (rect.c0 > rect.c1 || rect.r0 > rect.r1) return v.outside_empty ? Verdict::kEmpty : Verdict::kUnknown;
+  const bool all_background = kBruteForce ? NoValueInRect(v.silhouette, rect, 1)
+                                          : NoTargetInRect(v.dist_to_silhouette, rect);
+  if (all_background) return (inside || v.outside_empty) ? Verdict::kEmpty : Verdict::kPartial;
+  const bool all_silhouette = kBruteForce ? NoValueInRect(v.silhouette, rect, 0)
+                                          : NoTargetInRect(v.dist_to_background, rect);
+  if (all_silhouette) return (inside || !v.outside_empty) ? Verdict::kFull : Verdict::kPartial;
+  return Verdict::kPartial;
+}
+
+template <bool kBruteForce>
+NodeState Classify(const std::vector<PreparedView>& views, const Eigen::Vector3d& min, double size, bool* unseen) {
+  bool any_full = false, any_partial = false;
+  for (const PreparedView& view : views) {
+    switch (ClassifyInView<kBruteForce>(view, min, size)) {
+      case Verdict::kEmpty: return NodeState::kEmpty;
+      case Verdict::kFull: any_full = true; break;
+      case Verdict::kPartial: any_partial = true; break;
+      case Verdict::kUnknown: break;
+    }
+  }
+  *unseen = !any_full && !any_partial;
+  return any_partial ? NodeState::kPartial : NodeState::kFull;
+}
+
+// The rect of the root cube is non-empty and not entirely behind the camera.
+bool SeesCube(const PreparedView& view, const Eigen::Vector3d& min, double size) {
+  PreparedView unknown_outside = view;
+  unknown_outside.outside_empty = false;
+  return ClassifyInView<true>(unknown_outside, min, size) != Verdict::kUnknown;
+}
+
+bool OutsideEmpty(const CarveView& view, OutsideImage outside) {
+  if (outside != OutsideImage::kAuto) return outside == OutsideImage::kEmpty;
+  const cv::Mat& m = view.mask;
+  return cv::countNonZero(m.row(0)) == 0 && cv::countNonZero(m.row(m.rows - 1)) == 0 &&
+         cv::countNonZero(m.col(0)) == 0 && cv::countNonZero(m.col(m.cols - 1)) == 0;
+}
+
+template <typename T>
+void Put(std::string* out, const T& value) {
+  out->append(reinterpret_cast<const char*>(&value), sizeof(T));
+}
+
+template <typename T>
+T Get(const std::string& bytes, size_t* offset) {
+  if (*offset + sizeof(T) > bytes.size()) throw std::runtime_error("octree file is truncated at byte " + std::to_string(*offset));
+  T value;
+  std::memcpy(&value, bytes.data() + *offset, sizeof(T));
+  *offset += sizeof(T);
+  return value;
+}
+
+}  // namespace
+
+bool CarveOptions::Check(std::string* error) const {
+  if (levels < 1 || levels > 10) {
+    *error = "levels: must be in [1, 10], got " + std::to_string(levels);
+  } else if (smooth_iterations < 0 || smooth_iterations > 1000) {
+    *error = "smooth_iterations: must be in [0, 1000], got " + std::to_string(smooth_iterations);
+  } else if (!(smooth_lambda > 0 && smooth_lambda < 1)) {
+    *error = "smooth_lambda: must be in (0, 1), got " + std::to_string(smooth_lambda);
+  } else if (!(smooth_mu > -1 && smooth_mu < 0 && -smooth_mu > smooth_lambda)) {
+    *error = "smooth_mu: must be in (-1, 0) with |mu| > lambda, got " + std::to_string(smooth_mu);
+  } else if (!(max_displacement >= 0 && max_displacement < 1)) {
+    *error = "max_displacement: must be in [0, 1) cells, got " + std::to_string(max_displacement);
+  } else if (max_mesh_level < 1 || max_mesh_level > 9) {
+    *error = "max_mesh_level: must be in [1, 9], got " + std::to_string(max_mesh_level);
+  } else if (!(level_tolerance >= 0 && level_tolerance <= 1)) {
+    *error = "level_tolerance: must be in [0, 1], got " + std::to_string(level_tolerance);
+  } else {
+    return true;
+  }
+  return false;
+}
+
+CarveResult CarveOctree(const std::vector<CarveView>& views, const Eigen::Vector3d& origin, double size,
+                        const CarveOptions& options, ProgressReporter* progress) {
+  NullProgress null_progress;
+  if (!progress) progress = &null_progress;
+  CarveResult result;
+  result.octree.origin = origin;
+  result.octree.size = size;
+  std::vector<PreparedView> prepared;
+  for (const CarveView& view : views) {
+    const bool outside_empty = OutsideEmpty(view, options.outside);
+    result.outside_empty.push_back(outside_empty);
+    PreparedView p = Prepare(view, outside_empty, true);
+    // A view that does not see the volume would carve all of it (outside empty) or nothing.
+    if (!SeesCube(p, origin, size)) {
+      result.views_not_seeing_volume.push_back(view.name);
+      continue;
+    }
+    prepared.push_back(std::move(p));
+  }
+  progress->Begin("octree levels", options.levels + 1);
+  result.octree.levels.push_back({OctreeNode{}});
+  for (int level = 0; level <= options.levels; ++level) {
+    const auto start = std::chrono::steady_clock::now();
+    std::vector<OctreeNode>& nodes = result.octree.levels[level];
+    std::vector<uint8_t> unseen(nodes.size(), 0);
+    const double cell = result.octree.CellSize(level);
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, nodes.size(), 256), [&](const tbb::blocked_range<size_t>& range) {
+      for (size_t i = range.begin(); i != range.end(); ++i) {
+        bool is_unseen = false;
+        nodes[i].state = prepared.empty() ? NodeState::kEmpty
+                                          : Classify<false>(prepared, result.octree.CellMin(level, nodes[i]), cell,
+                                                            &is_unseen);
+        unseen[i] = is_unseen;
+      }
+    });
+    LevelStats stats;
+    stats.level = level;
+    stats.nodes = nodes.size();
+    std::vector<OctreeNode> children;
+    for (size_t i = 0; i < nodes.size(); ++i) {
+      const OctreeNode& node = nodes[i];
+      stats.unseen += unseen[i];
+      if (node.state == NodeState::kEmpty) ++stats.empty;
+      if (node.state == NodeState::kFull) ++stats.full;
+      if (node.state != NodeState::kPartial) continue;
+      ++stats.partial;
+      if (level == options.levels) continue;
+      for (int c = 0; c < 8; ++c) {
+        children.push_back(OctreeNode{static_cast<uint16_t>(2 * node.x + (c & 1)),
+                                      static_cast<uint16_t>(2 * node.y + ((c >> 1) & 1)),
+                                      static_cast<uint16_t>(2 * node.z + ((c >> 2) & 1)), NodeState::kPartial});
+      }
+    }
+    stats.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    result.stats.push_back(stats);
+    if (level < options.levels) result.octree.levels.push_back(std::move(children));
+    progress->Advance(1, "level " + std::to_string(level));
+  }
+  progress->End();
+  return result;
+}
+
+std::vector<uint8_t> CarveBruteForce(const std::vector<CarveView>& views, const std::vector<bool>& outside_empty,
+                                     const Eigen::Vector3d& origin, double size, int level) {
+  std::vector<PreparedView> prepared;
+  for (size_t i = 0; i < views.size(); ++i) {
+    PreparedView p = Prepare(views[i], outside_empty.at(i), false);
+    if (SeesCube(p, origin, size)) prepared.push_back(std::move(p));
+  }
+  const int n = 1 << level;
+  const double cell = size / n;
+  std::vector<uint8_t> grid(static_cast<size_t>(n) * n * n, 0);
+  tbb::parallel_for(0, n, [&](int z) {
+    for (int y = 0; y < n; ++y) {
+      for (int x = 0; x < n; ++x) {
+        bool unseen = false;
+        const Eigen::Vector3d min = origin + cell * Eigen::Vector3d(x, y, z);
+        const bool kept = !prepared.empty() && Classify<true>(prepared, min, cell, &unseen) != NodeState::kEmpty;
+        grid[(static_cast<size_t>(z) * n + y) * n + x] = kept;
+      }
+    }
+  });
+  return grid;
+}
+
+std::vector<HullCell> HullCells(const Octree& octree, int level) {
+  std::vector<HullCell> cells;
+  for (int l = 0; l <= std::min(level, octree.MaxLevel()); ++l) {
+    for (const OctreeNode& node : octree.levels[l]) {
+      if (node.state == NodeState::kFull || (l == level && node.state == NodeState::kPartial)) {
+        cells.push_back(HullCell{octree.CellMin(l, node), octree.CellSize(l)});
+      }
+    }
+  }
+  return cells;
+}
+
+std::vector<uint8_t> DenseHull(const Octree& octree, int level) {
+  const size_t n = size_t{1} << level;
+  std::vector<uint8_t> grid(n * n * n, 0);
+  for (int l = 0; l <= std::min(level, octree.MaxLevel()); ++l) {
+    const size_t span = size_t{1} << (level - l);
+    for (const OctreeNode& node : octree.levels[l]) {
+      if (!(node.state == NodeState::kFull || (l == level && node.state == NodeState::kPartial))) continue;
+      for (size_t z = node.z * span; z < (node.z + 1) * span; ++z) {
+        for (size_t y = node.y * span; y < (node.y + 1) * span; ++y) {
+          std::fill_n(grid.begin() + (z * n + y) * n + node.x * span, span, 1);
+        }
+      }
+    }
+  }
+  return grid;
+}
+
+cv::Mat ProjectHull(const std::vector<HullCell>& cells, const Camera& camera, const Rigid3d& cam_from_world) {
+  cv::Mat mask = cv::Mat::zeros(camera.height, camera.width, CV_8UC1);
+  const Eigen::Matrix3d rotation = cam_from_world.rotation.toRotationMatrix();
+  constexpr int kShift = 8;
+  constexpr double kScale = 1 << kShift;
+  const double limit = 4.0 * std::max(camera.width, camera.height) + 1e4;
+  std::vector<cv::Point> corners(8), hull;
+  for (const HullCell& cell : cells) {
+    const Eigen::Vector3d base = rotation * cell.min + cam_from_world.translation;
+    const Eigen::Matrix3d steps = rotation * cell.size;
+    bool drawable = true;
+    for (int i = 0; i < 8 && drawable; ++i) {
+      Eigen::Vector3d x = base;
+      if (i & 1) x += steps.col(0);
+      if (i & 2) x += steps.col(1);
+      if (i & 4) x += steps.col(2);
+      if (x.z() <= 1e-12) {
+        drawable = false;
+        break;
+      }
+      const Eigen::Vector2d pixel = camera.ImgFromCam(x);
+      if (std::abs(pixel.x()) > limit || std::abs(pixel.y()) > limit) {
+        drawable = false;
+        break;
+      }
+      // OpenCV draws with pixel centres at integers; ours are at +0.5.
+      corners[i] = cv::Point(static_cast<int>(std::lround((pixel.x() - 0.5) * kScale)),
+                             static_cast<int>(std::lround((pixel.y() - 0.5) * kScale)));
+    }
+    if (!drawable) continue;
+    cv::convexHull(corners, hull);
+    cv::fillConvexPoly(mask, hull, cv::Scalar(255), cv::LINE_8, kShift);
+  }
+  return mask;
+}
+
+double MaskIou(const cv::Mat& a, const cv::Mat& b) {
+  const int intersection = cv::countNonZero((a != 0) & (b != 0));
+  const int united = cv::countNonZero((a != 0) | (b != 0));
+  return united == 0 ? 1.0 : static_cast<double>(intersection) / united;
+}
+
+bool HullDepthBounds(const std::vector<HullCell>& cells, const Camera& camera, const Rigid3d& cam_from_world,
+                     double* near_z, double* far_z) {
+  const Eigen::Matrix3d rotation = cam_from_world.rotation.toRotationMatrix();
+  double near_value = std::numeric_limits<double>::infinity(), far_value = 0.0;
+  for (const HullCell& cell : cells) {
+    const Eigen::Vector3d base = rotation * cell.min + cam_from_world.translation;
+    const Eigen::Matrix3d steps = rotation * cell.size;
+    double z0 = kBig, z1 = -kBig, u0 = kBig, u1 = -kBig, w0 = kBig, w1 = -kBig;
+    bool straddles = false;
+    for (int i = 0; i < 8; ++i) {
+      Eigen::Vector3d x = base;
+      if (i & 1) x += steps.col(0);
+      if (i & 2) x += steps.col(1);
+      if (i & 4) x += steps.col(2);
+      z0 = std::min(z0, x.z());
+      z1 = std::max(z1, x.z());
+      if (x.z() <= 1e-12) {
+        straddles = true;
+        continue;
+      }
+      const Eigen::Vector2d pixel = camera.ImgFromCam(x);
+      u0 = std::min(u0, pixel.x());
+      u1 = std::max(u1, pixel.x());
+      w0 = std::min(w0, pixel.y());
+      w1 = std::max(w1, pixel.y());
+    }
+    if (z1 <= 1e-12) continue;
+    if (!straddles && (u1 < 0 || w1 < 0 || u0 > camera.width || w0 > camera.height)) continue;
+    near_value = std::min(near_value, std::max(z0, 1e-9 * cell.size));
+    far_value = std::max(far_value, z1);
+  }
+  if (!(far_value > 0)) return false;
+  *near_z = near_value;
+  *far_z = far_value;
+  return true;
+}
+
+std::string SerializeOctree(const Octree& octree) {
+  std::string out("IBMROCT1", 8);
+  Put<uint32_t>(&out, 1);
+  Put<uint32_t>(&out, static_cast<uint32_t>(octree.MaxLevel()));
+  for (int i = 0; i < 3; ++i) Put<double>(&out, octree.origin[i]);
+  Put<double>(&out, octree.size);
+  for (const auto& level : octree.levels) Put<uint64_t>(&out, level.size());
+  for (const auto& level : octree.levels) {
+    for (const OctreeNode& node : level) Put<uint8_t>(&out, static_cast<uint8_t>(node.state));
+  }
+  return out;
+}
+
+Octree DeserializeOctree(const std::string& bytes) {
+  if (bytes.size() < 8 || bytes.compare(0, 8, "IBMROCT1") != 0) throw std::runtime_error("not an ibmr octree (magic IBMROCT1 missing)");
+  size_t offset = 8;
+  if (Get<uint32_t>(bytes, &offset) != 1) throw std::runtime_error("unsupported octree version");
+  const uint32_t max_level = Get<uint32_t>(bytes, &offset);
+  if (max_level > 15) throw std::runtime_error("octree level " + std::to_string(max_level) + " out of range");
+  Octree octree;
+  for (int i = 0; i < 3; ++i) octree.origin[i] = Get<double>(bytes, &offset);
+  octree.size = Get<double>(bytes, &offset);
+  std::vector<uint64_t> counts(max_level + 1);
+  for (auto& count : counts) count = Get<uint64_t>(bytes, &offset);
+  if (counts[0] != 1) throw std::runtime_error("octree level 0 must hold one node");
+  octree.levels.resize(max_level + 1);
+  octree.levels[0].push_back(OctreeNode{});
+  for (uint32_t level = 0; level <= max_level; ++level) {
+    auto& nodes = octree.levels[level];
+    if (nodes.size() != counts[level]) {
+      throw std::runtime_error("octree level " + std::to_string(level) + " holds " + std::to_string(counts[level]) +
+                               " nodes but its parents imply " + std::to_string(nodes.size()));
+    }
+    for (OctreeNode& node : nodes) {
+      const uint8_t state = Get<uint8_t>(bytes, &offset);
+      if (state > 2) throw std::runtime_error("octree node state " + std::to_string(state) + " is not 0, 1 or 2");
+      node.state = static_cast<NodeState>(state);
+      if (node.state != NodeState::kPartial || level == max_level) continue;
+      if (level + 1 <= max_level) {
+        for (int c = 0; c < 8; ++c) {
+          octree.levels[level + 1].push_back(OctreeNode{static_cast<uint16_t>(2 * node.x + (c & 1)),
+                                                        static_cast<uint16_t>(2 * node.y + ((c >> 1) & 1)),
+                                                        static_cast<uint16_t>(2 * node.z + ((c >> 2) & 1)),
+                                                        NodeState::kPartial});
+        }
+      }
+    }
+  }
+  if (offset != bytes.size()) throw std::runtime_error("octree file has trailing bytes");
+  return octree;
+}
+
+}  // namespace ibmr
