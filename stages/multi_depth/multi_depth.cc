@@ -1,0 +1,372 @@
+// Multiple consistent depth maps: visibility, depth compatibility and rejection across views
+// (seed 000 lines 3847-3894 and 5812-5950; refinement after lines 4399-4453). See multi_depth.h.
+#include "stages/multi_depth/multi_depth.h"
+
+#include <Eigen/Geometry>
+#include <algorithm>
+#include <cmath>
+
+namespace ibmr {
+
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+
+// Per-pixel normalised rays (x, y, 1) of a camera, row-major; exact for distorted models too.
+std::vector<Eigen::Vector3f> PixelRays(const Camera& camera, int width, int height) {
+  std::vector<Eigen::Vector3f> rays(static_cast<size_t>(width) * height);
+  const double sx = static_cast<double>(camera.width) / width, sy = static_cast<double>(camera.height) / height;
+  for (int y = 0; y < height; ++y) {
+    for (int x = 0; x < width; ++x) {
+      rays[static_cast<size_t>(y) * width + x] = camera.CamFromImg(Eigen::Vector2d((x + 0.5) * sx, (y + 0.5) * sy)).cast<float>();
+    }
+  }
+  return rays;
+}
+
+// A neighbour prepared for the inner loop: key-camera point -> neighbour-camera point.
+struct PreparedNeighbor {
+  const DepthView* view = nullptr;
+  Eigen::Matrix3f rotation;     // neighbour_from_key
+  Eigen::Vector3f translation;
+  float fx = 0, fy = 0, cx = 0, cy = 0;  // intrinsics at the depth map's resolution
+  bool distorted = false;
+  double scale_x = 1, scale_y = 1;       // depth-map pixels per camera pixel
+};
+
+PreparedNeighbor Prepare(const DepthView& key, const DepthView& neighbor) {
+  PreparedNeighbor p;
+  p.view = &neighbor;
+  const Rigid3d neighbor_from_key = neighbor.cam_from_world.Compose(key.cam_from_world.Inverse());
+  p.rotation = neighbor_from_key.R().cast<float>();
+  p.translation = neighbor_from_key.translation.cast<float>();
+  p.scale_x = static_cast<double>(neighbor.depth.width) / neighbor.camera.width;
+  p.scale_y = static_cast<double>(neighbor.depth.height) / neighbor.camera.height;
+  p.fx = static_cast<float>(neighbor.camera.FocalX() * p.scale_x);
+  p.fy = static_cast<float>(neighbor.camera.FocalY() * p.scale_y);
+  p.cx = static_cast<float>(neighbor.camera.PrincipalX() * p.scale_x);
+  p.cy = static_cast<float>(neighbor.camera.PrincipalY() * p.scale_y);
+  p.distorted = neighbor.camera.HasDistortion();
+  return p;
+}
+
+// Projects a neighbour-camera point to the neighbour's depth-map pixel coordinates.
+inline Eigen::Vector2f Project(const PreparedNeighbor& n, const Eigen::Vector3f& x) {
+  if (!n.distorted) return Eigen::Vector2f(n.fx * x.x() / x.z() + n.cx, n.fy * x.y() / x.z() + n.cy);
+  const Eigen::Vector2d p = n.view->camera.ImgFromCam(x.cast<double>());
+  return Eigen::Vector2f(static_cast<float>(p.x() * n.scale_x), static_cast<float>(p.y() * n.scale_y));
+}
+
+// Normalised ray (x, y, 1) of neighbour depth-map pixel coordinates (forward warping).
+inline Eigen::Vector3f Unproject(const PreparedNeighbor& n, const Eigen::Vector2f& p) {
+  if (!n.distorted) return Eigen::Vector3f((p.x() - n.cx) / n.fx, (p.y() - n.cy) / n.fy, 1.f);
+  return n.view->camera.CamFromImg(Eigen::Vector2d(p.x() / n.scale_x, p.y() / n.scale_y)).cast<float>();
+}
+
+// The neighbour's depth at depth-map coordinates `p`: bilinear between the four nearest pixel
+// centres when all are valid and within `smooth` relative spread (one surface), else the nearest
+// pixel's (across a depth edge interpolation would invent a surface). 0 outside or unknown; the
+// nearest pixel is returned in (*px, *py).
+inline float DepthAt(const DepthMap& depth, const Eigen::Vector2f& p, float smooth, int* px, int* py) {
+  *px = static_cast<int>(std::floor(p.x()));
+  *py = static_cast<int>(std::floor(p.y()));
+  if (*px < 0 || *py < 0 || *px >= depth.width || *py >= depth.height) return 0.f;
+  const float nearest = depth.At(*px, *py);
+  const float fx = p.x() - 0.5f, fy = p.y() - 0.5f;
+  const int x0 = static_cast<int>(std::floor(fx)), y0 = static_cast<int>(std::floor(fy));
+  if (x0 < 0 || y0 < 0 || x0 + 1 >= depth.width || y0 + 1 >= depth.height || !IsValidDepth(nearest)) return nearest;
+  const float d00 = depth.At(x0, y0), d10 = depth.At(x0 + 1, y0), d01 = depth.At(x0, y0 + 1), d11 = depth.At(x0 + 1, y0 + 1);
+  if (!IsValidDepth(d00) || !IsValidDepth(d10) || !IsValidDepth(d01) || !IsValidDepth(d11)) return nearest;
+  const float lo = std::min(std::min(d00, d10), std::min(d01, d11)), hi = std::max(std::max(d00, d10), std::max(d01, d11));
+  if (hi > lo * (1 + smooth)) return nearest;
+  const float ax = fx - x0, ay = fy - y0;
+  return (1 - ay) * ((1 - ax) * d00 + ax * d10) + ay * ((1 - ax) * d01 + ax * d11);
+}
+
+inline float ConfidenceAt(const FloatMap& confidence, int x, int y) {
+  return confidence.Empty() ? 1.f : std::clamp(confidence.At(x, y), 0.f, 1.f);
+}
+
+}  // namespace
+
+bool MultiDepthOptions::Check(std::string* error) const {
+  auto fail = [&](const std::string& message) {
+    *error = message;
+    return false;
+  };
+  if (!(depth_tolerance > 0 && depth_tolerance <= 0.5)) return fail("depth_tolerance: must be in (0, 0.5], got " + std::to_string(depth_tolerance));
+  if (min_consistent_views < 1 || min_consistent_views > 64) return fail("min_consistent_views: must be in [1, 64], got " + std::to_string(min_consistent_views));
+  if (!(max_violation_ratio >= 0)) return fail("max_violation_ratio: must be >= 0, got " + std::to_string(max_violation_ratio));
+  if (!(min_confidence >= 0 && min_confidence <= 1)) return fail("min_confidence: must be in [0, 1], got " + std::to_string(min_confidence));
+  if (max_neighbors < 1 || max_neighbors > 64) return fail("max_neighbors: must be in [1, 64], got " + std::to_string(max_neighbors));
+  if (max_neighbors < min_consistent_views) {
+    return fail("max_neighbors: must be >= min_consistent_views (" + std::to_string(min_consistent_views) + "), got " + std::to_string(max_neighbors));
+  }
+  if (!(max_view_angle_deg > 0 && max_view_angle_deg <= 180)) return fail("max_view_angle_deg: must be in (0, 180], got " + std::to_string(max_view_angle_deg));
+  if (!(min_baseline_ratio >= 0 && min_baseline_ratio < 1)) return fail("min_baseline_ratio: must be in [0, 1), got " + std::to_string(min_baseline_ratio));
+  return true;
+}
+
+std::vector<int> SelectNeighbors(const Image& key, const std::vector<const Image*>& candidates,
+                                 const MultiDepthOptions& options) {
+  const Eigen::Vector3d center = key.Center(), direction = key.ViewingDirection();
+  std::vector<double> baselines;
+  for (const Image* c : candidates) {
+    if (c->name != key.name) baselines.push_back((c->Center() - center).norm());
+  }
+  if (baselines.empty()) return {};
+  std::nth_element(baselines.begin(), baselines.begin() + baselines.size() / 2, baselines.end());
+  const double min_baseline = options.min_baseline_ratio * baselines[baselines.size() / 2];
+  const double cos_max = std::cos(options.max_view_angle_deg * kPi / 180.0);
+  std::vector<std::pair<double, int>> ranked;  // (-cos angle, index)
+  for (int i = 0; i < static_cast<int>(candidates.size()); ++i) {
+    const Image* c = candidates[i];
+    if (c->name == key.name) continue;
+    const double cos_angle = c->ViewingDirection().dot(direction);
+    if (cos_angle < cos_max || (c->Center() - center).norm() < min_baseline) continue;
+    ranked.emplace_back(-cos_angle, i);
+  }
+  std::sort(ranked.begin(), ranked.end());
+  std::vector<int> selected;
+  for (size_t i = 0; i < ranked.size() && static_cast<int>(i) < options.max_neighbors; ++i) selected.push_back(ranked[i].second);
+  return selected;
+}
+
+FloatMap NormalsFromDepth(const Camera& camera, const DepthMap& depth) {
+  const int w = depth.width, h = depth.height;
+  FloatMap normals(w, h, 3, 0.f);
+  const std::vector<Eigen::Vector3f> rays = PixelRays(camera, w, h);
+  auto point = [&](int x, int y) { return rays[static_cast<size_t>(y) * w + x] * depth.At(x, y); };
+  auto usable = [&](int x, int y, float d) {
+    const float e = depth.At(x, y);
+    return IsValidDepth(e) && std::abs(e - d) <= 0.05f * d;
+  };
+  for (int y = 1; y + 1 < h; ++y) {
+    for (int x = 1; x + 1 < w; ++x) {
+      const float d = depth.At(x, y);
+      if (!IsValidDepth(d) || !usable(x - 1, y, d) || !usable(x + 1, y, d) || !usable(x, y - 1, d) || !usable(x, y + 1, d)) continue;
+      Eigen::Vector3f n = (point(x + 1, y) - point(x - 1, y)).cross(point(x, y + 1) - point(x, y - 1));
+      const float norm = n.norm();
+      if (!(norm > 0)) continue;
+      n /= norm;
+      if (n.dot(rays[static_cast<size_t>(y) * w + x]) > 0) n = -n;  // face the camera
+      for (int c = 0; c < 3; ++c) normals.At(x, y, c) = n[c];
+    }
+  }
+  return normals;
+}
+
+namespace {
+
+// The votes of the neighbours on a key-camera point `ray * depth`.
+struct Votes {
+  int confirmations = 0;
+  int violations = 0;
+  double weight_sum = 0, weighted_depth = 0, confidence_sum = 0;
+};
+
+Votes Vote(const Eigen::Vector3f& ray, float depth, float confidence, const std::vector<PreparedNeighbor>& prepared,
+           const MultiDepthOptions& options) {
+  const float tolerance = static_cast<float>(options.depth_tolerance), smooth = 5 * tolerance;
+  Votes votes;
+  votes.weight_sum = votes.confidence_sum = confidence;
+  votes.weighted_depth = confidence * depth;
+  const Eigen::Vector3f point = ray * depth;
+  for (const PreparedNeighbor& n : prepared) {
+    const Eigen::Vector3f in_neighbor = n.rotation * point + n.translation;
+    if (in_neighbor.z() <= 0) continue;
+    const Eigen::Vector2f p = Project(n, in_neighbor);
+    int px = 0, py = 0;
+    const float neighbor_depth = DepthAt(n.view->depth, p, smooth, &px, &py);
+    if (!IsValidDepth(neighbor_depth)) continue;  // the neighbour knows nothing here
+    const float neighbor_confidence = ConfidenceAt(n.view->confidence, px, py);
+    if (neighbor_confidence < options.min_confidence) continue;
+    const float relative = (neighbor_depth - in_neighbor.z()) / in_neighbor.z();
+    if (relative < -tolerance) continue;  // visibility: a nearer surface hides the point from this view
+    if (relative > tolerance) {           // the neighbour saw through the point: free-space violation
+      ++votes.violations;
+      continue;
+    }
+    ++votes.confirmations;
+    votes.confidence_sum += neighbor_confidence;
+    if (options.refine_depth) {
+      // The neighbour's relative depth difference, carried over to the key's depth.
+      votes.weighted_depth += neighbor_confidence * depth * (1 + relative);
+      votes.weight_sum += neighbor_confidence;
+    }
+  }
+  return votes;
+}
+
+bool Accepted(const Votes& votes, const MultiDepthOptions& options) {
+  return votes.confirmations >= options.min_consistent_views &&
+         votes.violations <= options.max_violation_ratio * votes.confirmations;
+}
+
+// Each neighbour's confident samples forward-warped into the key view (nearest surface per key
+// pixel, z-buffered): the candidate depths for key pixels without an accepted sample.
+std::vector<DepthMap> WarpNeighbors(const std::vector<PreparedNeighbor>& prepared, const Camera& key_camera, int w, int h,
+                                    const MultiDepthOptions& options) {
+  const double sx = static_cast<double>(w) / key_camera.width, sy = static_cast<double>(h) / key_camera.height;
+  const bool distorted = key_camera.HasDistortion();
+  const float fx = static_cast<float>(key_camera.FocalX() * sx), fy = static_cast<float>(key_camera.FocalY() * sy);
+  const float cx = static_cast<float>(key_camera.PrincipalX() * sx), cy = static_cast<float>(key_camera.PrincipalY() * sy);
+  std::vector<DepthMap> warped;
+  for (const PreparedNeighbor& n : prepared) {
+    DepthMap z(w, h, 1, 0.f);
+    const DepthMap& depth = n.view->depth;
+    const Eigen::Matrix3f key_from_neighbor = n.rotation.transpose();
+    for (int v = 0; v < depth.height; ++v) {
+      for (int u = 0; u < depth.width; ++u) {
+        const float d = depth.At(u, v);
+        if (!IsValidDepth(d) || ConfidenceAt(n.view->confidence, u, v) < options.min_confidence) continue;
+        const Eigen::Vector3f in_key = key_from_neighbor * (Unproject(n, Eigen::Vector2f(u + 0.5f, v + 0.5f)) * d - n.translation);
+        if (in_key.z() <= 0) continue;
+        Eigen::Vector2f p(fx * in_key.x() / in_key.z() + cx, fy * in_key.y() / in_key.z() + cy);
+        if (distorted) p = (key_camera.ImgFromCam(in_key.cast<double>()).array() * Eigen::Array2d(sx, sy)).cast<float>().matrix();
+        const int x = static_cast<int>(std::floor(p.x())), y = static_cast<int>(std::floor(p.y()));
+        if (x < 0 || y < 0 || x >= w || y >= h) continue;
+        float& target = z.At(x, y);
+        if (target == 0.f || in_key.z() < target) target = in_key.z();
+      }
+    }
+    warped.push_back(std::move(z));
+  }
+  return warped;
+}
+
+// Range of the accepted depths within `radius` of (x, y); false when there is none.
+bool KeptRange(const DepthMap& depth, int x, int y, int radius, float* lo, float* hi) {
+  *lo = 1e30f;
+  *hi = 0;
+  for (int v = std::max(0, y - radius); v <= std::min(depth.height - 1, y + radius); ++v) {
+    for (int u = std::max(0, x - radius); u <= std::min(depth.width - 1, x + radius); ++u) {
+      const float d = depth.At(u, v);
+      if (d > 0) *lo = std::min(*lo, d), *hi = std::max(*hi, d);
+    }
+  }
+  return *hi > 0;
+}
+
+}  // namespace
+
+MultiDepthResult MakeDepthConsistent(const DepthView& key, const std::vector<const DepthView*>& neighbors,
+                                     const MultiDepthOptions& options) {
+  const int w = key.depth.width, h = key.depth.height;
+  MultiDepthResult result;
+  result.depth = DepthMap(w, h, 1, 0.f);
+  result.normals = FloatMap(w, h, 3, 0.f);
+  result.confidence = FloatMap(w, h, 1, 0.f);
+  const FloatMap key_normals = key.normals.Empty() ? NormalsFromDepth(key.camera, key.depth) : FloatMap();
+  const FloatMap& normals = key.normals.Empty() ? key_normals : key.normals;
+  const std::vector<Eigen::Vector3f> rays = PixelRays(key.camera, w, h);
+  std::vector<PreparedNeighbor> prepared;
+  for (const DepthView* n : neighbors) {
+    if (n != nullptr && !n->depth.Empty()) prepared.push_back(Prepare(key, *n));
+  }
+  auto store = [&](int x, int y, const Votes& votes, float depth, const Eigen::Vector3f& ray, Eigen::Vector3f normal) {
+    result.depth.At(x, y) = options.refine_depth ? static_cast<float>(votes.weighted_depth / votes.weight_sum) : depth;
+    result.confidence.At(x, y) = static_cast<float>(votes.confidence_sum / (1 + votes.confirmations + votes.violations));
+    if (!(normal.squaredNorm() > 0.25f)) normal = -ray.normalized();  // unknown: face the camera
+    for (int c = 0; c < 3; ++c) result.normals.At(x, y, c) = normal[c];
+  };
+  MultiDepthStats& stats = result.stats;
+  for (int y = 0; y < h; ++y) {
+    for (int x = 0; x < w; ++x) {
+      const float d = key.depth.At(x, y);
+      if (!IsValidDepth(d)) continue;
+      ++stats.input_samples;
+      const float key_confidence = ConfidenceAt(key.confidence, x, y);
+      if (key_confidence < options.min_confidence) {
+        ++stats.low_confidence;
+        continue;
+      }
+      const Eigen::Vector3f& ray = rays[static_cast<size_t>(y) * w + x];
+      const Votes votes = Vote(ray, d, key_confidence, prepared, options);
+      if (votes.violations > options.max_violation_ratio * votes.confirmations) {
+        ++stats.violated;
+        continue;
+      }
+      if (votes.confirmations < options.min_consistent_views) {
+        ++stats.unconfirmed;
+        continue;
+      }
+      ++stats.kept;
+      store(x, y, votes, d, ray, Eigen::Vector3f(normals.At(x, y, 0), normals.At(x, y, 1), normals.At(x, y, 2)));
+    }
+  }
+  if (!options.fill_from_neighbors || prepared.empty()) return result;
+
+  // Depth compatibility fills the key pixels left empty where the key's own sample was missing or
+  // an outlier, where the key's confidence allows (an untextured area, or a pixel the key's stereo
+  // gave confidence 0, stays empty): the nearest neighbour-warped candidate that the other views
+  // confirm.
+  const std::vector<DepthMap> warped = WarpNeighbors(prepared, key.camera, w, h, options);
+  const DepthMap first_pass = result.depth;
+  const float tolerance = static_cast<float>(options.depth_tolerance);
+  std::vector<float> candidates;
+  std::vector<size_t> filled;
+  for (int y = 0; y < h; ++y) {
+    for (int x = 0; x < w; ++x) {
+      if (result.depth.At(x, y) > 0) continue;
+      if (ConfidenceAt(key.confidence, x, y) < options.min_confidence) continue;
+      // Accepted own depths around the pixel bound the candidates (a weak smoothness term that
+      // keeps surfaces hidden from the key, warped in from far neighbours, out of it).
+      float lo = 0, hi = 1e30f;
+      if (KeptRange(first_pass, x, y, 2, &lo, &hi)) lo *= 1 - 3 * tolerance, hi *= 1 + 3 * tolerance;
+      constexpr int kR = 1;  // candidates from a 3x3 window: forward warping leaves gaps
+      candidates.clear();
+      for (const DepthMap& z : warped) {
+        for (int v = std::max(0, y - kR); v <= std::min(h - 1, y + kR); ++v) {
+          for (int u = std::max(0, x - kR); u <= std::min(w - 1, x + kR); ++u) {
+            const float c = z.At(u, v);
+            if (c > 0 && c >= lo && c <= hi) candidates.push_back(c);
+          }
+        }
+      }
+      std::sort(candidates.begin(), candidates.end());
+      const Eigen::Vector3f& ray = rays[static_cast<size_t>(y) * w + x];
+      for (const float candidate : candidates) {
+        // Stricter than for the key's own samples (the key's photometry did not choose this depth):
+        // besides its source, min_consistent_views views confirm it and none sees through it.
+        const Votes votes = Vote(ray, candidate, 0.f, prepared, options);  // depth from the confirming views only
+        if (votes.violations > 0 || votes.confirmations < options.min_consistent_views + 1) continue;
+        ++stats.filled;
+        store(x, y, votes, candidate, ray, Eigen::Vector3f::Zero());  // weight_sum > 0: confirmations >= 1
+        filled.push_back(static_cast<size_t>(y) * w + x);
+        break;
+      }
+    }
+  }
+  if (filled.empty()) return result;
+  // Filled pixels have no photometric normal: take the normal of the final depth map there.
+  const FloatMap filled_normals = NormalsFromDepth(key.camera, result.depth);
+  for (const size_t i : filled) {
+    const int x = static_cast<int>(i % w), y = static_cast<int>(i / w);
+    if (filled_normals.At(x, y, 2) == 0.f) continue;  // no normal from the depth: keep facing the camera
+    for (int c = 0; c < 3; ++c) result.normals.At(x, y, c) = filled_normals.At(x, y, c);
+  }
+  return result;
+}
+
+DepthAccuracy CompareDepth(const DepthMap& depth, const DepthMap& truth, double relative_tolerance) {
+  DepthAccuracy accuracy;
+  if (depth.Empty() || truth.Empty()) return accuracy;
+  // Truth sampled at the estimate's pixel centres (nearest), so a downscaled map compares too.
+  for (int y = 0; y < depth.height; ++y) {
+    const int ty = std::min(truth.height - 1, static_cast<int>((y + 0.5) * truth.height / depth.height));
+    for (int x = 0; x < depth.width; ++x) {
+      const int tx = std::min(truth.width - 1, static_cast<int>((x + 0.5) * truth.width / depth.width));
+      const float t = truth.At(tx, ty);
+      if (!IsValidDepth(t)) continue;
+      ++accuracy.truth_pixels;
+      const float d = depth.At(x, y);
+      if (!IsValidDepth(d)) continue;
+      ++accuracy.estimated;
+      if (std::abs(d - t) <= relative_tolerance * t) ++accuracy.within_tolerance;
+    }
+  }
+  return accuracy;
+}
+
+}  // namespace ibmr

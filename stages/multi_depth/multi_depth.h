@@ -1,0 +1,101 @@
+// Multiple depth maps made mutually consistent (seed 000, Szeliski BMVC'99 section 5 "Multiple
+// depth maps", lines 5812-5950, and the "Multi-view representation" slides, lines 3847-3894):
+// one depth map per key view; each sample of a key view is projected into its neighbour views,
+// where the neighbour's own depth map decides its vote:
+//   * visibility v_st (line ~5880): the neighbour's depth at the projection is clearly smaller than
+//     the sample's depth in that view -> a nearer surface hides the sample there: no vote;
+//   * clearly larger -> the neighbour saw through the sample (a free-space violation): a vote
+//     against it;
+//   * within a relative tolerance -> depth compatibility (the "controlled depth compatibility"
+//     term): a vote for it.
+// Samples that fewer than `min_consistent_views` neighbours confirm, or that more neighbours see
+// through than confirm, are rejected. Kept samples are optionally refined to the confidence-
+// (inverse-variance-) weighted mean of the confirming depths along the key pixel's ray (the
+// uncertainty-weighted merging of seed 000 section 4, lines 4399-4453, in one dimension).
+// Key pixels left without a depth (missing or rejected, but not dropped for low confidence) are
+// filled from the neighbours' depths forward-warped into the key view when other views confirm
+// them: the compatibility term lets neighbours inform the key's estimate (line ~5890).
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include "pipeline/core/camera.h"
+#include "pipeline/core/float_map.h"
+#include "pipeline/core/rigid3.h"
+#include "pipeline/core/sparse_model.h"
+
+namespace ibmr {
+
+struct MultiDepthOptions {
+  double depth_tolerance = 0.01;     // relative depth difference counted as agreement, in (0, 0.5]
+  int min_consistent_views = 2;      // other views that must confirm a sample, in [1, 64]
+  double max_violation_ratio = 0.5;  // reject when free-space violations > ratio * confirmations, >= 0
+  double min_confidence = 0.1;       // photometric confidence below this: sample dropped, in [0, 1]
+  bool refine_depth = true;          // replace depth by the weighted mean of the confirming depths
+  int max_neighbors = 8;             // neighbour views per key view (closest viewing directions), [1, 64]
+  double max_view_angle_deg = 80.0;  // neighbour's viewing direction within this of the key's, (0, 180]
+  bool fill_from_neighbors = true;   // fill missing / rejected key pixels with a confirmed neighbour depth
+  double min_baseline_ratio = 0.05;  // neighbour baseline >= ratio * median baseline of the key, [0, 1)
+
+  // False with `error` starting with the YAML key when a value is out of range.
+  bool Check(std::string* error) const;
+};
+
+// One view's camera and maps, in memory. `normals` (3 channels, camera frame) and `confidence`
+// (1 channel in [0, 1]) may be empty: normals are then computed from the depth map and the
+// confidence is taken as 1.
+struct DepthView {
+  std::string name;
+  Camera camera;
+  Rigid3d cam_from_world;
+  DepthMap depth;
+  FloatMap normals;
+  FloatMap confidence;
+};
+
+struct MultiDepthStats {
+  size_t input_samples = 0;      // valid key-view depths
+  size_t low_confidence = 0;     // dropped for photometric confidence below min_confidence
+  size_t unconfirmed = 0;        // fewer than min_consistent_views confirmations
+  size_t violated = 0;           // too many free-space violations
+  size_t kept = 0;               // own samples kept
+  size_t filled = 0;             // pixels filled from a neighbour's confirmed depth
+};
+
+struct MultiDepthResult {
+  DepthMap depth;        // 0 where rejected
+  FloatMap normals;      // 3 channels, camera frame, unit, facing the camera; 0 where rejected
+  FloatMap confidence;   // in [0, 1]; 0 where rejected
+  MultiDepthStats stats;
+};
+
+// Neighbour views of `key` among `candidates` (indices into candidates, best first; `key` itself
+// is skipped): viewing directions within max_view_angle_deg, a baseline of at least
+// min_baseline_ratio times the median distance from the key to the candidates (two photos from one
+// position confirm nothing), sorted by angle, at most max_neighbors.
+std::vector<int> SelectNeighbors(const Image& key, const std::vector<const Image*>& candidates,
+                                 const MultiDepthOptions& options);
+
+// Makes `key`'s depth map consistent with its `neighbors` (their depth and confidence maps are
+// read; their normals are not). Pure; thread-safe.
+MultiDepthResult MakeDepthConsistent(const DepthView& key, const std::vector<const DepthView*>& neighbors,
+                                     const MultiDepthOptions& options);
+
+// Unit normals (camera frame, facing the camera) from a depth map by central differences of the
+// back-projected points; 0 where a neighbour is missing or the depth jumps by > 5%.
+FloatMap NormalsFromDepth(const Camera& camera, const DepthMap& depth);
+
+// Ground-truth comparison on `depth`'s pixel grid (truth sampled at the nearest pixel when the
+// resolutions differ): among pixels where the truth is > 0, how many have an estimate and how many
+// are within `relative_tolerance` of the truth (missing estimates count as wrong in FractionOfTruth).
+struct DepthAccuracy {
+  size_t truth_pixels = 0;
+  size_t estimated = 0;        // truth > 0 and depth > 0
+  size_t within_tolerance = 0;
+  double FractionOfTruth() const { return truth_pixels ? double(within_tolerance) / truth_pixels : 0.0; }
+  double FractionOfEstimated() const { return estimated ? double(within_tolerance) / estimated : 0.0; }
+};
+DepthAccuracy CompareDepth(const DepthMap& depth, const DepthMap& truth, double relative_tolerance);
+
+}  // namespace ibmr

@@ -1,0 +1,229 @@
+// Adapter of the multi_depth stage (seed 000 lines 3847-3894, 5812-5950): reads the photometric
+// depth, normal and confidence maps that plane_sweep wrote, makes each training view's depth map
+// consistent with its neighbours' (multi_depth.h) and writes the .geometric.bin maps. Views are
+// streamed: a key view and its neighbours are loaded, processed and released, one key per task.
+// When ground_truth/depth/ exists (synthetic scenes) the record holds the fraction of pixels
+// with true depth that are within 1% of it, before and after.
+#include <spdlog/spdlog.h>
+
+#include <filesystem>
+#include <mutex>
+
+#include "pipeline/core/colmap_array_io.h"
+#include "pipeline/core/errors.h"
+#include "pipeline/core/per_view.h"
+#include "pipeline/core/stage_api.h"
+#include "stages/multi_depth/multi_depth.h"
+
+namespace fs = std::filesystem;
+
+namespace ibmr {
+
+namespace {
+
+std::string ConfidencePath(const Workspace& workspace, const std::string& name, const std::string& kind) {
+  return workspace.Path("dense/stereo/confidence_maps/" + name + "." + kind + ".bin");
+}
+
+// Loads a view's maps; `with_normals` false skips the normal map (neighbours do not need it).
+DepthView LoadView(const Workspace& workspace, const SparseModel& model, const Image& image, bool with_normals) {
+  DepthView view;
+  view.name = image.name;
+  view.camera = model.CameraOf(image);
+  view.cam_from_world = image.cam_from_world;
+  const std::string depth_path = workspace.DepthMapPath(image.name, "photometric");
+  if (!fs::exists(depth_path)) {
+    throw InputError(depth_path + ": no photometric depth map for view '" + image.name + "'; run plane_sweep first");
+  }
+  view.depth = ReadColmapArray(depth_path);
+  if (view.depth.channels != 1) throw InputError(depth_path + ": a depth map must have 1 channel, got " + std::to_string(view.depth.channels));
+  const std::string confidence_path = ConfidencePath(workspace, image.name, "photometric");
+  if (fs::exists(confidence_path)) {
+    view.confidence = ReadColmapArray(confidence_path);
+    if (view.confidence.width != view.depth.width || view.confidence.height != view.depth.height || view.confidence.channels != 1) {
+      throw InputError(confidence_path + ": size differs from the depth map's (" + std::to_string(view.depth.width) + "x" +
+                       std::to_string(view.depth.height) + ", 1 channel); rerun plane_sweep");
+    }
+  }
+  const std::string normal_path = workspace.NormalMapPath(image.name, "photometric");
+  if (with_normals && fs::exists(normal_path)) {
+    view.normals = ReadColmapArray(normal_path);
+    if (view.normals.width != view.depth.width || view.normals.height != view.depth.height || view.normals.channels != 3) {
+      throw InputError(normal_path + ": a normal map must match the depth map's size with 3 channels; rerun plane_sweep");
+    }
+  }
+  return view;
+}
+
+class MultiDepthStage : public Stage {
+ public:
+  std::string Name() const override { return "multi_depth"; }
+  std::string Summary() const override {
+    return "Depth maps made consistent across views: visibility, depth compatibility, rejection (.geometric.bin)";
+  }
+  std::string Version() const override { return "1"; }
+  HoldoutRole Role() const override { return HoldoutRole::kTrainingOnly; }
+
+  std::vector<ParamSpec> Parameters() const override {
+    return {
+        {"depth_tolerance", ParamType::kDouble, "0.01", "Relative depth difference that counts as agreement, in (0, 0.5]"},
+        {"min_consistent_views", ParamType::kInt, "2", "Other views that must confirm a sample, in [1, 64]"},
+        {"max_violation_ratio", ParamType::kDouble, "0.5", "Reject when free-space violations exceed ratio * confirmations, >= 0"},
+        {"min_confidence", ParamType::kDouble, "0.1", "Photometric confidence below this drops a sample, in [0, 1]"},
+        {"refine_depth", ParamType::kBool, "true", "Replace depth by the confidence-weighted mean of confirming depths"},
+        {"max_neighbors", ParamType::kInt, "8", "Neighbour views per key view, in [1, 64]"},
+        {"max_view_angle_deg", ParamType::kDouble, "80", "Neighbour viewing direction within this angle of the key's, degrees"},
+        {"fill_from_neighbors", ParamType::kBool, "true", "Fill missing or rejected pixels with a neighbour depth that other views confirm"},
+        {"min_baseline_ratio", ParamType::kDouble, "0.05", "Neighbour baseline >= ratio * the key's median baseline, in [0, 1)"},
+    };
+  }
+
+  std::optional<ParamError> CheckParams(const Params& params) const override {
+    std::string error;
+    if (!ToOptions(params).Check(&error)) {
+      const size_t colon = error.find(':');
+      return ParamError{error.substr(0, colon), colon == std::string::npos ? error : error.substr(colon + 2)};
+    }
+    return std::nullopt;
+  }
+
+  std::vector<std::string> Inputs(const StageContext& context) const override {
+    std::vector<std::string> inputs = {"sparse"};
+    const std::vector<std::string> names = Names(context);
+    if (names.empty()) {  // before sparse/ exists: the folders, for dependency order only
+      for (const char* folder : {"dense/stereo/depth_maps", "dense/stereo/normal_maps", "dense/stereo/confidence_maps"}) inputs.push_back(folder);
+      return inputs;
+    }
+    for (const std::string& name : names) {
+      inputs.push_back("dense/stereo/depth_maps/" + name + ".photometric.bin");
+      inputs.push_back("dense/stereo/normal_maps/" + name + ".photometric.bin");
+      inputs.push_back("dense/stereo/confidence_maps/" + name + ".photometric.bin");
+    }
+    inputs.push_back("ground_truth/depth");  // metrics only; "missing" on real data
+    return inputs;
+  }
+
+  std::vector<std::string> Outputs(const StageContext& context) const override {
+    std::vector<std::string> outputs;
+    for (const std::string& name : Names(context)) {
+      outputs.push_back("dense/stereo/depth_maps/" + name + ".geometric.bin");
+      outputs.push_back("dense/stereo/normal_maps/" + name + ".geometric.bin");
+      outputs.push_back("dense/stereo/confidence_maps/" + name + ".geometric.bin");
+    }
+    return outputs;
+  }
+
+  void Run(StageContext& context) const override {
+    const MultiDepthOptions options = ToOptions(context.params);
+    const SparseModel model = context.LoadModel();
+    const std::vector<std::string> names = context.TrainingImageNames(model);
+    if (names.size() < 2) throw InputError("multi_depth: needs at least 2 training views, sparse/ has " + std::to_string(names.size()));
+    std::vector<const Image*> images;
+    for (const std::string& name : names) images.push_back(model.FindImage(name));
+    const Workspace& workspace = context.workspace;
+    const bool has_truth = fs::is_directory(workspace.Path("ground_truth/depth"));
+
+    std::mutex mutex;
+    MultiDepthStats totals;
+    DepthAccuracy before, after;
+    size_t views_without_neighbors = 0;
+    ForEachView(context, "consistent depth maps", names, [&](const std::string& name) {
+      const Image& key_image = *model.FindImage(name);
+      const DepthView key = LoadView(workspace, model, key_image, /*with_normals=*/true);
+      std::vector<DepthView> neighbors;
+      for (int index : SelectNeighbors(key_image, images, options)) {
+        neighbors.push_back(LoadView(workspace, model, *images[index], /*with_normals=*/false));
+      }
+      std::vector<const DepthView*> pointers;
+      for (const DepthView& n : neighbors) pointers.push_back(&n);
+      const MultiDepthResult result = MakeDepthConsistent(key, pointers, options);
+      WriteColmapArray(workspace.DepthMapPath(name, "geometric"), result.depth);
+      WriteColmapArray(workspace.NormalMapPath(name, "geometric"), result.normals);
+      WriteColmapArray(ConfidencePath(workspace, name, "geometric"), result.confidence);
+
+      DepthAccuracy view_before, view_after;
+      const std::string truth_path = workspace.GroundTruthDepthPath(name);
+      if (has_truth && fs::exists(truth_path)) {
+        const DepthMap truth = ReadColmapArray(truth_path);
+        view_before = CompareDepth(key.depth, truth, 0.01);
+        view_after = CompareDepth(result.depth, truth, 0.01);
+      }
+      std::lock_guard<std::mutex> lock(mutex);
+      if (neighbors.empty()) ++views_without_neighbors;
+      Accumulate(result.stats, &totals);
+      Accumulate(view_before, &before);
+      Accumulate(view_after, &after);
+    });
+
+    // Totals over views computed in this run (a resumed run counts only the views it computed).
+    nlohmann::json& m = context.metrics;
+    m["views"] = names.size();
+    m["input_samples"] = totals.input_samples;
+    m["dropped_low_confidence"] = totals.low_confidence;
+    m["dropped_unconfirmed"] = totals.unconfirmed;
+    m["dropped_free_space_violation"] = totals.violated;
+    m["kept_samples"] = totals.kept;
+    m["filled_from_neighbors"] = totals.filled;
+    m["kept_fraction"] = totals.input_samples ? double(totals.kept) / totals.input_samples : 0.0;
+    m["views_without_neighbors"] = views_without_neighbors;
+    if (before.truth_pixels > 0) {
+      m["truth_pixels"] = before.truth_pixels;
+      m["photometric_within_1pct_of_textured"] = before.FractionOfTruth();
+      m["photometric_within_1pct_of_estimated"] = before.FractionOfEstimated();
+      m["geometric_within_1pct_of_textured"] = after.FractionOfTruth();
+      m["geometric_within_1pct_of_kept"] = after.FractionOfEstimated();
+      m["geometric_kept_of_textured"] = double(after.estimated) / after.truth_pixels;
+    }
+    spdlog::info("[multi_depth] {} views: kept {} of {} samples ({:.1f}%; {} low confidence, {} unconfirmed, {} seen through), {} filled",
+                 names.size(), totals.kept, totals.input_samples, 100.0 * m["kept_fraction"].get<double>(),
+                 totals.low_confidence, totals.unconfirmed, totals.violated, totals.filled);
+    if (before.truth_pixels > 0) {
+      spdlog::info("[multi_depth] within 1% of the true depth: {:.1f}% of textured pixels ({:.1f}% before), {:.1f}% of kept",
+                   100 * after.FractionOfTruth(), 100 * before.FractionOfTruth(), 100 * after.FractionOfEstimated());
+    }
+  }
+
+ private:
+  static void Accumulate(const MultiDepthStats& s, MultiDepthStats* total) {
+    total->input_samples += s.input_samples;
+    total->low_confidence += s.low_confidence;
+    total->unconfirmed += s.unconfirmed;
+    total->violated += s.violated;
+    total->kept += s.kept;
+    total->filled += s.filled;
+  }
+  static void Accumulate(const DepthAccuracy& a, DepthAccuracy* total) {
+    total->truth_pixels += a.truth_pixels;
+    total->estimated += a.estimated;
+    total->within_tolerance += a.within_tolerance;
+  }
+
+  static std::vector<std::string> Names(const StageContext& context) {
+    if (!fs::exists(context.workspace.Path("sparse/images.txt"))) return {};
+    try {
+      return context.TrainingImageNames(context.LoadModel());
+    } catch (const std::exception&) {
+      return {};  // Run() reports the problem
+    }
+  }
+
+  static MultiDepthOptions ToOptions(const Params& params) {
+    MultiDepthOptions options;
+    options.depth_tolerance = params.Double("depth_tolerance");
+    options.min_consistent_views = static_cast<int>(params.Int("min_consistent_views"));
+    options.max_violation_ratio = params.Double("max_violation_ratio");
+    options.min_confidence = params.Double("min_confidence");
+    options.refine_depth = params.Bool("refine_depth");
+    options.max_neighbors = static_cast<int>(params.Int("max_neighbors"));
+    options.max_view_angle_deg = params.Double("max_view_angle_deg");
+    options.min_baseline_ratio = params.Double("min_baseline_ratio");
+    options.fill_from_neighbors = params.Bool("fill_from_neighbors");
+    return options;
+  }
+};
+
+}  // namespace
+
+void RegisterStage_multi_depth(StageRegistry* registry) { registry->Add(std::make_unique<MultiDepthStage>()); }
+
+}  // namespace ibmr

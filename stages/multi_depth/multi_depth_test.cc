@@ -1,0 +1,380 @@
+// Tests of multi_depth (seed 000 lines 3847-3894, 5812-5950): options, neighbour choice, and a
+// small analytic scene (a sphere partly hidden by a smaller one, 16 ring views at 160x120) whose
+// true depth maps are corrupted with noise, outliers, floating blobs and holes; the consistent maps
+// must match the truth within 1% on >= 90% of the pixels with true depth. One adapter run on a
+// temporary workspace.
+#include "stages/multi_depth/multi_depth.h"
+
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <filesystem>
+#include <random>
+
+#include "pipeline/core/colmap_array_io.h"
+#include "pipeline/core/colmap_text_io.h"
+#include "pipeline/core/errors.h"
+#include "pipeline/core/stage_api.h"
+
+namespace fs = std::filesystem;
+
+namespace ibmr {
+void RegisterStage_multi_depth(StageRegistry* registry);
+
+namespace {
+
+struct Sphere {
+  Eigen::Vector3d center;
+  double radius;
+};
+
+// Two spheres: the big one at the origin, a small one beside it that hides part of it.
+const std::vector<Sphere> kSpheres = {{Eigen::Vector3d(0, 0, 0), 1.0}, {Eigen::Vector3d(1.5, 0.3, 0.2), 0.4}};
+
+// True z depth of each pixel of a camera (ray casting), 0 where the ray misses.
+DepthMap RenderDepth(const Camera& camera, const Rigid3d& cam_from_world) {
+  DepthMap depth(camera.width, camera.height, 1, 0.f);
+  const Rigid3d world_from_cam = cam_from_world.Inverse();
+  const Eigen::Vector3d origin = world_from_cam.translation;
+  for (int y = 0; y < camera.height; ++y) {
+    for (int x = 0; x < camera.width; ++x) {
+      const Eigen::Vector3d ray_cam = camera.CamFromImg(Eigen::Vector2d(x + 0.5, y + 0.5));  // z = 1
+      const Eigen::Vector3d dir = world_from_cam.rotation * ray_cam;
+      double best = 1e30;
+      for (const Sphere& s : kSpheres) {
+        const Eigen::Vector3d oc = origin - s.center;
+        const double a = dir.squaredNorm(), b = 2 * oc.dot(dir), c = oc.squaredNorm() - s.radius * s.radius;
+        const double disc = b * b - 4 * a * c;
+        if (disc < 0) continue;
+        const double t = (-b - std::sqrt(disc)) / (2 * a);
+        if (t > 0) best = std::min(best, t);
+      }
+      if (best < 1e30) depth.At(x, y) = static_cast<float>(best);  // t along (x, y, 1) is z
+    }
+  }
+  return depth;
+}
+
+struct Scene {
+  std::vector<Image> images;
+  std::vector<DepthView> truth;
+};
+
+Scene MakeScene(int views = 16, int width = 160, int height = 120) {
+  Scene scene;
+  const Camera camera = Camera::Pinhole(width, height, 150, 150, width / 2.0, height / 2.0);
+  for (int i = 0; i < views; ++i) {
+    const double angle = 2 * M_PI * i / views;
+    const Eigen::Vector3d eye(4 * std::cos(angle), 4 * std::sin(angle), 1.2);
+    Image image;
+    image.image_id = i + 1;
+    image.camera_id = 1;
+    image.name = "v" + std::to_string(i) + ".png";
+    image.cam_from_world = LookAt(eye, Eigen::Vector3d::Zero(), Eigen::Vector3d::UnitZ());
+    DepthView view;
+    view.name = image.name;
+    view.camera = camera;
+    view.cam_from_world = image.cam_from_world;
+    view.depth = RenderDepth(camera, image.cam_from_world);
+    scene.images.push_back(image);
+    scene.truth.push_back(view);
+  }
+  return scene;
+}
+
+// Noise (relative sigma), outliers (uniform in [0.6, 1.4] x true), holes; a confidence map.
+DepthView Corrupt(const DepthView& truth, int seed, double sigma = 0.002, double outliers = 0.08, double holes = 0.03) {
+  DepthView view = truth;
+  std::mt19937 rng(seed);
+  std::normal_distribution<float> noise(0.f, static_cast<float>(sigma));
+  std::uniform_real_distribution<float> uniform(0.f, 1.f);
+  view.confidence = FloatMap(truth.depth.width, truth.depth.height, 1, 0.f);
+  for (size_t i = 0; i < view.depth.data.size(); ++i) {
+    float& d = view.depth.data[i];
+    if (d <= 0) continue;
+    const float u = uniform(rng);
+    if (u < holes) {
+      d = 0;
+    } else if (u < holes + outliers) {
+      d *= 0.6f + 0.8f * uniform(rng);
+      view.confidence.data[i] = 0.3f + 0.5f * uniform(rng);
+    } else {
+      d *= 1 + noise(rng);
+      view.confidence.data[i] = 0.5f + 0.5f * uniform(rng);
+    }
+  }
+  return view;
+}
+
+std::vector<const DepthView*> Others(const std::vector<DepthView>& views, size_t key) {
+  std::vector<const DepthView*> others;
+  for (size_t i = 0; i < views.size(); ++i) {
+    if (i != key) others.push_back(&views[i]);
+  }
+  return others;
+}
+
+TEST(MultiDepthOptions, DefaultsAreValid) {
+  std::string error;
+  EXPECT_TRUE(MultiDepthOptions().Check(&error)) << error;
+}
+
+TEST(MultiDepthOptions, RejectsInvalidRanges) {
+  auto expect_error = [](const MultiDepthOptions& options, const std::string& key) {
+    std::string error;
+    EXPECT_FALSE(options.Check(&error)) << key;
+    EXPECT_EQ(error.rfind(key + ":", 0), 0u) << error;
+  };
+  MultiDepthOptions o;
+  o.depth_tolerance = 0;
+  expect_error(o, "depth_tolerance");
+  o = MultiDepthOptions();
+  o.min_consistent_views = 0;
+  expect_error(o, "min_consistent_views");
+  o = MultiDepthOptions();
+  o.max_violation_ratio = -1;
+  expect_error(o, "max_violation_ratio");
+  o = MultiDepthOptions();
+  o.min_confidence = 1.5;
+  expect_error(o, "min_confidence");
+  o = MultiDepthOptions();
+  o.max_neighbors = 1;
+  o.min_consistent_views = 2;
+  expect_error(o, "max_neighbors");
+  o = MultiDepthOptions();
+  o.max_view_angle_deg = 0;
+  expect_error(o, "max_view_angle_deg");
+  o = MultiDepthOptions();
+  o.min_baseline_ratio = 1;
+  expect_error(o, "min_baseline_ratio");
+}
+
+TEST(SelectNeighbors, ClosestDirectionsFirstAndNoZeroBaseline) {
+  Scene scene = MakeScene(8, 32, 24);
+  Image twin = scene.images[0];  // same position as view 0 (like templeSR0001 / templeSR0011)
+  twin.name = "twin.png";
+  std::vector<const Image*> candidates;
+  for (const Image& image : scene.images) candidates.push_back(&image);
+  candidates.push_back(&twin);
+  MultiDepthOptions options;
+  options.max_neighbors = 4;
+  options.max_view_angle_deg = 100;
+  const std::vector<int> selected = SelectNeighbors(scene.images[0], candidates, options);
+  ASSERT_EQ(selected.size(), 4u);
+  // Ring of 8: views 1 and 7 are 45 degrees away, 2 and 6 are 90 degrees away.
+  std::set<std::string> first_two = {candidates[selected[0]]->name, candidates[selected[1]]->name};
+  EXPECT_EQ(first_two, (std::set<std::string>{"v1.png", "v7.png"}));
+  for (int index : selected) {
+    EXPECT_NE(candidates[index]->name, "twin.png");
+    EXPECT_NE(candidates[index]->name, "v0.png");
+  }
+  options.max_view_angle_deg = 30;  // the cameras' directions differ by >= ~43 degrees
+  EXPECT_TRUE(SelectNeighbors(scene.images[0], candidates, options).empty());
+}
+
+TEST(MultiDepth, CleanTruthIsKeptAlmostEverywhere) {
+  const Scene scene = MakeScene();
+  MultiDepthOptions options;
+  options.refine_depth = false;
+  options.fill_from_neighbors = false;
+  const MultiDepthResult result = MakeDepthConsistent(scene.truth[0], Others(scene.truth, 0), options);
+  const DepthAccuracy accuracy = CompareDepth(result.depth, scene.truth[0].depth, 1e-6);
+  // The small sphere hides part of the big one in some neighbours: visibility keeps those samples;
+  // only silhouette pixels (nearest-pixel look-ups across a depth edge) may be lost.
+  EXPECT_GT(accuracy.FractionOfTruth(), 0.95);
+  EXPECT_EQ(accuracy.within_tolerance, accuracy.estimated);
+  EXPECT_LT(result.stats.violated, result.stats.input_samples / 50);
+}
+
+TEST(MultiDepth, NoisyMapsBecomeConsistentWithinOnePercent) {
+  const Scene scene = MakeScene();
+  std::vector<DepthView> noisy;
+  for (size_t i = 0; i < scene.truth.size(); ++i) noisy.push_back(Corrupt(scene.truth[i], 100 + i));
+  const MultiDepthOptions options;
+  DepthAccuracy before, after;
+  size_t kept_outliers = 0, outliers = 0;
+  for (size_t k = 0; k < noisy.size(); ++k) {
+    const MultiDepthResult result = MakeDepthConsistent(noisy[k], Others(noisy, k), options);
+    const DepthMap& truth = scene.truth[k].depth;
+    const DepthAccuracy b = CompareDepth(noisy[k].depth, truth, 0.01), a = CompareDepth(result.depth, truth, 0.01);
+    before.truth_pixels += b.truth_pixels, before.within_tolerance += b.within_tolerance, before.estimated += b.estimated;
+    after.truth_pixels += a.truth_pixels, after.within_tolerance += a.within_tolerance, after.estimated += a.estimated;
+    for (size_t i = 0; i < truth.data.size(); ++i) {
+      if (truth.data[i] > 0 && noisy[k].depth.data[i] > 0 && std::abs(noisy[k].depth.data[i] / truth.data[i] - 1) > 0.05) {
+        ++outliers;  // kept as it was, instead of rejected or replaced by a confirmed depth
+        kept_outliers += result.depth.data[i] > 0 && std::abs(result.depth.data[i] / truth.data[i] - 1) > 0.05;
+      }
+    }
+    // Output maps: same size, normals unit where depth is kept, confidence in (0, 1].
+    ASSERT_EQ(result.normals.channels, 3);
+    for (int y = 0; y < truth.height; y += 7) {
+      for (int x = 0; x < truth.width; x += 7) {
+        if (result.depth.At(x, y) <= 0) continue;
+        const Eigen::Vector3f n(result.normals.At(x, y, 0), result.normals.At(x, y, 1), result.normals.At(x, y, 2));
+        EXPECT_NEAR(n.norm(), 1.f, 1e-3);
+        EXPECT_LT(n.z(), 0.f);  // faces the camera
+        EXPECT_GT(result.confidence.At(x, y), 0.f);
+        EXPECT_LE(result.confidence.At(x, y), 1.f);
+      }
+    }
+  }
+  EXPECT_GE(after.FractionOfTruth(), 0.90) << "before: " << before.FractionOfTruth();
+  EXPECT_GT(after.FractionOfEstimated(), 0.97);
+  EXPECT_GT(outliers, 1000u);
+  EXPECT_LT(kept_outliers, outliers / 25) << kept_outliers << " of " << outliers << " outliers kept";
+}
+
+TEST(MultiDepth, RefinementReducesNoise) {
+  const Scene scene = MakeScene();
+  std::vector<DepthView> noisy;
+  for (size_t i = 0; i < scene.truth.size(); ++i) noisy.push_back(Corrupt(scene.truth[i], 7 + i, 0.003, 0.0, 0.0));
+  MultiDepthOptions options;
+  options.depth_tolerance = 0.02;
+  options.refine_depth = false;
+  const MultiDepthResult raw = MakeDepthConsistent(noisy[0], Others(noisy, 0), options);
+  options.refine_depth = true;
+  const MultiDepthResult refined = MakeDepthConsistent(noisy[0], Others(noisy, 0), options);
+  double raw_error = 0, refined_error = 0;
+  size_t n = 0;
+  const DepthMap& truth = scene.truth[0].depth;
+  for (size_t i = 0; i < truth.data.size(); ++i) {
+    if (truth.data[i] <= 0 || raw.depth.data[i] <= 0 || refined.depth.data[i] <= 0) continue;
+    raw_error += std::pow(raw.depth.data[i] / truth.data[i] - 1, 2);
+    refined_error += std::pow(refined.depth.data[i] / truth.data[i] - 1, 2);
+    ++n;
+  }
+  ASSERT_GT(n, 1000u);
+  EXPECT_LT(std::sqrt(refined_error / n), 0.7 * std::sqrt(raw_error / n));
+}
+
+TEST(MultiDepth, FloatingBlobInFreeSpaceIsRejected) {
+  const Scene scene = MakeScene();
+  std::vector<DepthView> views = scene.truth;
+  // A blob at 95% of the true depth in view 8 (the small sphere is behind the big one there):
+  // the neighbours see the sphere behind it.
+  const size_t k = 8;
+  DepthView& key = views[k];
+  size_t blob = 0;
+  for (int y = 50; y < 70; ++y) {
+    for (int x = 70; x < 90; ++x) {
+      if (key.depth.At(x, y) > 0) key.depth.At(x, y) *= 0.95f, ++blob;
+    }
+  }
+  ASSERT_GT(blob, 300u);
+  for (const bool fill : {false, true}) {
+    MultiDepthOptions options;
+    options.min_consistent_views = 1;
+    options.fill_from_neighbors = fill;
+    const MultiDepthResult result = MakeDepthConsistent(key, Others(views, k), options);
+    size_t true_surface = 0;
+    for (int y = 50; y < 70; ++y) {
+      for (int x = 70; x < 90; ++x) {
+        const float d = result.depth.At(x, y), t = scene.truth[k].depth.At(x, y);
+        if (fill) {  // the blob is replaced by the surface behind it
+          EXPECT_TRUE(d == 0.f || std::abs(d / t - 1) < 0.01f) << x << "," << y << ": " << d << " vs " << t;
+          true_surface += d > 0;
+        } else {
+          EXPECT_EQ(d, 0.f) << x << "," << y;
+        }
+      }
+    }
+    EXPECT_GT(result.stats.violated, blob * 9 / 10);
+    if (fill) EXPECT_GT(true_surface, blob / 4);  // from the blob's rim inwards, where other views confirm
+  }
+}
+
+TEST(MultiDepth, LowConfidenceSamplesAreDropped) {
+  const Scene scene = MakeScene();
+  std::vector<DepthView> views = scene.truth;
+  DepthView& key = views[0];
+  key.confidence = FloatMap(key.depth.width, key.depth.height, 1, 1.f);
+  for (int y = 0; y < key.depth.height / 2; ++y) {
+    for (int x = 0; x < key.depth.width; ++x) key.confidence.At(x, y) = 0.02f;  // "untextured" top half
+  }
+  const MultiDepthResult result = MakeDepthConsistent(key, Others(views, 0), MultiDepthOptions());
+  for (int y = 0; y < key.depth.height / 2; ++y) {
+    for (int x = 0; x < key.depth.width; ++x) ASSERT_EQ(result.depth.At(x, y), 0.f);
+  }
+  EXPECT_GT(result.stats.low_confidence, 1000u);
+  EXPECT_GT(result.stats.kept, 1000u);
+}
+
+TEST(MultiDepth, CompareDepthSamplesTruthAtLowerResolution) {
+  DepthMap truth(4, 4, 1, 2.f), half(2, 2, 1, 2.01f);
+  half.At(1, 1) = 0;
+  const DepthAccuracy a = CompareDepth(half, truth, 0.01);
+  EXPECT_EQ(a.truth_pixels, 4u);
+  EXPECT_EQ(a.estimated, 3u);
+  EXPECT_EQ(a.within_tolerance, 3u);
+}
+
+// Writes a workspace with the scene's cameras, noisy photometric maps and true depth.
+std::string MakeWorkspace(const Scene& scene, const std::string& tag) {
+  const fs::path root = fs::temp_directory_path() / ("ibmr_multi_depth_" + tag + "_" + std::to_string(::getpid()));
+  fs::remove_all(root);
+  Workspace workspace(root.string());
+  SparseModel model;
+  model.cameras[1] = scene.truth[0].camera;
+  for (const Image& image : scene.images) model.images[image.image_id] = image;
+  WriteSparseModelText(workspace.SparseDir(), model);
+  for (size_t i = 0; i < scene.truth.size(); ++i) {
+    const DepthView noisy = Corrupt(scene.truth[i], 50 + i);
+    WriteColmapArray(workspace.DepthMapPath(noisy.name, "photometric"), noisy.depth);
+    WriteColmapArray(workspace.Path("dense/stereo/confidence_maps/" + noisy.name + ".photometric.bin"), noisy.confidence);
+    WriteColmapArray(workspace.GroundTruthDepthPath(noisy.name), scene.truth[i].depth);
+  }
+  return root.string();
+}
+
+StageContext MakeContext(const std::string& root, const Stage& stage, NullProgress* progress) {
+  StageContext context;
+  context.workspace = Workspace(root);
+  context.role = stage.Role();
+  context.progress = progress;
+  for (const ParamSpec& spec : stage.Parameters()) {
+    if (spec.type == ParamType::kInt) context.params.Set(spec.key, static_cast<int64_t>(std::stoll(spec.default_yaml)));
+    if (spec.type == ParamType::kDouble) context.params.Set(spec.key, std::stod(spec.default_yaml));
+    if (spec.type == ParamType::kBool) context.params.Set(spec.key, spec.default_yaml == "true");
+  }
+  return context;
+}
+
+TEST(MultiDepthStage, RunsOnAWorkspaceAndRecordsAccuracy) {
+  const Scene scene = MakeScene();
+  const std::string root = MakeWorkspace(scene, "adapter");
+  StageRegistry registry;
+  RegisterStage_multi_depth(&registry);
+  const Stage* stage = registry.Find("multi_depth");
+  ASSERT_NE(stage, nullptr);
+  NullProgress progress;
+  StageContext context = MakeContext(root, *stage, &progress);
+  context.heldout_images = {"v3.png"};
+  ASSERT_FALSE(stage->CheckParams(context.params).has_value());
+  const std::vector<std::string> outputs = stage->Outputs(context);
+  EXPECT_EQ(outputs.size(), 3u * 15u);  // the held-out view gets no map
+  stage->Run(context);
+  for (const std::string& output : outputs) EXPECT_TRUE(fs::exists(context.workspace.Path(output))) << output;
+  EXPECT_FALSE(fs::exists(context.workspace.DepthMapPath("v3.png", "geometric")));
+  const DepthMap depth = ReadColmapArray(context.workspace.DepthMapPath("v0.png", "geometric"));
+  EXPECT_EQ(depth.width, 160);
+  EXPECT_GE(context.metrics["geometric_within_1pct_of_textured"].get<double>(), 0.9) << context.metrics.dump();
+  EXPECT_GT(context.metrics["kept_fraction"].get<double>(), 0.8);
+  // Bad parameter and missing input give messages naming the key / file.
+  Params bad = context.params;
+  bad.Set("depth_tolerance", 0.0);
+  const auto error = stage->CheckParams(bad);
+  ASSERT_TRUE(error.has_value());
+  EXPECT_EQ(error->key, "depth_tolerance");
+  fs::remove(context.workspace.DepthMapPath("v5.png", "photometric"));
+  try {
+    stage->Run(context);
+    FAIL() << "expected an error";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("v5.png.photometric.bin"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("plane_sweep"), std::string::npos) << e.what();
+  }
+  fs::remove_all(root);
+}
+
+}  // namespace
+}  // namespace ibmr
