@@ -1,0 +1,288 @@
+// Unstructured Lumigraph Rendering, per pixel (seed 001, section 4.1 [U 107-161]): penalties,
+// k-nearest blending weights, bilinear sampling; plane and mesh proxies. See render.h.
+#include "stages/render/render.h"
+
+#include <tbb/blocked_range.h>
+#include <Eigen/Eigenvalues>
+#include <Eigen/Cholesky>
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include "pipeline/core/rasterizer.h"
+
+namespace ibmr {
+
+namespace {
+
+// Penalties below this count as zero (the desired ray passes through the camera centre).
+constexpr double kZeroPenalty = 1e-12;
+
+// World direction of the ray through pixel (x, y) (not normalised; camera z component = 1).
+Eigen::Vector3d RayDirection(const Camera& camera, const Eigen::Matrix3d& world_from_cam_rotation, double x,
+                             double y) {
+  const Eigen::Vector3d in_cam((x - camera.PrincipalX()) / camera.FocalX(), (y - camera.PrincipalY()) / camera.FocalY(),
+                               1.0);
+  return world_from_cam_rotation * in_cam;
+}
+
+// Bilinear sample of a CV_8UC3 image at COLMAP pixel coordinates (u, v), added with `weight`.
+inline void AddBilinear(const cv::Mat& image, double u, double v, double weight, double* bgr) {
+  const double x = u - 0.5, y = v - 0.5;
+  int x0 = static_cast<int>(std::floor(x)), y0 = static_cast<int>(std::floor(y));
+  const double ax = x - x0, ay = y - y0;
+  x0 = std::clamp(x0, 0, image.cols - 1);
+  y0 = std::clamp(y0, 0, image.rows - 1);
+  const int x1 = std::min(x0 + 1, image.cols - 1), y1 = std::min(y0 + 1, image.rows - 1);
+  const uint8_t* r0 = image.ptr<uint8_t>(y0);
+  const uint8_t* r1 = image.ptr<uint8_t>(y1);
+  const double w00 = (1 - ax) * (1 - ay), w01 = ax * (1 - ay), w10 = (1 - ax) * ay, w11 = ax * ay;
+  for (int c = 0; c < 3; ++c) {
+    bgr[c] += weight * (w00 * r0[3 * x0 + c] + w01 * r0[3 * x1 + c] + w10 * r1[3 * x0 + c] + w11 * r1[3 * x1 + c]);
+  }
+}
+
+}  // namespace
+
+bool RenderOptions::Check(std::string* error) const {
+  if (k < 2 || k > 64) {
+    *error = "k: must be in [2, 64], got " + std::to_string(k);
+    return false;
+  }
+  const std::pair<const char*, double> weights[] = {{"alpha", alpha}, {"beta", beta}, {"gamma", gamma}};
+  for (const auto& [key, value] : weights) {
+    if (!(value >= 0) || !std::isfinite(value)) {
+      *error = std::string(key) + ": must be a finite number >= 0, got " + std::to_string(value);
+      return false;
+    }
+  }
+  if (alpha + beta + gamma <= 0) {
+    *error = "alpha: alpha, beta and gamma are all 0; at least one penalty must count";
+    return false;
+  }
+  if (!(fov_margin > 0 && fov_margin < 0.5)) {
+    *error = "fov_margin: must be in (0, 0.5), got " + std::to_string(fov_margin);
+    return false;
+  }
+  if (!(max_penalty > 0) || !std::isfinite(max_penalty)) {
+    *error = "max_penalty: must be a finite number > 0, got " + std::to_string(max_penalty);
+    return false;
+  }
+  if (!(visibility_epsilon > 0 && visibility_epsilon < 1)) {
+    *error = "visibility_epsilon: must be in (0, 1), got " + std::to_string(visibility_epsilon);
+    return false;
+  }
+  return true;
+}
+
+ProxySurface PlaneSurface(const Plane& plane, const Camera& camera, const Rigid3d& cam_from_world) {
+  ProxySurface surface;
+  surface.width = camera.width;
+  surface.height = camera.height;
+  surface.points = FloatMap(camera.width, camera.height, 3);
+  surface.hit.assign(static_cast<size_t>(camera.width) * camera.height, 0);
+  const Rigid3d world_from_cam = cam_from_world.Inverse();
+  const Eigen::Matrix3d rotation = world_from_cam.R();
+  const Eigen::Vector3d center = world_from_cam.translation;
+  const double offset = plane.normal.dot(plane.point - center);
+  for (int y = 0; y < camera.height; ++y) {
+    for (int x = 0; x < camera.width; ++x) {
+      const Eigen::Vector3d direction = RayDirection(camera, rotation, x + 0.5, y + 0.5);
+      const double denom = plane.normal.dot(direction);
+      if (std::abs(denom) < 1e-12) continue;
+      const double t = offset / denom;
+      if (!(t > 0) || !std::isfinite(t)) continue;
+      const Eigen::Vector3d p = center + t * direction;
+      for (int c = 0; c < 3; ++c) surface.points.At(x, y, c) = static_cast<float>(p[c]);
+      surface.hit[static_cast<size_t>(y) * camera.width + x] = 1;
+    }
+  }
+  return surface;
+}
+
+ProxySurface MeshSurface(const TriangleMesh& mesh, const Camera& camera, const Rigid3d& cam_from_world) {
+  const RasterResult raster = Rasterize(mesh, camera, cam_from_world);
+  ProxySurface surface;
+  surface.width = camera.width;
+  surface.height = camera.height;
+  surface.points = FloatMap(camera.width, camera.height, 3);
+  surface.hit.assign(static_cast<size_t>(camera.width) * camera.height, 0);
+  const Rigid3d world_from_cam = cam_from_world.Inverse();
+  for (int y = 0; y < camera.height; ++y) {
+    for (int x = 0; x < camera.width; ++x) {
+      const float z = raster.depth.At(x, y);
+      if (!IsValidDepth(z)) continue;
+      const Eigen::Vector3d in_cam = camera.CamFromImg(Eigen::Vector2d(x + 0.5, y + 0.5)) * static_cast<double>(z);
+      const Eigen::Vector3d p = world_from_cam * in_cam;
+      for (int c = 0; c < 3; ++c) surface.points.At(x, y, c) = static_cast<float>(p[c]);
+      surface.hit[static_cast<size_t>(y) * camera.width + x] = 1;
+    }
+  }
+  return surface;
+}
+
+DepthMap MeshDepth(const TriangleMesh& mesh, const Camera& camera, const Rigid3d& cam_from_world) {
+  return Rasterize(mesh, camera, cam_from_world).depth;
+}
+
+bool PlaneAtMeanInverseDepth(const std::vector<Eigen::Vector3d>& points, const Rigid3d& desired_cam_from_world,
+                             Plane* plane) {
+  double sum_inverse = 0;
+  size_t count = 0;
+  for (const Eigen::Vector3d& point : points) {
+    const double z = (desired_cam_from_world * point).z();
+    if (z > 1e-9 && std::isfinite(z)) {
+      sum_inverse += 1.0 / z;
+      ++count;
+    }
+  }
+  if (count == 0) return false;
+  const double depth = count / sum_inverse;
+  const Rigid3d world_from_cam = desired_cam_from_world.Inverse();
+  plane->normal = world_from_cam.rotation * Eigen::Vector3d::UnitZ();
+  plane->point = world_from_cam.translation + depth * plane->normal;
+  return true;
+}
+
+bool PointNearestToAxes(const std::vector<Eigen::Vector3d>& centers, const std::vector<Eigen::Vector3d>& directions,
+                        Eigen::Vector3d* point) {
+  Eigen::Matrix3d a = Eigen::Matrix3d::Zero();
+  Eigen::Vector3d b = Eigen::Vector3d::Zero();
+  for (size_t i = 0; i < centers.size(); ++i) {
+    const Eigen::Vector3d v = directions[i].normalized();
+    const Eigen::Matrix3d projector = Eigen::Matrix3d::Identity() - v * v.transpose();
+    a += projector;
+    b += projector * centers[i];
+  }
+  if (centers.size() < 2) return false;
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> solver(a);
+  const Eigen::Vector3d eigenvalues = solver.eigenvalues();
+  if (eigenvalues.minCoeff() < 1e-6 * std::max(1.0, eigenvalues.maxCoeff())) return false;
+  *point = a.ldlt().solve(b);
+  return point->allFinite();
+}
+
+UlrRenderer::UlrRenderer(const std::vector<SourceView>* sources, const RenderOptions& options)
+    : sources_(sources), options_(options) {
+  for (const SourceView& source : *sources) {
+    Prepared prepared;
+    prepared.rotation = source.cam_from_world.R();
+    prepared.translation = source.cam_from_world.translation;
+    prepared.center = source.cam_from_world.Inverse().translation;
+    prepared.fx = source.camera.FocalX();
+    prepared.fy = source.camera.FocalY();
+    prepared.cx = source.camera.PrincipalX();
+    prepared.cy = source.camera.PrincipalY();
+    prepared.width = source.camera.width;
+    prepared.height = source.camera.height;
+    prepared.margin = options.fov_margin * std::min(source.camera.width, source.camera.height);
+    prepared_.push_back(prepared);
+  }
+}
+
+int UlrRenderer::Blend(const Eigen::Vector3d& p, const Eigen::Vector3d& desired_center, Candidate* scratch,
+                       double* weights) const {
+  const Eigen::Vector3d to_desired = desired_center - p;
+  const double desired_distance = to_desired.norm();
+  const Eigen::Vector3d desired_dir = desired_distance > 0 ? Eigen::Vector3d(to_desired / desired_distance) : to_desired;
+  int count = 0;
+  for (size_t i = 0; i < prepared_.size(); ++i) {
+    const Prepared& s = prepared_[i];
+    const Eigen::Vector3d x = s.rotation * p + s.translation;
+    if (!(x.z() > 0)) continue;
+    const double u = s.fx * x.x() / x.z() + s.cx, v = s.fy * x.y() / x.z() + s.cy;
+    // Distance to the border of the range where bilinear sampling stays inside the image.
+    const double border = std::min(std::min(u - 0.5, s.width - 0.5 - u), std::min(v - 0.5, s.height - 0.5 - v));
+    if (!(border > 0)) continue;  // field-of-view penalty infinite
+    const DepthMap& depth = (*sources_)[i].proxy_depth;
+    if (!depth.Empty()) {
+      const int px = std::min(static_cast<int>(u), depth.width - 1), py = std::min(static_cast<int>(v), depth.height - 1);
+      const float z = depth.At(px, py);
+      if (!IsValidDepth(z) || std::abs(x.z() - z) > options_.visibility_epsilon * x.z()) continue;  // occluded
+    }
+    const double fov = border >= s.margin ? 0.0 : (s.margin / border - 1.0) * (s.margin / border - 1.0);
+    const Eigen::Vector3d to_source = s.center - p;
+    const double source_distance = to_source.norm();
+    double angle = 0;
+    if (source_distance > 0 && desired_distance > 0) {
+      // atan2 of |sin| and cos: exact 0 for parallel rays (acos loses ~1e-8 near 1).
+      angle = std::atan2(to_source.cross(desired_dir).norm(), to_source.dot(desired_dir));
+    }
+    const double resolution = std::max(0.0, source_distance - desired_distance);
+    const double penalty = options_.alpha * angle + options_.beta * resolution + options_.gamma * fov;
+    scratch[count++] = Candidate{penalty, u, v, static_cast<int>(i)};
+  }
+  if (count == 0) return 0;
+  const int n = std::min(count, options_.k);
+  const auto by_penalty = [](const Candidate& a, const Candidate& b) {
+    return a.penalty < b.penalty || (a.penalty == b.penalty && a.source < b.source);
+  };
+  std::partial_sort(scratch, scratch + n, scratch + count, by_penalty);
+  // The k-th smallest penalty is the threshold [U 124], capped at max_penalty: with fewer than k
+  // usable cameras the missing ones count as penalty max_penalty, so a camera's weight still
+  // falls continuously to 0 as it leaves (field of view, visibility) however few cameras remain.
+  const double thresh = count >= options_.k ? std::min(scratch[n - 1].penalty, options_.max_penalty) : options_.max_penalty;
+  double sum = 0;
+  if (options_.epipole_consistent && scratch[0].penalty <= kZeroPenalty) {
+    // The desired ray passes through a source centre: 1/penalty is infinite for it [U 130].
+    for (int j = 0; j < n; ++j) sum += weights[j] = scratch[j].penalty <= kZeroPenalty ? 1.0 : 0.0;
+  } else {
+    for (int j = 0; j < n; ++j) {
+      double w = thresh > 0 ? 1.0 - scratch[j].penalty / thresh : 0.0;
+      if (options_.epipole_consistent) w /= scratch[j].penalty;
+      sum += weights[j] = std::max(0.0, w);
+    }
+  }
+  if (!(sum > 0) || !std::isfinite(sum)) {  // all kept penalties equal: uniform weights
+    for (int j = 0; j < n; ++j) weights[j] = 1.0 / n;
+    return n;
+  }
+  for (int j = 0; j < n; ++j) weights[j] /= sum;
+  return n;
+}
+
+std::vector<BlendWeight> UlrRenderer::Weights(const Eigen::Vector3d& p, const Eigen::Vector3d& desired_center) const {
+  std::vector<Candidate> scratch(prepared_.size() + 1);
+  std::vector<double> weights(prepared_.size() + 1);
+  const int n = Blend(p, desired_center, scratch.data(), weights.data());
+  std::vector<BlendWeight> result;
+  for (int j = 0; j < n; ++j) result.push_back({scratch[j].source, weights[j], scratch[j].penalty});
+  return result;
+}
+
+RenderResult UlrRenderer::Render(const Camera& camera, const Rigid3d& cam_from_world,
+                                 const ProxySurface& surface) const {
+  RenderResult result;
+  result.image = cv::Mat(camera.height, camera.width, CV_8UC3, cv::Scalar::all(0));
+  result.coverage = cv::Mat(camera.height, camera.width, CV_8UC1, cv::Scalar::all(0));
+  const Eigen::Vector3d desired_center = cam_from_world.Inverse().translation;
+  std::vector<size_t> row_covered(camera.height, 0);
+  tbb::parallel_for(tbb::blocked_range<int>(0, camera.height), [&](const tbb::blocked_range<int>& rows) {
+    std::vector<Candidate> scratch(prepared_.size() + 1);  // once per block of rows, not per pixel
+    std::vector<double> weights(prepared_.size() + 1);
+    for (int y = rows.begin(); y < rows.end(); ++y) {
+      uint8_t* out = result.image.ptr<uint8_t>(y);
+      uint8_t* covered = result.coverage.ptr<uint8_t>(y);
+      for (int x = 0; x < camera.width; ++x) {
+        if (!surface.hit[static_cast<size_t>(y) * surface.width + x]) continue;
+        const Eigen::Vector3d p(surface.points.At(x, y, 0), surface.points.At(x, y, 1), surface.points.At(x, y, 2));
+        const int n = Blend(p, desired_center, scratch.data(), weights.data());
+        if (n == 0) continue;
+        double bgr[3] = {0, 0, 0};
+        for (int j = 0; j < n; ++j) {
+          if (weights[j] <= 0) continue;
+          AddBilinear((*sources_)[scratch[j].source].image, scratch[j].u, scratch[j].v, weights[j], bgr);
+        }
+        for (int c = 0; c < 3; ++c) out[3 * x + c] = cv::saturate_cast<uint8_t>(bgr[c]);
+        covered[x] = 255;
+        ++row_covered[y];
+      }
+    }
+  });
+  for (size_t n : row_covered) result.covered_pixels += n;
+  return result;
+}
+
+}  // namespace ibmr

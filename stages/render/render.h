@@ -1,0 +1,141 @@
+// Unstructured Lumigraph Rendering (Buehler et al., seed 001), evaluated per pixel on the CPU.
+//
+// Per desired pixel (the per-pixel form of the camera blending field, [U 163] Fig. 7):
+//  1. the pixel's ray meets the geometric proxy at p (ProxySurface: a plane or a rasterized mesh);
+//  2. every source camera i that sees p (in front, inside its image, and, when the source carries a
+//     depth map of the proxy, |z_i(p) - depth_i| < eps * z_i: visibility [U 44-52, 154-161]) gets
+//       penalty_i = alpha * angle(C_i - p, D - p)                [U 115-128]
+//                 + beta  * max(0, |p - C_i| - |p - D|)          [U 148]
+//                 + gamma * fov_i(p)                             [U 154-159]
+//     where fov_i is 0 farther than `fov_margin` from the image border and rises smoothly,
+//     (m/d - 1)^2, to infinity at the border (d = distance to the border, m the margin);
+//  3. the k smallest penalties are kept; thresh = the k-th, capped at max_penalty;
+//     w_i = max(0, 1 - penalty_i / thresh) [U 128], optionally times 1 / penalty_i (exact epipole
+//     consistency, [U 130]); normalised [U 134];
+//  4. colour = sum_i w_i * bilinear(I_i at the projection of p).
+// Explicit cases: fewer than k usable cameras -> the missing ones count as penalty max_penalty
+// (thresh = max_penalty), so weights stay continuous as cameras leave the field of view or become
+// occluded (taking the largest usable penalty instead jumps when one leaves); a zero penalty with
+// the 1/penalty variant ->
+// the zero-penalty cameras share the weight (the desired ray passes through their centres);
+// all kept penalties equal (every w_i = 0) -> uniform weights, never NaN; no usable camera ->
+// the pixel is not covered.
+// Plane proxy [U 218, "pond"]: parallel to the desired image plane at the mean inverse depth of the
+// sparse points; without sparse points, through the point nearest to all optical axes.
+#pragma once
+
+#include <Eigen/Core>
+#include <opencv2/core.hpp>
+#include <string>
+#include <vector>
+
+#include "pipeline/core/camera.h"
+#include "pipeline/core/float_map.h"
+#include "pipeline/core/mesh.h"
+#include "pipeline/core/rigid3.h"
+
+namespace ibmr {
+
+struct RenderOptions {
+  int k = 4;                       // cameras in the neighbourhood; the k-th is the threshold [U 214], in [2, 64]
+  double alpha = 1.0;              // weight of the angle penalty (radians), >= 0
+  double beta = 0.0;               // weight of the resolution penalty (per scene unit), >= 0
+  double gamma = 1.0;              // weight of the field-of-view penalty (unitless), >= 0
+  bool epipole_consistent = true;  // multiply w_i by 1/penalty_i [U 130]
+  double fov_margin = 0.05;        // width of the border band where fov_i rises, fraction of
+                                   // min(width, height), in (0, 0.5)
+  double max_penalty = 3.14159265358979;  // penalty of a missing camera; caps the threshold, > 0
+                                   // (default: the largest angle penalty, pi radians)
+  double visibility_epsilon = 0.01;  // relative depth tolerance of the visibility test, in (0, 1)
+
+  // False with `error` starting with the YAML key when a value is out of range.
+  bool Check(std::string* error) const;
+};
+
+// One source photograph with its pinhole camera.
+struct SourceView {
+  std::string name;
+  Camera camera;           // no distortion (PINHOLE / SIMPLE_PINHOLE)
+  Rigid3d cam_from_world;
+  cv::Mat image;           // CV_8UC3, camera.width x camera.height
+  DepthMap proxy_depth;    // the proxy's z depth seen from this camera; empty: no visibility test
+};
+
+// The proxy as seen by the desired camera: per pixel the world point of the first hit.
+struct ProxySurface {
+  int width = 0;
+  int height = 0;
+  FloatMap points;             // 3 channels: world x, y, z
+  std::vector<uint8_t> hit;    // width*height, row-major; 1 where the ray meets the proxy
+};
+
+struct Plane {
+  Eigen::Vector3d point = Eigen::Vector3d::Zero();
+  Eigen::Vector3d normal = Eigen::Vector3d::UnitZ();  // unit
+};
+
+// Ray-plane intersections of every pixel centre (hits behind the camera do not count).
+ProxySurface PlaneSurface(const Plane& plane, const Camera& camera, const Rigid3d& cam_from_world);
+// First hits of a mesh, through the core rasterizer (pixel centres, z-buffer).
+ProxySurface MeshSurface(const TriangleMesh& mesh, const Camera& camera, const Rigid3d& cam_from_world);
+// The proxy mesh's z depth from a source camera (0 where not covered), for the visibility test.
+DepthMap MeshDepth(const TriangleMesh& mesh, const Camera& camera, const Rigid3d& cam_from_world);
+
+// Plane facing the desired camera (normal = its viewing direction) at 1 / mean(1/z) of the points
+// in front of it. Returns false when no point is in front.
+bool PlaneAtMeanInverseDepth(const std::vector<Eigen::Vector3d>& points, const Rigid3d& desired_cam_from_world,
+                             Plane* plane);
+// Least-squares point nearest to all optical axes (centre c_i, unit direction v_i): solves
+// sum (I - v v^T) x = sum (I - v v^T) c. Returns false when the axes are (nearly) parallel.
+bool PointNearestToAxes(const std::vector<Eigen::Vector3d>& centers, const std::vector<Eigen::Vector3d>& directions,
+                        Eigen::Vector3d* point);
+
+// One source's blending weight at a point (for tests and visualisation).
+struct BlendWeight {
+  int source = -1;       // index into the sources
+  double weight = 0.0;   // normalised
+  double penalty = 0.0;  // combined penalty
+};
+
+struct RenderResult {
+  cv::Mat image;     // CV_8UC3; black where not covered
+  cv::Mat coverage;  // CV_8UC1; 255 where covered (proxy hit and at least one camera usable)
+  size_t covered_pixels = 0;
+};
+
+// The renderer: prepares per-source projection data once, then renders any number of views.
+class UlrRenderer {
+ public:
+  UlrRenderer(const std::vector<SourceView>* sources, const RenderOptions& options);
+
+  // Normalised blending weights at world point p for a desired camera centred at `desired_center`
+  // (empty when no source can see p). Allocates: not for the hot loop.
+  std::vector<BlendWeight> Weights(const Eigen::Vector3d& p, const Eigen::Vector3d& desired_center) const;
+
+  // Renders the desired camera over `surface` (same size as `camera`). Rows run in parallel (TBB,
+  // the caller's arena decides the thread count).
+  RenderResult Render(const Camera& camera, const Rigid3d& cam_from_world, const ProxySurface& surface) const;
+
+ private:
+  struct Prepared {  // per source: projection and sampling constants
+    Eigen::Matrix3d rotation;
+    Eigen::Vector3d translation, center;
+    double fx, fy, cx, cy, margin;
+    int width, height;
+  };
+  struct Candidate {
+    double penalty;
+    double u, v;  // projection in source pixels (COLMAP convention)
+    int source;
+  };
+  // Fills `scratch` with the usable sources' candidates and turns the k nearest into normalised
+  // weights in place (the first n entries of `scratch`); returns n (0: not covered).
+  int Blend(const Eigen::Vector3d& p, const Eigen::Vector3d& desired_center, Candidate* scratch,
+            double* weights) const;
+
+  const std::vector<SourceView>* sources_;
+  RenderOptions options_;
+  std::vector<Prepared> prepared_;
+};
+
+}  // namespace ibmr

@@ -1,0 +1,329 @@
+// Adapter of the render stage (Unstructured Lumigraph Rendering, seed 001 section 4.1; see
+// render.h): renders the held-out views of sparse/ (or the views listed in `views`, or a camera
+// given by `novel_look_at`) from the training views only, once per proxy.
+//
+// Proxies (`proxies`, in order; the first one present is the primary):
+//   plane                    plane at the mean inverse depth of the sparse points seen by training
+//                            views, facing the desired camera [U 218]; with no sparse points, through
+//                            the point nearest to all training optical axes
+//   <path> or <name>=<path>  a mesh (binary/ascii PLY), workspace-relative or absolute; visibility
+//                            from its depth in each source camera. A missing file is skipped with a
+//                            warning and listed as skipped in renders/renders.json.
+// Writes renders/<proxy>/<image stem>.png and <image stem>.coverage.png (255 covered) per proxy,
+// the primary proxy's copies as renders/<image stem>.png and .coverage.png, and renders/renders.json.
+#include <spdlog/spdlog.h>
+#include <tbb/parallel_for.h>
+
+#include <chrono>
+#include <set>
+#include <filesystem>
+#include <mutex>
+
+#include "pipeline/core/atomic_file.h"
+#include "pipeline/core/errors.h"
+#include "pipeline/core/image_io.h"
+#include "pipeline/core/per_view.h"
+#include "pipeline/core/ply_io.h"
+#include "pipeline/core/stage_api.h"
+#include "stages/render/render.h"
+
+namespace fs = std::filesystem;
+
+namespace ibmr {
+
+namespace {
+
+struct ProxySpec {
+  std::string name;
+  std::string path;  // empty for the plane; absolute otherwise
+};
+
+// "plane" | "path" | "name=path". A default name: the file stem, prefixed by its folder when the
+// stem alone says little ("ground_truth/mesh.ply" -> ground_truth_mesh; "hull/hull.ply" -> hull).
+ProxySpec ParseProxy(const std::string& entry, const Workspace& workspace) {
+  ProxySpec spec;
+  if (entry == "plane") {
+    spec.name = "plane";
+    return spec;
+  }
+  std::string path = entry;
+  const size_t eq = entry.find('=');
+  if (eq != std::string::npos) {
+    spec.name = entry.substr(0, eq);
+    path = entry.substr(eq + 1);
+  }
+  const fs::path p(path);
+  spec.path = p.is_absolute() ? path : workspace.Path(path);
+  if (spec.name.empty()) {
+    const std::string stem = p.stem().string();
+    const std::string folder = p.parent_path().filename().string();
+    spec.name = folder.empty() || folder == stem ? stem : folder + "_" + stem;
+  }
+  return spec;
+}
+
+std::string Stem(const std::string& image_name) { return fs::path(image_name).stem().string(); }
+
+Camera PinholeOf(const Camera& camera, const std::string& image_name) {
+  if (camera.HasDistortion()) {
+    throw InputError("render: camera " + std::to_string(camera.camera_id) + " of image " + image_name + " (" +
+                     CameraModelName(camera.model) +
+                     ") has lens distortion; render needs undistorted images (run the calibrate stage's "
+                     "undistortion, or import PINHOLE cameras)");
+  }
+  return camera;
+}
+
+class RenderStage : public Stage {
+ public:
+  std::string Name() const override { return "render"; }
+  std::string Summary() const override {
+    return "Unstructured lumigraph rendering of held-out views from the training views (plane / mesh proxies)";
+  }
+  std::string Version() const override { return "1"; }
+  HoldoutRole Role() const override { return HoldoutRole::kScoring; }
+
+  std::vector<ParamSpec> Parameters() const override {
+    return {
+        {"proxies", ParamType::kStringList, "[plane]",
+         "proxies in order (the first present is primary): plane, or a mesh path (workspace-relative), or name=path",
+         {}},
+        {"views", ParamType::kStringList, "[]", "image names of sparse/ to render; empty: every held-out view", {}},
+        {"exclude_self", ParamType::kBool, "true", "never use the rendered view's own photo (leave-one-out)", {}},
+        {"k", ParamType::kInt, "4", "cameras in the blending neighbourhood, the k-th is the threshold, in [2, 64]", {}},
+        {"alpha", ParamType::kDouble, "1", "weight of the angle penalty (radians), >= 0", {}},
+        {"beta", ParamType::kDouble, "0", "weight of the resolution penalty (per scene unit), >= 0", {}},
+        {"gamma", ParamType::kDouble, "1", "weight of the field-of-view penalty, >= 0", {}},
+        {"epipole_consistent", ParamType::kBool, "true", "multiply weights by 1/penalty (exact epipole consistency)",
+         {}},
+        {"fov_margin", ParamType::kDouble, "0.05",
+         "border band where the field-of-view penalty rises, fraction of min(width, height), in (0, 0.5)", {}},
+        {"max_penalty", ParamType::kDouble, "3.14159265358979",
+         "penalty of a missing camera when fewer than k are usable; caps the threshold, > 0", {}},
+        {"visibility_epsilon", ParamType::kDouble, "0.01", "relative depth tolerance of visibility, in (0, 1)", {}},
+        {"novel_look_at", ParamType::kDoubleList, "[]",
+         "extra camera: eye x y z, target x y z [, up x y z] (intrinsics of the first training view); rendered as "
+         "novel.png",
+         {}},
+    };
+  }
+
+  std::optional<ParamError> CheckParams(const Params& params) const override {
+    std::string error;
+    if (!ToOptions(params).Check(&error)) return ParamError{error.substr(0, error.find(':')), error.substr(error.find(':') + 2)};
+    const size_t look = params.DoubleList("novel_look_at").size();
+    if (look != 0 && look != 6 && look != 9) {
+      return ParamError{"novel_look_at", "expected 0, 6 or 9 numbers (eye, target[, up]), got " + std::to_string(look)};
+    }
+    if (params.StringList("proxies").empty()) return ParamError{"proxies", "list at least one proxy (e.g. [plane])"};
+    for (const std::string& entry : params.StringList("proxies")) {
+      if (entry.empty() || entry.back() == '=') return ParamError{"proxies", "empty proxy entry \"" + entry + "\""};
+    }
+    return std::nullopt;
+  }
+
+  std::vector<std::string> Inputs(const StageContext& context) const override {
+    std::vector<std::string> inputs = {"images", "sparse"};
+    for (const std::string& entry : context.params.StringList("proxies")) {
+      const ProxySpec spec = ParseProxy(entry, context.workspace);
+      if (!spec.path.empty()) inputs.push_back(spec.path);
+    }
+    return inputs;
+  }
+  std::vector<std::string> Outputs(const StageContext&) const override { return {"renders"}; }
+
+  void Run(StageContext& context) const override {
+    const RenderOptions options = ToOptions(context.params);
+    const SparseModel model = context.LoadModel();
+    if (model.images.empty()) throw InputError(context.workspace.SparseDir() + ": no posed image; run import or sfm first");
+
+    // Source views: training images only; a held-out photo's pixels are never read.
+    std::vector<std::string> training;
+    for (const std::string& name : context.TrainingImageNames(model)) {
+      if (!context.IsHeldOut(name)) training.push_back(name);
+    }
+    if (training.empty()) throw InputError("render: every image is held out; nothing to render from (check holdout)");
+    std::vector<SourceView> sources(training.size());
+    tbb::parallel_for(size_t{0}, training.size(), [&](size_t i) {
+      const Image& image = *model.FindImage(training[i]);
+      sources[i].name = image.name;
+      sources[i].camera = PinholeOf(model.CameraOf(image), image.name);
+      sources[i].cam_from_world = image.cam_from_world;
+      sources[i].image = ReadImageColor(context.workspace.ImagesDir() + "/" + image.name);
+      if (sources[i].image.cols != sources[i].camera.width || sources[i].image.rows != sources[i].camera.height) {
+        throw InputError(context.workspace.ImagesDir() + "/" + image.name + ": image is " +
+                         std::to_string(sources[i].image.cols) + "x" + std::to_string(sources[i].image.rows) +
+                         " but its camera says " + std::to_string(sources[i].camera.width) + "x" +
+                         std::to_string(sources[i].camera.height));
+      }
+    });
+
+    // Desired views.
+    struct Desired {
+      std::string name, stem;
+      Camera camera;
+      Rigid3d cam_from_world;
+    };
+    std::vector<Desired> desired;
+    std::vector<std::string> names = context.params.StringList("views");
+    if (names.empty()) names.assign(context.heldout_images.begin(), context.heldout_images.end());
+    for (const std::string& name : names) {
+      const Image* image = model.FindImage(name);
+      if (!image) throw InputError("render.views: no image named \"" + name + "\" in " + context.workspace.SparseDir());
+      desired.push_back({name, Stem(name), PinholeOf(model.CameraOf(*image), name), image->cam_from_world});
+    }
+    const std::vector<double> look = context.params.DoubleList("novel_look_at");
+    if (!look.empty()) {
+      const Eigen::Vector3d eye(look[0], look[1], look[2]), target(look[3], look[4], look[5]);
+      const Eigen::Vector3d up = look.size() == 9 ? Eigen::Vector3d(look[6], look[7], look[8]) : Eigen::Vector3d(0, 0, 1);
+      desired.push_back({"novel", "novel", sources[0].camera, LookAt(eye, target, up)});
+    }
+    if (desired.empty()) {
+      spdlog::warn("[render] no view to render: the config holds no view out (holdout) and lists no render.views");
+    }
+
+    // Plane proxy inputs: sparse points seen by a training view, else the point nearest to the axes.
+    std::vector<Eigen::Vector3d> sparse_points;
+    std::set<int> training_ids;
+    for (const std::string& name : training) training_ids.insert(model.FindImage(name)->image_id);
+    for (const auto& [id, point] : model.points) {
+      bool seen = point.track.empty();
+      for (const TrackElement& element : point.track) seen = seen || training_ids.count(element.image_id) > 0;
+      if (seen) sparse_points.push_back(point.xyz);
+    }
+    std::vector<Eigen::Vector3d> centers, directions;
+    for (const std::string& name : training) {
+      centers.push_back(model.FindImage(name)->Center());
+      directions.push_back(model.FindImage(name)->ViewingDirection());
+    }
+    Eigen::Vector3d axes_point = Eigen::Vector3d::Zero();
+    const bool have_axes_point = PointNearestToAxes(centers, directions, &axes_point);
+
+    nlohmann::json proxies_json = nlohmann::json::array();
+    std::string primary;
+    fs::create_directories(context.workspace.Path("renders"));
+    for (const std::string& entry : context.params.StringList("proxies")) {
+      const ProxySpec spec = ParseProxy(entry, context.workspace);
+      nlohmann::json pj = {{"name", spec.name}, {"path", spec.path.empty() ? "plane" : spec.path}};
+      TriangleMesh mesh;
+      if (!spec.path.empty()) {
+        if (!fs::exists(spec.path)) {
+          spdlog::warn("[render] proxy {}: {} does not exist; skipped", spec.name, spec.path);
+          pj["status"] = "skipped";
+          pj["reason"] = spec.path + " does not exist";
+          proxies_json.push_back(pj);
+          continue;
+        }
+        mesh = ReadMeshPly(spec.path);
+        const std::string invalid = mesh.Validate();
+        if (mesh.faces.empty() || !invalid.empty()) {
+          spdlog::warn("[render] proxy {}: {} has no usable faces ({}); skipped", spec.name, spec.path, invalid);
+          pj["status"] = "skipped";
+          pj["reason"] = spec.path + " has no usable faces";
+          proxies_json.push_back(pj);
+          continue;
+        }
+      } else if (sparse_points.empty() && !have_axes_point) {
+        throw InputError("render: plane proxy: no sparse points and the training optical axes are parallel; "
+                         "list a mesh proxy instead");
+      }
+      const bool is_primary = primary.empty();
+      if (is_primary) primary = spec.name;
+      const auto start = std::chrono::steady_clock::now();
+      std::vector<SourceView> proxy_sources = sources;  // shares pixels; depth maps per proxy
+      if (!spec.path.empty()) {
+        tbb::parallel_for(size_t{0}, proxy_sources.size(), [&](size_t i) {
+          proxy_sources[i].proxy_depth = MeshDepth(mesh, proxy_sources[i].camera, proxy_sources[i].cam_from_world);
+        });
+      }
+      const std::string folder = context.workspace.Path("renders/" + spec.name);
+      fs::create_directories(folder);
+      std::mutex mutex;
+      nlohmann::json views_json = nlohmann::json::object();
+      std::vector<std::string> keys;
+      for (const Desired& view : desired) keys.push_back(spec.name + "__" + view.stem);
+      ForEachView(context, "render " + spec.name, keys, [&](const std::string& key) {
+        const Desired& view = desired[std::find(keys.begin(), keys.end(), key) - keys.begin()];
+        std::vector<SourceView> own;
+        const std::vector<SourceView>* used = &proxy_sources;
+        if (context.params.Bool("exclude_self")) {
+          for (const SourceView& s : proxy_sources) {
+            if (s.name != view.name) own.push_back(s);
+          }
+          if (own.size() != proxy_sources.size()) used = &own;
+        }
+        ProxySurface surface;
+        std::string plane_kind;
+        if (spec.path.empty()) {
+          Plane plane;
+          if (PlaneAtMeanInverseDepth(sparse_points, view.cam_from_world, &plane)) {
+            plane_kind = "mean_inverse_depth";
+          } else {
+            plane.normal = view.cam_from_world.Inverse().rotation * Eigen::Vector3d::UnitZ();
+            plane.point = axes_point;
+            plane_kind = "nearest_to_axes";
+          }
+          surface = PlaneSurface(plane, view.camera, view.cam_from_world);
+        } else {
+          surface = MeshSurface(mesh, view.camera, view.cam_from_world);
+        }
+        const UlrRenderer renderer(used, options);
+        const RenderResult result = renderer.Render(view.camera, view.cam_from_world, surface);
+        WriteImage(folder + "/" + view.stem + ".png", result.image);
+        WriteImage(folder + "/" + view.stem + ".coverage.png", result.coverage);
+        if (is_primary) {
+          WriteImage(context.workspace.Path("renders/" + view.stem + ".png"), result.image);
+          WriteImage(context.workspace.Path("renders/" + view.stem + ".coverage.png"), result.coverage);
+        }
+        nlohmann::json vj = {{"image", view.name},
+                             {"render", "renders/" + spec.name + "/" + view.stem + ".png"},
+                             {"coverage", static_cast<double>(result.covered_pixels) /
+                                              (static_cast<double>(view.camera.width) * view.camera.height)},
+                             {"sources", used->size()}};
+        if (!plane_kind.empty()) vj["plane"] = plane_kind;
+        std::lock_guard<std::mutex> lock(mutex);
+        views_json[view.name] = vj;
+      });
+      const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+      pj["status"] = "rendered";
+      pj["primary"] = is_primary;
+      pj["views"] = views_json;
+      pj["seconds"] = seconds;
+      proxies_json.push_back(pj);
+      context.metrics["seconds_" + spec.name] = seconds;
+      spdlog::info("[render] proxy {}: {} views in {:.2f} s", spec.name, desired.size(), seconds);
+    }
+    if (primary.empty() && !desired.empty()) {
+      throw InputError("render.proxies: none of the listed proxies exists (see the warnings above); list plane or "
+                       "an existing mesh");
+    }
+    nlohmann::json summary = {{"primary", primary},
+                              {"proxies", proxies_json},
+                              {"training_views", training},
+                              {"options", context.params.ToJson()}};
+    WriteFileAtomic(context.workspace.Path("renders/renders.json"), summary.dump(2) + "\n");
+    context.metrics["views"] = desired.size();
+    context.metrics["sources"] = training.size();
+    context.metrics["primary_proxy"] = primary;
+  }
+
+ private:
+  static RenderOptions ToOptions(const Params& params) {
+    RenderOptions options;
+    options.k = static_cast<int>(params.Int("k"));
+    options.alpha = params.Double("alpha");
+    options.beta = params.Double("beta");
+    options.gamma = params.Double("gamma");
+    options.epipole_consistent = params.Bool("epipole_consistent");
+    options.fov_margin = params.Double("fov_margin");
+    options.max_penalty = params.Double("max_penalty");
+    options.visibility_epsilon = params.Double("visibility_epsilon");
+    return options;
+  }
+};
+
+}  // namespace
+
+void RegisterStage_render(StageRegistry* registry) { registry->Add(std::make_unique<RenderStage>()); }
+
+}  // namespace ibmr

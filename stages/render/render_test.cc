@@ -1,0 +1,396 @@
+// Tests of the unstructured lumigraph renderer against the ULR goals (seed 001, section 3
+// [U 44-87]): epipole consistency, continuity at image borders and under a small camera move,
+// minimal angular deviation, visibility, ties and fewer-than-k cameras; a known answer (a textured
+// plane rendered with the true plane as proxy); option checks; the adapter on a tiny workspace.
+#include "stages/render/render.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+
+#include "pipeline/core/colmap_text_io.h"
+#include "pipeline/core/image_io.h"
+#include "pipeline/core/ply_io.h"
+#include "pipeline/core/stage_api.h"
+
+namespace fs = std::filesystem;
+
+namespace ibmr {
+void RegisterStage_render(StageRegistry* registry);
+
+namespace {
+
+constexpr int kWidth = 96, kHeight = 72;
+
+// Smooth colour texture on the world plane z = 0 (BGR, 0..255).
+cv::Vec3b Texture(double x, double y) {
+  const double r = 128 + 90 * std::sin(7.0 * x + 1.3 * std::cos(5.0 * y));
+  const double g = 128 + 90 * std::sin(6.0 * y + 0.7) * std::cos(3.0 * x);
+  const double b = 128 + 90 * std::cos(4.0 * (x + y));
+  return cv::Vec3b(cv::saturate_cast<uint8_t>(b), cv::saturate_cast<uint8_t>(g), cv::saturate_cast<uint8_t>(r));
+}
+
+Camera TestCamera() { return Camera::Pinhole(kWidth, kHeight, 80, 80, kWidth / 2.0, kHeight / 2.0); }
+
+// A camera at `eye` looking at the origin, its photo of the textured plane z = 0 (ray-cast at
+// 4x4 sub-samples per pixel, box-filtered).
+SourceView PlaneView(const Eigen::Vector3d& eye, const std::string& name) {
+  SourceView view;
+  view.name = name;
+  view.camera = TestCamera();
+  view.cam_from_world = LookAt(eye, Eigen::Vector3d::Zero(), Eigen::Vector3d(0, 1, 0));
+  view.image = cv::Mat(kHeight, kWidth, CV_8UC3);
+  const Rigid3d world_from_cam = view.cam_from_world.Inverse();
+  for (int y = 0; y < kHeight; ++y) {
+    for (int x = 0; x < kWidth; ++x) {
+      double sum[3] = {0, 0, 0};
+      for (int s = 0; s < 16; ++s) {
+        const Eigen::Vector3d ray = world_from_cam.rotation *
+                                    view.camera.CamFromImg(Eigen::Vector2d(x + (s % 4 + 0.5) / 4, y + (s / 4 + 0.5) / 4));
+        const double t = -eye.z() / ray.z();
+        const cv::Vec3b c = Texture(eye.x() + t * ray.x(), eye.y() + t * ray.y());
+        for (int k = 0; k < 3; ++k) sum[k] += c[k] / 16.0;
+      }
+      view.image.at<cv::Vec3b>(y, x) = cv::Vec3b(cv::saturate_cast<uint8_t>(sum[0]), cv::saturate_cast<uint8_t>(sum[1]),
+                                                 cv::saturate_cast<uint8_t>(sum[2]));
+    }
+  }
+  return view;
+}
+
+// Cameras on a circle of radius `radius` at height 3 above the plane.
+std::vector<SourceView> Ring(int count, double radius) {
+  std::vector<SourceView> views;
+  for (int i = 0; i < count; ++i) {
+    const double a = 2 * M_PI * i / count;
+    views.push_back(PlaneView(Eigen::Vector3d(radius * std::cos(a), radius * std::sin(a), 3.0), "v" + std::to_string(i)));
+  }
+  return views;
+}
+
+const Plane kGround{Eigen::Vector3d::Zero(), Eigen::Vector3d::UnitZ()};
+
+double Psnr(const cv::Mat& a, const cv::Mat& b, const cv::Mat& mask) {
+  double sum = 0;
+  size_t n = 0;
+  for (int y = 0; y < a.rows; ++y) {
+    for (int x = 0; x < a.cols; ++x) {
+      if (!mask.at<uint8_t>(y, x)) continue;
+      for (int c = 0; c < 3; ++c) {
+        const double d = a.at<cv::Vec3b>(y, x)[c] - b.at<cv::Vec3b>(y, x)[c];
+        sum += d * d;
+      }
+      n += 3;
+    }
+  }
+  return 10 * std::log10(255.0 * 255.0 / std::max(1e-12, sum / n));
+}
+
+TEST(RenderOptions, DefaultsAreValid) {
+  std::string error;
+  EXPECT_TRUE(RenderOptions().Check(&error)) << error;
+  EXPECT_EQ(RenderOptions().k, 4);  // [U 214]
+}
+
+TEST(RenderOptions, RejectsBadValues) {
+  const auto expect_key = [](RenderOptions options, const std::string& key) {
+    std::string error;
+    EXPECT_FALSE(options.Check(&error));
+    EXPECT_EQ(error.rfind(key + ":", 0), 0u) << error;
+  };
+  RenderOptions o;
+  o.k = 1;
+  expect_key(o, "k");
+  o = RenderOptions();
+  o.alpha = -1;
+  expect_key(o, "alpha");
+  o = RenderOptions();
+  o.beta = std::nan("");
+  expect_key(o, "beta");
+  o = RenderOptions();
+  o.alpha = o.beta = o.gamma = 0;
+  expect_key(o, "alpha");
+  o = RenderOptions();
+  o.fov_margin = 0.5;
+  expect_key(o, "fov_margin");
+  o = RenderOptions();
+  o.visibility_epsilon = 0;
+  expect_key(o, "visibility_epsilon");
+  o = RenderOptions();
+  o.max_penalty = 0;
+  expect_key(o, "max_penalty");
+}
+
+TEST(Ulr, EpipoleConsistencyReproducesSourceImageExactly) {
+  const std::vector<SourceView> sources = Ring(8, 1.5);
+  RenderOptions options;  // epipole_consistent = true
+  const UlrRenderer renderer(&sources, options);
+  // A deliberately wrong proxy: the plane 1 unit above the true one. Geometry must not matter.
+  const Plane wrong{Eigen::Vector3d(0, 0, 1), Eigen::Vector3d::UnitZ()};
+  const SourceView& s = sources[3];
+  const RenderResult result =
+      renderer.Render(s.camera, s.cam_from_world, PlaneSurface(wrong, s.camera, s.cam_from_world));
+  const int margin = static_cast<int>(std::ceil(options.fov_margin * std::min(kWidth, kHeight))) + 1;
+  const cv::Rect inner(margin, margin, kWidth - 2 * margin, kHeight - 2 * margin);
+  cv::Mat diff;
+  cv::absdiff(result.image(inner), s.image(inner), diff);
+  double max_diff = 0;
+  cv::minMaxLoc(diff.reshape(1), nullptr, &max_diff);
+  EXPECT_EQ(max_diff, 0.0) << "a desired camera at a source centre must reproduce that source exactly";
+  // The linear weights alone (no 1/penalty) blend neighbours in: not exact with a wrong proxy.
+  options.epipole_consistent = false;
+  const UlrRenderer linear(&sources, options);
+  const RenderResult blended =
+      linear.Render(s.camera, s.cam_from_world, PlaneSurface(wrong, s.camera, s.cam_from_world));
+  cv::absdiff(blended.image(inner), s.image(inner), diff);
+  EXPECT_GT(cv::norm(diff, cv::NORM_L1), 0.0);
+}
+
+TEST(Ulr, TruePlaneProxyPredictsHeldOutView) {
+  const std::vector<SourceView> sources = Ring(12, 1.5);
+  const SourceView truth = PlaneView(Eigen::Vector3d(1.2, 0.5, 3.2), "heldout");  // between ring cameras
+  const UlrRenderer renderer(&sources, RenderOptions());
+  const RenderResult result =
+      renderer.Render(truth.camera, truth.cam_from_world, PlaneSurface(kGround, truth.camera, truth.cam_from_world));
+  EXPECT_GT(result.covered_pixels, 0.9 * kWidth * kHeight);
+  EXPECT_GT(Psnr(result.image, truth.image, result.coverage), 30.0);
+  // A wrong plane predicts worse.
+  const Plane wrong{Eigen::Vector3d(0, 0, 1), Eigen::Vector3d::UnitZ()};
+  const RenderResult off =
+      renderer.Render(truth.camera, truth.cam_from_world, PlaneSurface(wrong, truth.camera, truth.cam_from_world));
+  EXPECT_LT(Psnr(off.image, truth.image, off.coverage) + 5, Psnr(result.image, truth.image, result.coverage));
+}
+
+TEST(Ulr, WeightsFallToZeroAtImageBorder) {
+  const std::vector<SourceView> sources = Ring(8, 1.5);
+  const UlrRenderer renderer(&sources, RenderOptions());
+  const Eigen::Vector3d desired(1.4, 0.3, 3.1);
+  // Walk a ground point towards and across the border of source 0's image.
+  const SourceView& s = sources[0];
+  const Rigid3d world_from_cam = s.cam_from_world.Inverse();
+  double previous = 1.0;
+  bool was_positive = false;
+  for (double u = 20; u > 0.2; u -= 0.25) {
+    const Eigen::Vector3d ray = world_from_cam.rotation * s.camera.CamFromImg(Eigen::Vector2d(u, kHeight / 2.0));
+    const Eigen::Vector3d p = world_from_cam.translation + (-world_from_cam.translation.z() / ray.z()) * ray;
+    double w0 = 0;
+    for (const BlendWeight& w : renderer.Weights(p, desired)) {
+      ASSERT_TRUE(std::isfinite(w.weight));
+      if (w.source == 0) w0 = w.weight;
+    }
+    if (w0 > 0) was_positive = true;
+    if (u < 3.0 && was_positive) EXPECT_LE(w0, previous + 1e-12) << "u=" << u;  // falls monotonically
+    if (u < 0.75) EXPECT_LT(w0, 0.02) << "u=" << u;
+    previous = w0;
+  }
+  EXPECT_TRUE(was_positive) << "source 0 should weigh at the image centre for this desired camera";
+}
+
+TEST(Ulr, SmallCameraMoveChangesImageLittle) {
+  const std::vector<SourceView> sources = Ring(12, 1.5);
+  const UlrRenderer renderer(&sources, RenderOptions());
+  const Camera camera = TestCamera();
+  const Rigid3d a = LookAt(Eigen::Vector3d(1.0, 0.8, 3.0), Eigen::Vector3d::Zero(), Eigen::Vector3d(0, 1, 0));
+  const Rigid3d b = LookAt(Eigen::Vector3d(1.001, 0.8, 3.0), Eigen::Vector3d::Zero(), Eigen::Vector3d(0, 1, 0));
+  const Plane wrong{Eigen::Vector3d(0, 0, 0.6), Eigen::Vector3d::UnitZ()};  // blending matters
+  const RenderResult ra = renderer.Render(camera, a, PlaneSurface(wrong, camera, a));
+  const RenderResult rb = renderer.Render(camera, b, PlaneSurface(wrong, camera, b));
+  cv::Mat diff;
+  cv::absdiff(ra.image, rb.image, diff);
+  EXPECT_LT(cv::mean(diff)[0] + cv::mean(diff)[1] + cv::mean(diff)[2], 3 * 1.0);
+  double max_diff = 0;
+  cv::minMaxLoc(diff.reshape(1), nullptr, &max_diff);
+  cv::Point where;
+  cv::Mat gray;
+  cv::transform(diff, gray, cv::Matx13f(1, 1, 1));
+  cv::minMaxLoc(gray, nullptr, nullptr, nullptr, &where);
+  EXPECT_LT(max_diff, 12.0) << where << " cov " << int(ra.coverage.at<uint8_t>(where)) << int(rb.coverage.at<uint8_t>(where));
+}
+
+TEST(Ulr, MinimalAngularDeviation) {
+  const std::vector<SourceView> sources = Ring(8, 1.5);
+  RenderOptions options;
+  options.gamma = 0;  // angle only
+  const UlrRenderer renderer(&sources, options);
+  const Eigen::Vector3d p(0.05, -0.02, 0);
+  const Eigen::Vector3d desired(1.3, 0.4, 3.0);
+  const std::vector<BlendWeight> weights = renderer.Weights(p, desired);
+  ASSERT_EQ(weights.size(), 4u);
+  // The camera with the smallest angle between its ray and the desired ray weighs most.
+  int best = -1;
+  double best_angle = 1e9;
+  for (size_t i = 0; i < sources.size(); ++i) {
+    const Eigen::Vector3d c = sources[i].cam_from_world.Inverse().translation - p;
+    const Eigen::Vector3d d = desired - p;
+    const double angle = std::atan2(c.cross(d).norm(), c.dot(d));
+    if (angle < best_angle) best_angle = angle, best = static_cast<int>(i);
+  }
+  EXPECT_EQ(weights[0].source, best);
+  double sum = 0;
+  for (size_t j = 0; j < weights.size(); ++j) {
+    sum += weights[j].weight;
+    if (j > 0) EXPECT_GE(weights[j - 1].weight, weights[j].weight);
+  }
+  EXPECT_NEAR(sum, 1.0, 1e-12);
+  EXPECT_EQ(weights[3].weight, 0.0);  // the k-th camera is the threshold [U 124]
+}
+
+TEST(Ulr, OccludedCameraGetsNoWeight) {
+  std::vector<SourceView> sources = Ring(8, 1.5);
+  const Eigen::Vector3d p(0.1, 0.1, 0);
+  const Eigen::Vector3d desired = sources[2].cam_from_world.Inverse().translation + Eigen::Vector3d(0.05, 0, 0);
+  {
+    const UlrRenderer renderer(&sources, RenderOptions());
+    const std::vector<BlendWeight> weights = renderer.Weights(p, desired);
+    ASSERT_FALSE(weights.empty());
+    EXPECT_EQ(weights[0].source, 2);
+  }
+  // Source 2's proxy depth map: the true plane, except an occluder in front of p.
+  for (SourceView& s : sources) {
+    s.proxy_depth = DepthMap(kWidth, kHeight, 1, 0.f);
+    for (int y = 0; y < kHeight; ++y) {
+      for (int x = 0; x < kWidth; ++x) {
+        const Rigid3d w = s.cam_from_world.Inverse();
+        const Eigen::Vector3d ray = w.rotation * s.camera.CamFromImg(Eigen::Vector2d(x + 0.5, y + 0.5));
+        const double t = -w.translation.z() / ray.z();
+        s.proxy_depth.At(x, y) = static_cast<float>((s.cam_from_world * (w.translation + t * ray)).z());
+      }
+    }
+  }
+  const Eigen::Vector3d in_cam = sources[2].cam_from_world * p;
+  const Eigen::Vector2d pixel = sources[2].camera.ImgFromCam(in_cam);
+  sources[2].proxy_depth.At(static_cast<int>(pixel.x()), static_cast<int>(pixel.y())) = static_cast<float>(in_cam.z() * 0.5);
+  const UlrRenderer renderer(&sources, RenderOptions());
+  const std::vector<BlendWeight> weights = renderer.Weights(p, desired);
+  ASSERT_FALSE(weights.empty());
+  for (const BlendWeight& w : weights) EXPECT_NE(w.source, 2) << "an occluded camera must get no weight";
+}
+
+TEST(Ulr, TiedPenaltiesGiveUniformWeightsNotNaN) {
+  // Four cameras symmetric about the desired ray: equal angle penalties.
+  std::vector<SourceView> sources;
+  for (int i = 0; i < 4; ++i) {
+    const double a = M_PI / 2 * i;
+    sources.push_back(PlaneView(Eigen::Vector3d(0.5 * std::cos(a), 0.5 * std::sin(a), 3.0), "s" + std::to_string(i)));
+  }
+  for (bool epipole : {true, false}) {
+    RenderOptions options;
+    options.epipole_consistent = epipole;
+    const UlrRenderer renderer(&sources, options);
+    const std::vector<BlendWeight> weights = renderer.Weights(Eigen::Vector3d::Zero(), Eigen::Vector3d(0, 0, 3.0));
+    ASSERT_EQ(weights.size(), 4u);
+    for (const BlendWeight& w : weights) {
+      EXPECT_TRUE(std::isfinite(w.weight));
+      EXPECT_NEAR(w.weight, 0.25, 1e-9);
+    }
+  }
+}
+
+TEST(Ulr, FewerThanKCamerasHandled) {
+  const std::vector<SourceView> one = {PlaneView(Eigen::Vector3d(0.3, 0, 3), "a")};
+  const UlrRenderer renderer(&one, RenderOptions());
+  const std::vector<BlendWeight> w1 = renderer.Weights(Eigen::Vector3d::Zero(), Eigen::Vector3d(0, 0, 3));
+  ASSERT_EQ(w1.size(), 1u);
+  EXPECT_DOUBLE_EQ(w1[0].weight, 1.0);
+  const std::vector<SourceView> two = {PlaneView(Eigen::Vector3d(0.3, 0, 3), "a"),
+                                       PlaneView(Eigen::Vector3d(-0.6, 0, 3), "b")};
+  const UlrRenderer renderer2(&two, RenderOptions());
+  const std::vector<BlendWeight> w2 = renderer2.Weights(Eigen::Vector3d::Zero(), Eigen::Vector3d(0, 0, 3));
+  ASSERT_EQ(w2.size(), 2u);
+  EXPECT_EQ(w2[0].source, 0);
+  EXPECT_NEAR(w2[0].weight + w2[1].weight, 1.0, 1e-12);
+  // A point no camera sees: not covered.
+  EXPECT_TRUE(renderer2.Weights(Eigen::Vector3d(100, 0, 0), Eigen::Vector3d(0, 0, 3)).empty());
+}
+
+TEST(ProxyPlane, MeanInverseDepthAndNearestToAxes) {
+  const Rigid3d cam = LookAt(Eigen::Vector3d(0, 0, 5), Eigen::Vector3d::Zero(), Eigen::Vector3d(0, 1, 0));
+  Plane plane;
+  ASSERT_TRUE(PlaneAtMeanInverseDepth({Eigen::Vector3d(0, 0, 3), Eigen::Vector3d(0, 0, 1)}, cam, &plane));
+  // depths 2 and 4: 1 / mean(1/2, 1/4) = 8/3
+  EXPECT_NEAR((plane.point - Eigen::Vector3d(0, 0, 5)).norm(), 8.0 / 3.0, 1e-12);
+  EXPECT_NEAR(plane.normal.z(), -1.0, 1e-12);
+  Eigen::Vector3d point;
+  ASSERT_TRUE(PointNearestToAxes({Eigen::Vector3d(1, 0, 0), Eigen::Vector3d(0, 1, 0)},
+                                 {Eigen::Vector3d(-1, 0, 0.1), Eigen::Vector3d(0, -1, 0.1)}, &point));
+  EXPECT_NEAR(point.x(), point.y(), 1e-9);
+  EXPECT_FALSE(PointNearestToAxes({Eigen::Vector3d(0, 0, 0), Eigen::Vector3d(1, 0, 0)},
+                                  {Eigen::Vector3d(0, 0, 1), Eigen::Vector3d(0, 0, 1)}, &point));
+}
+
+// The adapter on a tiny workspace: plane + a mesh of the true ground + a missing hull.
+TEST(RenderStage, RendersHeldOutViewsAndSkipsMissingProxy) {
+  const fs::path root = fs::temp_directory_path() / ("ibmr_render_test_" + std::to_string(::getpid()));
+  fs::remove_all(root);
+  fs::create_directories(root / "images");
+  const std::vector<SourceView> views = Ring(8, 1.5);
+  SparseModel model;
+  model.cameras[1] = TestCamera();
+  for (size_t i = 0; i < views.size(); ++i) {
+    Image image;
+    image.image_id = static_cast<int>(i) + 1;
+    image.camera_id = 1;
+    image.name = "v" + std::to_string(i) + ".png";
+    image.cam_from_world = views[i].cam_from_world;
+    model.images[image.image_id] = image;
+    WriteImage((root / "images" / image.name).string(), views[i].image);
+  }
+  WriteSparseModelText((root / "sparse").string(), model);
+  TriangleMesh ground;
+  ground.vertices = {{-5, -5, 0}, {5, -5, 0}, {5, 5, 0}, {-5, 5, 0}};
+  ground.faces = {{0, 1, 2}, {0, 2, 3}};
+  fs::create_directories(root / "ground_truth");
+  WriteMeshPly((root / "ground_truth/mesh.ply").string(), ground);
+
+  StageRegistry registry;
+  RegisterStage_render(&registry);
+  const Stage* stage = registry.Find("render");
+  ASSERT_NE(stage, nullptr);
+  StageContext context;
+  context.workspace = Workspace(root.string());
+  context.role = stage->Role();
+  context.heldout_images = {"v0.png", "v4.png"};
+  for (const ParamSpec& spec : stage->Parameters()) {
+    if (spec.key == "proxies") {
+      context.params.Set("proxies", std::vector<std::string>{"ground_truth/mesh.ply", "plane", "hull/hull.ply"});
+    } else if (spec.type == ParamType::kInt) {
+      context.params.Set(spec.key, static_cast<int64_t>(std::stoll(spec.default_yaml)));
+    } else if (spec.type == ParamType::kDouble) {
+      context.params.Set(spec.key, std::stod(spec.default_yaml));
+    } else if (spec.type == ParamType::kBool) {
+      context.params.Set(spec.key, spec.default_yaml == "true");
+    } else if (spec.type == ParamType::kDoubleList) {
+      context.params.Set(spec.key, std::vector<double>{});
+    } else {
+      context.params.Set(spec.key, std::vector<std::string>{});
+    }
+  }
+  ASSERT_FALSE(stage->CheckParams(context.params).has_value());
+  NullProgress progress;
+  context.progress = &progress;
+  stage->Run(context);
+  EXPECT_TRUE(fs::exists(root / "renders/ground_truth_mesh/v0.png"));
+  EXPECT_TRUE(fs::exists(root / "renders/plane/v4.coverage.png"));
+  EXPECT_TRUE(fs::exists(root / "renders/v4.png"));
+  const nlohmann::json summary = nlohmann::json::parse(std::ifstream((root / "renders/renders.json").string()));
+  EXPECT_EQ(summary["primary"], "ground_truth_mesh");
+  ASSERT_EQ(summary["proxies"].size(), 3u);
+  EXPECT_EQ(summary["proxies"][2]["status"], "skipped");
+  EXPECT_NE(summary["proxies"][2]["reason"].get<std::string>().find("hull/hull.ply"), std::string::npos);
+  for (const auto& name : {"v1.png", "v2.png", "v3.png", "v5.png"}) {
+    EXPECT_NE(std::find(summary["training_views"].begin(), summary["training_views"].end(), name),
+              summary["training_views"].end());
+  }
+  // The true ground as a mesh proxy predicts the held-out photo well.
+  const cv::Mat rendered = ReadImageColor((root / "renders/ground_truth_mesh/v0.png").string());
+  const cv::Mat coverage = ReadImageUnchanged((root / "renders/ground_truth_mesh/v0.coverage.png").string());
+  EXPECT_GT(cv::countNonZero(coverage), kWidth * kHeight / 2);
+  EXPECT_GT(Psnr(rendered, views[0].image, coverage), 28.0);
+  fs::remove_all(root);
+}
+
+}  // namespace
+}  // namespace ibmr

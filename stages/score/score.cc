@@ -1,0 +1,174 @@
+// Held-out-view scoring metrics (seed 000 lines 5906-5920, prediction error): PSNR, SSIM,
+// coverage, masked variants, gain correction, nearest-camera angle. See score.h.
+#include "stages/score/score.h"
+
+#include <algorithm>
+#include <cmath>
+#include <opencv2/imgproc.hpp>
+#include <stdexcept>
+
+namespace ibmr {
+
+namespace {
+
+constexpr double kMaxPsnr = 100.0;
+
+double Psnr(double sum_squared, size_t samples) {
+  if (samples == 0) return 0;
+  const double mse = sum_squared / samples;
+  if (mse <= 0) return kMaxPsnr;
+  return std::min(kMaxPsnr, 10.0 * std::log10(255.0 * 255.0 / mse));
+}
+
+// Per-pixel SSIM (mean over the three channels), CV_64FC1. Channel by channel: OpenCV adds a
+// scalar to the first channel only of a multi-channel matrix.
+cv::Mat SsimMap(const cv::Mat& a8, const cv::Mat& b8) {
+  const double c1 = (0.01 * 255) * (0.01 * 255), c2 = (0.03 * 255) * (0.03 * 255);
+  const cv::Size window(11, 11);
+  const double sigma = 1.5;
+  std::vector<cv::Mat> channels_a, channels_b;
+  cv::split(a8, channels_a);
+  cv::split(b8, channels_b);
+  cv::Mat mean = cv::Mat::zeros(a8.size(), CV_64F);
+  for (size_t c = 0; c < channels_a.size(); ++c) {
+    cv::Mat a, b;
+    channels_a[c].convertTo(a, CV_64F);
+    channels_b[c].convertTo(b, CV_64F);
+    cv::Mat mu_a, mu_b, aa, bb, ab;
+    cv::GaussianBlur(a, mu_a, window, sigma);
+    cv::GaussianBlur(b, mu_b, window, sigma);
+    cv::GaussianBlur(a.mul(a), aa, window, sigma);
+    cv::GaussianBlur(b.mul(b), bb, window, sigma);
+    cv::GaussianBlur(a.mul(b), ab, window, sigma);
+    const cv::Mat mu_aa = mu_a.mul(mu_a), mu_bb = mu_b.mul(mu_b), mu_ab = mu_a.mul(mu_b);
+    const cv::Mat numerator = (2 * mu_ab + c1).mul(2 * (ab - mu_ab) + c2);
+    const cv::Mat denominator = (mu_aa + mu_bb + c1).mul((aa - mu_aa) + (bb - mu_bb) + c2);
+    cv::Mat ssim;
+    cv::divide(numerator, denominator, ssim);
+    mean += ssim / static_cast<double>(channels_a.size());
+  }
+  return mean;
+}
+
+MaskedScore Accumulate(const cv::Mat& real, const cv::Mat& rendered, const cv::Mat& ssim, const cv::Mat& counted,
+                       const cv::Mat& ssim_counted, size_t denominator_pixels) {
+  MaskedScore score;
+  double sum_squared = 0, sum_ssim = 0;
+  size_t ssim_pixels = 0;
+  for (int y = 0; y < real.rows; ++y) {
+    const uint8_t* r = real.ptr<uint8_t>(y);
+    const uint8_t* g = rendered.ptr<uint8_t>(y);
+    const uint8_t* m = counted.ptr<uint8_t>(y);
+    const uint8_t* s = ssim_counted.ptr<uint8_t>(y);
+    for (int x = 0; x < real.cols; ++x) {
+      if (!m[x]) continue;
+      ++score.pixels;
+      for (int c = 0; c < 3; ++c) {
+        const double d = static_cast<double>(r[3 * x + c]) - g[3 * x + c];
+        sum_squared += d * d;
+      }
+      if (s[x]) {
+        sum_ssim += ssim.at<double>(y, x);
+        ++ssim_pixels;
+      }
+    }
+  }
+  score.psnr = Psnr(sum_squared, 3 * score.pixels);
+  score.ssim = ssim_pixels ? sum_ssim / ssim_pixels : 0.0;
+  score.coverage = denominator_pixels ? static_cast<double>(score.pixels) / denominator_pixels : 0.0;
+  return score;
+}
+
+// Pixels of `counted` whose 11x11 SSIM window lies inside `counted`; `counted` itself when none.
+cv::Mat SsimSupport(const cv::Mat& counted) {
+  cv::Mat eroded;
+  cv::erode(counted, eroded, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(11, 11)), cv::Point(-1, -1), 1,
+            cv::BORDER_CONSTANT, cv::Scalar(0));
+  return cv::countNonZero(eroded) > 0 ? eroded : counted;
+}
+
+}  // namespace
+
+bool ScoreOptions::Check(std::string* error) const {
+  if (!(near_angle_deg >= 0 && near_angle_deg < 180)) {
+    *error = "near_angle_deg: must be in [0, 180), got " + std::to_string(near_angle_deg);
+    return false;
+  }
+  if (error_gain < 1 || error_gain > 64) {
+    *error = "error_gain: must be in [1, 64], got " + std::to_string(error_gain);
+    return false;
+  }
+  return true;
+}
+
+ImageScore ScoreImage(const cv::Mat& real, const cv::Mat& rendered_in, const cv::Mat& coverage, const cv::Mat& mask,
+                      const ScoreOptions& options) {
+  if (real.type() != CV_8UC3 || rendered_in.type() != CV_8UC3 || coverage.type() != CV_8UC1 ||
+      real.size() != rendered_in.size() || real.size() != coverage.size() ||
+      (!mask.empty() && (mask.type() != CV_8UC1 || mask.size() != real.size()))) {
+    throw std::invalid_argument("ScoreImage: images must be CV_8UC3 (real, render) and CV_8UC1 (coverage, mask) of one size");
+  }
+  ImageScore score;
+  cv::Mat rendered = rendered_in.clone();
+  if (options.gain_correction) {
+    double num[3] = {0, 0, 0}, den[3] = {0, 0, 0};
+    for (int y = 0; y < real.rows; ++y) {
+      const uint8_t* r = real.ptr<uint8_t>(y);
+      const uint8_t* g = rendered.ptr<uint8_t>(y);
+      const uint8_t* m = coverage.ptr<uint8_t>(y);
+      for (int x = 0; x < real.cols; ++x) {
+        if (!m[x]) continue;
+        for (int c = 0; c < 3; ++c) {
+          num[c] += static_cast<double>(r[3 * x + c]) * g[3 * x + c];
+          den[c] += static_cast<double>(g[3 * x + c]) * g[3 * x + c];
+        }
+      }
+    }
+    for (int c = 0; c < 3; ++c) score.gains[c] = den[c] > 0 ? num[c] / den[c] : 1.0;
+    for (int y = 0; y < real.rows; ++y) {
+      uint8_t* g = rendered.ptr<uint8_t>(y);
+      for (int x = 0; x < real.cols; ++x) {
+        for (int c = 0; c < 3; ++c) g[3 * x + c] = cv::saturate_cast<uint8_t>(g[3 * x + c] * score.gains[c]);
+      }
+    }
+  }
+  const cv::Mat covered = coverage > 0;
+  const cv::Mat ssim = SsimMap(real, rendered);
+  score.all = Accumulate(real, rendered, ssim, covered, SsimSupport(covered), static_cast<size_t>(real.total()));
+  if (!mask.empty()) {
+    score.has_mask = true;
+    const cv::Mat foreground = mask > 0;
+    const cv::Mat counted = covered & foreground;
+    score.mask = Accumulate(real, rendered, ssim, counted, SsimSupport(counted),
+                            static_cast<size_t>(cv::countNonZero(foreground)));
+  }
+  return score;
+}
+
+cv::Mat SideBySide(const cv::Mat& real, const cv::Mat& rendered, const cv::Mat& coverage, int error_gain) {
+  cv::Mat error;
+  cv::absdiff(real, rendered, error);
+  error *= error_gain;
+  error.setTo(cv::Scalar(64, 0, 0), coverage == 0);
+  cv::Mat out;
+  cv::hconcat(std::vector<cv::Mat>{real, rendered, error}, out);
+  return out;
+}
+
+double NearestCameraAngleDeg(const Eigen::Vector3d& center, const std::vector<Eigen::Vector3d>& others,
+                             const Eigen::Vector3d& scene_center, int* nearest) {
+  *nearest = -1;
+  double best = 180.0;
+  const Eigen::Vector3d a = center - scene_center;
+  for (size_t i = 0; i < others.size(); ++i) {
+    const Eigen::Vector3d b = others[i] - scene_center;
+    const double angle = std::atan2(a.cross(b).norm(), a.dot(b)) * 180.0 / M_PI;
+    if (angle < best || *nearest < 0) {
+      best = angle;
+      *nearest = static_cast<int>(i);
+    }
+  }
+  return best;
+}
+
+}  // namespace ibmr

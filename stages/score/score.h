@@ -1,0 +1,61 @@
+// Held-out-view cross-validation: Szeliski's prediction error (seed 000, BMVC'99 section 6,
+// lines 5906-5920): views held back from every reconstruction stage are rendered from the model
+// and compared with the real photographs. Metrics per view (RENDERERS.md "Scoring held-out views"):
+//  * PSNR over covered pixels (MSE over the three 8-bit channels, peak 255; capped at 100 dB when
+//    the render is exact);
+//  * SSIM (Wang et al. 2004: Gaussian window sigma 1.5, C1 = (0.01*255)^2, C2 = (0.03*255)^2, per
+//    channel, averaged) over covered pixels whose whole window is covered (the coverage eroded by
+//    the window radius; all covered pixels when that leaves none);
+//  * coverage: covered fraction of the image, and of the mask where a mask exists;
+//  * the same PSNR / SSIM inside the mask (covered and foreground);
+//  * optional per-image, per-channel gain correction (lighting can differ between photos): the
+//    least-squares gain g_c = sum(real*render) / sum(render^2) over covered pixels is applied to the
+//    render before the metrics.
+// The angle to the nearest training camera (seen from the scene centre) is computed here too: a
+// near-zero angle makes a held-out view trivially easy (epipole consistency), reported apart.
+#pragma once
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+#include <opencv2/core.hpp>
+#include <string>
+#include <vector>
+
+namespace ibmr {
+
+struct ScoreOptions {
+  bool gain_correction = false;   // per-image, per-channel least-squares gain on the render
+  double near_angle_deg = 1.0;    // views closer than this to a training camera are "near", in [0, 180)
+  int error_gain = 4;             // error panel of side-by-side images shows |real - render| * this, in [1, 64]
+
+  bool Check(std::string* error) const;  // error starts with the YAML key
+};
+
+struct MaskedScore {
+  double psnr = 0;          // dB over the pixels counted (covered [and in mask])
+  double ssim = 0;
+  double coverage = 0;      // covered fraction of the image (or of the mask)
+  size_t pixels = 0;        // pixels counted
+};
+
+struct ImageScore {
+  MaskedScore all;          // over covered pixels
+  bool has_mask = false;
+  MaskedScore mask;         // covered and foreground
+  double gains[3] = {1, 1, 1};  // B, G, R gains applied (1 without gain correction)
+};
+
+// `real`, `rendered`: CV_8UC3 of one size; `coverage`: CV_8UC1, nonzero where covered; `mask`:
+// CV_8UC1 (nonzero = foreground) or empty. Throws std::invalid_argument on size mismatch.
+ImageScore ScoreImage(const cv::Mat& real, const cv::Mat& rendered, const cv::Mat& coverage, const cv::Mat& mask,
+                      const ScoreOptions& options);
+
+// real | rendered | |real - rendered| * error_gain (uncovered pixels of the error panel dark blue).
+cv::Mat SideBySide(const cv::Mat& real, const cv::Mat& rendered, const cv::Mat& coverage, int error_gain);
+
+// Angle in degrees at `scene_center` between `center` and the nearest of `others`; sets `nearest`
+// (index into others, -1 when empty; angle 180 then).
+double NearestCameraAngleDeg(const Eigen::Vector3d& center, const std::vector<Eigen::Vector3d>& others,
+                             const Eigen::Vector3d& scene_center, int* nearest);
+
+}  // namespace ibmr

@@ -1,0 +1,254 @@
+// Adapter of the score stage (held-out-view cross-validation, seed 000 lines 5906-5920; see
+// score.h): compares every render listed in renders/renders.json (written by the render stage)
+// with the real photo of that view, and writes scores/heldout.json (per proxy: per view and mean,
+// with and without views near a training camera; skipped proxies with the reason) and side-by-side
+// images scores/<proxy>/<image stem>.png (real | rendered | error).
+// Masks, first found: ground_truth/masks/<image>.png (synth), heldout/masks/<image>.png
+// (silhouettes stage), masks/<image>.png.
+#include <spdlog/spdlog.h>
+#include <Eigen/Eigenvalues>
+#include <Eigen/Cholesky>
+
+#include <filesystem>
+#include <limits>
+
+#include "pipeline/core/atomic_file.h"
+#include "pipeline/core/colmap_text_io.h"
+#include "pipeline/core/errors.h"
+#include "pipeline/core/image_io.h"
+#include "pipeline/core/stage_api.h"
+#include "stages/score/score.h"
+
+namespace fs = std::filesystem;
+
+namespace ibmr {
+
+namespace {
+
+const char* const kMaskFolders[] = {"ground_truth/masks", "heldout/masks", "masks"};
+
+nlohmann::json ToJson(const MaskedScore& s) {
+  return {{"psnr", s.psnr}, {"ssim", s.ssim}, {"coverage", s.coverage}, {"pixels", s.pixels}};
+}
+
+// Mean of the per-view entries' metrics over the views selected by `use`.
+nlohmann::json Mean(const nlohmann::json& views, const std::function<bool(const nlohmann::json&)>& use) {
+  const char* const keys[] = {"psnr", "ssim", "coverage", "mask_psnr", "mask_ssim", "mask_coverage"};
+  std::map<std::string, std::pair<double, int>> sums;
+  int count = 0;
+  for (const auto& [name, view] : views.items()) {
+    if (!use(view)) continue;
+    ++count;
+    for (const char* key : keys) {
+      if (view.contains(key) && view[key].is_number()) {
+        sums[key].first += view[key].get<double>();
+        ++sums[key].second;
+      }
+    }
+  }
+  nlohmann::json mean = {{"views", count}};
+  for (const auto& [key, sum] : sums) mean[key] = sum.first / sum.second;
+  return mean;
+}
+
+class ScoreStage : public Stage {
+ public:
+  std::string Name() const override { return "score"; }
+  std::string Summary() const override {
+    return "Held-out-view cross-validation: PSNR, SSIM, coverage, masked error, angle to the nearest training view";
+  }
+  std::string Version() const override { return "1"; }
+  HoldoutRole Role() const override { return HoldoutRole::kScoring; }
+
+  std::vector<ParamSpec> Parameters() const override {
+    return {
+        {"gain_correction", ParamType::kBool, "false", "per-image, per-channel least-squares gain on each render", {}},
+        {"near_angle_deg", ParamType::kDouble, "1",
+         "held-out views closer than this (degrees) to a training camera are reported apart, in [0, 180)", {}},
+        {"error_gain", ParamType::kInt, "4", "error panel of the side-by-side images: |real - render| times this, in [1, 64]",
+         {}},
+    };
+  }
+
+  std::optional<ParamError> CheckParams(const Params& params) const override {
+    std::string error;
+    if (!ToOptions(params).Check(&error)) return ParamError{error.substr(0, error.find(':')), error.substr(error.find(':') + 2)};
+    return std::nullopt;
+  }
+
+  std::vector<std::string> Inputs(const StageContext&) const override {
+    return {"renders", "images", "sparse", "ground_truth/masks", "heldout/masks", "masks"};
+  }
+  std::vector<std::string> Outputs(const StageContext&) const override { return {"scores"}; }
+
+  void Run(StageContext& context) const override {
+    const ScoreOptions options = ToOptions(context.params);
+    const Workspace& ws = context.workspace;
+    const std::string summary_path = ws.Path("renders/renders.json");
+    if (!fs::exists(summary_path)) {
+      throw InputError(summary_path + " does not exist; run the render stage before score");
+    }
+    nlohmann::json renders;
+    try {
+      renders = nlohmann::json::parse(ReadFile(summary_path));
+    } catch (const nlohmann::json::exception& e) {
+      throw IoError(summary_path + ": not valid JSON (" + e.what() + "); re-run the render stage");
+    }
+    const SparseModel model = ReadSparseModelText(ws.SparseDir());
+
+    // Geometry for the nearest-training-camera angle.
+    std::vector<Eigen::Vector3d> training_centers;
+    std::vector<std::string> training_names;
+    Eigen::Matrix3d a = Eigen::Matrix3d::Zero();
+    Eigen::Vector3d b = Eigen::Vector3d::Zero(), mean_center = Eigen::Vector3d::Zero(),
+                    mean_direction = Eigen::Vector3d::Zero();
+    for (const auto& [id, image] : model.images) {
+      const Eigen::Vector3d v = image.ViewingDirection().normalized();
+      a += Eigen::Matrix3d::Identity() - v * v.transpose();
+      b += (Eigen::Matrix3d::Identity() - v * v.transpose()) * image.Center();
+      mean_center += image.Center() / model.images.size();
+      mean_direction += v;
+      if (!context.IsHeldOut(image.name)) {
+        training_centers.push_back(image.Center());
+        training_names.push_back(image.name);
+      }
+    }
+    Eigen::Vector3d scene_center = a.ldlt().solve(b);
+    std::string center_kind = "nearest_to_axes";
+    if (model.images.size() < 2 || !scene_center.allFinite() ||
+        Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(a).eigenvalues().minCoeff() < 1e-6 * a.trace()) {
+      Eigen::Vector3d mean_point = Eigen::Vector3d::Zero();
+      for (const auto& [id, point] : model.points) mean_point += point.xyz / model.points.size();
+      scene_center = model.points.empty() ? Eigen::Vector3d(mean_center + mean_direction.normalized()) : mean_point;
+      center_kind = model.points.empty() ? "ahead_of_cameras" : "mean_sparse_point";
+    }
+
+    nlohmann::json out = {{"primary", renders.value("primary", "")},
+                          {"near_angle_deg", options.near_angle_deg},
+                          {"gain_correction", options.gain_correction},
+                          {"scene_center", {scene_center.x(), scene_center.y(), scene_center.z()}},
+                          {"scene_center_from", center_kind},
+                          {"heldout", context.heldout_images},
+                          {"proxies", nlohmann::json::object()}};
+    fs::create_directories(ws.Path("scores"));
+    size_t scored = 0;
+    for (const nlohmann::json& proxy : renders.value("proxies", nlohmann::json::array())) {
+      const std::string name = proxy.value("name", "");
+      if (proxy.value("status", "") != "rendered") {
+        spdlog::warn("[score] proxy {} was not rendered ({}); no scores for it", name, proxy.value("reason", "?"));
+        out["proxies"][name] = {{"status", "skipped"}, {"reason", proxy.value("reason", "not rendered")}};
+        continue;
+      }
+      nlohmann::json views = nlohmann::json::object();
+      fs::create_directories(ws.Path("scores/" + name));
+      const nlohmann::json rendered_views = proxy.value("views", nlohmann::json::object());
+      for (const auto& [image_name, info] : rendered_views.items()) {
+        views[image_name] = ScoreView(context, options, name, image_name, info, model, training_centers,
+                                      training_names, scene_center);
+        ++scored;
+      }
+      const double near = options.near_angle_deg;
+      const auto is_near = [near](const nlohmann::json& v) {
+        return v.contains("nearest_training_angle_deg") && v["nearest_training_angle_deg"].get<double>() < near;
+      };
+      nlohmann::json pj = {{"status", "scored"},
+                           {"path", proxy.value("path", "")},
+                           {"views", views},
+                           {"mean", Mean(views, [](const nlohmann::json&) { return true; })},
+                           {"mean_excluding_near", Mean(views, [&](const nlohmann::json& v) { return !is_near(v); })},
+                           {"mean_near", Mean(views, is_near)}};
+      context.metrics[name] = pj["mean"];
+      spdlog::info("[score] {}: mean PSNR {:.2f} dB, SSIM {:.3f}, coverage {:.3f} over {} views", name,
+                   pj["mean"].value("psnr", 0.0), pj["mean"].value("ssim", 0.0), pj["mean"].value("coverage", 0.0),
+                   views.size());
+      out["proxies"][name] = pj;
+    }
+    if (scored == 0) spdlog::warn("[score] no render to score (is any view held out? see holdout in the config)");
+    WriteFileAtomic(ws.Path("scores/heldout.json"), out.dump(2) + "\n");
+    context.metrics["views_scored"] = scored;
+  }
+
+ private:
+  static ScoreOptions ToOptions(const Params& params) {
+    ScoreOptions options;
+    options.gain_correction = params.Bool("gain_correction");
+    options.near_angle_deg = params.Double("near_angle_deg");
+    options.error_gain = static_cast<int>(params.Int("error_gain"));
+    return options;
+  }
+
+  static nlohmann::json ScoreView(const StageContext& context, const ScoreOptions& options, const std::string& proxy,
+                                  const std::string& image_name, const nlohmann::json& info, const SparseModel& model,
+                                  const std::vector<Eigen::Vector3d>& training_centers,
+                                  const std::vector<std::string>& training_names, const Eigen::Vector3d& scene_center) {
+    const Workspace& ws = context.workspace;
+    const std::string stem = fs::path(image_name).stem().string();
+    const std::string render_path = ws.Path("renders/" + proxy + "/" + stem + ".png");
+    const std::string coverage_path = ws.Path("renders/" + proxy + "/" + stem + ".coverage.png");
+    const std::string real_path = ws.ImagesDir() + "/" + image_name;
+    nlohmann::json v = {{"render", "renders/" + proxy + "/" + stem + ".png"}};
+    if (!fs::exists(real_path)) {
+      spdlog::warn("[score] {}: no real photo {}; view not scored", image_name, real_path);
+      v["error"] = real_path + " does not exist";
+      return v;
+    }
+    const cv::Mat real = ReadImageColor(real_path);
+    const cv::Mat rendered = ReadImageColor(render_path);
+    const cv::Mat coverage = ReadImageUnchanged(coverage_path);
+    if (rendered.size() != real.size() || coverage.size() != real.size() || coverage.type() != CV_8UC1) {
+      throw InputError(render_path + ": size differs from the photo " + real_path + " (or its coverage mask " +
+                       coverage_path + " is not 8-bit grey); re-run the render stage");
+    }
+    cv::Mat mask;
+    for (const char* folder : kMaskFolders) {
+      const std::string path = ws.Path(std::string(folder) + "/" + image_name + ".png");
+      if (!fs::exists(path)) continue;
+      mask = ReadImageUnchanged(path);
+      if (mask.channels() != 1 || mask.size() != real.size()) {
+        spdlog::warn("[score] {}: mask is not {}x{} 8-bit grey; ignored", path, real.cols, real.rows);
+        mask = cv::Mat();
+        continue;
+      }
+      if (mask.depth() != CV_8U) mask.convertTo(mask, CV_8U);
+      v["mask"] = std::string(folder) + "/" + image_name + ".png";
+      break;
+    }
+    const ImageScore score = ScoreImage(real, rendered, coverage, mask, options);
+    v["psnr"] = score.all.psnr;
+    v["ssim"] = score.all.ssim;
+    v["coverage"] = score.all.coverage;
+    v["covered_pixels"] = score.all.pixels;
+    if (score.has_mask) {
+      v["mask_psnr"] = score.mask.psnr;
+      v["mask_ssim"] = score.mask.ssim;
+      v["mask_coverage"] = score.mask.coverage;
+    }
+    if (options.gain_correction) v["gains_bgr"] = {score.gains[0], score.gains[1], score.gains[2]};
+    if (const Image* image = model.FindImage(image_name)) {
+      std::vector<Eigen::Vector3d> others;
+      std::vector<std::string> other_names;
+      for (size_t i = 0; i < training_centers.size(); ++i) {
+        if (training_names[i] == image_name) continue;  // a training view rendered leave-one-out
+        others.push_back(training_centers[i]);
+        other_names.push_back(training_names[i]);
+      }
+      int nearest = -1;
+      const double angle = NearestCameraAngleDeg(image->Center(), others, scene_center, &nearest);
+      if (nearest >= 0) {
+        v["nearest_training_angle_deg"] = angle;
+        v["nearest_training_view"] = other_names[nearest];
+        v["near_training_view"] = angle < options.near_angle_deg;
+      }
+    }
+    v["sources"] = info.value("sources", 0);
+    WriteImage(ws.Path("scores/" + proxy + "/" + stem + ".png"),
+               SideBySide(real, rendered, coverage, options.error_gain));
+    return v;
+  }
+};
+
+}  // namespace
+
+void RegisterStage_score(StageRegistry* registry) { registry->Add(std::make_unique<ScoreStage>()); }
+
+}  // namespace ibmr

@@ -1,0 +1,173 @@
+// Tests of the held-out-view metrics (seed 000 lines 5906-5920): PSNR and SSIM known answers,
+// coverage and masks, gain correction, nearest-camera angle, option checks, and the adapter on a
+// tiny workspace with a skipped proxy.
+#include "stages/score/score.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "pipeline/core/atomic_file.h"
+#include "pipeline/core/colmap_text_io.h"
+#include "pipeline/core/image_io.h"
+#include "pipeline/core/stage_api.h"
+
+namespace fs = std::filesystem;
+
+namespace ibmr {
+void RegisterStage_score(StageRegistry* registry);
+
+namespace {
+
+cv::Mat Noise(int w, int h, int seed) {
+  cv::Mat image(h, w, CV_8UC3);
+  cv::RNG rng(0x9E3779B97F4A7C15ull * (seed + 1));  // small seeds give correlated MWC sequences
+  rng.fill(image, cv::RNG::UNIFORM, cv::Scalar::all(0), cv::Scalar::all(256));
+  cv::GaussianBlur(image, image, cv::Size(5, 5), 1.0);
+  return image;
+}
+
+TEST(ScoreOptions, DefaultsAreValid) {
+  std::string error;
+  EXPECT_TRUE(ScoreOptions().Check(&error)) << error;
+}
+
+TEST(ScoreOptions, RejectsBadValues) {
+  std::string error;
+  ScoreOptions o;
+  o.near_angle_deg = -1;
+  EXPECT_FALSE(o.Check(&error));
+  EXPECT_EQ(error.rfind("near_angle_deg:", 0), 0u) << error;
+  o = ScoreOptions();
+  o.error_gain = 0;
+  EXPECT_FALSE(o.Check(&error));
+  EXPECT_EQ(error.rfind("error_gain:", 0), 0u) << error;
+}
+
+TEST(ScoreImage, KnownPsnrSsimAndCoverage) {
+  const cv::Mat real = Noise(64, 48, 1);
+  cv::Mat rendered = real.clone();
+  cv::Mat coverage(48, 64, CV_8UC1, cv::Scalar(0));
+  coverage(cv::Rect(0, 0, 32, 48)).setTo(255);
+  // Exact on covered pixels, garbage elsewhere: uncovered pixels do not count.
+  rendered(cv::Rect(32, 0, 32, 48)).setTo(cv::Scalar(0, 0, 0));
+  ImageScore s = ScoreImage(real, rendered, coverage, cv::Mat(), ScoreOptions());
+  EXPECT_EQ(s.all.psnr, 100.0);
+  EXPECT_NEAR(s.all.ssim, 1.0, 1e-9);
+  EXPECT_NEAR(s.all.coverage, 0.5, 1e-12);
+  EXPECT_FALSE(s.has_mask);
+  // A constant error of 4 levels: MSE 16, PSNR = 10 log10(255^2 / 16).
+  cv::Mat shifted;
+  cv::Mat(real(cv::Rect(0, 0, 32, 48)) + cv::Scalar(4, 4, 4)).copyTo(shifted);
+  cv::Mat clipped = real.clone();
+  clipped.setTo(cv::Scalar(100, 100, 100));
+  rendered = clipped + cv::Scalar(4, 4, 4);
+  s = ScoreImage(clipped, rendered, coverage, cv::Mat(), ScoreOptions());
+  EXPECT_NEAR(s.all.psnr, 10 * std::log10(255.0 * 255.0 / 16.0), 1e-9);
+  // SSIM of noise against other noise is low.
+  s = ScoreImage(real, Noise(64, 48, 2), coverage, cv::Mat(), ScoreOptions());
+  EXPECT_LT(s.all.ssim, 0.3);
+}
+
+TEST(ScoreImage, MaskedVariantAndGainCorrection) {
+  const cv::Mat real = Noise(64, 48, 3);
+  cv::Mat rendered;
+  real.convertTo(rendered, CV_8UC3, 0.8);  // a darker exposure
+  const cv::Mat coverage(48, 64, CV_8UC1, cv::Scalar(255));
+  cv::Mat mask(48, 64, CV_8UC1, cv::Scalar(0));
+  mask(cv::Rect(10, 10, 30, 20)).setTo(255);
+  const ImageScore plain = ScoreImage(real, rendered, coverage, mask, ScoreOptions());
+  ASSERT_TRUE(plain.has_mask);
+  EXPECT_EQ(plain.mask.pixels, 600u);
+  EXPECT_NEAR(plain.mask.coverage, 1.0, 1e-12);
+  ScoreOptions gain;
+  gain.gain_correction = true;
+  const ImageScore corrected = ScoreImage(real, rendered, coverage, mask, gain);
+  EXPECT_NEAR(corrected.gains[0], 1.25, 0.02);
+  EXPECT_GT(corrected.all.psnr, plain.all.psnr + 10);
+}
+
+TEST(ScoreImage, RejectsSizeMismatch) {
+  EXPECT_THROW(ScoreImage(Noise(8, 8, 1), Noise(9, 8, 1), cv::Mat(8, 8, CV_8UC1), cv::Mat(), ScoreOptions()),
+               std::invalid_argument);
+}
+
+TEST(NearestCameraAngle, RingAngles) {
+  const Eigen::Vector3d c = Eigen::Vector3d::Zero();
+  std::vector<Eigen::Vector3d> ring;
+  for (int i = 0; i < 8; ++i) ring.push_back(Eigen::Vector3d(std::cos(M_PI / 4 * i), std::sin(M_PI / 4 * i), 0.3));
+  int nearest = -1;
+  const Eigen::Vector3d query(std::cos(0.2), std::sin(0.2), 0.3);
+  const double angle = NearestCameraAngleDeg(query, ring, c, &nearest);
+  EXPECT_EQ(nearest, 0);
+  EXPECT_GT(angle, 10.0);
+  EXPECT_LT(angle, 11.5);
+  EXPECT_NEAR(NearestCameraAngleDeg(ring[3], ring, c, &nearest), 0.0, 1e-9);  // same position
+}
+
+TEST(ScoreStage, WritesHeldoutJsonWithSkippedProxy) {
+  const fs::path root = fs::temp_directory_path() / ("ibmr_score_test_" + std::to_string(::getpid()));
+  fs::remove_all(root);
+  fs::create_directories(root / "images");
+  fs::create_directories(root / "renders/plane");
+  fs::create_directories(root / "ground_truth/masks");
+  SparseModel model;
+  model.cameras[1] = Camera::Pinhole(64, 48, 60, 60, 32, 24);
+  for (int i = 0; i < 4; ++i) {
+    Image image;
+    image.image_id = i + 1;
+    image.camera_id = 1;
+    image.name = "v" + std::to_string(i) + ".png";
+    const double a = M_PI / 2 * i;
+    image.cam_from_world = LookAt(Eigen::Vector3d(3 * std::cos(a), 3 * std::sin(a), 1), Eigen::Vector3d::Zero(),
+                                  Eigen::Vector3d(0, 0, 1));
+    model.images[image.image_id] = image;
+    WriteImage((root / "images" / image.name).string(), Noise(64, 48, i));
+  }
+  WriteSparseModelText((root / "sparse").string(), model);
+  cv::Mat render = Noise(64, 48, 0);
+  WriteImage((root / "renders/plane/v0.png").string(), render);
+  WriteImage((root / "renders/plane/v0.coverage.png").string(), cv::Mat(48, 64, CV_8UC1, cv::Scalar(255)));
+  WriteImage((root / "ground_truth/masks/v0.png.png").string(), cv::Mat(48, 64, CV_8UC1, cv::Scalar(255)));
+  const nlohmann::json summary = {
+      {"primary", "plane"},
+      {"proxies",
+       {{{"name", "plane"}, {"status", "rendered"}, {"views", {{"v0.png", {{"sources", 3}}}}}},
+        {{"name", "hull"}, {"status", "skipped"}, {"reason", "hull/hull.ply does not exist"}}}}};
+  ASSERT_TRUE(summary["proxies"].is_array()) << summary.dump();
+  ASSERT_TRUE(summary["proxies"][0]["views"]["v0.png"].is_object()) << summary.dump();
+  WriteFileAtomic((root / "renders/renders.json").string(), summary.dump());
+
+  StageRegistry registry;
+  RegisterStage_score(&registry);
+  const Stage* stage = registry.Find("score");
+  StageContext context;
+  context.workspace = Workspace(root.string());
+  context.role = stage->Role();
+  context.heldout_images = {"v0.png"};
+  context.params.Set("gain_correction", false);
+  context.params.Set("near_angle_deg", 1.0);
+  context.params.Set("error_gain", int64_t{4});
+  ASSERT_FALSE(stage->CheckParams(context.params).has_value());
+  NullProgress progress;
+  context.progress = &progress;
+  stage->Run(context);
+  const nlohmann::json out = nlohmann::json::parse(std::ifstream((root / "scores/heldout.json").string()));
+  const nlohmann::json& view = out["proxies"]["plane"]["views"]["v0.png"];
+  EXPECT_EQ(view["psnr"].get<double>(), 100.0);
+  EXPECT_EQ(view["mask"], "ground_truth/masks/v0.png.png");
+  // Cameras 90 degrees apart on the ring, 1 unit up, seen from the point their axes meet (origin).
+  EXPECT_NEAR(view["nearest_training_angle_deg"].get<double>(), std::acos(0.1) * 180 / M_PI, 1e-6);
+  EXPECT_EQ(out["proxies"]["plane"]["mean"]["views"], 1);
+  EXPECT_EQ(out["proxies"]["hull"]["status"], "skipped");
+  EXPECT_TRUE(fs::exists(root / "scores/plane/v0.png"));
+  EXPECT_EQ(ReadImageColor((root / "scores/plane/v0.png").string()).cols, 3 * 64);
+  fs::remove_all(root);
+}
+
+}  // namespace
+}  // namespace ibmr
