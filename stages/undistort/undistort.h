@@ -1,0 +1,31 @@
+// Undistortion for dense stages (seed 000 lines 3469-3510: the forward projection model of a
+// calibrated camera; 4788-4830: calibrate once, then work with ideal pinhole cameras). Each image
+// is resampled into a PINHOLE camera with the same size, focal lengths and principal point: an
+// output pixel's ray x = K^-1 p is distorted with the source model and looked up (bilinear).
+// COLMAP pixel convention (centre of the top-left pixel at (0.5, 0.5)) on both sides.
+#pragma once
+
+#include <opencv2/core.hpp>
+#include <string>
+
+#include "pipeline/core/camera.h"
+#include "pipeline/core/sparse_model.h"
+
+namespace ibmr {
+
+struct UndistortOptions {
+  bool keep_undistorted_as_is = true;  // images of pinhole cameras are copied unchanged
+  bool Check(std::string* error) const { (void)error; return true; }  // no invalid combinations
+};
+
+// Lookup maps (OpenCV remap, pixel centres at integer coordinates) from the pinhole camera
+// `camera.Undistorted()` into the distorted source image.
+void UndistortMaps(const Camera& camera, cv::Mat* map_x, cv::Mat* map_y);
+
+// Resamples one image; the output camera is camera.Undistorted().
+cv::Mat UndistortImage(const cv::Mat& image, const cv::Mat& map_x, const cv::Mat& map_y);
+
+// The model with every camera replaced by its undistorted pinhole and 2D points moved accordingly.
+SparseModel UndistortModel(const SparseModel& model);
+
+}  // namespace ibmr
