@@ -8,6 +8,7 @@
 // one cell; the undilated hull is at least one cell away from the dilated surface, so no
 // intermediate surface crosses it and the mesh still encloses the conservative hull.
 #include <OpenMesh/Core/Mesh/TriMesh_ArrayKernelT.hh>
+#include <OpenMesh/Core/System/omstream.hh>
 #include <algorithm>
 #include <unordered_map>
 
@@ -59,6 +60,8 @@ TriangleMesh HullMesh(const Octree& octree, int level, const CarveOptions& optio
     return x >= 0 && y >= 0 && z >= 0 && x < m && y < m && z < m && grid[(static_cast<size_t>(z) * m + y) * m + x];
   };
 
+  // Refused faces are expected (handled below); keep OpenMesh from printing each one.
+  omerr().disable();
   OmMesh mesh;
   std::unordered_map<uint64_t, OmMesh::VertexHandle> lattice;
   const auto vertex = [&](int x, int y, int z) -> OmMesh::VertexHandle {
