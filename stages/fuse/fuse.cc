@@ -1,0 +1,190 @@
+// Uncertainty-weighted merging of depth samples into points (seed 000 lines 4352-4453). See fuse.h.
+#include "stages/fuse/fuse.h"
+
+#include <Eigen/Cholesky>
+#include <algorithm>
+#include <cmath>
+
+namespace ibmr {
+
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+
+// One merged point: sums of the information matrices and information-weighted positions
+// (seed 000 line ~4396: "replace them with a single measurement with a reduced uncertainty").
+struct FusedPoint {
+  Eigen::Matrix3d information = Eigen::Matrix3d::Zero();
+  Eigen::Vector3d information_x = Eigen::Vector3d::Zero();
+  Eigen::Vector3d position = Eigen::Vector3d::Zero();  // information^-1 * information_x
+  Eigen::Vector3f normal_sum = Eigen::Vector3f::Zero();
+  Eigen::Vector3f color_sum = Eigen::Vector3f::Zero();
+  float confidence_sum = 0;
+  int views = 0;
+};
+
+// Unit camera-frame normals from a depth map by central differences of back-projected points,
+// facing the camera; 0 where a 4-neighbour is missing or the depth jumps by > 5%. Used when a view
+// comes without a normal map.
+FloatMap NormalsFromDepth(const Camera& camera, const DepthMap& depth) {
+  const int w = depth.width, h = depth.height;
+  const double sx = static_cast<double>(w) / camera.width, sy = static_cast<double>(h) / camera.height;
+  FloatMap normals(w, h, 3, 0.f);
+  auto point = [&](int x, int y) {
+    return Eigen::Vector3d(camera.CamFromImg(Eigen::Vector2d((x + 0.5) / sx, (y + 0.5) / sy)) * depth.At(x, y));
+  };
+  auto usable = [&](int x, int y, float d) { return IsValidDepth(depth.At(x, y)) && std::abs(depth.At(x, y) - d) <= 0.05f * d; };
+  for (int y = 1; y + 1 < h; ++y) {
+    for (int x = 1; x + 1 < w; ++x) {
+      const float d = depth.At(x, y);
+      if (!IsValidDepth(d) || !usable(x - 1, y, d) || !usable(x + 1, y, d) || !usable(x, y - 1, d) || !usable(x, y + 1, d)) continue;
+      Eigen::Vector3d n = (point(x + 1, y) - point(x - 1, y)).cross(point(x, y + 1) - point(x, y - 1));
+      if (!(n.norm() > 0)) continue;
+      n.normalize();
+      if (n.dot(point(x, y)) > 0) n = -n;
+      for (int c = 0; c < 3; ++c) normals.At(x, y, c) = static_cast<float>(n[c]);
+    }
+  }
+  return normals;
+}
+
+}  // namespace
+
+struct PointFuser::State {
+  FuseOptions options;
+  std::vector<FusedPoint> points;
+};
+
+bool FuseOptions::Check(std::string* error) const {
+  auto fail = [&](const std::string& message) {
+    *error = message;
+    return false;
+  };
+  if (!(relative_depth_sigma > 0 && relative_depth_sigma <= 0.2)) return fail("relative_depth_sigma: must be in (0, 0.2], got " + std::to_string(relative_depth_sigma));
+  if (!(lateral_sigma_pixels > 0 && lateral_sigma_pixels <= 10)) return fail("lateral_sigma_pixels: must be in (0, 10], got " + std::to_string(lateral_sigma_pixels));
+  if (!(merge_sigmas > 0 && merge_sigmas <= 100)) return fail("merge_sigmas: must be in (0, 100], got " + std::to_string(merge_sigmas));
+  if (!(merge_pixel_radius > 0 && merge_pixel_radius <= 5)) return fail("merge_pixel_radius: must be in (0, 5], got " + std::to_string(merge_pixel_radius));
+  if (!(max_normal_angle_deg > 0 && max_normal_angle_deg <= 180)) return fail("max_normal_angle_deg: must be in (0, 180], got " + std::to_string(max_normal_angle_deg));
+  if (!(min_confidence >= 0 && min_confidence <= 1)) return fail("min_confidence: must be in [0, 1], got " + std::to_string(min_confidence));
+  if (min_views < 1 || min_views > 1000) return fail("min_views: must be in [1, 1000], got " + std::to_string(min_views));
+  return true;
+}
+
+PointFuser::PointFuser(const FuseOptions& options) : state_(std::make_unique<State>()) { state_->options = options; }
+PointFuser::~PointFuser() = default;
+
+void PointFuser::AddView(const FuseView& view) {
+  const FuseOptions& o = state_->options;
+  std::vector<FusedPoint>& points = state_->points;
+  const int w = view.depth.width, h = view.depth.height;
+  if (w == 0 || h == 0) return;
+  const double sx = static_cast<double>(w) / view.camera.width, sy = static_cast<double>(h) / view.camera.height;
+  const double focal = 0.5 * (view.camera.FocalX() * sx + view.camera.FocalY() * sy);
+  const Eigen::Matrix3d world_from_cam = view.cam_from_world.R().transpose();
+  const Eigen::Vector3d center = view.cam_from_world.Inverse().translation;
+  const double cos_normal = std::cos(o.max_normal_angle_deg * kPi / 180.0);
+  auto confidence_at = [&](int x, int y) { return view.confidence.Empty() ? 1.f : std::clamp(view.confidence.At(x, y), 0.f, 1.f); };
+  auto sample_usable = [&](int x, int y) { return IsValidDepth(view.depth.At(x, y)) && confidence_at(x, y) >= o.min_confidence; };
+  auto ray_at = [&](double px, double py) { return view.camera.CamFromImg(Eigen::Vector2d(px / sx, py / sy)); };
+  auto depth_sigma = [&](float depth, float confidence) {
+    return o.relative_depth_sigma * depth / std::sqrt(std::max(confidence, 0.01f));
+  };
+  const FloatMap computed_normals = view.normals.Empty() ? NormalsFromDepth(view.camera, view.depth) : FloatMap();
+  const FloatMap& normals = view.normals.Empty() ? computed_normals : view.normals;
+  auto world_normal = [&](int x, int y) -> Eigen::Vector3d {
+    const Eigen::Vector3d n(normals.At(x, y, 0), normals.At(x, y, 1), normals.At(x, y, 2));
+    return n.squaredNorm() > 0.25 ? (world_from_cam * n).normalized() : Eigen::Vector3d::Zero();
+  };
+
+  // 1. Earlier points re-projected into this view: each is a candidate for the one pixel it falls
+  //    in, when near that pixel's centre, depth-compatible in the 1-D uncertainty-weighted sense,
+  //    and of a similar normal; per pixel the best (smallest distance) candidate wins.
+  std::vector<int> candidate(static_cast<size_t>(w) * h, -1);
+  std::vector<float> candidate_score(candidate.size(), 0.f);
+  for (int i = 0; i < static_cast<int>(points.size()); ++i) {
+    const FusedPoint& p = points[i];
+    const Eigen::Vector3d in_cam = view.cam_from_world * p.position;
+    if (in_cam.z() <= 0) continue;
+    Eigen::Vector2d pixel = view.camera.ImgFromCam(in_cam);
+    pixel.x() *= sx, pixel.y() *= sy;
+    const int x = static_cast<int>(std::floor(pixel.x())), y = static_cast<int>(std::floor(pixel.y()));
+    if (x < 0 || y < 0 || x >= w || y >= h || !sample_usable(x, y)) continue;
+    if ((pixel - Eigen::Vector2d(x + 0.5, y + 0.5)).norm() > o.merge_pixel_radius) continue;
+    const float depth = view.depth.At(x, y);
+    const Eigen::Vector3d ray = ray_at(x + 0.5, y + 0.5);
+    const Eigen::Vector3d u = (world_from_cam * ray).normalized();
+    const double sample_sigma = depth_sigma(depth, confidence_at(x, y)) * ray.norm();
+    const double point_variance = u.dot(p.information.ldlt().solve(u));
+    const double distance = std::abs(in_cam.z() - depth) * ray.norm() / std::sqrt(sample_sigma * sample_sigma + point_variance);
+    if (distance > o.merge_sigmas) continue;
+    const Eigen::Vector3d n = world_normal(x, y);
+    if (n.squaredNorm() > 0 && p.normal_sum.squaredNorm() > 0 && n.dot(p.normal_sum.cast<double>().normalized()) < cos_normal) continue;
+    const size_t index = static_cast<size_t>(y) * w + x;
+    if (candidate[index] < 0 || distance < candidate_score[index]) {
+      candidate[index] = i;
+      candidate_score[index] = static_cast<float>(distance);
+    }
+  }
+
+  // 2. Each sample merges into its candidate or starts a new point.
+  for (int y = 0; y < h; ++y) {
+    for (int x = 0; x < w; ++x) {
+      if (!sample_usable(x, y)) continue;
+      const float depth = view.depth.At(x, y), confidence = confidence_at(x, y);
+      const Eigen::Vector3d ray = ray_at(x + 0.5, y + 0.5);
+      const Eigen::Vector3d position = world_from_cam * (ray * depth) + center;
+      const Eigen::Vector3d u = (world_from_cam * ray).normalized();
+      const double along = depth_sigma(depth, confidence) * ray.norm();
+      const double across = o.lateral_sigma_pixels * depth * ray.norm() / focal;
+      // Information matrix of the sample: 1/across^2 across the ray, 1/along^2 along it.
+      const Eigen::Matrix3d information =
+          Eigen::Matrix3d::Identity() / (across * across) + (1 / (along * along) - 1 / (across * across)) * u * u.transpose();
+      Eigen::Vector3f color(0.5f, 0.5f, 0.5f);
+      if (!view.image.empty()) {
+        const int ix = std::min(view.image.cols - 1, static_cast<int>((x + 0.5) * view.image.cols / w));
+        const int iy = std::min(view.image.rows - 1, static_cast<int>((y + 0.5) * view.image.rows / h));
+        const cv::Vec3b bgr = view.image.at<cv::Vec3b>(iy, ix);
+        color = Eigen::Vector3f(bgr[2], bgr[1], bgr[0]) / 255.f;
+      }
+      Eigen::Vector3d normal = world_normal(x, y);
+      if (normal.squaredNorm() == 0) normal = -u;
+      const int c = candidate[static_cast<size_t>(y) * w + x];
+      FusedPoint* p = nullptr;
+      if (c >= 0) {
+        p = &points[c];
+      } else {
+        points.emplace_back();
+        p = &points.back();
+      }
+      p->information += information;
+      p->information_x += information * position;
+      p->position = p->information.ldlt().solve(p->information_x);
+      p->normal_sum += confidence * normal.cast<float>();
+      p->color_sum += confidence * color;
+      p->confidence_sum += confidence;
+      ++p->views;
+    }
+  }
+}
+
+PointCloud PointFuser::Finish(FuseStats* stats) const {
+  PointCloud cloud;
+  FuseStats local;
+  local.points = state_->points.size();
+  for (const FusedPoint& p : state_->points) {
+    local.samples += p.views;
+    local.merged += p.views - 1;
+    if (p.views < state_->options.min_views) continue;
+    cloud.positions.push_back(p.position.cast<float>());
+    const float norm = p.normal_sum.norm();
+    cloud.normals.push_back(norm > 0 ? Eigen::Vector3f(p.normal_sum / norm) : Eigen::Vector3f::Zero());
+    const Eigen::Vector3f color = (p.color_sum / std::max(p.confidence_sum, 1e-6f) * 255.f).array().round().min(255.f).max(0.f).matrix();
+    cloud.colors.push_back(color.cast<uint8_t>());
+    cloud.confidence.push_back(p.confidence_sum / p.views);
+  }
+  local.kept_points = cloud.size();
+  if (stats) *stats = local;
+  return cloud;
+}
+
+}  // namespace ibmr

@@ -1,0 +1,109 @@
+// Fusion of depth maps into points with normals, colour and confidence by uncertainty-weighted
+// merging (seed 000 section 4 "3D points from stereo", lines 4352-4453): every depth sample becomes
+// a 3D point with a 3x3 covariance (along the viewing ray from the depth variance, which falls with
+// the stereo confidence; across it a constant, half a pixel's footprint); views are added one at a
+// time and a sample merges with an earlier point when that point re-projects into the sample's
+// pixel ("image plane centres within a small distance", line ~4410) and their depths overlap in
+// a 1-D uncertainty-weighted distance. Merging sums the information matrices, so the merged point
+// is the inverse-covariance-weighted mean with a reduced uncertainty. Samples of one view never
+// merge with each other (each earlier point is a candidate for one pixel only), so the output is at
+// least as dense as one input image. Points seen in fewer than `min_views` views are dropped.
+//
+// Evaluation against a true mesh (Middlebury style, used when ground_truth/ exists): accuracy is
+// the distance from fused points to the mesh (uniform grid over triangles, exact point-triangle
+// distance) at the 90th percentile; completeness the fraction of points sampled uniformly on the
+// true surface that have a fused point within a threshold (voxel hash).
+#pragma once
+
+#include <Eigen/Core>
+#include <memory>
+#include <opencv2/core.hpp>
+#include <string>
+#include <vector>
+
+#include "pipeline/core/camera.h"
+#include "pipeline/core/float_map.h"
+#include "pipeline/core/mesh.h"
+#include "pipeline/core/rigid3.h"
+
+namespace ibmr {
+
+struct FuseOptions {
+  double relative_depth_sigma = 0.003;  // depth std / depth of a confidence-1 sample, in (0, 0.2]
+  double lateral_sigma_pixels = 0.5;    // std across the ray, in pixels of footprint, in (0, 10]
+  double merge_sigmas = 3.0;            // 1-D uncertainty-weighted depth distance for a merge, in (0, 100]
+  double merge_pixel_radius = 1.0;      // re-projection within this of the pixel centre, pixels, in (0, 5]
+  double max_normal_angle_deg = 60.0;   // normals of merged samples within this, degrees, in (0, 180]
+  double min_confidence = 0.1;          // samples below this confidence are skipped, in [0, 1]
+  int min_views = 2;                    // views that must have contributed to a point, in [1, 1000]
+
+  bool Check(std::string* error) const;  // error starts with the YAML key
+};
+
+// One view's maps (same size) and photo, in memory. normals/confidence/image may be empty.
+struct FuseView {
+  Camera camera;
+  Rigid3d cam_from_world;
+  DepthMap depth;
+  FloatMap normals;     // 3 channels, camera frame; empty: computed from the depth map
+  FloatMap confidence;  // 1 channel in [0, 1]; empty: 1
+  cv::Mat image;        // CV_8UC3 BGR, any size (sampled at the scaled pixel); empty: grey
+};
+
+struct FuseStats {
+  size_t samples = 0;        // samples used
+  size_t merged = 0;         // samples merged into an existing point
+  size_t points = 0;         // points before the min_views filter
+  size_t kept_points = 0;    // after it
+};
+
+// Streams views into a growing set of merged points; memory is the points, not the maps.
+class PointFuser {
+ public:
+  explicit PointFuser(const FuseOptions& options);
+  ~PointFuser();
+  void AddView(const FuseView& view);
+  // Points seen in >= min_views views: position, unit normal, mean colour, mean confidence.
+  PointCloud Finish(FuseStats* stats) const;
+
+ private:
+  struct State;
+  std::unique_ptr<State> state_;
+};
+
+// Exact distances to a triangle mesh through a uniform grid of triangles.
+class MeshDistance {
+ public:
+  explicit MeshDistance(const TriangleMesh& mesh);
+  ~MeshDistance();
+  // Distance from `point` to the mesh, or `max_distance` when it is farther than that.
+  double Distance(const Eigen::Vector3d& point, double max_distance) const;
+
+ private:
+  struct Grid;
+  std::unique_ptr<Grid> grid_;
+};
+
+// `count` points uniformly by area on the mesh (seeded, deterministic).
+std::vector<Eigen::Vector3f> SampleSurface(const TriangleMesh& mesh, size_t count, uint32_t seed = 1);
+
+// Marks the surface samples that a view sees: in the image, in front, and within
+// `relative_tolerance` of its true depth map (nearest pixel).
+void MarkVisible(const std::vector<Eigen::Vector3f>& samples, const Camera& camera, const Rigid3d& cam_from_world,
+                 const DepthMap& true_depth, double relative_tolerance, std::vector<char>* visible);
+
+struct FusionAccuracy {
+  double accuracy_90 = 0;        // distance to the mesh below which 90% of the fused points lie
+  double accuracy_median = 0;
+  double completeness = 0;       // fraction of surface samples with a fused point within threshold
+  double completeness_visible = -1;  // the same among samples some view sees (-1: not computed)
+  double threshold = 0;
+  size_t points = 0;
+};
+
+// `visible` (optional, one flag per sample) restricts completeness_visible to seen samples.
+FusionAccuracy EvaluateFusion(const PointCloud& cloud, const TriangleMesh& mesh,
+                              const std::vector<Eigen::Vector3f>& surface_samples, double threshold,
+                              const std::vector<char>* visible = nullptr);
+
+}  // namespace ibmr

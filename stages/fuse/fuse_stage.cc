@@ -1,0 +1,194 @@
+// Adapter of the fuse stage (seed 000 lines 4352-4453): streams the training views' depth, normal
+// and confidence maps (.geometric.bin from multi_depth by default) and photos into PointFuser and
+// writes dense/fused.ply (binary PLY: x y z nx ny nz red green blue confidence, as COLMAP's
+// stereo_fusion output plus a confidence). With ground_truth/mesh.ply in the workspace the record
+// gets accuracy (90th percentile distance to the mesh) and completeness.
+#include <spdlog/spdlog.h>
+
+#include <filesystem>
+
+#include "pipeline/core/colmap_array_io.h"
+#include "pipeline/core/errors.h"
+#include "pipeline/core/image_io.h"
+#include "pipeline/core/ply_io.h"
+#include "pipeline/core/stage_api.h"
+#include "stages/fuse/fuse.h"
+
+namespace fs = std::filesystem;
+
+namespace ibmr {
+
+namespace {
+
+class FuseStage : public Stage {
+ public:
+  std::string Name() const override { return "fuse"; }
+  std::string Summary() const override {
+    return "Uncertainty-weighted merge of depth samples into points with normals, colour, confidence (dense/fused.ply)";
+  }
+  std::string Version() const override { return "1"; }
+  HoldoutRole Role() const override { return HoldoutRole::kTrainingOnly; }
+
+  std::vector<ParamSpec> Parameters() const override {
+    return {
+        {"input_type", ParamType::kString, "geometric", "Which depth maps to fuse", {"geometric", "photometric"}},
+        {"relative_depth_sigma", ParamType::kDouble, "0.003", "Depth std / depth of a confidence-1 sample, in (0, 0.2]"},
+        {"lateral_sigma_pixels", ParamType::kDouble, "0.5", "Std across the ray in pixels of footprint, in (0, 10]"},
+        {"merge_sigmas", ParamType::kDouble, "3", "Uncertainty-weighted depth distance for a merge, in (0, 100]"},
+        {"merge_pixel_radius", ParamType::kDouble, "1", "Re-projection distance to the pixel centre for a merge, pixels, (0, 5]"},
+        {"max_normal_angle_deg", ParamType::kDouble, "60", "Normals of merged samples within this, degrees, (0, 180]"},
+        {"min_confidence", ParamType::kDouble, "0.1", "Samples below this confidence are skipped, [0, 1]"},
+        {"min_views", ParamType::kInt, "2", "Views that must have contributed to a point, [1, 1000]"},
+        {"eval_threshold", ParamType::kDouble, "-1", "Completeness distance, scene units; -1: 1% of the true mesh's bounding-box diagonal"},
+        {"eval_samples", ParamType::kInt, "200000", "Surface samples for completeness, [1000, 10000000]"},
+    };
+  }
+
+  std::optional<ParamError> CheckParams(const Params& params) const override {
+    std::string error;
+    if (!ToOptions(params).Check(&error)) {
+      const size_t colon = error.find(':');
+      return ParamError{error.substr(0, colon), colon == std::string::npos ? error : error.substr(colon + 2)};
+    }
+    const int64_t samples = params.Int("eval_samples");
+    if (samples < 1000 || samples > 10000000) return ParamError{"eval_samples", "must be in [1000, 10000000], got " + std::to_string(samples)};
+    const double threshold = params.Double("eval_threshold");
+    if (!(threshold > 0 || threshold == -1)) return ParamError{"eval_threshold", "must be > 0 or -1, got " + std::to_string(threshold)};
+    return std::nullopt;
+  }
+
+  std::vector<std::string> Inputs(const StageContext& context) const override {
+    const std::string kind = context.params.String("input_type");
+    std::vector<std::string> inputs = {"sparse", "images"};
+    const std::vector<std::string> names = Names(context);
+    if (names.empty()) {
+      for (const char* folder : {"dense/stereo/depth_maps", "dense/stereo/normal_maps", "dense/stereo/confidence_maps"}) inputs.push_back(folder);
+    }
+    for (const std::string& name : names) {
+      inputs.push_back("dense/stereo/depth_maps/" + name + "." + kind + ".bin");
+      inputs.push_back("dense/stereo/normal_maps/" + name + "." + kind + ".bin");
+      inputs.push_back("dense/stereo/confidence_maps/" + name + "." + kind + ".bin");
+    }
+    inputs.push_back("ground_truth/mesh.ply");  // metrics only; "missing" on real data
+    return inputs;
+  }
+
+  std::vector<std::string> Outputs(const StageContext&) const override { return {"dense/fused.ply"}; }
+
+  void Run(StageContext& context) const override {
+    const FuseOptions options = ToOptions(context.params);
+    const std::string kind = context.params.String("input_type");
+    const SparseModel model = context.LoadModel();
+    const std::vector<std::string> names = context.TrainingImageNames(model);
+    if (names.empty()) throw InputError("fuse: sparse/ has no training view");
+    const Workspace& workspace = context.workspace;
+    PointFuser fuser(options);
+    context.progress->Begin("fusing depth maps", names.size());
+    for (const std::string& name : names) {  // streamed: one view's maps in memory at a time
+      const Image& image = *model.FindImage(name);
+      FuseView view;
+      view.camera = model.CameraOf(image);
+      view.cam_from_world = image.cam_from_world;
+      const std::string depth_path = workspace.DepthMapPath(name, kind);
+      if (!fs::exists(depth_path)) {
+        throw InputError(depth_path + ": no " + kind + " depth map for view '" + name + "'; run " +
+                         (kind == "geometric" ? "multi_depth" : "plane_sweep") + " first (or set fuse.input_type)");
+      }
+      view.depth = ReadColmapArray(depth_path);
+      view.normals = ReadOptional(workspace.NormalMapPath(name, kind), view.depth, 3);
+      view.confidence = ReadOptional(workspace.Path("dense/stereo/confidence_maps/" + name + "." + kind + ".bin"), view.depth, 1);
+      const std::string image_path = workspace.ImagesDir() + "/" + name;
+      if (fs::exists(image_path)) {
+        view.image = ReadImageColor(image_path);
+      } else {
+        spdlog::warn("[fuse] {}: no photo; points from this view are grey", image_path);
+      }
+      fuser.AddView(view);
+      context.progress->Advance(1, name);
+    }
+    context.progress->End();
+    FuseStats stats;
+    PointCloud cloud = fuser.Finish(&stats);
+    cloud.comments.push_back("ibmr fuse " + Version() + " from " + kind + " depth maps of " + std::to_string(names.size()) + " views");
+    WritePointCloudPly(workspace.Path("dense/fused.ply"), cloud);
+
+    nlohmann::json& m = context.metrics;
+    m["views"] = names.size();
+    m["samples"] = stats.samples;
+    m["merged_samples"] = stats.merged;
+    m["points_before_min_views"] = stats.points;
+    m["points"] = stats.kept_points;
+    m["samples_per_point"] = stats.kept_points ? double(stats.samples) / stats.points : 0.0;
+    spdlog::info("[fuse] {} views, {} samples -> {} points ({} seen in >= {} views)", names.size(), stats.samples, stats.points,
+                 stats.kept_points, options.min_views);
+    if (fs::exists(workspace.GroundTruthMeshPath())) Evaluate(context, model, names, cloud);
+  }
+
+ private:
+  static FloatMap ReadOptional(const std::string& path, const DepthMap& depth, int channels) {
+    if (!fs::exists(path)) return FloatMap();
+    FloatMap map = ReadColmapArray(path);
+    if (map.width != depth.width || map.height != depth.height || map.channels != channels) {
+      throw InputError(path + ": expected " + std::to_string(depth.width) + "x" + std::to_string(depth.height) + "x" +
+                       std::to_string(channels) + " like its depth map; rerun the stage that wrote it");
+    }
+    return map;
+  }
+
+  void Evaluate(StageContext& context, const SparseModel& model, const std::vector<std::string>& names,
+                const PointCloud& cloud) const {
+    const Workspace& workspace = context.workspace;
+    const TriangleMesh mesh = ReadMeshPly(workspace.GroundTruthMeshPath());
+    Eigen::Vector3f lo, hi;
+    if (!mesh.Bounds(&lo, &hi) || mesh.faces.empty()) return;
+    double threshold = context.params.Double("eval_threshold");
+    if (threshold <= 0) threshold = 0.01 * (hi - lo).norm();
+    const std::vector<Eigen::Vector3f> samples = SampleSurface(mesh, static_cast<size_t>(context.params.Int("eval_samples")));
+    std::vector<char> visible(samples.size(), 0);
+    bool have_visibility = false;
+    for (const std::string& name : names) {  // surface the training views see (true depth maps)
+      const std::string truth_path = workspace.GroundTruthDepthPath(name);
+      if (!fs::exists(truth_path)) continue;
+      const Image& image = *model.FindImage(name);
+      MarkVisible(samples, model.CameraOf(image), image.cam_from_world, ReadColmapArray(truth_path), 0.01, &visible);
+      have_visibility = true;
+    }
+    const FusionAccuracy a = EvaluateFusion(cloud, mesh, samples, threshold, have_visibility ? &visible : nullptr);
+    nlohmann::json& m = context.metrics;
+    m["accuracy_90"] = a.accuracy_90;
+    m["accuracy_median"] = a.accuracy_median;
+    m["completeness"] = a.completeness;
+    if (have_visibility) m["completeness_visible"] = a.completeness_visible;
+    m["eval_threshold"] = threshold;
+    m["accuracy_90_over_threshold"] = a.accuracy_90 / threshold;
+    spdlog::info("[fuse] accuracy (90%) {:.4g}, completeness {:.1f}% ({:.1f}% of the seen surface) within {:.4g}", a.accuracy_90,
+                 100 * a.completeness, 100 * std::max(0.0, a.completeness_visible), threshold);
+  }
+
+  static std::vector<std::string> Names(const StageContext& context) {
+    if (!fs::exists(context.workspace.Path("sparse/images.txt"))) return {};
+    try {
+      return context.TrainingImageNames(context.LoadModel());
+    } catch (const std::exception&) {
+      return {};
+    }
+  }
+
+  static FuseOptions ToOptions(const Params& params) {
+    FuseOptions options;
+    options.relative_depth_sigma = params.Double("relative_depth_sigma");
+    options.lateral_sigma_pixels = params.Double("lateral_sigma_pixels");
+    options.merge_sigmas = params.Double("merge_sigmas");
+    options.merge_pixel_radius = params.Double("merge_pixel_radius");
+    options.max_normal_angle_deg = params.Double("max_normal_angle_deg");
+    options.min_confidence = params.Double("min_confidence");
+    options.min_views = static_cast<int>(params.Int("min_views"));
+    return options;
+  }
+};
+
+}  // namespace
+
+void RegisterStage_fuse(StageRegistry* registry) { registry->Add(std::make_unique<FuseStage>()); }
+
+}  // namespace ibmr

@@ -1,0 +1,249 @@
+// Tests of fuse (seed 000 lines 4352-4453): options, exact point-to-mesh distances, and fusion of
+// noisy depth maps of an analytic unit sphere seen by 12 ring views at 160x120: merged points lie
+// closer to the surface than single samples, cover the seen surface, face outwards, and
+// low-confidence samples produce no points. One adapter run writes a readable dense/fused.ply.
+#include "stages/fuse/fuse.h"
+
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <filesystem>
+#include <random>
+
+#include "pipeline/core/colmap_array_io.h"
+#include "pipeline/core/colmap_text_io.h"
+#include "pipeline/core/errors.h"
+#include "pipeline/core/image_io.h"
+#include "pipeline/core/ply_io.h"
+#include "pipeline/core/stage_api.h"
+
+namespace fs = std::filesystem;
+
+namespace ibmr {
+void RegisterStage_fuse(StageRegistry* registry);
+
+namespace {
+
+// Unit sphere as a UV mesh (the tessellation is within 0.002 of the sphere).
+TriangleMesh SphereMesh(int segments = 96, int rings = 48) {
+  TriangleMesh mesh;
+  for (int r = 0; r <= rings; ++r) {
+    const double theta = M_PI * r / rings;
+    for (int s = 0; s < segments; ++s) {
+      const double phi = 2 * M_PI * s / segments;
+      mesh.vertices.emplace_back(std::sin(theta) * std::cos(phi), std::sin(theta) * std::sin(phi), std::cos(theta));
+    }
+  }
+  for (int r = 0; r < rings; ++r) {
+    for (int s = 0; s < segments; ++s) {
+      const int a = r * segments + s, b = r * segments + (s + 1) % segments, c = a + segments, d = b + segments;
+      mesh.faces.emplace_back(a, c, b);
+      mesh.faces.emplace_back(b, c, d);
+    }
+  }
+  return mesh;
+}
+
+// z depth of the unit sphere, relative noise sigma, confidence 1 (0 in the top `blank` rows).
+FuseView SphereView(int index, int views, double sigma, int blank_rows = 0) {
+  FuseView view;
+  view.camera = Camera::Pinhole(160, 120, 150, 150, 80, 60);
+  const double angle = 2 * M_PI * index / views;
+  view.cam_from_world = LookAt(Eigen::Vector3d(4 * std::cos(angle), 4 * std::sin(angle), 1.2), Eigen::Vector3d::Zero(),
+                               Eigen::Vector3d::UnitZ());
+  view.depth = DepthMap(160, 120, 1, 0.f);
+  view.confidence = FloatMap(160, 120, 1, 1.f);
+  view.image = cv::Mat(120, 160, CV_8UC3, cv::Scalar(40, 120, 200));  // BGR
+  std::mt19937 rng(1000 + index);
+  std::normal_distribution<double> noise(0, sigma);
+  const Rigid3d world_from_cam = view.cam_from_world.Inverse();
+  for (int y = 0; y < 120; ++y) {
+    for (int x = 0; x < 160; ++x) {
+      const Eigen::Vector3d dir = world_from_cam.rotation * view.camera.CamFromImg(Eigen::Vector2d(x + 0.5, y + 0.5));
+      const Eigen::Vector3d o = world_from_cam.translation;
+      const double b = 2 * o.dot(dir), a = dir.squaredNorm(), c = o.squaredNorm() - 1, disc = b * b - 4 * a * c;
+      if (disc < 0) continue;
+      view.depth.At(x, y) = static_cast<float>((-b - std::sqrt(disc)) / (2 * a) * (1 + noise(rng)));
+      if (y < blank_rows) view.confidence.At(x, y) = 0.02f;
+    }
+  }
+  return view;
+}
+
+TEST(FuseOptions, DefaultsAreValid) {
+  std::string error;
+  EXPECT_TRUE(FuseOptions().Check(&error)) << error;
+}
+
+TEST(FuseOptions, RejectsInvalidRanges) {
+  auto expect = [](FuseOptions o, const std::string& key) {
+    std::string error;
+    EXPECT_FALSE(o.Check(&error));
+    EXPECT_EQ(error.rfind(key + ":", 0), 0u) << error;
+  };
+  FuseOptions o;
+  o.relative_depth_sigma = 0;
+  expect(o, "relative_depth_sigma");
+  o = FuseOptions(), o.lateral_sigma_pixels = -1;
+  expect(o, "lateral_sigma_pixels");
+  o = FuseOptions(), o.merge_sigmas = 0;
+  expect(o, "merge_sigmas");
+  o = FuseOptions(), o.merge_pixel_radius = 6;
+  expect(o, "merge_pixel_radius");
+  o = FuseOptions(), o.max_normal_angle_deg = 0;
+  expect(o, "max_normal_angle_deg");
+  o = FuseOptions(), o.min_confidence = 2;
+  expect(o, "min_confidence");
+  o = FuseOptions(), o.min_views = 0;
+  expect(o, "min_views");
+}
+
+TEST(MeshDistance, MatchesBruteForceOnASphere) {
+  const TriangleMesh mesh = SphereMesh(24, 12);
+  const MeshDistance distance(mesh);
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<double> u(-1.6, 1.6);
+  for (int i = 0; i < 200; ++i) {
+    const Eigen::Vector3d p(u(rng), u(rng), u(rng));
+    double brute = 1e9;
+    for (const auto& f : mesh.faces) {
+      // Dense barycentric sampling as an independent upper bound, plus the vertices.
+      for (int a = 0; a <= 20; ++a) {
+        for (int b = 0; a + b <= 20; ++b) {
+          const Eigen::Vector3d q = (mesh.vertices[f[0]].cast<double>() * (20 - a - b) + mesh.vertices[f[1]].cast<double>() * a +
+                                     mesh.vertices[f[2]].cast<double>() * b) / 20;
+          brute = std::min(brute, (q - p).norm());
+        }
+      }
+    }
+    const double d = distance.Distance(p, 10);
+    EXPECT_LE(d, brute + 1e-9);
+    EXPECT_GT(d, brute - 0.02);  // the sampling above is within ~0.02 of exact
+  }
+  EXPECT_NEAR(distance.Distance(Eigen::Vector3d(0, 0, 5), 10), 4.0, 1e-6);  // the pole is a vertex
+  EXPECT_DOUBLE_EQ(distance.Distance(Eigen::Vector3d(0, 0, 50), 3), 3.0);    // capped
+}
+
+TEST(Fuse, NoisySphereMergesIntoAccurateCompletePoints) {
+  const int views = 12;
+  FuseOptions options;
+  PointFuser fuser(options);
+  double single_error = 0;
+  size_t single = 0;
+  std::vector<char> visible;
+  const TriangleMesh mesh = SphereMesh();
+  const std::vector<Eigen::Vector3f> samples = SampleSurface(mesh, 20000);
+  for (int i = 0; i < views; ++i) {
+    const FuseView view = SphereView(i, views, 0.002);
+    const FuseView clean = SphereView(i, views, 0.0);
+    MarkVisible(samples, view.camera, view.cam_from_world, clean.depth, 0.01, &visible);
+    for (int y = 0; y < 120; y += 3) {
+      for (int x = 0; x < 160; x += 3) {
+        const float d = view.depth.At(x, y);
+        if (d <= 0) continue;
+        const Eigen::Vector3d p = view.cam_from_world.Inverse() * (view.camera.CamFromImg(Eigen::Vector2d(x + 0.5, y + 0.5)) * d);
+        single_error += std::abs(p.norm() - 1), ++single;
+      }
+    }
+    fuser.AddView(view);
+  }
+  FuseStats stats;
+  const PointCloud cloud = fuser.Finish(&stats);
+  ASSERT_GT(cloud.size(), 5000u);
+  EXPECT_LT(stats.points, stats.samples / 2) << "samples should merge across views";
+  double fused_error = 0;
+  size_t outward = 0;
+  for (size_t i = 0; i < cloud.size(); ++i) {
+    fused_error += std::abs(cloud.positions[i].norm() - 1);
+    outward += cloud.normals[i].dot(cloud.positions[i].normalized()) > 0.9f;
+    ASSERT_EQ(cloud.colors[i], Color3u8(200, 120, 40));  // RGB of the BGR photo
+    ASSERT_GT(cloud.confidence[i], 0.f);
+    ASSERT_LE(cloud.confidence[i], 1.f);
+  }
+  fused_error /= cloud.size();
+  single_error /= single;
+  EXPECT_LT(fused_error, 0.7 * single_error) << "merging should reduce the noise";
+  EXPECT_GT(outward, cloud.size() * 95 / 100);
+  const FusionAccuracy accuracy = EvaluateFusion(cloud, mesh, samples, 0.03, &visible);
+  EXPECT_LT(accuracy.accuracy_90, 0.01);
+  EXPECT_GT(accuracy.completeness_visible, 0.95);
+  EXPECT_LT(accuracy.completeness, accuracy.completeness_visible + 1e-9);
+}
+
+TEST(Fuse, LowConfidenceSamplesMakeNoPoints) {
+  FuseOptions options;
+  PointFuser fuser(options);
+  for (int i = 0; i < 6; ++i) fuser.AddView(SphereView(i, 6, 0.001, /*blank_rows=*/120));
+  FuseStats stats;
+  EXPECT_EQ(fuser.Finish(&stats).size(), 0u);
+  EXPECT_EQ(stats.samples, 0u);
+}
+
+TEST(FuseStage, WritesAReadablePlyAndRecordsAccuracy) {
+  const fs::path root = fs::temp_directory_path() / ("ibmr_fuse_test_" + std::to_string(::getpid()));
+  fs::remove_all(root);
+  const Workspace workspace(root.string());
+  SparseModel model;
+  const int views = 8;
+  for (int i = 0; i < views; ++i) {
+    const FuseView view = SphereView(i, views, 0.001);
+    model.cameras[1] = view.camera;
+    Image image;
+    image.image_id = i + 1;
+    image.camera_id = 1;
+    image.name = "s" + std::to_string(i) + ".png";
+    image.cam_from_world = view.cam_from_world;
+    model.images[image.image_id] = image;
+    WriteColmapArray(workspace.DepthMapPath(image.name, "geometric"), view.depth);
+    WriteColmapArray(workspace.Path("dense/stereo/confidence_maps/" + image.name + ".geometric.bin"), view.confidence);
+    WriteColmapArray(workspace.GroundTruthDepthPath(image.name), SphereView(i, views, 0).depth);
+    fs::create_directories(workspace.ImagesDir());
+    WriteImage(workspace.ImagesDir() + "/" + image.name, view.image);
+  }
+  WriteSparseModelText(workspace.SparseDir(), model);
+  WriteMeshPly(workspace.GroundTruthMeshPath(), SphereMesh());
+
+  StageRegistry registry;
+  RegisterStage_fuse(&registry);
+  const Stage* stage = registry.Find("fuse");
+  ASSERT_NE(stage, nullptr);
+  StageContext context;
+  context.workspace = workspace;
+  context.role = stage->Role();
+  context.heldout_images = {"s7.png"};
+  NullProgress progress;
+  context.progress = &progress;
+  for (const ParamSpec& spec : stage->Parameters()) {
+    if (spec.type == ParamType::kInt) context.params.Set(spec.key, static_cast<int64_t>(std::stoll(spec.default_yaml)));
+    if (spec.type == ParamType::kDouble) context.params.Set(spec.key, std::stod(spec.default_yaml));
+    if (spec.type == ParamType::kString) context.params.Set(spec.key, spec.default_yaml);
+  }
+  context.params.Set("eval_samples", int64_t{20000});
+  ASSERT_FALSE(stage->CheckParams(context.params).has_value());
+  stage->Run(context);
+  const PointCloud cloud = ReadPointCloudPly(workspace.Path("dense/fused.ply"));
+  EXPECT_GT(cloud.size(), 3000u);
+  EXPECT_EQ(cloud.normals.size(), cloud.size());
+  EXPECT_EQ(cloud.colors.size(), cloud.size());
+  EXPECT_EQ(cloud.confidence.size(), cloud.size());
+  EXPECT_LT(context.metrics["accuracy_90"].get<double>(), 0.01) << context.metrics.dump();
+  EXPECT_GT(context.metrics["completeness_visible"].get<double>(), 0.85) << context.metrics.dump();
+  EXPECT_EQ(context.metrics["views"].get<int>(), 7);
+
+  Params bad = context.params;
+  bad.Set("min_views", int64_t{0});
+  ASSERT_TRUE(stage->CheckParams(bad).has_value());
+  EXPECT_EQ(stage->CheckParams(bad)->key, "min_views");
+  fs::remove(workspace.DepthMapPath("s2.png", "geometric"));
+  try {
+    stage->Run(context);
+    FAIL() << "expected an error";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("s2.png.geometric.bin"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("multi_depth"), std::string::npos) << e.what();
+  }
+  fs::remove_all(root);
+}
+
+}  // namespace
+}  // namespace ibmr
