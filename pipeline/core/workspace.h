@@ -2,12 +2,13 @@
 // COLMAP has one, so COLMAP, OpenMVS and nerfstudio tools read what the pipeline writes:
 //   images/                       input images (copied or rendered), names as in images.txt
 //   sparse/                       COLMAP text model (cameras.txt, images.txt, points3D.txt)
-//   masks/<image name>.png        foreground masks, 0 background, 255 foreground
+//   masks/<image name>.png        foreground masks of training views, 0 background, 255 foreground
+//   heldout/masks/<image name>.png  masks of held-out views (for scoring only)
 //   dense/images/, dense/sparse/  undistorted images and model
 //   dense/stereo/depth_maps/<image name>.{photometric,geometric}.bin   COLMAP arrays
 //   dense/stereo/normal_maps/...  idem, 3 channels
 //   dense/fused.ply               fused points
-//   ground_truth/                 synthetic truth: depth/<image name>.bin, mesh.ply
+//   ground_truth/                 synthetic truth: depth/<image name>.bin, masks/<image name>.png, mesh.ply
 //   hull/, layers/, surfels/, texture/, renders/, scores/, report/   per-representation folders
 //   records/<stage>.json          one record per stage run; logs/ the run logs
 #pragma once
@@ -39,6 +40,9 @@ class Workspace {
     return Path("ground_truth/depth/" + image_name + ".bin");
   }
   std::string GroundTruthMeshPath() const { return Path("ground_truth/mesh.ply"); }
+  std::string GroundTruthMaskPath(const std::string& image_name) const {
+    return Path("ground_truth/masks/" + image_name + ".png");
+  }
   std::string RecordsDir() const { return Path("records"); }
   std::string LogsDir() const { return Path("logs"); }
 
