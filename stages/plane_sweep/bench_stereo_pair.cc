@@ -1,0 +1,145 @@
+// Two-view benchmark: OpenCV StereoSGBM (blockSize 5) and this stage's two-view mode on every pair
+// of middlebury_stereo_classic, in the same run, on the same machine; writes JSON with bad-1.0 and
+// bad-2.0 over pixels with known ground truth (missing output counted as bad), the unfilled
+// fraction, the time (median of repeated runs), ratios to SGBM and the plane-pixel-neighbour
+// cost evaluations per second. Method: see plane_sweep.h (seed 000 lines 5300-5525, 4352-4453).
+//
+// Usage: bench_stereo_pair [--data DIR] [--out FILE.json] [--repeat N] [--threads N]
+#include <tbb/global_control.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <fstream>
+#include <iostream>
+#include <nlohmann/json.hpp>
+#include <opencv2/calib3d.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <thread>
+
+#include "pipeline/core/atomic_file.h"
+#include "stages/plane_sweep/plane_sweep.h"
+
+#ifndef IBMR_SHARED_DIR
+#define IBMR_SHARED_DIR "../shared"
+#endif
+
+namespace {
+
+struct Pair {
+  std::string name, left, right, gt;
+  double gt_scale;
+  int max_disparity;
+};
+
+struct Score {
+  double bad1 = 0, bad2 = 0, unfilled = 0;
+};
+
+// Disparity <= 0 or non-finite counts as missing (bad).
+Score Evaluate(const cv::Mat& disparity, const cv::Mat& gt, double scale) {
+  Score s;
+  size_t n = 0, bad1 = 0, bad2 = 0, missing = 0;
+  for (int y = 0; y < gt.rows; ++y) {
+    for (int x = 0; x < gt.cols; ++x) {
+      const int g = gt.at<uint8_t>(y, x);
+      if (g == 0) continue;
+      ++n;
+      const float d = disparity.at<float>(y, x);
+      if (!(d > 0) || !std::isfinite(d)) {
+        ++bad1, ++bad2, ++missing;
+        continue;
+      }
+      const double err = std::fabs(d - g / scale);
+      bad1 += err > 1.0;
+      bad2 += err > 2.0;
+    }
+  }
+  s.bad1 = 100.0 * bad1 / n;
+  s.bad2 = 100.0 * bad2 / n;
+  s.unfilled = static_cast<double>(missing) / n;
+  return s;
+}
+
+double Median(std::vector<double> v) {
+  std::sort(v.begin(), v.end());
+  return v[v.size() / 2];
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  std::string data = std::string(IBMR_SHARED_DIR) + "/datasets/middlebury_stereo_classic";
+  std::string out = "bench_stereo_pair.json";
+  int repeat = 5, threads = 2;
+  for (int i = 1; i + 1 < argc; i += 2) {
+    const std::string key = argv[i];
+    if (key == "--data") data = argv[i + 1];
+    else if (key == "--out") out = argv[i + 1];
+    else if (key == "--repeat") repeat = std::max(1, std::atoi(argv[i + 1]));
+    else if (key == "--threads") threads = std::max(1, std::atoi(argv[i + 1]));
+    else {
+      std::cerr << "unknown option " << key << "\nusage: bench_stereo_pair [--data DIR] [--out FILE] [--repeat N] [--threads N]\n";
+      return 2;
+    }
+  }
+  tbb::global_control limit(tbb::global_control::max_allowed_parallelism, threads);
+  cv::setNumThreads(threads);
+  const std::vector<Pair> pairs = {
+      {"tsukuba", "tsukuba/im3.png", "tsukuba/im4.png", "tsukuba/disp3.pgm", 16.0, 16},
+      {"venus", "venus/im2.png", "venus/im6.png", "venus/disp2.pgm", 8.0, 32},
+      {"teddy", "teddy/im2.png", "teddy/im6.png", "teddy/disp2.png", 4.0, 64},
+  };
+  ibmr::PlaneSweepOptions options;
+  nlohmann::json report;
+  report["threads"] = threads;
+  report["hardware_threads"] = std::thread::hardware_concurrency();
+  report["repeat"] = repeat;
+  report["sgbm"] = {{"blockSize", 5}, {"P1", 8 * 25}, {"P2", 32 * 25}, {"mode", "MODE_SGBM"}, {"grey input", true}};
+  bool all_ok = true;
+  for (const Pair& pair : pairs) {
+    const cv::Mat left = cv::imread(data + "/" + pair.left, cv::IMREAD_GRAYSCALE);
+    const cv::Mat right = cv::imread(data + "/" + pair.right, cv::IMREAD_GRAYSCALE);
+    const cv::Mat gt = cv::imread(data + "/" + pair.gt, cv::IMREAD_GRAYSCALE);
+    if (left.empty() || right.empty() || gt.empty()) {
+      std::cerr << data << ": cannot read pair " << pair.name << " (is ../shared/datasets present?)\n";
+      return 1;
+    }
+    // SGBM.
+    cv::Ptr<cv::StereoSGBM> sgbm = cv::StereoSGBM::create(0, pair.max_disparity, 5, 8 * 25, 32 * 25);
+    cv::Mat raw, sgbm_disparity;
+    std::vector<double> sgbm_times, our_times;
+    for (int r = 0; r < repeat; ++r) {
+      const auto t0 = std::chrono::steady_clock::now();
+      sgbm->compute(left, right, raw);
+      sgbm_times.push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+    }
+    raw.convertTo(sgbm_disparity, CV_32F, 1.0 / 16.0);
+    // Ours.
+    ibmr::StereoPairResult ours;
+    for (int r = 0; r < repeat; ++r) {
+      const auto t0 = std::chrono::steady_clock::now();
+      ours = ibmr::StereoPair(left, right, pair.max_disparity, options);
+      our_times.push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+    }
+    const Score s = Evaluate(sgbm_disparity, gt, pair.gt_scale);
+    const Score o = Evaluate(ours.disparity, gt, pair.gt_scale);
+    const double ts = Median(sgbm_times), to = Median(our_times);
+    const bool ok = o.bad1 <= s.bad1 && to <= 3.0 * ts;
+    all_ok &= ok;
+    report["pairs"][pair.name] = {
+        {"width", left.cols}, {"height", left.rows}, {"max_disparity", pair.max_disparity},
+        {"sgbm", {{"bad1_percent", s.bad1}, {"bad2_percent", s.bad2}, {"unfilled_fraction", s.unfilled}, {"seconds", ts}}},
+        {"plane_sweep", {{"bad1_percent", o.bad1}, {"bad2_percent", o.bad2}, {"unfilled_fraction", o.unfilled},
+                         {"seconds", to}, {"evaluations", ours.evaluations},
+                         {"evaluations_per_second", ours.evaluations / to}}},
+        {"bad1_ratio_to_sgbm", o.bad1 / s.bad1}, {"time_ratio_to_sgbm", to / ts}, {"meets_acceptance", ok}};
+    std::cout << pair.name << ": SGBM bad1 " << s.bad1 << "% " << ts * 1e3 << " ms | plane_sweep bad1 " << o.bad1
+              << "% bad2 " << o.bad2 << "% unfilled " << o.unfilled << " " << to * 1e3 << " ms ("
+              << to / ts << "x) " << ours.evaluations / to / 1e6 << " M eval/s\n";
+  }
+  report["all_pairs_meet_acceptance"] = all_ok;
+  ibmr::WriteFileAtomic(out, report.dump(2) + "\n");
+  std::cout << "wrote " << out << "\n";
+  return 0;
+}

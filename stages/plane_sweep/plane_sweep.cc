@@ -1,0 +1,315 @@
+// Plane-sweep and two-view stereo on top of the sweep engine (see plane_sweep.h and
+// sweep_engine.h for the method and the seed-paper sections).
+#include "stages/plane_sweep/plane_sweep.h"
+
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <map>
+#include <opencv2/imgproc.hpp>
+
+#include "stages/plane_sweep/sweep_engine.h"
+
+namespace ibmr {
+
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+
+template <typename T>
+bool Fail(std::string* error, const std::string& key, const std::string& what, T value) {
+  if (error) *error = key + ": " + what + ", got " + std::to_string(value);
+  return false;
+}
+
+sweep::EngineOptions ToEngine(const PlaneSweepOptions& o) {
+  sweep::EngineOptions e;
+  e.cost = o.cost == MatchCost::kCensus ? sweep::Cost::kCensus
+           : o.cost == MatchCost::kSad  ? sweep::Cost::kSad
+                                        : sweep::Cost::kZncc;
+  e.census_radius_x = o.census_radius_x;
+  e.census_radius_y = o.census_radius_y;
+  e.window_radius = o.window_radius;
+  e.best_k = o.best_k;
+  e.semi_global = o.aggregation == CostAggregation::kSemiGlobal;
+  e.paths = o.sgm_paths;
+  e.p1 = o.p1;
+  e.p2 = o.p2;
+  e.p2_gamma = o.p2_gamma;
+  return e;
+}
+
+cv::Mat ToGray(const cv::Mat& image) {
+  cv::Mat gray;
+  if (image.channels() == 3) {
+    cv::cvtColor(image, gray, cv::COLOR_BGR2GRAY);
+  } else if (image.channels() == 4) {
+    cv::cvtColor(image, gray, cv::COLOR_BGRA2GRAY);
+  } else {
+    gray = image;
+  }
+  if (gray.depth() != CV_8U) gray.convertTo(gray, CV_8U);
+  return gray;
+}
+
+// Rejected pixels (<= 0) take the smaller of the nearest valid disparities left and right on
+// their row: occlusions belong to the background.
+void FillHoles(cv::Mat* disparity) {
+  for (int y = 0; y < disparity->rows; ++y) {
+    float* d = disparity->ptr<float>(y);
+    const int w = disparity->cols;
+    std::vector<float> left(w, -1.f);
+    float last = -1.f;
+    for (int x = 0; x < w; ++x) {
+      if (d[x] > 0) last = d[x];
+      left[x] = last;
+    }
+    last = -1.f;
+    for (int x = w - 1; x >= 0; --x) {
+      if (d[x] > 0) {
+        last = d[x];
+        continue;
+      }
+      const float l = left[x], r = last;
+      d[x] = l > 0 && r > 0 ? std::min(l, r) : std::max(l, r);
+    }
+  }
+}
+
+}  // namespace
+
+bool PlaneSweepOptions::Check(std::string* error) const {
+  if (num_planes < 2 || num_planes > 1024) return Fail(error, "num_planes", "must be in [2, 1024]", num_planes);
+  if (num_neighbors < 1 || num_neighbors > 16) return Fail(error, "num_neighbors", "must be in [1, 16]", num_neighbors);
+  if (best_k < 1 || best_k > num_neighbors) return Fail(error, "best_k", "must be in [1, num_neighbors]", best_k);
+  if (census_radius_x < 1 || census_radius_x > 7) return Fail(error, "census_radius_x", "must be in [1, 7]", census_radius_x);
+  if (census_radius_y < 1 || census_radius_y > 7) return Fail(error, "census_radius_y", "must be in [1, 7]", census_radius_y);
+  const int bits = (2 * census_radius_x + 1) * (2 * census_radius_y + 1) - 1;
+  if (bits > 64) return Fail(error, "census_radius_x", "census window must have at most 64 bits ((2rx+1)(2ry+1)-1)", bits);
+  if (window_radius < 0 || window_radius > 15) return Fail(error, "window_radius", "must be in [0, 15]", window_radius);
+  if (cost == MatchCost::kZncc && window_radius < 1)
+    return Fail(error, "window_radius", "must be >= 1 for the zncc cost", window_radius);
+  if (sgm_paths != 4 && sgm_paths != 8) return Fail(error, "sgm_paths", "must be 4 or 8", sgm_paths);
+  if (p1 < 0 || p1 > 2000) return Fail(error, "p1", "must be in [0, 2000]", p1);
+  if (p2 < p1 || p2 > 6000) return Fail(error, "p2", "must be in [p1, 6000]", p2);
+  if (!(p2_gamma >= 0)) return Fail(error, "p2_gamma", "must be >= 0", p2_gamma);
+  if (!(confidence_scale > 0)) return Fail(error, "confidence_scale", "must be > 0", confidence_scale);
+  if (!(confidence_threshold >= 0 && confidence_threshold <= 1))
+    return Fail(error, "confidence_threshold", "must be in [0, 1]", confidence_threshold);
+  if (min_depth != -1 && !(min_depth > 0)) return Fail(error, "min_depth", "must be > 0 or -1", min_depth);
+  if (max_depth != -1 && !(max_depth > 0 && (min_depth == -1 || max_depth > min_depth)))
+    return Fail(error, "max_depth", "must be > min_depth (or -1)", max_depth);
+  if (!(depth_margin >= 0 && depth_margin <= 2)) return Fail(error, "depth_margin", "must be in [0, 2]", depth_margin);
+  if (!(min_angle_deg >= 0 && min_angle_deg < max_angle_deg))
+    return Fail(error, "min_angle_deg", "must be in [0, max_angle_deg)", min_angle_deg);
+  if (!(max_angle_deg <= 180)) return Fail(error, "max_angle_deg", "must be <= 180", max_angle_deg);
+  if (!(target_angle_deg >= min_angle_deg && target_angle_deg <= max_angle_deg))
+    return Fail(error, "target_angle_deg", "must be in [min_angle_deg, max_angle_deg]", target_angle_deg);
+  if (lr_tolerance < 0 || lr_tolerance > 16) return Fail(error, "lr_tolerance", "must be in [0, 16]", lr_tolerance);
+  if (median_radius < 0 || median_radius > 2) return Fail(error, "median_radius", "must be in [0, 2]", median_radius);
+  return true;
+}
+
+StereoPairResult StereoPair(const cv::Mat& left_image, const cv::Mat& right_image, int max_disparity,
+                            const PlaneSweepOptions& options) {
+  const auto start = std::chrono::steady_clock::now();
+  const cv::Mat left = ToGray(left_image), right = ToGray(right_image);
+  sweep::Neighbour neighbour;
+  neighbour.gray = right;
+  for (int d = 0; d < max_disparity; ++d) {
+    Eigen::Matrix3d h = Eigen::Matrix3d::Identity();
+    h(0, 2) = -d;
+    neighbour.homographies.push_back(h);
+  }
+  sweep::EngineOptions engine = ToEngine(options);
+  engine.best_k = 1;
+  // Buffers kept per thread between calls: the volume pages are faulted in once.
+  static thread_local sweep::CostVolume volume;
+  static thread_local sweep::Aggregated aggregated;
+  StereoPairResult result;
+  auto lap = [t = std::chrono::steady_clock::now()](const char* what) mutable {
+    if (!std::getenv("IBMR_PLANE_SWEEP_TIMING")) return;
+    const auto now = std::chrono::steady_clock::now();
+    std::fprintf(stderr, "  %s %.1f ms\n", what, std::chrono::duration<double>(now - t).count() * 1e3);
+    t = now;
+  };
+  result.evaluations = sweep::BuildCostVolume(left, {neighbour}, engine, &volume);
+  lap("cost volume");
+  sweep::Aggregate(volume, left, engine, &aggregated);
+  lap("aggregation");
+  const sweep::Winners winners = sweep::WinnerTakeAll(aggregated, nullptr, options.confidence_scale);
+  lap("winner");
+  cv::Mat disparity = winners.plane.clone();
+  // Disparity 0 is a valid answer but "<= 0" means none in the output: nudge it.
+  disparity.setTo(1e-3f, disparity == 0.f);
+  if (options.lr_check) {
+    const cv::Mat right_winners = sweep::RightWinners(aggregated);
+    for (int y = 0; y < disparity.rows; ++y) {
+      float* d = disparity.ptr<float>(y);
+      const int* r = right_winners.ptr<int>(y);
+      for (int x = 0; x < disparity.cols; ++x) {
+        const int di = static_cast<int>(std::lround(d[x]));
+        const int xr = x - di;
+        if (d[x] < 0 || xr < 0 || std::abs(r[xr] - di) > options.lr_tolerance) d[x] = -1.f;
+      }
+    }
+  }
+  if (options.fill_holes) FillHoles(&disparity);
+  if (options.median_radius > 0) cv::medianBlur(disparity, disparity, 2 * options.median_radius + 1);
+  result.unfilled_fraction = 1.0 - static_cast<double>(cv::countNonZero(disparity > 0)) / disparity.total();
+  result.disparity = disparity;
+  result.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  return result;
+}
+
+PlaneSweepResult PlaneSweep(const SweepView& reference, const std::vector<SweepView>& neighbours, double near,
+                            double far, const PlaneSweepOptions& options) {
+  const int w = reference.gray.cols, h = reference.gray.rows, np = options.num_planes;
+  const double w_min = 1.0 / far, w_max = 1.0 / near, step = (w_max - w_min) / (np - 1);
+  const Eigen::Matrix3d k_ref_inv = reference.camera.K().inverse();
+  const Rigid3d world_from_ref = reference.cam_from_world.Inverse();
+  std::vector<sweep::Neighbour> engine_neighbours;
+  for (const SweepView& view : neighbours) {
+    sweep::Neighbour n;
+    n.gray = view.gray;
+    const Rigid3d src_from_ref = view.cam_from_world.Compose(world_from_ref);
+    const Eigen::Matrix3d k = view.camera.K();
+    const Eigen::Matrix3d a = k * src_from_ref.R() * k_ref_inv;
+    const Eigen::Vector3d b = k * src_from_ref.translation;
+    const Eigen::RowVector3d c = k_ref_inv.row(2);  // n^T K^-1 with n = (0, 0, 1)
+    for (int p = 0; p < np; ++p) n.homographies.push_back(a + (w_min + p * step) * b * c);
+    engine_neighbours.push_back(std::move(n));
+  }
+  const sweep::EngineOptions engine = ToEngine(options);
+  sweep::CostVolume volume;
+  PlaneSweepResult result;
+  result.evaluations = sweep::BuildCostVolume(reference.gray, engine_neighbours, engine, &volume);
+  sweep::Aggregated aggregated;
+  sweep::Aggregate(volume, reference.gray, engine, &aggregated);
+  result.volume_bytes = (volume.data.size() + aggregated.a.size() + aggregated.b.size()) * sizeof(uint16_t);
+  const sweep::Winners winners = sweep::WinnerTakeAll(aggregated, &volume, options.confidence_scale);
+  result.depth = DepthMap(w, h, 1, 0.f);
+  result.confidence = FloatMap(w, h, 1, 0.f);
+  size_t valid = 0;
+  for (int y = 0; y < h; ++y) {
+    const float* plane = winners.plane.ptr<float>(y);
+    const float* conf = winners.confidence.ptr<float>(y);
+    for (int x = 0; x < w; ++x) {
+      result.confidence.At(x, y) = conf[x];
+      if (plane[x] < 0 || conf[x] < options.confidence_threshold) continue;
+      // Planes are uniform in inverse depth, so the sub-pixel plane index maps linearly to 1/z.
+      result.depth.At(x, y) = static_cast<float>(1.0 / (w_min + plane[x] * step));
+      ++valid;
+    }
+  }
+  result.valid_fraction = static_cast<double>(valid) / (static_cast<double>(w) * h);
+  result.normals = NormalsFromDepth(result.depth, reference.camera);
+  return result;
+}
+
+std::vector<int> SelectNeighbors(const SparseModel& model, const std::vector<int>& image_ids, int reference_index,
+                                 double scene_depth, const PlaneSweepOptions& options) {
+  const Image& ref = model.images.at(image_ids[reference_index]);
+  const Eigen::Vector3d c_ref = ref.Center();
+  const double sigma = std::max(5.0, 0.7 * options.target_angle_deg);
+  auto weight = [&](double angle_deg) {
+    if (angle_deg < options.min_angle_deg || angle_deg > options.max_angle_deg) return 0.0;
+    const double t = (angle_deg - options.target_angle_deg) / sigma;
+    return std::exp(-0.5 * t * t);
+  };
+  auto angle_at = [](const Eigen::Vector3d& x, const Eigen::Vector3d& a, const Eigen::Vector3d& b) {
+    const Eigen::Vector3d u = (a - x).normalized(), v = (b - x).normalized();
+    return std::acos(std::clamp(u.dot(v), -1.0, 1.0)) * 180.0 / kPi;
+  };
+  std::vector<double> score(image_ids.size(), 0.0);
+  std::map<int, int> index_of;
+  for (size_t i = 0; i < image_ids.size(); ++i) index_of[image_ids[i]] = static_cast<int>(i);
+  for (const auto& [id, point] : model.points) {
+    bool seen = false;
+    for (const TrackElement& e : point.track) seen |= e.image_id == ref.image_id;
+    if (!seen) continue;
+    for (const TrackElement& e : point.track) {
+      auto it = index_of.find(e.image_id);
+      if (it == index_of.end() || it->second == reference_index) continue;
+      score[it->second] += weight(angle_at(point.xyz, c_ref, model.images.at(e.image_id).Center()));
+    }
+  }
+  const bool from_points = std::any_of(score.begin(), score.end(), [](double s) { return s > 0; });
+  if (!from_points) {
+    const Eigen::Vector3d x = c_ref + ref.ViewingDirection() * scene_depth;
+    for (size_t i = 0; i < image_ids.size(); ++i) {
+      if (static_cast<int>(i) == reference_index) continue;
+      const Image& other = model.images.at(image_ids[i]);
+      const Camera& cam = model.CameraOf(other);
+      const Eigen::Vector3d xc = other.cam_from_world * x;
+      if (xc.z() <= 0) continue;
+      const Eigen::Vector2d uv = cam.ImgFromCam(xc);
+      if (uv.x() < 0 || uv.y() < 0 || uv.x() > cam.width || uv.y() > cam.height) continue;
+      score[i] = weight(angle_at(x, c_ref, other.Center()));
+    }
+  }
+  std::vector<int> order;
+  for (size_t i = 0; i < image_ids.size(); ++i)
+    if (score[i] > 0) order.push_back(static_cast<int>(i));
+  std::stable_sort(order.begin(), order.end(), [&](int a, int b) { return score[a] > score[b]; });
+  if (static_cast<int>(order.size()) > options.num_neighbors) order.resize(options.num_neighbors);
+  return order;
+}
+
+bool DepthBoundsFromPoints(const SparseModel& model, const Image& image, double margin, double* near, double* far) {
+  const Camera& camera = model.CameraOf(image);
+  std::vector<double> observed, projected;
+  for (const auto& [id, point] : model.points) {
+    const Eigen::Vector3d xc = image.cam_from_world * point.xyz;
+    if (xc.z() <= 0) continue;
+    bool seen = false;
+    for (const TrackElement& e : point.track) seen |= e.image_id == image.image_id;
+    if (seen) observed.push_back(xc.z());
+    const Eigen::Vector2d uv = camera.ImgFromCam(xc);
+    if (uv.x() >= 0 && uv.y() >= 0 && uv.x() < camera.width && uv.y() < camera.height) projected.push_back(xc.z());
+  }
+  std::vector<double>& z = observed.size() >= 8 ? observed : projected;
+  if (z.size() < 8) return false;
+  std::sort(z.begin(), z.end());
+  const double lo = z[static_cast<size_t>(0.02 * (z.size() - 1))], hi = z[static_cast<size_t>(0.98 * (z.size() - 1))];
+  *near = lo * (1.0 - std::min(0.9, margin));
+  *far = hi * (1.0 + margin);
+  return true;
+}
+
+FloatMap NormalsFromDepth(const DepthMap& depth, const Camera& camera) {
+  const int w = depth.width, h = depth.height;
+  FloatMap normals(w, h, 3, 0.f);
+  const Eigen::Matrix3d k_inv = camera.K().inverse();
+  auto point = [&](int x, int y) -> Eigen::Vector3d {
+    return depth.At(x, y) * (k_inv * Eigen::Vector3d(x + 0.5, y + 0.5, 1.0));
+  };
+  auto valid = [&](int x, int y) { return x >= 0 && y >= 0 && x < w && y < h && IsValidDepth(depth.At(x, y)); };
+  for (int y = 0; y < h; ++y) {
+    for (int x = 0; x < w; ++x) {
+      if (!valid(x, y)) continue;
+      const Eigen::Vector3d p = point(x, y);
+      Eigen::Vector3d dx, dy;
+      if (valid(x + 1, y) && valid(x - 1, y)) dx = point(x + 1, y) - point(x - 1, y);
+      else if (valid(x + 1, y)) dx = point(x + 1, y) - p;
+      else if (valid(x - 1, y)) dx = p - point(x - 1, y);
+      else continue;
+      if (valid(x, y + 1) && valid(x, y - 1)) dy = point(x, y + 1) - point(x, y - 1);
+      else if (valid(x, y + 1)) dy = point(x, y + 1) - p;
+      else if (valid(x, y - 1)) dy = p - point(x, y - 1);
+      else continue;
+      Eigen::Vector3d n = dy.cross(dx);
+      if (n.norm() <= 0) continue;
+      n.normalize();
+      if (n.dot(p) > 0) n = -n;
+      for (int c = 0; c < 3; ++c) normals.At(x, y, c) = static_cast<float>(n[c]);
+    }
+  }
+  return normals;
+}
+
+}  // namespace ibmr

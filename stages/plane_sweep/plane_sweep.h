@@ -1,0 +1,108 @@
+// Plane-sweep stereo on the CPU: per reference view, fronto-parallel planes uniform in inverse
+// depth, neighbours warped by the plane homographies, a matching cost (census, SAD or ZNCC)
+// combined over neighbours by best-k (tolerates occlusion in some of them), box and semi-global
+// aggregation, winner-take-all, parabola sub-pixel, certainty from the cost curve; depth, normals
+// (from the depth gradient) and confidence maps out. The same engine runs two-view stereo on a
+// rectified pair (planes = integer disparities, homography = shift), with a left-right check and
+// hole filling.
+//
+// Follows seed 000, lines 3659-3760 (dense stereo along epipolar lines, multiple baselines),
+// 5300-5525 (section 2, "Depth maps": generalized disparity space, matching cost, aggregation,
+// winner-take-all, sub-pixel, certainty) and 4352-4453 (section 4: parabola sub-pixel and its
+// variance). Census: Zabih & Woodfill 1994; semi-global matching: Hirschmueller 2008.
+#pragma once
+
+#include <Eigen/Core>
+#include <cstdint>
+#include <opencv2/core.hpp>
+#include <string>
+#include <vector>
+
+#include "pipeline/core/camera.h"
+#include "pipeline/core/float_map.h"
+#include "pipeline/core/progress.h"
+#include "pipeline/core/rigid3.h"
+#include "pipeline/core/sparse_model.h"
+
+namespace ibmr {
+
+enum class MatchCost { kCensus, kSad, kZncc };
+enum class CostAggregation { kBox, kSemiGlobal };
+
+struct PlaneSweepOptions {
+  int num_planes = 128;           // depth hypotheses, uniform in inverse depth, in [2, 1024]
+  int num_neighbors = 4;          // neighbour views per reference view, in [1, 16]
+  int best_k = 2;                 // neighbours whose costs are averaged per pixel and plane, in [1, num_neighbors]
+  MatchCost cost = MatchCost::kCensus;
+  int census_radius_x = 4;        // census window half width, pixels; (2rx+1)(2ry+1) - 1 <= 64
+  int census_radius_y = 3;        // census window half height, pixels
+  int window_radius = 1;          // box window radius of the cost, pixels, in [0, 15] (ZNCC: >= 1)
+  CostAggregation aggregation = CostAggregation::kSemiGlobal;
+  int sgm_paths = 8;              // semi-global paths, 4 or 8
+  int p1 = 120;                   // small-jump penalty, cost units (1000 ~ worst match), in [0, 2000]
+  int p2 = 900;                   // large-jump penalty, cost units, in [p1, 6000]
+  double p2_gamma = 12.0;         // P2 / (1 + |grey step| / gamma) at edges, grey levels; 0: constant
+  double confidence_scale = 3.0;  // confidence = scale * (c2 - c1) / c2 clipped to [0, 1], > 0
+  double confidence_threshold = 0.15;  // depth set to 0 where confidence < this, in [0, 1]
+  double min_depth = -1;          // fallback depth bounds, scene units (-1: none)
+  double max_depth = -1;
+  double depth_margin = 0.1;      // relative margin around sparse-point depths, in [0, 2]
+  double min_angle_deg = 3.0;     // neighbour triangulation angle range, degrees
+  double max_angle_deg = 50.0;
+  double target_angle_deg = 15.0; // preferred triangulation angle, degrees
+  // Two-view only.
+  bool lr_check = true;           // left-right consistency check
+  int lr_tolerance = 1;           // pixels
+  bool fill_holes = true;         // fill rejected pixels from the nearer-background side
+  int median_radius = 1;          // median filter radius on the disparity (0: none), in [0, 2]
+
+  // Returns false and sets `error` (starting with the YAML key) when a value is out of range.
+  bool Check(std::string* error) const;
+};
+
+// ---------------------------------------------------------------- two-view stereo
+struct StereoPairResult {
+  cv::Mat disparity;           // CV_32F, left view; <= 0 or NaN: no estimate
+  double unfilled_fraction = 0;  // fraction of pixels without an estimate
+  int64_t evaluations = 0;     // plane(disparity)-pixel-neighbour cost evaluations
+  double seconds = 0;          // wall time of the matching
+};
+// `left`, `right`: rectified images (8-bit grey or BGR) of equal size; disparities 0..max_disparity-1.
+StereoPairResult StereoPair(const cv::Mat& left, const cv::Mat& right, int max_disparity,
+                            const PlaneSweepOptions& options);
+
+// ---------------------------------------------------------------- multi-view plane sweep
+struct SweepView {
+  std::string name;
+  cv::Mat gray;          // CV_8UC1, undistorted
+  Camera camera;         // without distortion (PINHOLE or SIMPLE_PINHOLE)
+  Rigid3d cam_from_world;
+};
+
+struct PlaneSweepResult {
+  DepthMap depth;        // z depth, 0: no estimate (confidence below the threshold)
+  FloatMap normals;      // 3 channels, camera frame, towards the camera; 0 where no depth
+  FloatMap confidence;   // 1 channel in [0, 1]
+  int64_t evaluations = 0;
+  double valid_fraction = 0;  // fraction of pixels with depth
+  size_t volume_bytes = 0;    // bytes of the cost volumes held for this view
+};
+
+// Sweeps `near`..`far` (z in the reference camera, 0 < near < far).
+PlaneSweepResult PlaneSweep(const SweepView& reference, const std::vector<SweepView>& neighbours, double near,
+                            double far, const PlaneSweepOptions& options);
+
+// Neighbour choice: indices into `views` (not `reference_index`), best first. With sparse points
+// the score sums, over points seen by both, a weight of the triangulation angle; without, the
+// angle at the point on the reference optical axis at depth `scene_depth`.
+std::vector<int> SelectNeighbors(const SparseModel& model, const std::vector<int>& image_ids, int reference_index,
+                                 double scene_depth, const PlaneSweepOptions& options);
+
+// Depth range of the sparse points seen in (or projecting into) `image`, 2% / 98% quantiles,
+// widened by `margin`; false when fewer than 8 points.
+bool DepthBoundsFromPoints(const SparseModel& model, const Image& image, double margin, double* near, double* far);
+
+// Normals (camera frame, unit, facing the camera) from the depth gradient; 0 where undefined.
+FloatMap NormalsFromDepth(const DepthMap& depth, const Camera& camera);
+
+}  // namespace ibmr

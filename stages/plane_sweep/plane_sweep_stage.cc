@@ -1,0 +1,343 @@
+// Adapter of the plane_sweep stage: for every training view, picks neighbours, depth bounds
+// (hull/depth_bounds.json, else the sparse points, else the config's bounding box or depth
+// range), runs the plane sweep (plane_sweep.h) and writes COLMAP maps:
+//   dense/stereo/depth_maps/<image>.photometric.bin       z depth, 0 = no estimate
+//   dense/stereo/normal_maps/<image>.photometric.bin      3 channels, camera frame
+//   dense/stereo/confidence_maps/<image>.photometric.bin  1 channel in [0, 1]
+// Also registers `ibmr stereo-pair LEFT RIGHT --max-disparity N --out DISP.pfm` (two-view mode).
+// Method: seed 000 lines 3659-3760, 5300-5525, 4352-4453 (see plane_sweep.h).
+#include <spdlog/spdlog.h>
+#include <sys/resource.h>
+#include <tbb/parallel_for.h>
+
+#include <CLI/CLI.hpp>
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <filesystem>
+#include <fstream>
+#include <iostream>
+#include <mutex>
+#include <opencv2/imgproc.hpp>
+
+#include "pipeline/core/colmap_array_io.h"
+#include "pipeline/core/errors.h"
+#include "pipeline/core/image_io.h"
+#include "pipeline/core/per_view.h"
+#include "pipeline/core/stage_api.h"
+#include "stages/plane_sweep/plane_sweep.h"
+
+namespace fs = std::filesystem;
+
+namespace ibmr {
+
+namespace {
+
+const std::vector<std::string> kCostNames = {"census", "sad", "zncc"};
+const std::vector<std::string> kAggregationNames = {"box", "semi_global"};
+
+double PeakRssMb() {
+  rusage usage{};
+  getrusage(RUSAGE_SELF, &usage);
+  return usage.ru_maxrss / 1024.0;
+}
+
+// Grey image of a view, undistorted in memory when the camera has distortion.
+cv::Mat LoadGray(const std::string& path, const Camera& camera, Camera* undistorted) {
+  const cv::Mat color = ReadImageColor(path);
+  if (color.cols != camera.width || color.rows != camera.height) {
+    throw InputError(path + ": image is " + std::to_string(color.cols) + "x" + std::to_string(color.rows) +
+                     " but its camera in sparse/cameras.txt is " + std::to_string(camera.width) + "x" +
+                     std::to_string(camera.height) + "; re-run import");
+  }
+  cv::Mat gray;
+  cv::cvtColor(color, gray, cv::COLOR_BGR2GRAY);
+  *undistorted = camera.HasDistortion() ? camera.Undistorted() : camera;
+  if (!camera.HasDistortion()) return gray;
+  cv::Mat map_x(gray.size(), CV_32F), map_y(gray.size(), CV_32F);
+  const Eigen::Matrix3d k_inv = undistorted->K().inverse();
+  for (int y = 0; y < gray.rows; ++y) {
+    for (int x = 0; x < gray.cols; ++x) {
+      const Eigen::Vector2d p = camera.ImgFromCam(k_inv * Eigen::Vector3d(x + 0.5, y + 0.5, 1.0));
+      map_x.at<float>(y, x) = static_cast<float>(p.x() - 0.5);
+      map_y.at<float>(y, x) = static_cast<float>(p.y() - 0.5);
+    }
+  }
+  cv::Mat out;
+  cv::remap(gray, out, map_x, map_y, cv::INTER_LINEAR, cv::BORDER_CONSTANT);
+  return out;
+}
+
+class PlaneSweepStage : public Stage {
+ public:
+  std::string Name() const override { return "plane_sweep"; }
+  std::string Summary() const override {
+    return "CPU plane-sweep stereo (census, best-k, semi-global) to COLMAP depth/normal/confidence maps";
+  }
+  std::string Version() const override { return "1"; }
+  HoldoutRole Role() const override { return HoldoutRole::kTrainingOnly; }
+
+  std::vector<ParamSpec> Parameters() const override {
+    const PlaneSweepOptions d;
+    auto s = [](double v) { std::ostringstream o; o << v; return o.str(); };
+    return {
+        {"num_planes", ParamType::kInt, s(d.num_planes), "Depth hypotheses, uniform in inverse depth, [2, 1024]"},
+        {"num_neighbors", ParamType::kInt, s(d.num_neighbors), "Neighbour views per reference view, [1, 16]"},
+        {"best_k", ParamType::kInt, s(d.best_k), "Neighbour costs averaged per pixel and plane (lowest k), [1, num_neighbors]"},
+        {"cost", ParamType::kString, "census", "Matching cost", kCostNames},
+        {"census_radius_x", ParamType::kInt, s(d.census_radius_x), "Census half width, pixels"},
+        {"census_radius_y", ParamType::kInt, s(d.census_radius_y), "Census half height, pixels"},
+        {"window_radius", ParamType::kInt, s(d.window_radius), "Box window radius of the cost, pixels, [0, 15]"},
+        {"aggregation", ParamType::kString, "semi_global", "Cost aggregation after the box window", kAggregationNames},
+        {"sgm_paths", ParamType::kInt, s(d.sgm_paths), "Semi-global paths, 4 or 8"},
+        {"p1", ParamType::kInt, s(d.p1), "Small-jump penalty, cost units (1000 ~ worst match)"},
+        {"p2", ParamType::kInt, s(d.p2), "Large-jump penalty, cost units, [p1, 6000]"},
+        {"p2_gamma", ParamType::kDouble, s(d.p2_gamma), "P2 divided by 1 + |grey step|/gamma; 0: constant"},
+        {"confidence_scale", ParamType::kDouble, s(d.confidence_scale), "Confidence = scale * (c2 - c1) / c2, clipped"},
+        {"confidence_threshold", ParamType::kDouble, s(d.confidence_threshold),
+         "Depth dropped (0) where confidence < this, [0, 1]"},
+        {"min_depth", ParamType::kDouble, "-1", "Fallback near depth, scene units; -1: none"},
+        {"max_depth", ParamType::kDouble, "-1", "Fallback far depth, scene units; -1: none"},
+        {"bounding_box", ParamType::kDoubleList, "[]",
+         "Fallback scene box [xmin, ymin, zmin, xmax, ymax, zmax] (world); depth bounds from its corners"},
+        {"depth_margin", ParamType::kDouble, s(d.depth_margin), "Relative margin around sparse-point or box depths"},
+        {"min_angle_deg", ParamType::kDouble, s(d.min_angle_deg), "Smallest neighbour triangulation angle, degrees"},
+        {"max_angle_deg", ParamType::kDouble, s(d.max_angle_deg), "Largest neighbour triangulation angle, degrees"},
+        {"target_angle_deg", ParamType::kDouble, s(d.target_angle_deg), "Preferred triangulation angle, degrees"},
+    };
+  }
+
+  std::optional<ParamError> CheckParams(const Params& params) const override {
+    std::string error;
+    if (!ToOptions(params).Check(&error)) return ParamError{error.substr(0, error.find(':')), error.substr(error.find(':') + 2)};
+    const std::vector<double> box = params.DoubleList("bounding_box");
+    if (!box.empty() && (box.size() != 6 || box[0] >= box[3] || box[1] >= box[4] || box[2] >= box[5])) {
+      return ParamError{"bounding_box", "must be empty or [xmin, ymin, zmin, xmax, ymax, zmax] with min < max"};
+    }
+    return std::nullopt;
+  }
+
+  std::vector<std::string> Inputs(const StageContext&) const override {
+    return {"images", "sparse", "hull/depth_bounds.json"};
+  }
+  std::vector<std::string> Outputs(const StageContext&) const override {
+    return {"dense/stereo/depth_maps", "dense/stereo/normal_maps", "dense/stereo/confidence_maps"};
+  }
+
+  void Run(StageContext& context) const override {
+    const auto start = std::chrono::steady_clock::now();
+    const PlaneSweepOptions options = ToOptions(context.params);
+    const SparseModel model = context.LoadModel();
+    const std::vector<std::string> names = context.TrainingImageNames(model);
+    if (names.size() < 2) throw InputError("plane_sweep: needs at least 2 posed training views in sparse/, found " + std::to_string(names.size()));
+    std::vector<int> ids;
+    for (const std::string& name : names) ids.push_back(model.FindImage(name)->image_id);
+
+    // Views, loaded once (grey, undistorted).
+    std::vector<SweepView> views(names.size());
+    tbb::parallel_for(size_t(0), names.size(), [&](size_t i) {
+      const Image& image = model.images.at(ids[i]);
+      const Camera& camera = model.CameraOf(image);
+      const std::string problem = camera.Validate();
+      if (!problem.empty()) throw InputError("sparse/cameras.txt: camera of " + image.name + ": " + problem);
+      views[i].name = image.name;
+      views[i].cam_from_world = image.cam_from_world;
+      views[i].gray = LoadGray(context.workspace.ImagesDir() + "/" + image.name, camera, &views[i].camera);
+    });
+    const nlohmann::json hull_bounds = ReadHullBounds(context.workspace.Path("hull/depth_bounds.json"));
+    for (const char* dir : {"depth_maps", "normal_maps", "confidence_maps"})
+      fs::create_directories(context.workspace.Path(std::string("dense/stereo/") + dir));
+
+    std::mutex mutex;
+    std::atomic<int64_t> evaluations{0};
+    double valid_sum = 0, volume_max = 0;
+    std::map<std::string, int> bound_sources;
+    nlohmann::json per_view = nlohmann::json::object();
+    const PerViewSummary summary = ForEachView(context, "plane_sweep", names, [&](const std::string& name) {
+      const int index = static_cast<int>(std::find(names.begin(), names.end(), name) - names.begin());
+      const Image& image = model.images.at(ids[index]);
+      double near = 0, far = 0;
+      const std::string source = DepthBounds(hull_bounds, model, image, views[index], context.params, options, &near, &far);
+      const std::vector<int> chosen = SelectNeighbors(model, ids, index, 0.5 * (near + far), options);
+      if (chosen.empty()) {
+        spdlog::warn("[plane_sweep] {}: no neighbour view within {}..{} degrees; no depth map", name,
+                     options.min_angle_deg, options.max_angle_deg);
+      }
+      PlaneSweepResult result;
+      if (chosen.empty()) {
+        result.depth = DepthMap(views[index].gray.cols, views[index].gray.rows, 1, 0.f);
+        result.normals = FloatMap(result.depth.width, result.depth.height, 3, 0.f);
+        result.confidence = FloatMap(result.depth.width, result.depth.height, 1, 0.f);
+      } else {
+        std::vector<SweepView> neighbours;
+        for (int j : chosen) neighbours.push_back(views[j]);
+        PlaneSweepOptions view_options = options;
+        view_options.best_k = std::min<int>(options.best_k, static_cast<int>(neighbours.size()));
+        result = PlaneSweep(views[index], neighbours, near, far, view_options);
+      }
+      WriteColmapArray(context.workspace.DepthMapPath(name, "photometric"), result.depth);
+      WriteColmapArray(context.workspace.NormalMapPath(name, "photometric"), result.normals);
+      WriteColmapArray(context.workspace.Path("dense/stereo/confidence_maps/" + name + ".photometric.bin"), result.confidence);
+      evaluations += result.evaluations;
+      std::lock_guard<std::mutex> lock(mutex);
+      valid_sum += result.valid_fraction;
+      volume_max = std::max(volume_max, result.volume_bytes / 1048576.0);
+      ++bound_sources[source];
+      std::vector<std::string> neighbour_names;
+      for (int j : chosen) neighbour_names.push_back(names[j]);
+      per_view[name] = {{"near", near}, {"far", far}, {"bounds_from", source}, {"neighbors", neighbour_names},
+                        {"valid_fraction", result.valid_fraction}};
+    });
+    const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    context.metrics["views"] = names.size();
+    context.metrics["views_computed"] = summary.computed;
+    context.metrics["views_resumed"] = summary.resumed;
+    context.metrics["wall_seconds"] = seconds;
+    context.metrics["evaluations"] = evaluations.load();
+    context.metrics["evaluations_per_second"] = evaluations.load() / seconds;
+    context.metrics["mean_valid_fraction"] = summary.computed ? valid_sum / summary.computed : 0.0;
+    context.metrics["cost_volume_mb_per_view"] = volume_max;
+    context.metrics["peak_rss_mb"] = PeakRssMb();
+    context.metrics["bounds_from"] = bound_sources;
+    context.metrics["per_view"] = per_view;
+    spdlog::info("[plane_sweep] {} views in {:.2f} s ({:.0f} M evaluations/s), mean kept fraction {:.3f}", names.size(),
+                 seconds, evaluations.load() / seconds / 1e6, context.metrics["mean_valid_fraction"].get<double>());
+  }
+
+  static PlaneSweepOptions ToOptions(const Params& p) {
+    PlaneSweepOptions o;
+    o.num_planes = static_cast<int>(p.Int("num_planes"));
+    o.num_neighbors = static_cast<int>(p.Int("num_neighbors"));
+    o.best_k = static_cast<int>(p.Int("best_k"));
+    const std::string& cost = p.String("cost");
+    o.cost = cost == "sad" ? MatchCost::kSad : cost == "zncc" ? MatchCost::kZncc : MatchCost::kCensus;
+    o.census_radius_x = static_cast<int>(p.Int("census_radius_x"));
+    o.census_radius_y = static_cast<int>(p.Int("census_radius_y"));
+    o.window_radius = static_cast<int>(p.Int("window_radius"));
+    o.aggregation = p.String("aggregation") == "box" ? CostAggregation::kBox : CostAggregation::kSemiGlobal;
+    o.sgm_paths = static_cast<int>(p.Int("sgm_paths"));
+    o.p1 = static_cast<int>(p.Int("p1"));
+    o.p2 = static_cast<int>(p.Int("p2"));
+    o.p2_gamma = p.Double("p2_gamma");
+    o.confidence_scale = p.Double("confidence_scale");
+    o.confidence_threshold = p.Double("confidence_threshold");
+    o.min_depth = p.Double("min_depth");
+    o.max_depth = p.Double("max_depth");
+    o.depth_margin = p.Double("depth_margin");
+    o.min_angle_deg = p.Double("min_angle_deg");
+    o.max_angle_deg = p.Double("max_angle_deg");
+    o.target_angle_deg = p.Double("target_angle_deg");
+    return o;
+  }
+
+ private:
+  static nlohmann::json ReadHullBounds(const std::string& path) {
+    if (!fs::exists(path)) return nlohmann::json::object();
+    std::ifstream in(path);
+    try {
+      nlohmann::json j = nlohmann::json::parse(in);
+      if (!j.is_object()) throw InputError(path + ": expected an object {\"<image>\": {\"near\": z, \"far\": z}}");
+      return j;
+    } catch (const nlohmann::json::exception& e) {
+      throw InputError(path + ": not valid JSON (" + e.what() + "); re-run the carve stage or delete the file");
+    }
+  }
+
+  // Sets near/far and returns where they came from.
+  static std::string DepthBounds(const nlohmann::json& hull, const SparseModel& model, const Image& image,
+                                 const SweepView& view, const Params& params, const PlaneSweepOptions& o,
+                                 double* near, double* far) {
+    if (hull.contains(image.name)) {
+      const auto& b = hull[image.name];
+      if (!b.contains("near") || !b.contains("far") || !b["near"].is_number() || !b["far"].is_number() ||
+          !(b["near"].get<double>() > 0) || !(b["far"].get<double>() > b["near"].get<double>())) {
+        throw InputError("hull/depth_bounds.json: entry of " + image.name + " needs numbers 0 < near < far");
+      }
+      *near = b["near"].get<double>();
+      *far = b["far"].get<double>();
+      return "hull";
+    }
+    if (DepthBoundsFromPoints(model, image, o.depth_margin, near, far)) return "sparse_points";
+    const std::vector<double> box = params.DoubleList("bounding_box");
+    if (box.size() == 6) {
+      double lo = 1e300, hi = -1e300;
+      for (int c = 0; c < 8; ++c) {
+        const Eigen::Vector3d corner(box[(c & 1) ? 3 : 0], box[(c & 2) ? 4 : 1], box[(c & 4) ? 5 : 2]);
+        const double z = (image.cam_from_world * corner).z();
+        lo = std::min(lo, z);
+        hi = std::max(hi, z);
+      }
+      if (hi > 0) {
+        *far = hi * (1 + o.depth_margin);
+        *near = std::max(lo * (1 - o.depth_margin), 1e-3 * *far);
+        return "bounding_box";
+      }
+    }
+    if (o.min_depth > 0 && o.max_depth > 0) {
+      *near = o.min_depth;
+      *far = o.max_depth;
+      return "config";
+    }
+    throw InputError("plane_sweep: no depth range for view " + view.name +
+                     ": no hull/depth_bounds.json entry, fewer than 8 sparse points in view, and neither "
+                     "plane_sweep.bounding_box nor plane_sweep.min_depth/max_depth set in the config");
+  }
+};
+
+int StereoPairMain(const std::vector<std::string>& args) {
+  CLI::App app{"Two-view stereo on a rectified pair (census + semi-global plane sweep); writes the left disparity"};
+  std::string left, right, out;
+  int max_disparity = 64;
+  PlaneSweepOptions options;
+  std::string cost = "census";
+  app.add_option("LEFT", left, "Left (reference) image")->required();
+  app.add_option("RIGHT", right, "Right image")->required();
+  app.add_option("--max-disparity", max_disparity, "Disparities searched: 0 .. N-1")->check(CLI::Range(1, 4096));
+  app.add_option("--out", out, "Output disparity, PFM (<= 0 where no estimate)")->required();
+  app.add_option("--cost", cost, "census, sad or zncc")->check(CLI::IsMember(kCostNames));
+  app.add_option("--window-radius", options.window_radius, "Box window radius, pixels");
+  app.add_option("--p1", options.p1, "Small-jump penalty, cost units");
+  app.add_option("--p2", options.p2, "Large-jump penalty, cost units");
+  bool no_lr = false, no_fill = false;
+  app.add_flag("--no-lr-check", no_lr, "Keep pixels that fail the left-right check");
+  app.add_flag("--no-fill", no_fill, "Leave rejected pixels empty (no hole filling)");
+  std::vector<std::string> reversed(args.rbegin(), args.rend());
+  try {
+    app.parse(reversed);
+  } catch (const CLI::ParseError& e) {
+    return app.exit(e);
+  }
+  options.cost = cost == "sad" ? MatchCost::kSad : cost == "zncc" ? MatchCost::kZncc : MatchCost::kCensus;
+  options.lr_check = !no_lr;
+  options.fill_holes = !no_fill;
+  std::string error;
+  if (!options.Check(&error)) {
+    std::cerr << "stereo-pair: --" << error << "\n";
+    return 2;
+  }
+  try {
+    const cv::Mat l = ReadImageColor(left), r = ReadImageColor(right);
+    if (l.size() != r.size()) {
+      std::cerr << "stereo-pair: " << left << " and " << right << " differ in size; a rectified pair has equal sizes\n";
+      return 1;
+    }
+    const StereoPairResult result = StereoPair(l, r, max_disparity, options);
+    WritePfm(out, result.disparity);
+    std::cout << "stereo-pair: " << out << " (" << l.cols << "x" << l.rows << ", " << max_disparity << " disparities, "
+              << result.seconds * 1e3 << " ms, unfilled " << result.unfilled_fraction << ")\n";
+  } catch (const std::exception& e) {
+    std::cerr << "stereo-pair: " << e.what() << "\n";
+    return 1;
+  }
+  return 0;
+}
+
+}  // namespace
+
+void RegisterStage_plane_sweep(StageRegistry* registry) {
+  registry->Add(std::make_unique<PlaneSweepStage>());
+  registry->AddCommand({"stereo-pair", "Two-view stereo on a rectified pair: LEFT RIGHT --max-disparity N --out DISP.pfm",
+                        StereoPairMain});
+}
+
+}  // namespace ibmr

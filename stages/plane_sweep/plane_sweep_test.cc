@@ -1,0 +1,240 @@
+// Tests of the plane_sweep stage: option checks, two-view stereo on a shifted random texture,
+// multi-view sweep on a textured plane (known depth), format of the written maps and one adapter
+// run on a tiny synthetic object_ring workspace (depth within 1% of the ground truth).
+#include <gtest/gtest.h>
+
+#include <chrono>
+#include <filesystem>
+#include <opencv2/imgproc.hpp>
+#include <random>
+
+#include "pipeline/core/colmap_array_io.h"
+#include "pipeline/core/stage_api.h"
+#include "stages/plane_sweep/plane_sweep.h"
+
+namespace fs = std::filesystem;
+
+namespace ibmr {
+
+void RegisterStage_synth(StageRegistry* registry);
+void RegisterStage_plane_sweep(StageRegistry* registry);
+
+namespace {
+
+cv::Mat RandomTexture(int w, int h, int seed) {
+  cv::Mat noise(h / 2, w / 2, CV_8U);
+  cv::RNG rng(seed);
+  rng.fill(noise, cv::RNG::UNIFORM, 0, 256);
+  cv::Mat up;
+  cv::resize(noise, up, cv::Size(w, h), 0, 0, cv::INTER_LINEAR);
+  return up;
+}
+
+// Every declared parameter at its declared default.
+Params Defaults(const Stage& stage) {
+  Params params;
+  for (const ParamSpec& spec : stage.Parameters()) {
+    std::string v = spec.default_yaml;
+    if (v.size() >= 2 && v.front() == '"') v = v.substr(1, v.size() - 2);
+    switch (spec.type) {
+      case ParamType::kInt: params.Set(spec.key, int64_t{std::stoll(v)}); break;
+      case ParamType::kDouble: params.Set(spec.key, std::stod(v)); break;
+      case ParamType::kBool: params.Set(spec.key, v == "true"); break;
+      case ParamType::kDoubleList: params.Set(spec.key, std::vector<double>{}); break;
+      case ParamType::kIntList: params.Set(spec.key, std::vector<int64_t>{}); break;
+      case ParamType::kStringList: params.Set(spec.key, std::vector<std::string>{}); break;
+      default: params.Set(spec.key, v); break;
+    }
+  }
+  return params;
+}
+
+TEST(PlaneSweepOptions, DefaultsAreValid) {
+  std::string error;
+  EXPECT_TRUE(PlaneSweepOptions().Check(&error)) << error;
+}
+
+TEST(PlaneSweepOptions, InvalidRangesNameTheKey) {
+  auto key_of = [](const PlaneSweepOptions& o) {
+    std::string error;
+    EXPECT_FALSE(o.Check(&error));
+    return error.substr(0, error.find(':'));
+  };
+  PlaneSweepOptions o;
+  o.num_planes = 1;
+  EXPECT_EQ(key_of(o), "num_planes");
+  o = PlaneSweepOptions();
+  o.best_k = 5;
+  EXPECT_EQ(key_of(o), "best_k");
+  o = PlaneSweepOptions();
+  o.census_radius_x = 5;
+  o.census_radius_y = 5;
+  EXPECT_EQ(key_of(o), "census_radius_x");
+  o = PlaneSweepOptions();
+  o.sgm_paths = 6;
+  EXPECT_EQ(key_of(o), "sgm_paths");
+  o = PlaneSweepOptions();
+  o.p2 = o.p1 - 1;
+  EXPECT_EQ(key_of(o), "p2");
+  o = PlaneSweepOptions();
+  o.cost = MatchCost::kZncc;
+  o.window_radius = 0;
+  EXPECT_EQ(key_of(o), "window_radius");
+  o = PlaneSweepOptions();
+  o.confidence_threshold = 1.5;
+  EXPECT_EQ(key_of(o), "confidence_threshold");
+  o = PlaneSweepOptions();
+  o.min_depth = 2;
+  o.max_depth = 1;
+  EXPECT_EQ(key_of(o), "max_depth");
+}
+
+TEST(StereoPair, RecoversAConstantShift) {
+  const int w = 160, h = 120, shift = 7;
+  const cv::Mat right = RandomTexture(w + shift, h, 3);
+  // left(x) = right(x - shift) ... i.e. the left pixel x matches right pixel x - shift.
+  const cv::Mat left = right(cv::Rect(0, 0, w, h)).clone();
+  cv::Mat right_view = right(cv::Rect(shift, 0, w, h)).clone();
+  for (MatchCost cost : {MatchCost::kCensus, MatchCost::kSad, MatchCost::kZncc}) {
+    PlaneSweepOptions options;
+    options.cost = cost;
+    const StereoPairResult result = StereoPair(left, right_view, 16, options);
+    ASSERT_EQ(result.disparity.size(), left.size());
+    int good = 0, total = 0;
+    for (int y = 4; y < h - 4; ++y)
+      for (int x = 20; x < w - 4; ++x, ++total) good += std::fabs(result.disparity.at<float>(y, x) - shift) < 0.5f;
+    EXPECT_GT(good, 0.95 * total) << "cost " << static_cast<int>(cost);
+    EXPECT_EQ(result.unfilled_fraction, 0.0);
+    EXPECT_EQ(result.evaluations, int64_t{16} * w * h);
+  }
+}
+
+// Two pinhole views of a textured fronto-parallel plane at depth 5: the sweep finds it.
+TEST(PlaneSweep, FindsATexturedPlane) {
+  const int w = 128, h = 96;
+  const Camera camera = Camera::Pinhole(w, h, 100, 100, w / 2.0, h / 2.0);
+  const double depth = 5.0;
+  SweepView ref{"ref", RandomTexture(w, h, 7), camera, Rigid3d()};
+  std::vector<SweepView> neighbours;
+  for (double baseline : {-0.5, 0.5}) {
+    SweepView v{"n", cv::Mat(), camera, Rigid3d(Eigen::Matrix3d::Identity(), Eigen::Vector3d(baseline, 0, 0))};
+    // Neighbour pixel = ref pixel + f * baseline / depth horizontally: warp the texture.
+    const double dx = 100 * baseline / depth;
+    cv::Mat m = (cv::Mat_<double>(2, 3) << 1, 0, dx, 0, 1, 0);
+    cv::warpAffine(ref.gray, v.gray, m, ref.gray.size(), cv::INTER_LINEAR, cv::BORDER_REFLECT);
+    neighbours.push_back(v);
+  }
+  PlaneSweepOptions options;
+  options.num_planes = 48;
+  options.confidence_threshold = 0;
+  const PlaneSweepResult result = PlaneSweep(ref, neighbours, 3.0, 10.0, options);
+  int good = 0;
+  for (float z : result.depth.data) good += std::fabs(z - depth) < 0.01 * depth;
+  EXPECT_GT(good, 0.9 * w * h);
+  EXPECT_EQ(result.evaluations, int64_t{48} * w * h * 2);
+  // Normals of a fronto-parallel plane face the camera.
+  EXPECT_NEAR(result.normals.At(w / 2, h / 2, 2), -1.0, 0.05);
+  for (float c : result.confidence.data) ASSERT_TRUE(c >= 0 && c <= 1);
+}
+
+TEST(PlaneSweep, UntexturedImageHasLowConfidence) {
+  const int w = 96, h = 72;
+  const Camera camera = Camera::Pinhole(w, h, 80, 80, w / 2.0, h / 2.0);
+  cv::Mat flat(h, w, CV_8U, cv::Scalar(120));
+  SweepView ref{"ref", flat, camera, Rigid3d()};
+  SweepView n{"n", flat.clone(), camera, Rigid3d(Eigen::Matrix3d::Identity(), Eigen::Vector3d(0.5, 0, 0))};
+  PlaneSweepOptions options;
+  options.num_planes = 32;
+  const PlaneSweepResult result = PlaneSweep(ref, {n}, 2.0, 10.0, options);
+  EXPECT_LT(result.valid_fraction, 0.05);
+}
+
+class PlaneSweepStageTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    RegisterStage_synth(&registry_);
+    RegisterStage_plane_sweep(&registry_);
+    dir_ = fs::path(::testing::TempDir()) /
+           ("plane_sweep_test_" + std::to_string(std::chrono::steady_clock::now().time_since_epoch().count()));
+    fs::create_directories(dir_);
+  }
+  void TearDown() override { fs::remove_all(dir_); }
+
+  nlohmann::json Run(const std::string& name, const Params& params) {
+    StageContext context;
+    context.workspace = Workspace(dir_.string());
+    context.params = params;
+    context.progress = &progress_;
+    context.role = registry_.Find(name)->Role();
+    registry_.Find(name)->Run(context);
+    return context.metrics;
+  }
+
+  StageRegistry registry_;
+  fs::path dir_;
+  NullProgress progress_;
+};
+
+TEST_F(PlaneSweepStageTest, DeclaresItsContract) {
+  const Stage* stage = registry_.Find("plane_sweep");
+  ASSERT_NE(stage, nullptr);
+  EXPECT_EQ(stage->Role(), HoldoutRole::kTrainingOnly);
+  Params params = Defaults(*stage);
+  EXPECT_FALSE(stage->CheckParams(params).has_value());
+  params.Set("bounding_box", std::vector<double>{0, 0, 0, 1});
+  ASSERT_TRUE(stage->CheckParams(params).has_value());
+  EXPECT_EQ(stage->CheckParams(params)->key, "bounding_box");
+  params = Defaults(*stage);
+  params.Set("p1", int64_t{-3});
+  ASSERT_TRUE(stage->CheckParams(params).has_value());
+  EXPECT_EQ(stage->CheckParams(params)->key, "p1");
+  bool has_command = false;
+  for (const StageCommand& command : registry_.Commands()) has_command |= command.name == "stereo-pair";
+  EXPECT_TRUE(has_command);
+}
+
+// Tiny object ring: depth maps within 1% of the true depth on most textured object pixels.
+TEST_F(PlaneSweepStageTest, SynthObjectRingDepthMatchesGroundTruth) {
+  Params synth = Defaults(*registry_.Find("synth"));
+  synth.Set("scene", std::string("object_ring"));
+  synth.Set("views", int64_t{12});
+  synth.Set("width", int64_t{160});
+  synth.Set("height", int64_t{120});
+  synth.Set("subdivision", int64_t{4});
+  synth.Set("sparse_points", int64_t{400});
+  Run("synth", synth);
+  Params params = Defaults(*registry_.Find("plane_sweep"));
+  params.Set("num_planes", int64_t{96});
+  const nlohmann::json metrics = Run("plane_sweep", params);
+  EXPECT_EQ(metrics["views"].get<int>(), 12);
+  EXPECT_GT(metrics["evaluations"].get<int64_t>(), 0);
+  const Workspace ws(dir_.string());
+  size_t truth = 0, within = 0, estimated = 0;
+  for (int v = 0; v < 12; ++v) {
+    char name[32];
+    std::snprintf(name, sizeof(name), "view_%03d.png", v);
+    const DepthMap gt = ReadColmapArray(ws.GroundTruthDepthPath(name));
+    const DepthMap depth = ReadColmapArray(ws.DepthMapPath(name, "photometric"));
+    const FloatMap normals = ReadColmapArray(ws.NormalMapPath(name, "photometric"));
+    const FloatMap conf = ReadColmapArray(ws.Path(std::string("dense/stereo/confidence_maps/") + name + ".photometric.bin"));
+    ASSERT_EQ(depth.width, gt.width);
+    ASSERT_EQ(normals.channels, 3);
+    ASSERT_EQ(conf.channels, 1);
+    for (size_t i = 0; i < gt.data.size(); ++i) {
+      if (!IsValidDepth(gt.data[i])) continue;
+      ++truth;
+      if (!IsValidDepth(depth.data[i])) continue;
+      ++estimated;
+      within += std::fabs(depth.data[i] - gt.data[i]) < 0.01 * gt.data[i];
+    }
+  }
+  const double fraction = static_cast<double>(within) / truth;
+  RecordProperty("fraction_within_1_percent", std::to_string(fraction));
+  std::printf("object_ring 160x120: %.3f of object pixels within 1%% (%.3f estimated)\n", fraction,
+              static_cast<double>(estimated) / truth);
+  EXPECT_GT(fraction, 0.3);
+  EXPECT_GT(static_cast<double>(within) / std::max<size_t>(1, estimated), 0.75);
+}
+
+}  // namespace
+}  // namespace ibmr

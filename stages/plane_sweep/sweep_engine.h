@@ -1,0 +1,96 @@
+// The engine shared by multi-view plane sweep and two-view stereo: a cost volume over planes
+// (one plane = one homography per neighbour view; for a rectified pair the plane of disparity d
+// is the shift by -d), filled plane by plane (streamed: only one plane's slices are live per
+// worker), semi-global aggregation, winner-take-all with parabola sub-pixel refinement and a
+// certainty from the cost curve.
+//
+// Follows seed 000, lines 5300-5525 (Kang et al. course notes section 2, "Depth maps": a cost in
+// generalized disparity space, aggregation over a support window, winner-take-all, sub-pixel
+// refinement, certainty), lines 3659-3760 (dense stereo by matching along epipolar lines over a
+// disparity/plane range) and lines 4352-4453 (section 4: sub-pixel minimum by fitting a parabola
+// to the cost around the integer minimum; its curvature gives the variance). The census cost is
+// Zabih & Woodfill (ECCV 1994); the semi-global aggregation is Hirschmueller (PAMI 2008), with
+// costs as uint16 so the inner loops vectorise over planes.
+#pragma once
+
+#include <Eigen/Core>
+#include <cstdint>
+#include <opencv2/core.hpp>
+#include <vector>
+
+namespace ibmr {
+namespace sweep {
+
+// Matching cost units: 0 = perfect match, about 1000 = worst match (census: 16 per differing
+// bit of a 62-bit code; SAD: 4 per grey level; ZNCC: 500 * (1 - ncc)).
+constexpr uint16_t kMaxCost = 1023;
+
+enum class Cost { kCensus, kSad, kZncc };
+
+struct EngineOptions {
+  Cost cost = Cost::kCensus;
+  int census_radius_x = 4;   // census window half width (9x7 -> 62 bits)
+  int census_radius_y = 3;
+  int window_radius = 1;     // box aggregation radius per neighbour, pixels (0: none)
+  int best_k = 2;            // per pixel and plane, average of the k lowest neighbour costs
+  bool semi_global = true;   // false: box window only (winner-take-all on the box costs)
+  int paths = 8;             // semi-global paths, 4 or 8
+  int p1 = 120;              // small-jump penalty, cost units
+  int p2 = 900;              // large-jump penalty, cost units
+  double p2_gamma = 12.0;    // P2 is divided by (1 + |grey step| / gamma); 0: constant P2
+};
+
+// Cost volume: layout [y][x][plane], `stride` >= planes (multiple of 16, padding at kMaxCost).
+struct CostVolume {
+  int width = 0, height = 0, planes = 0, stride = 0;
+  std::vector<uint16_t> data;
+  std::vector<uint16_t> scratch;  // box-filter buffer (kept to reuse its pages)
+  uint16_t* At(int x, int y) { return data.data() + (static_cast<size_t>(y) * width + x) * stride; }
+  const uint16_t* At(int x, int y) const {
+    return data.data() + (static_cast<size_t>(y) * width + x) * stride;
+  }
+};
+
+// A neighbour: its grey image and one homography per plane mapping reference pixel coordinates
+// (pixel centre at +0.5) to the neighbour's.
+struct Neighbour {
+  cv::Mat gray;  // CV_8UC1
+  std::vector<Eigen::Matrix3d> homographies;
+};
+
+// Fills the matching-cost volume (reusing `volume`'s buffers when large enough) (costs of all neighbours per plane, best-k combined). Parallel
+// over planes. Returns the number of plane-pixel-neighbour evaluations.
+int64_t BuildCostVolume(const cv::Mat& reference_gray, const std::vector<Neighbour>& neighbours,
+                        const EngineOptions& options, CostVolume* volume);
+
+// Aggregated volume: the sum over paths (or the data cost itself without semi-global).
+struct Aggregated {
+  int width = 0, height = 0, planes = 0, stride = 0;
+  std::vector<uint16_t> a, b;  // two partial sums (forward and backward passes); b may be empty
+  uint16_t Sum(size_t pixel, int plane) const {
+    const size_t i = pixel * stride + plane;
+    return b.empty() ? a[i] : static_cast<uint16_t>(a[i] + b[i]);
+  }
+};
+// `out` may hold buffers of an earlier call: they are reused (no new pages to fault in).
+void Aggregate(const CostVolume& volume, const cv::Mat& reference_gray, const EngineOptions& options, Aggregated* out);
+
+// Per-pixel winner: plane index with sub-pixel offset (-1 where undefined), and certainty in
+// [0, 1] from the data-cost curve (distinctiveness of the minimum: second-best cost outside the
+// winner's +-1 neighbourhood against the winner's cost).
+struct Winners {
+  cv::Mat plane;       // CV_32F, sub-pixel plane index, -1: none
+  cv::Mat confidence;  // CV_32F in [0, 1]
+};
+// `data_cost` nullptr: no confidence (left at 0).
+Winners WinnerTakeAll(const Aggregated& aggregated, const CostVolume* data_cost, double confidence_scale);
+
+// Two-view only: winner of the right view from the left view's aggregated volume (plane = disparity),
+// integer disparities, -1 where undefined.
+cv::Mat RightWinners(const Aggregated& aggregated);
+
+// Census codes of a grey image (bit set where the neighbour is darker than the centre).
+std::vector<uint64_t> CensusTransform(const cv::Mat& gray, int radius_x, int radius_y);  // row-major
+
+}  // namespace sweep
+}  // namespace ibmr
