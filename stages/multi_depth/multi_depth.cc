@@ -298,9 +298,9 @@ MultiDepthResult MakeDepthConsistent(const DepthView& key, const std::vector<con
   if (!options.fill_from_neighbors || prepared.empty()) return result;
 
   // Depth compatibility fills the key pixels left empty where the key's own sample was missing or
-  // an outlier, where the key's confidence allows (an untextured area, or a pixel the key's stereo
-  // gave confidence 0, stays empty): the nearest neighbour-warped candidate that the other views
-  // confirm.
+  // an outlier (not where the key's stereo gave a low-confidence depth): the nearest
+  // neighbour-warped candidate that other views confirm. Neighbours contribute confident samples
+  // only, so an area that no view matched (untextured) stays empty.
   const std::vector<DepthMap> warped = WarpNeighbors(prepared, key.camera, w, h, options);
   const DepthMap first_pass = result.depth;
   const float tolerance = static_cast<float>(options.depth_tolerance);
@@ -309,7 +309,7 @@ MultiDepthResult MakeDepthConsistent(const DepthView& key, const std::vector<con
   for (int y = 0; y < h; ++y) {
     for (int x = 0; x < w; ++x) {
       if (result.depth.At(x, y) > 0) continue;
-      if (ConfidenceAt(key.confidence, x, y) < options.min_confidence) continue;
+      if (IsValidDepth(key.depth.At(x, y)) && ConfidenceAt(key.confidence, x, y) < options.min_confidence) continue;
       // Accepted own depths around the pixel bound the candidates (a weak smoothness term that
       // keeps surfaces hidden from the key, warped in from far neighbours, out of it).
       float lo = 0, hi = 1e30f;

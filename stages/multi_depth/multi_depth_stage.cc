@@ -61,7 +61,7 @@ class MultiDepthStage : public Stage {
   std::string Summary() const override {
     return "Depth maps made consistent across views: visibility, depth compatibility, rejection (.geometric.bin)";
   }
-  std::string Version() const override { return "1"; }
+  std::string Version() const override { return "2"; }
   HoldoutRole Role() const override { return HoldoutRole::kTrainingOnly; }
 
   std::vector<ParamSpec> Parameters() const override {
