@@ -44,6 +44,20 @@ inline void AddBilinear(const cv::Mat& image, double u, double v, double weight,
   }
 }
 
+// Visibility of a point at depth z projecting to (u, v): every depth-map pixel of the bilinear
+// footprint must hold the proxy within eps * z, so a sample never mixes in an occluder or the
+// background across a depth edge (the footprint is the 2x2 pixels bilinear sampling reads).
+inline bool Visible(const DepthMap& depth, double u, double v, double z, double eps) {
+  const int x0 = std::clamp(static_cast<int>(std::floor(u - 0.5)), 0, depth.width - 1);
+  const int y0 = std::clamp(static_cast<int>(std::floor(v - 0.5)), 0, depth.height - 1);
+  const int x1 = std::min(x0 + 1, depth.width - 1), y1 = std::min(y0 + 1, depth.height - 1);
+  const double tolerance = eps * z;
+  for (const float d : {depth.At(x0, y0), depth.At(x1, y0), depth.At(x0, y1), depth.At(x1, y1)}) {
+    if (!IsValidDepth(d) || std::abs(z - d) > tolerance) return false;
+  }
+  return true;
+}
+
 }  // namespace
 
 bool RenderOptions::Check(std::string* error) const {
@@ -197,11 +211,7 @@ int UlrRenderer::Blend(const Eigen::Vector3d& p, const Eigen::Vector3d& desired_
     const double border = std::min(std::min(u - 0.5, s.width - 0.5 - u), std::min(v - 0.5, s.height - 0.5 - v));
     if (!(border > 0)) continue;  // field-of-view penalty infinite
     const DepthMap& depth = (*sources_)[i].proxy_depth;
-    if (!depth.Empty()) {
-      const int px = std::min(static_cast<int>(u), depth.width - 1), py = std::min(static_cast<int>(v), depth.height - 1);
-      const float z = depth.At(px, py);
-      if (!IsValidDepth(z) || std::abs(x.z() - z) > options_.visibility_epsilon * x.z()) continue;  // occluded
-    }
+    if (!depth.Empty() && !Visible(depth, u, v, x.z(), options_.visibility_epsilon)) continue;
     const double fov = border >= s.margin ? 0.0 : (s.margin / border - 1.0) * (s.margin / border - 1.0);
     const Eigen::Vector3d to_source = s.center - p;
     const double source_distance = to_source.norm();
@@ -282,6 +292,38 @@ RenderResult UlrRenderer::Render(const Camera& camera, const Rigid3d& cam_from_w
     }
   });
   for (size_t n : row_covered) result.covered_pixels += n;
+  return result;
+}
+
+RenderResult Downsample(const RenderResult& fine, const ProxySurface& fine_surface, int factor) {
+  if (factor <= 1) return fine;
+  const int width = fine.image.cols / factor, height = fine.image.rows / factor;
+  RenderResult result;
+  result.image = cv::Mat(height, width, CV_8UC3, cv::Scalar::all(0));
+  result.coverage = cv::Mat(height, width, CV_8UC1, cv::Scalar::all(0));
+  for (int y = 0; y < height; ++y) {
+    for (int x = 0; x < width; ++x) {
+      double bgr[3] = {0, 0, 0};
+      int covered = 0, missed = 0;
+      for (int j = 0; j < factor; ++j) {
+        const int fy = y * factor + j;
+        const uint8_t* row = fine.image.ptr<uint8_t>(fy);
+        const uint8_t* cov = fine.coverage.ptr<uint8_t>(fy);
+        for (int i = 0; i < factor; ++i) {
+          const int fx = x * factor + i;
+          if (!fine_surface.hit[static_cast<size_t>(fy) * fine_surface.width + fx]) ++missed;
+          if (!cov[fx]) continue;
+          ++covered;
+          for (int c = 0; c < 3; ++c) bgr[c] += row[3 * fx + c];
+        }
+      }
+      if (covered == 0 || 2 * covered < covered + missed) continue;
+      const double count = covered + missed;
+      for (int c = 0; c < 3; ++c) result.image.at<cv::Vec3b>(y, x)[c] = cv::saturate_cast<uint8_t>(bgr[c] / count);
+      result.coverage.at<uint8_t>(y, x) = 255;
+      ++result.covered_pixels;
+    }
+  }
   return result;
 }
 

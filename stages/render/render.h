@@ -103,6 +103,13 @@ struct RenderResult {
   size_t covered_pixels = 0;
 };
 
+// Box-filters a render made at `factor` times the resolution (Camera::Scaled(factor)) down to
+// the desired size, like a camera integrating over its pixel. Sub-samples that miss the proxy
+// (`fine_surface.hit` 0) count as black background (anti-aliased silhouettes); sub-samples that
+// hit it but that no source sees (holes) are left out of the mean. A pixel is covered when at least
+// half of its other sub-samples are.
+RenderResult Downsample(const RenderResult& fine, const ProxySurface& fine_surface, int factor);
+
 // The renderer: prepares per-source projection data once, then renders any number of views.
 class UlrRenderer {
  public:

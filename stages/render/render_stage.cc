@@ -101,6 +101,8 @@ class RenderStage : public Stage {
         {"max_penalty", ParamType::kDouble, "3.14159265358979",
          "penalty of a missing camera when fewer than k are usable; caps the threshold, > 0", {}},
         {"visibility_epsilon", ParamType::kDouble, "0.01", "relative depth tolerance of visibility, in (0, 1)", {}},
+        {"supersample", ParamType::kInt, "1",
+         "sub-samples per pixel side, box-filtered (anti-aliased silhouettes), in [1, 4]", {}},
         {"novel_look_at", ParamType::kDoubleList, "[]",
          "extra camera: eye x y z, target x y z [, up x y z] (intrinsics of the first training view); rendered as "
          "novel.png",
@@ -111,6 +113,9 @@ class RenderStage : public Stage {
   std::optional<ParamError> CheckParams(const Params& params) const override {
     std::string error;
     if (!ToOptions(params).Check(&error)) return ParamError{error.substr(0, error.find(':')), error.substr(error.find(':') + 2)};
+    if (params.Int("supersample") < 1 || params.Int("supersample") > 4) {
+      return ParamError{"supersample", "must be in [1, 4], got " + std::to_string(params.Int("supersample"))};
+    }
     const size_t look = params.DoubleList("novel_look_at").size();
     if (look != 0 && look != 6 && look != 9) {
       return ParamError{"novel_look_at", "expected 0, 6 or 9 numbers (eye, target[, up]), got " + std::to_string(look)};
@@ -252,6 +257,8 @@ class RenderStage : public Stage {
           }
           if (own.size() != proxy_sources.size()) used = &own;
         }
+        const int factor = static_cast<int>(context.params.Int("supersample"));
+        const Camera camera = factor > 1 ? view.camera.Scaled(factor) : view.camera;
         ProxySurface surface;
         std::string plane_kind;
         if (spec.path.empty()) {
@@ -263,12 +270,12 @@ class RenderStage : public Stage {
             plane.point = axes_point;
             plane_kind = "nearest_to_axes";
           }
-          surface = PlaneSurface(plane, view.camera, view.cam_from_world);
+          surface = PlaneSurface(plane, camera, view.cam_from_world);
         } else {
-          surface = MeshSurface(mesh, view.camera, view.cam_from_world);
+          surface = MeshSurface(mesh, camera, view.cam_from_world);
         }
         const UlrRenderer renderer(used, options);
-        const RenderResult result = renderer.Render(view.camera, view.cam_from_world, surface);
+        const RenderResult result = Downsample(renderer.Render(camera, view.cam_from_world, surface), surface, factor);
         WriteImage(folder + "/" + view.stem + ".png", result.image);
         WriteImage(folder + "/" + view.stem + ".coverage.png", result.coverage);
         if (is_primary) {
