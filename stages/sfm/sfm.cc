@@ -189,7 +189,10 @@ SparseModel RunAttempt(const Attempt& a, const std::string& image_dir, const std
   // "Registering image #12 (5)": the running count of registered images.
   if (!runner->Run(a.index, "mapper", mapper, "mapping (registered views)", n, std::regex(R"(Registering image #\d+ \((\d+)\))"),
                    &error)) {
-    *note = error;
+    *note = runner->no_initial_pair()
+                ? "COLMAP's mapper found no initial image pair with enough geometrically verified matches (too few "
+                  "features or matches: untextured scene?); see logs/sfm_" + std::to_string(a.index) + "_mapper.log"
+                : error;
     return {};
   }
   // Largest model.
