@@ -4,7 +4,8 @@
 // fraction, the time (median of repeated runs), ratios to SGBM and the plane-pixel-neighbour
 // cost evaluations per second. Method: see plane_sweep.h (seed 000 lines 5300-5525, 4352-4453).
 //
-// Usage: bench_stereo_pair [--data DIR] [--out FILE.json] [--repeat N] [--threads N]
+// Usage: bench_stereo_pair [--data DIR] [--out FILE.json] [--repeat N] [--threads N] [--p1 N] [--p2 N]
+//        [--p2-gamma G] [--window-radius R] [--median-radius R]
 #include <tbb/global_control.h>
 
 #include <algorithm>
@@ -72,16 +73,27 @@ int main(int argc, char** argv) {
   std::string data = std::string(IBMR_SHARED_DIR) + "/datasets/middlebury_stereo_classic";
   std::string out = "bench_stereo_pair.json";
   int repeat = 5, threads = 2;
+  ibmr::PlaneSweepOptions options;
   for (int i = 1; i + 1 < argc; i += 2) {
     const std::string key = argv[i];
     if (key == "--data") data = argv[i + 1];
     else if (key == "--out") out = argv[i + 1];
     else if (key == "--repeat") repeat = std::max(1, std::atoi(argv[i + 1]));
     else if (key == "--threads") threads = std::max(1, std::atoi(argv[i + 1]));
+    else if (key == "--p1") options.p1 = std::atoi(argv[i + 1]);
+    else if (key == "--p2") options.p2 = std::atoi(argv[i + 1]);
+    else if (key == "--p2-gamma") options.p2_gamma = std::atof(argv[i + 1]);
+    else if (key == "--window-radius") options.window_radius = std::atoi(argv[i + 1]);
+    else if (key == "--median-radius") options.median_radius = std::atoi(argv[i + 1]);
     else {
       std::cerr << "unknown option " << key << "\nusage: bench_stereo_pair [--data DIR] [--out FILE] [--repeat N] [--threads N]\n";
       return 2;
     }
+  }
+  std::string error;
+  if (!options.Check(&error)) {
+    std::cerr << "bench_stereo_pair: " << error << "\n";
+    return 2;
   }
   tbb::global_control limit(tbb::global_control::max_allowed_parallelism, threads);
   cv::setNumThreads(threads);
@@ -90,8 +102,9 @@ int main(int argc, char** argv) {
       {"venus", "venus/im2.png", "venus/im6.png", "venus/disp2.pgm", 8.0, 32},
       {"teddy", "teddy/im2.png", "teddy/im6.png", "teddy/disp2.png", 4.0, 64},
   };
-  ibmr::PlaneSweepOptions options;
   nlohmann::json report;
+  report["options"] = {{"p1", options.p1}, {"p2", options.p2}, {"p2_gamma", options.p2_gamma},
+                       {"window_radius", options.window_radius}, {"median_radius", options.median_radius}};
   report["threads"] = threads;
   report["hardware_threads"] = std::thread::hardware_concurrency();
   report["repeat"] = repeat;

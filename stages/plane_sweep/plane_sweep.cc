@@ -127,9 +127,10 @@ StereoPairResult StereoPair(const cv::Mat& left_image, const cv::Mat& right_imag
   }
   sweep::EngineOptions engine = ToEngine(options);
   engine.best_k = 1;
-  // Buffers kept per thread between calls: the volume pages are faulted in once.
-  static thread_local sweep::CostVolume volume;
-  static thread_local sweep::Aggregated aggregated;
+  // Pooled buffers: the volume pages are faulted in once across calls.
+  sweep::BufferLease buffers;
+  sweep::CostVolume& volume = buffers->volume;
+  sweep::Aggregated& aggregated = buffers->aggregated;
   StereoPairResult result;
   auto lap = [t = std::chrono::steady_clock::now()](const char* what) mutable {
     if (!std::getenv("IBMR_PLANE_SWEEP_TIMING")) return;
@@ -185,12 +186,13 @@ PlaneSweepResult PlaneSweep(const SweepView& reference, const std::vector<SweepV
     engine_neighbours.push_back(std::move(n));
   }
   const sweep::EngineOptions engine = ToEngine(options);
-  sweep::CostVolume volume;
+  sweep::BufferLease buffers;
+  sweep::CostVolume& volume = buffers->volume;
   PlaneSweepResult result;
   result.evaluations = sweep::BuildCostVolume(reference.gray, engine_neighbours, engine, &volume);
-  sweep::Aggregated aggregated;
+  sweep::Aggregated& aggregated = buffers->aggregated;
   sweep::Aggregate(volume, reference.gray, engine, &aggregated);
-  result.volume_bytes = (volume.data.size() + aggregated.a.size() + aggregated.b.size()) * sizeof(uint16_t);
+  result.volume_bytes = (volume.data.size() + volume.scratch.size() + aggregated.a.size() + aggregated.b.size()) * sizeof(uint16_t);
   const sweep::Winners winners = sweep::WinnerTakeAll(aggregated, &volume, options.confidence_scale);
   result.depth = DepthMap(w, h, 1, 0.f);
   result.confidence = FloatMap(w, h, 1, 0.f);

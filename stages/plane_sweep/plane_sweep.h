@@ -39,8 +39,8 @@ struct PlaneSweepOptions {
   int window_radius = 1;          // box window radius of the cost, pixels, in [0, 15] (ZNCC: >= 1)
   CostAggregation aggregation = CostAggregation::kSemiGlobal;
   int sgm_paths = 8;              // semi-global paths, 4 or 8
-  int p1 = 120;                   // small-jump penalty, cost units (1000 ~ worst match), in [0, 2000]
-  int p2 = 900;                   // large-jump penalty, cost units, in [p1, 6000]
+  int p1 = 240;                   // small-jump penalty, cost units (1000 ~ worst match), in [0, 2000]
+  int p2 = 1200;                  // large-jump penalty, cost units, in [p1, 6000]
   double p2_gamma = 12.0;         // P2 / (1 + |grey step| / gamma) at edges, grey levels; 0: constant
   double confidence_scale = 3.0;  // confidence = scale * (c2 - c1) / c2 clipped to [0, 1], > 0
   double confidence_threshold = 0.15;  // depth set to 0 where confidence < this, in [0, 1]
@@ -54,7 +54,7 @@ struct PlaneSweepOptions {
   bool lr_check = true;           // left-right consistency check
   int lr_tolerance = 1;           // pixels
   bool fill_holes = true;         // fill rejected pixels from the nearer-background side
-  int median_radius = 1;          // median filter radius on the disparity (0: none), in [0, 2]
+  int median_radius = 2;          // median filter radius on the disparity (0: none), in [0, 2]
 
   // Returns false and sets `error` (starting with the YAML key) when a value is out of range.
   bool Check(std::string* error) const;

@@ -26,6 +26,7 @@
 #include "pipeline/core/per_view.h"
 #include "pipeline/core/stage_api.h"
 #include "stages/plane_sweep/plane_sweep.h"
+#include "stages/plane_sweep/sweep_engine.h"
 
 namespace fs = std::filesystem;
 
@@ -188,6 +189,8 @@ class PlaneSweepStage : public Stage {
       per_view[name] = {{"near", near}, {"far", far}, {"bounds_from", source}, {"neighbors", neighbour_names},
                         {"valid_fraction", result.valid_fraction}};
     });
+    const double peak_rss = PeakRssMb();
+    sweep::ReleaseBufferPool();
     const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
     context.metrics["views"] = names.size();
     context.metrics["views_computed"] = summary.computed;
@@ -197,7 +200,7 @@ class PlaneSweepStage : public Stage {
     context.metrics["evaluations_per_second"] = evaluations.load() / seconds;
     context.metrics["mean_valid_fraction"] = summary.computed ? valid_sum / summary.computed : 0.0;
     context.metrics["cost_volume_mb_per_view"] = volume_max;
-    context.metrics["peak_rss_mb"] = PeakRssMb();
+    context.metrics["peak_rss_mb"] = peak_rss;
     context.metrics["bounds_from"] = bound_sources;
     context.metrics["per_view"] = per_view;
     spdlog::info("[plane_sweep] {} views in {:.2f} s ({:.0f} M evaluations/s), mean kept fraction {:.3f}", names.size(),

@@ -9,6 +9,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <mutex>
 #include <opencv2/imgproc.hpp>
 
 namespace ibmr {
@@ -203,6 +204,7 @@ void ZnccSlice(const cv::Mat& ref, const cv::Mat& ref_mean, const cv::Mat& ref_v
 // One semi-global path step: L(p,d) = C(p,d) + min(L(p-r,d), L(p-r,d+-1) + P1, min L(p-r) + P2) - min L(p-r).
 // `prev` and `cur` are padded by one sentinel on each side. Returns min over d of L. Signed 16-bit
 // so that min vectorises with SSE2 (all values stay below 2^15).
+template <bool kAssign>
 inline int16_t PathStep(const uint16_t* __restrict c, const int16_t* __restrict prev, int16_t min_prev, int16_t p1,
                         int16_t p2, int n, int16_t* __restrict cur, uint16_t* __restrict sum) {
   const int16_t mp2 = static_cast<int16_t>(min_prev + p2);
@@ -214,18 +216,19 @@ inline int16_t PathStep(const uint16_t* __restrict c, const int16_t* __restrict 
     const int16_t t = std::min(std::min(a, b), std::min(e, mp2));
     const int16_t l = static_cast<int16_t>(static_cast<int16_t>(c[d]) + t - min_prev);
     cur[d] = l;
-    sum[d] = static_cast<uint16_t>(sum[d] + l);
+    sum[d] = kAssign ? static_cast<uint16_t>(l) : static_cast<uint16_t>(sum[d] + l);
     m = std::min(m, l);
   }
   return m;
 }
 
+template <bool kAssign>
 inline int16_t PathStart(const uint16_t* __restrict c, int n, int16_t* __restrict cur, uint16_t* __restrict sum) {
   int16_t m = 0x7FFF;
   for (int d = 0; d < n; ++d) {
     const int16_t v = static_cast<int16_t>(c[d]);
     cur[d] = v;
-    sum[d] = static_cast<uint16_t>(sum[d] + v);
+    sum[d] = kAssign ? static_cast<uint16_t>(v) : static_cast<uint16_t>(sum[d] + v);
     m = std::min(m, v);
   }
   return m;
@@ -237,8 +240,7 @@ inline int16_t PathStart(const uint16_t* __restrict c, int n, int16_t* __restric
 void SgmPass(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, int s, std::vector<uint16_t>* out) {
   const int w = v.width, h = v.height, n = v.stride, ps = n + 2;
   const bool diagonals = o.paths == 8;
-  out->resize(v.data.size());
-  std::fill(out->begin(), out->end(), 0);
+  out->resize(v.data.size());  // every entry is assigned by the row path first
   const int ndir = diagonals ? 3 : 1;  // row paths: from (x - s, y - s), (x, y - s), (x + s, y - s)
   std::vector<int16_t> prev_row(static_cast<size_t>(ndir) * w * ps, kSentinel), cur_row(prev_row.size(), kSentinel);
   std::vector<int16_t> prev_min(static_cast<size_t>(ndir) * w, 0), cur_min(prev_min.size(), 0);
@@ -261,9 +263,9 @@ void SgmPass(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, i
       uint16_t* sum = out->data() + (static_cast<size_t>(y) * w + x) * n;
       // From the previous pixel on the row.
       if (xi == 0) {
-        left_min = PathStart(c, n, left_cur.data() + 1, sum);
+        left_min = PathStart<true>(c, n, left_cur.data() + 1, sum);
       } else {
-        left_min = PathStep(c, left.data() + 1, left_min, p1, p2_for(g[x], g[x - s]), n, left_cur.data() + 1, sum);
+        left_min = PathStep<true>(c, left.data() + 1, left_min, p1, p2_for(g[x], g[x - s]), n, left_cur.data() + 1, sum);
       }
       std::swap(left, left_cur);
       // From the previous row.
@@ -273,10 +275,10 @@ void SgmPass(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, i
         int16_t* cur = cur_row.data() + (static_cast<size_t>(k) * w + x) * ps + 1;
         int16_t& cm = cur_min[static_cast<size_t>(k) * w + x];
         if (yi == 0 || xs < 0 || xs >= w) {
-          cm = PathStart(c, n, cur, sum);
+          cm = PathStart<false>(c, n, cur, sum);
         } else {
           const int16_t* pv = prev_row.data() + (static_cast<size_t>(k) * w + xs) * ps + 1;
-          cm = PathStep(c, pv, prev_min[static_cast<size_t>(k) * w + xs], p1, p2_for(g[x], gp[xs]), n, cur, sum);
+          cm = PathStep<false>(c, pv, prev_min[static_cast<size_t>(k) * w + xs], p1, p2_for(g[x], gp[xs]), n, cur, sum);
         }
       }
     }
@@ -309,24 +311,33 @@ void BoxFilterVolume(CostVolume* v, int r) {
       std::copy(acc.begin(), acc.end(), out + static_cast<size_t>(x) * n);
     }
   });
-  tbb::parallel_for(0, h, [&](int y) {
-    const int y0 = std::max(0, y - r), y1 = std::min(h - 1, y + r);
-    std::vector<uint32_t> acc(static_cast<size_t>(w) * n);
-    const size_t row = static_cast<size_t>(w) * n;
-    std::fill(acc.begin(), acc.end(), 0u);
-    for (int yy = y0; yy <= y1; ++yy) {
+  const size_t row = static_cast<size_t>(w) * n;
+  tbb::parallel_for(tbb::blocked_range<int>(0, h, 16), [&](const tbb::blocked_range<int>& rows) {
+    std::vector<uint32_t> acc(row, 0u);
+    const int first = rows.begin();
+    for (int yy = std::max(0, first - r); yy <= std::min(h - 1, first + r - 1); ++yy) {
       const uint16_t* in = horizontal.data() + yy * row;
       for (size_t i = 0; i < row; ++i) acc[i] += in[i];
     }
-    uint16_t* out = v->At(0, y);
-    const int ny = y1 - y0 + 1;
-    for (int x = 0; x < w; ++x) {
-      const uint32_t area = static_cast<uint32_t>(ny * (std::min(w - 1, x + r) - std::max(0, x - r) + 1));
-      const uint32_t* a = acc.data() + static_cast<size_t>(x) * n;
-      uint16_t* o = out + static_cast<size_t>(x) * n;
-      // Multiply by a fixed-point reciprocal (exact enough for costs below 2^11 * area).
-      const uint32_t inv = (1u << 16) / area + 1;
-      for (int d = 0; d < n; ++d) o[d] = static_cast<uint16_t>((a[d] * inv) >> 16);
+    for (int y = first; y < rows.end(); ++y) {
+      if (y + r < h) {
+        const uint16_t* in = horizontal.data() + (y + r) * row;
+        for (size_t i = 0; i < row; ++i) acc[i] += in[i];
+      }
+      if (y - r - 1 >= std::max(0, first - r)) {  // rows before the block's window were never added
+        const uint16_t* in = horizontal.data() + (y - r - 1) * row;
+        for (size_t i = 0; i < row; ++i) acc[i] -= in[i];
+      }
+      const int ny = std::min(h - 1, y + r) - std::max(0, y - r) + 1;
+      uint16_t* out = v->At(0, y);
+      for (int x = 0; x < w; ++x) {
+        const uint32_t area = static_cast<uint32_t>(ny * (std::min(w - 1, x + r) - std::max(0, x - r) + 1));
+        const uint32_t* a = acc.data() + static_cast<size_t>(x) * n;
+        uint16_t* o = out + static_cast<size_t>(x) * n;
+        // Multiply by a fixed-point reciprocal (exact enough for costs below 2^11 * area).
+        const uint32_t inv = (1u << 16) / area + 1;
+        for (int d = 0; d < n; ++d) o[d] = static_cast<uint16_t>((a[d] * inv) >> 16);
+      }
     }
   });
 }
@@ -397,7 +408,11 @@ void BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector<std::
           }
         }
         uint16_t* out = v->At(x, y);
-        if (nn == 1 || k == nn) {
+        if (nn == 1) {
+          std::copy(costs.data(), costs.data() + np, out);
+          continue;
+        }
+        if (k == nn) {
           for (int p = 0; p < np; ++p) {
             uint32_t sum = 0;
             for (int i = 0; i < nn; ++i) sum += costs[static_cast<size_t>(i) * n + p];
@@ -432,22 +447,55 @@ void BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector<std::
 
 }  // namespace
 
+namespace {
+std::mutex& PoolMutex() {
+  static std::mutex mutex;
+  return mutex;
+}
+std::vector<std::unique_ptr<Buffers>>& Pool() {
+  static std::vector<std::unique_ptr<Buffers>> pool;
+  return pool;
+}
+}  // namespace
+
+BufferLease::BufferLease() {
+  std::lock_guard<std::mutex> lock(PoolMutex());
+  if (Pool().empty()) {
+    buffers_ = std::make_unique<Buffers>();
+  } else {
+    buffers_ = std::move(Pool().back());
+    Pool().pop_back();
+  }
+}
+
+BufferLease::~BufferLease() {
+  std::lock_guard<std::mutex> lock(PoolMutex());
+  Pool().push_back(std::move(buffers_));
+}
+
+void ReleaseBufferPool() {
+  std::lock_guard<std::mutex> lock(PoolMutex());
+  Pool().clear();
+}
+
 std::vector<uint64_t> CensusTransform(const cv::Mat& gray, int rx, int ry) {
   const int w = gray.cols, h = gray.rows;
   std::vector<uint64_t> codes(static_cast<size_t>(w) * h, 0);
-  tbb::parallel_for(0, h, [&](int y) {
-    const uint8_t* c = gray.ptr<uint8_t>(y);
-    for (int x = 0; x < w; ++x) {
-      uint64_t code = 0;
-      const uint8_t centre = c[x];
+  tbb::parallel_for(tbb::blocked_range<int>(0, h, 8), [&](const tbb::blocked_range<int>& rows) {
+    std::vector<uint8_t> padded(w + 2 * rx);  // the row with clamped borders
+    for (int y = rows.begin(); y < rows.end(); ++y) {
+      const uint8_t* c = gray.ptr<uint8_t>(y);
+      uint64_t* out = codes.data() + static_cast<size_t>(y) * w;
+      // One window offset at a time over the whole row: the loop over x vectorises.
       for (int dy = -ry; dy <= ry; ++dy) {
         const uint8_t* r = gray.ptr<uint8_t>(std::clamp(y + dy, 0, h - 1));
+        for (int i = 0; i < w + 2 * rx; ++i) padded[i] = r[std::clamp(i - rx, 0, w - 1)];
         for (int dx = -rx; dx <= rx; ++dx) {
           if (dx == 0 && dy == 0) continue;
-          code = (code << 1) | (r[std::clamp(x + dx, 0, w - 1)] < centre ? 1u : 0u);
+          const uint8_t* q = padded.data() + rx + dx;
+          for (int x = 0; x < w; ++x) out[x] = (out[x] << 1) | static_cast<uint64_t>(q[x] < c[x]);
         }
       }
-      codes[static_cast<size_t>(y) * w + x] = code;
     }
   });
   return codes;

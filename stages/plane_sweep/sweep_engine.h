@@ -15,6 +15,7 @@
 
 #include <Eigen/Core>
 #include <cstdint>
+#include <memory>
 #include <opencv2/core.hpp>
 #include <vector>
 
@@ -88,6 +89,26 @@ Winners WinnerTakeAll(const Aggregated& aggregated, const CostVolume* data_cost,
 // Two-view only: winner of the right view from the left view's aggregated volume (plane = disparity),
 // integer disparities, -1 where undefined.
 cv::Mat RightWinners(const Aggregated& aggregated);
+
+// Cost-volume buffers lent from a process-wide pool, so that consecutive views (or pairs) reuse
+// already-faulted pages; at most one set per concurrently running sweep is alive.
+struct Buffers {
+  CostVolume volume;
+  Aggregated aggregated;
+};
+class BufferLease {
+ public:
+  BufferLease();
+  ~BufferLease();
+  BufferLease(const BufferLease&) = delete;
+  BufferLease& operator=(const BufferLease&) = delete;
+  Buffers* operator->() { return buffers_.get(); }
+
+ private:
+  std::unique_ptr<Buffers> buffers_;
+};
+// Frees the pooled buffers (call when a stage is done).
+void ReleaseBufferPool();
 
 // Census codes of a grey image (bit set where the neighbour is darker than the centre).
 std::vector<uint64_t> CensusTransform(const cv::Mat& gray, int radius_x, int radius_y);  // row-major
