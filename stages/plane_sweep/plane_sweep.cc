@@ -98,6 +98,7 @@ bool PlaneSweepOptions::Check(std::string* error) const {
   if (p2 < p1 || p2 > 6000) return Fail(error, "p2", "must be in [p1, 6000]", p2);
   if (!(p2_gamma >= 0)) return Fail(error, "p2_gamma", "must be >= 0", p2_gamma);
   if (!(confidence_scale > 0)) return Fail(error, "confidence_scale", "must be > 0", confidence_scale);
+  if (!(texture_scale >= 0)) return Fail(error, "texture_scale", "must be >= 0", texture_scale);
   if (!(confidence_threshold >= 0 && confidence_threshold <= 1))
     return Fail(error, "confidence_threshold", "must be in [0, 1]", confidence_threshold);
   if (min_depth != -1 && !(min_depth > 0)) return Fail(error, "min_depth", "must be > 0 or -1", min_depth);
@@ -196,13 +197,29 @@ PlaneSweepResult PlaneSweep(const SweepView& reference, const std::vector<SweepV
   const sweep::Winners winners = sweep::WinnerTakeAll(aggregated, &volume, options.confidence_scale);
   result.depth = DepthMap(w, h, 1, 0.f);
   result.confidence = FloatMap(w, h, 1, 0.f);
+  // Texture factor: where the reference has no contrast over the census window, no cost curve
+  // can be trusted (untextured surfaces, black backgrounds), however it looks.
+  cv::Mat texture(h, w, CV_32F, cv::Scalar(1.f));
+  if (options.texture_scale > 0) {
+    cv::Mat f, mean, mean_sq;
+    reference.gray.convertTo(f, CV_32F);
+    const cv::Size window(2 * options.census_radius_x + 1, 2 * options.census_radius_y + 1);
+    cv::boxFilter(f, mean, CV_32F, window, cv::Point(-1, -1), true, cv::BORDER_REFLECT);
+    cv::boxFilter(f.mul(f), mean_sq, CV_32F, window, cv::Point(-1, -1), true, cv::BORDER_REFLECT);
+    for (int y = 0; y < h; ++y)
+      for (int x = 0; x < w; ++x) {
+        const float var = std::max(0.f, mean_sq.at<float>(y, x) - mean.at<float>(y, x) * mean.at<float>(y, x));
+        texture.at<float>(y, x) = std::min(1.f, std::sqrt(var) / static_cast<float>(options.texture_scale));
+      }
+  }
   size_t valid = 0;
   for (int y = 0; y < h; ++y) {
     const float* plane = winners.plane.ptr<float>(y);
     const float* conf = winners.confidence.ptr<float>(y);
     for (int x = 0; x < w; ++x) {
-      result.confidence.At(x, y) = conf[x];
-      if (plane[x] < 0 || conf[x] < options.confidence_threshold) continue;
+      const float confidence = conf[x] * texture.at<float>(y, x);
+      result.confidence.At(x, y) = confidence;
+      if (plane[x] < 0 || confidence < options.confidence_threshold) continue;
       // Planes are uniform in inverse depth, so the sub-pixel plane index maps linearly to 1/z.
       result.depth.At(x, y) = static_cast<float>(1.0 / (w_min + plane[x] * step));
       ++valid;

@@ -42,8 +42,11 @@ struct PlaneSweepOptions {
   int p1 = 240;                   // small-jump penalty, cost units (1000 ~ worst match), in [0, 2000]
   int p2 = 1200;                  // large-jump penalty, cost units, in [p1, 6000]
   double p2_gamma = 12.0;         // P2 / (1 + |grey step| / gamma) at edges, grey levels; 0: constant
-  double confidence_scale = 3.0;  // confidence = scale * (c2 - c1) / c2 clipped to [0, 1], > 0
-  double confidence_threshold = 0.15;  // depth set to 0 where confidence < this, in [0, 1]
+  double confidence_scale = 3.0;  // confidence = scale * (mean cost - winner cost) / mean cost,
+                                  // times the texture factor, clipped to [0, 1]; > 0
+  double confidence_threshold = 0.5;   // depth set to 0 where confidence < this, in [0, 1]
+  double texture_scale = 6.0;     // grey-level std. dev. over the census window at which the
+                                  // texture factor of the confidence reaches 1, >= 0 (0: off)
   double min_depth = -1;          // fallback depth bounds, scene units (-1: none)
   double max_depth = -1;
   double depth_margin = 0.1;      // relative margin around sparse-point depths, in [0, 2]

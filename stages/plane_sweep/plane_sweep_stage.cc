@@ -94,7 +94,9 @@ class PlaneSweepStage : public Stage {
         {"p1", ParamType::kInt, s(d.p1), "Small-jump penalty, cost units (1000 ~ worst match)"},
         {"p2", ParamType::kInt, s(d.p2), "Large-jump penalty, cost units, [p1, 6000]"},
         {"p2_gamma", ParamType::kDouble, s(d.p2_gamma), "P2 divided by 1 + |grey step|/gamma; 0: constant"},
-        {"confidence_scale", ParamType::kDouble, s(d.confidence_scale), "Confidence = scale * (c2 - c1) / c2, clipped"},
+        {"confidence_scale", ParamType::kDouble, s(d.confidence_scale), "Confidence = scale * (mean cost - winner cost) / mean cost x texture, clipped"},
+        {"texture_scale", ParamType::kDouble, s(d.texture_scale),
+         "Grey std. dev. over the census window giving full confidence; 0: no texture factor"},
         {"confidence_threshold", ParamType::kDouble, s(d.confidence_threshold),
          "Depth dropped (0) where confidence < this, [0, 1]"},
         {"min_depth", ParamType::kDouble, "-1", "Fallback near depth, scene units; -1: none"},
@@ -224,6 +226,7 @@ class PlaneSweepStage : public Stage {
     o.p2_gamma = p.Double("p2_gamma");
     o.confidence_scale = p.Double("confidence_scale");
     o.confidence_threshold = p.Double("confidence_threshold");
+    o.texture_scale = p.Double("texture_scale");
     o.min_depth = p.Double("min_depth");
     o.max_depth = p.Double("max_depth");
     o.depth_margin = p.Double("depth_margin");

@@ -624,15 +624,15 @@ Winners WinnerTakeAll(const Aggregated& ag, const CostVolume* data, double confi
         if (denom > 0) sub += std::clamp(0.5f * (l - r) / denom, -0.5f, 0.5f);
       }
       plane[x] = sub;
-      // Certainty from the data-cost curve: how distinct the winner's cost is from the best
-      // cost away from it (0: another plane fits as well, e.g. untextured or occluded).
+      // Certainty from the data-cost curve: how far the winner's matching cost lies below the
+      // curve's mean (0: the curve is flat, as on untextured surfaces, or the winner matches
+      // no better than a random plane, as where it is occluded in the best neighbours).
       if (data == nullptr) continue;
       const uint16_t* c = data->At(x, y);
-      int second = kMaxCost + 1;
-      for (int d = 0; d < np; ++d)
-        if (std::abs(d - best) > 1) second = std::min<int>(second, c[d]);
-      const float cb = c[best];
-      const float margin = second > kMaxCost ? 1.f : (second - cb) / std::max(1.f, static_cast<float>(second));
+      uint32_t total = 0;
+      for (int d = 0; d < np; ++d) total += c[d];
+      const float mean = static_cast<float>(total) / np;
+      const float margin = (mean - c[best]) / std::max(1.f, mean);
       conf[x] = static_cast<float>(std::clamp(margin * confidence_scale, 0.0, 1.0));
     }
   });
