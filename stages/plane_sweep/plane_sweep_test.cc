@@ -5,10 +5,12 @@
 
 #include <chrono>
 #include <filesystem>
+#include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 #include <random>
 
 #include "pipeline/core/colmap_array_io.h"
+#include "pipeline/core/image_io.h"
 #include "pipeline/core/stage_api.h"
 #include "stages/plane_sweep/plane_sweep.h"
 
@@ -191,6 +193,26 @@ TEST_F(PlaneSweepStageTest, DeclaresItsContract) {
   bool has_command = false;
   for (const StageCommand& command : registry_.Commands()) has_command |= command.name == "stereo-pair";
   EXPECT_TRUE(has_command);
+}
+
+TEST_F(PlaneSweepStageTest, StereoPairCommandWritesPfm) {
+  const StageCommand* command = nullptr;
+  for (const StageCommand& c : registry_.Commands())
+    if (c.name == "stereo-pair") command = &c;
+  ASSERT_NE(command, nullptr);
+  const int w = 120, h = 90, shift = 5;
+  const cv::Mat wide = RandomTexture(w + shift, h, 11);
+  const std::string left = (dir_ / "left.png").string(), right = (dir_ / "right.png").string();
+  const std::string out = (dir_ / "disp.pfm").string();
+  cv::imwrite(left, wide(cv::Rect(0, 0, w, h)));
+  cv::imwrite(right, wide(cv::Rect(shift, 0, w, h)));
+  ASSERT_EQ(command->main({left, right, "--max-disparity", "16", "--out", out}), 0);
+  const cv::Mat disparity = ReadPfm(out);
+  ASSERT_EQ(disparity.size(), cv::Size(w, h));
+  EXPECT_NEAR(disparity.at<float>(h / 2, w / 2), shift, 0.5);
+  // Bad input: a missing file is reported, not a crash.
+  EXPECT_NE(command->main({left, (dir_ / "missing.png").string(), "--out", out}), 0);
+  EXPECT_NE(command->main({left, right}), 0);  // --out is required
 }
 
 // Small object ring (24 views, 240x180): most object pixels within 1% of the true depth.
