@@ -124,15 +124,7 @@ bool ToValue(const YAML::Node& node, const ParamSpec& spec, const std::string& d
 }
 
 void FillDefaults(const Stage& stage, const std::string& dir, StageConfig* config) {
-  for (const ParamSpec& spec : stage.Parameters()) {
-    ParamValue value;
-    std::string error;
-    const YAML::Node node = YAML::Load(spec.default_yaml.empty() ? "\"\"" : spec.default_yaml);
-    if (!ToValue(node, spec, dir, &value, &error)) {
-      throw std::logic_error("stage '" + stage.Name() + "' declares a bad default for '" + spec.key + "': " + error);
-    }
-    config->params.Set(spec.key, value);
-  }
+  config->params = DefaultParams(stage, dir);
 }
 
 void CheckStage(const Stage& stage, const std::string& file, const StageConfig& config) {
@@ -220,6 +212,20 @@ void ParseHoldout(const YAML::Node& node, Config* config) {
 }
 
 }  // namespace
+
+Params DefaultParams(const Stage& stage, const std::string& dir) {
+  Params params;
+  for (const ParamSpec& spec : stage.Parameters()) {
+    ParamValue value;
+    std::string error;
+    const YAML::Node node = YAML::Load(spec.default_yaml.empty() ? "\"\"" : spec.default_yaml);
+    if (!ToValue(node, spec, dir, &value, &error)) {
+      throw std::logic_error("stage '" + stage.Name() + "' declares a bad default for '" + spec.key + "': " + error);
+    }
+    params.Set(spec.key, value);
+  }
+  return params;
+}
 
 int EditDistance(const std::string& a, const std::string& b) {
   std::vector<int> row(b.size() + 1);

@@ -66,6 +66,9 @@ std::string ExpandVariables(const std::string& text);
 // Edit distance between two keys, for "did you mean" suggestions.
 int EditDistance(const std::string& a, const std::string& b);
 
+// The stage's declared defaults (paths resolved against `dir`).
+Params DefaultParams(const Stage& stage, const std::string& dir);
+
 // Loads and validates `path` against the registered stages' parameter declarations and the
 // stages' own CheckParams. Throws ConfigError.
 Config LoadConfig(const std::string& path, const StageRegistry& registry);

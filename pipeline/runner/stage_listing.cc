@@ -3,6 +3,8 @@
 
 #include <sstream>
 
+#include "pipeline/runner/config.h"
+
 namespace ibmr {
 
 namespace {
@@ -28,6 +30,7 @@ std::string DescribeStages(const StageRegistry& registry) {
     const Stage* stage = registry.Find(name);
     StageContext context;  // default parameters: the declared paths for a typical run
     context.workspace = Workspace(".");
+    context.params = DefaultParams(*stage, ".");
     out << name << " (version " << stage->Version() << "): " << stage->Summary() << "\n";
     out << "  views:   " << RoleText(stage->Role()) << "\n";
     out << "  inputs:  " << Join(stage->Inputs(context)) << "\n";
