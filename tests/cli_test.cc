@@ -79,6 +79,15 @@ TEST_F(CliTest, SecondRunDoesNoWorkAndStatusIsClean) {
   EXPECT_TRUE(fs::exists(dir_ / "ws" / "logs" / "ibmr.log"));
 }
 
+TEST_F(CliTest, StagesListsEveryStageWithDefaults) {
+  CommandResult result = RunCommand(Ibmr("stages"));
+  ASSERT_EQ(result.exit_code, 0) << result.output;
+  for (const char* stage : {"import (version", "synth (version", "carve (version", "render (version"}) {
+    EXPECT_NE(result.output.find(stage), std::string::npos) << stage;
+  }
+  EXPECT_NE(result.output.find("views (integer, default 24)"), std::string::npos) << result.output;
+}
+
 TEST_F(CliTest, ConfigErrorNamesFileLineAndKey) {
   const std::string config = WriteConfig("      views: 4\n      widht: 64\n");
   CommandResult result = RunCommand(Ibmr("run " + config));
