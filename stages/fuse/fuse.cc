@@ -1,6 +1,8 @@
 // Uncertainty-weighted merging of depth samples into points (seed 000 lines 4352-4453). See fuse.h.
 #include "stages/fuse/fuse.h"
 
+#include "pipeline/core/depth_normals.h"
+
 #include <Eigen/Cholesky>
 #include <algorithm>
 #include <cmath>
@@ -22,31 +24,6 @@ struct FusedPoint {
   float confidence_sum = 0;
   int views = 0;
 };
-
-// Unit camera-frame normals from a depth map by central differences of back-projected points,
-// facing the camera; 0 where a 4-neighbour is missing or the depth jumps by > 5%. Used when a view
-// comes without a normal map.
-FloatMap NormalsFromDepth(const Camera& camera, const DepthMap& depth) {
-  const int w = depth.width, h = depth.height;
-  const double sx = static_cast<double>(w) / camera.width, sy = static_cast<double>(h) / camera.height;
-  FloatMap normals(w, h, 3, 0.f);
-  auto point = [&](int x, int y) {
-    return Eigen::Vector3d(camera.CamFromImg(Eigen::Vector2d((x + 0.5) / sx, (y + 0.5) / sy)) * depth.At(x, y));
-  };
-  auto usable = [&](int x, int y, float d) { return IsValidDepth(depth.At(x, y)) && std::abs(depth.At(x, y) - d) <= 0.05f * d; };
-  for (int y = 1; y + 1 < h; ++y) {
-    for (int x = 1; x + 1 < w; ++x) {
-      const float d = depth.At(x, y);
-      if (!IsValidDepth(d) || !usable(x - 1, y, d) || !usable(x + 1, y, d) || !usable(x, y - 1, d) || !usable(x, y + 1, d)) continue;
-      Eigen::Vector3d n = (point(x + 1, y) - point(x - 1, y)).cross(point(x, y + 1) - point(x, y - 1));
-      if (!(n.norm() > 0)) continue;
-      n.normalize();
-      if (n.dot(point(x, y)) > 0) n = -n;
-      for (int c = 0; c < 3; ++c) normals.At(x, y, c) = static_cast<float>(n[c]);
-    }
-  }
-  return normals;
-}
 
 }  // namespace
 

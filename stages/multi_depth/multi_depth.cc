@@ -2,6 +2,8 @@
 // (seed 000 lines 3847-3894 and 5812-5950; refinement after lines 4399-4453). See multi_depth.h.
 #include "stages/multi_depth/multi_depth.h"
 
+#include "pipeline/core/depth_normals.h"
+
 #include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
@@ -13,17 +15,6 @@ namespace {
 constexpr double kPi = 3.14159265358979323846;
 
 // Per-pixel normalised rays (x, y, 1) of a camera, row-major; exact for distorted models too.
-std::vector<Eigen::Vector3f> PixelRays(const Camera& camera, int width, int height) {
-  std::vector<Eigen::Vector3f> rays(static_cast<size_t>(width) * height);
-  const double sx = static_cast<double>(camera.width) / width, sy = static_cast<double>(camera.height) / height;
-  for (int y = 0; y < height; ++y) {
-    for (int x = 0; x < width; ++x) {
-      rays[static_cast<size_t>(y) * width + x] = camera.CamFromImg(Eigen::Vector2d((x + 0.5) * sx, (y + 0.5) * sy)).cast<float>();
-    }
-  }
-  return rays;
-}
-
 // A neighbour prepared for the inner loop: key-camera point -> neighbour-camera point.
 struct PreparedNeighbor {
   const DepthView* view = nullptr;
@@ -130,30 +121,6 @@ std::vector<int> SelectNeighbors(const Image& key, const std::vector<const Image
   std::vector<int> selected;
   for (size_t i = 0; i < ranked.size() && static_cast<int>(i) < options.max_neighbors; ++i) selected.push_back(ranked[i].second);
   return selected;
-}
-
-FloatMap NormalsFromDepth(const Camera& camera, const DepthMap& depth) {
-  const int w = depth.width, h = depth.height;
-  FloatMap normals(w, h, 3, 0.f);
-  const std::vector<Eigen::Vector3f> rays = PixelRays(camera, w, h);
-  auto point = [&](int x, int y) { return rays[static_cast<size_t>(y) * w + x] * depth.At(x, y); };
-  auto usable = [&](int x, int y, float d) {
-    const float e = depth.At(x, y);
-    return IsValidDepth(e) && std::abs(e - d) <= 0.05f * d;
-  };
-  for (int y = 1; y + 1 < h; ++y) {
-    for (int x = 1; x + 1 < w; ++x) {
-      const float d = depth.At(x, y);
-      if (!IsValidDepth(d) || !usable(x - 1, y, d) || !usable(x + 1, y, d) || !usable(x, y - 1, d) || !usable(x, y + 1, d)) continue;
-      Eigen::Vector3f n = (point(x + 1, y) - point(x - 1, y)).cross(point(x, y + 1) - point(x, y - 1));
-      const float norm = n.norm();
-      if (!(norm > 0)) continue;
-      n /= norm;
-      if (n.dot(rays[static_cast<size_t>(y) * w + x]) > 0) n = -n;  // face the camera
-      for (int c = 0; c < 3; ++c) normals.At(x, y, c) = n[c];
-    }
-  }
-  return normals;
 }
 
 namespace {

@@ -82,10 +82,6 @@ std::vector<int> SelectNeighbors(const Image& key, const std::vector<const Image
 MultiDepthResult MakeDepthConsistent(const DepthView& key, const std::vector<const DepthView*>& neighbors,
                                      const MultiDepthOptions& options);
 
-// Unit normals (camera frame, facing the camera) from a depth map by central differences of the
-// back-projected points; 0 where a neighbour is missing or the depth jumps by > 5%.
-FloatMap NormalsFromDepth(const Camera& camera, const DepthMap& depth);
-
 // Ground-truth comparison on `depth`'s pixel grid (truth sampled at the nearest pixel when the
 // resolutions differ): among pixels where the truth is > 0, how many have an estimate and how many
 // are within `relative_tolerance` of the truth (missing estimates count as wrong in FractionOfTruth).
