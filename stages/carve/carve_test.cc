@@ -96,6 +96,33 @@ std::vector<uint8_t> InsideMesh(const TriangleMesh& mesh, const Eigen::Vector3d&
   return inside;
 }
 
+// The textbook visual hull on the same grid: a voxel is kept when its centre projects inside every
+// silhouette (out of an image: kept unless that view treats outside as empty).
+std::vector<uint8_t> CentreSampleHull(const std::vector<CarveView>& views, const std::vector<bool>& outside_empty,
+                                      const Eigen::Vector3d& origin, double cell, int n) {
+  std::vector<uint8_t> hull(static_cast<size_t>(n) * n * n, 1);
+  for (int z = 0; z < n; ++z) {
+    for (int j = 0; j < n; ++j) {
+      for (int i = 0; i < n; ++i) {
+        const Eigen::Vector3d centre = origin + cell * Eigen::Vector3d(i + 0.5, j + 0.5, z + 0.5);
+        uint8_t& keep = hull[(static_cast<size_t>(z) * n + j) * n + i];
+        for (size_t v = 0; v < views.size() && keep; ++v) {
+          const Eigen::Vector3d in_cam = views[v].cam_from_world * centre;
+          const Eigen::Vector2d pixel = views[v].camera.ImgFromCam(in_cam);
+          const int px = static_cast<int>(std::floor(pixel.x())), py = static_cast<int>(std::floor(pixel.y()));
+          const bool inside_image = in_cam.z() > 0 && px >= 0 && py >= 0 && px < views[v].mask.cols && py < views[v].mask.rows;
+          if (!inside_image) {
+            keep = !outside_empty[v];
+          } else if (views[v].mask.at<uint8_t>(py, px) == 0) {
+            keep = 0;
+          }
+        }
+      }
+    }
+  }
+  return hull;
+}
+
 double GridIou(const std::vector<uint8_t>& a, const std::vector<uint8_t>& b) {
   size_t both = 0, either = 0;
   for (size_t i = 0; i < a.size(); ++i) {
@@ -160,6 +187,15 @@ TEST(CarveSynthetic, Level7ContainsTheObjectAndMatchesBruteForce) {
   const std::vector<uint8_t> brute = CarveBruteForce(ring.views, result.outside_empty, origin, size, 7);
   const double iou = GridIou(hull, brute);
   EXPECT_GE(iou, 0.99);
+  // Against the centre-sample visual hull the conservative hull is up to one cell fatter at the
+  // surface (a cube is kept while any part of its projected box touches the silhouette).
+  const std::vector<uint8_t> centre_hull = CentreSampleHull(ring.views, result.outside_empty, origin, cell, n);
+  const double centre_iou = GridIou(hull, centre_hull);
+  EXPECT_GE(centre_iou, 0.85);
+  size_t centre_missing = 0;
+  for (size_t i = 0; i < hull.size(); ++i) centre_missing += centre_hull[i] && !hull[i];
+  EXPECT_EQ(centre_missing, 0u) << "the conservative hull must contain the centre-sample hull";
+  std::cout << "[carve test] level 7: IoU vs centre-sample visual hull " << centre_iou << std::endl;
   // Node counts grow like the surface (~4x per level), not the volume (8x).
   for (int level = 4; level <= 7; ++level) {
     const double ratio = static_cast<double>(result.stats[level].nodes) / result.stats[level - 1].nodes;
