@@ -160,24 +160,6 @@ bool PlaneAtMeanInverseDepth(const std::vector<Eigen::Vector3d>& points, const R
   return true;
 }
 
-bool PointNearestToAxes(const std::vector<Eigen::Vector3d>& centers, const std::vector<Eigen::Vector3d>& directions,
-                        Eigen::Vector3d* point) {
-  Eigen::Matrix3d a = Eigen::Matrix3d::Zero();
-  Eigen::Vector3d b = Eigen::Vector3d::Zero();
-  for (size_t i = 0; i < centers.size(); ++i) {
-    const Eigen::Vector3d v = directions[i].normalized();
-    const Eigen::Matrix3d projector = Eigen::Matrix3d::Identity() - v * v.transpose();
-    a += projector;
-    b += projector * centers[i];
-  }
-  if (centers.size() < 2) return false;
-  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> solver(a);
-  const Eigen::Vector3d eigenvalues = solver.eigenvalues();
-  if (eigenvalues.minCoeff() < 1e-6 * std::max(1.0, eigenvalues.maxCoeff())) return false;
-  *point = a.ldlt().solve(b);
-  return point->allFinite();
-}
-
 UlrRenderer::UlrRenderer(const std::vector<SourceView>* sources, const RenderOptions& options)
     : sources_(sources), options_(options) {
   for (const SourceView& source : *sources) {

@@ -24,6 +24,8 @@
 // sparse points; without sparse points, through the point nearest to all optical axes.
 #pragma once
 
+#include "pipeline/core/optical_axes.h"  // PointNearestToAxes, used with the plane proxy
+
 #include <Eigen/Core>
 #include <opencv2/core.hpp>
 #include <string>
@@ -85,10 +87,6 @@ DepthMap MeshDepth(const TriangleMesh& mesh, const Camera& camera, const Rigid3d
 // in front of it. Returns false when no point is in front.
 bool PlaneAtMeanInverseDepth(const std::vector<Eigen::Vector3d>& points, const Rigid3d& desired_cam_from_world,
                              Plane* plane);
-// Least-squares point nearest to all optical axes (centre c_i, unit direction v_i): solves
-// sum (I - v v^T) x = sum (I - v v^T) c. Returns false when the axes are (nearly) parallel.
-bool PointNearestToAxes(const std::vector<Eigen::Vector3d>& centers, const std::vector<Eigen::Vector3d>& directions,
-                        Eigen::Vector3d* point);
 
 // One source's blending weight at a point (for tests and visualisation).
 struct BlendWeight {

@@ -12,6 +12,7 @@
 #include <filesystem>
 #include <limits>
 
+#include "pipeline/core/optical_axes.h"
 #include "pipeline/core/atomic_file.h"
 #include "pipeline/core/colmap_text_io.h"
 #include "pipeline/core/errors.h"
@@ -99,13 +100,12 @@ class ScoreStage : public Stage {
     // Geometry for the nearest-training-camera angle.
     std::vector<Eigen::Vector3d> training_centers;
     std::vector<std::string> training_names;
-    Eigen::Matrix3d a = Eigen::Matrix3d::Zero();
-    Eigen::Vector3d b = Eigen::Vector3d::Zero(), mean_center = Eigen::Vector3d::Zero(),
-                    mean_direction = Eigen::Vector3d::Zero();
+    std::vector<Eigen::Vector3d> centers, directions;
+    Eigen::Vector3d mean_center = Eigen::Vector3d::Zero(), mean_direction = Eigen::Vector3d::Zero();
     for (const auto& [id, image] : model.images) {
       const Eigen::Vector3d v = image.ViewingDirection().normalized();
-      a += Eigen::Matrix3d::Identity() - v * v.transpose();
-      b += (Eigen::Matrix3d::Identity() - v * v.transpose()) * image.Center();
+      centers.push_back(image.Center());
+      directions.push_back(v);
       mean_center += image.Center() / model.images.size();
       mean_direction += v;
       if (!context.IsHeldOut(image.name)) {
@@ -113,10 +113,9 @@ class ScoreStage : public Stage {
         training_names.push_back(image.name);
       }
     }
-    Eigen::Vector3d scene_center = a.ldlt().solve(b);
+    Eigen::Vector3d scene_center;
     std::string center_kind = "nearest_to_axes";
-    if (model.images.size() < 2 || !scene_center.allFinite() ||
-        Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(a).eigenvalues().minCoeff() < 1e-6 * a.trace()) {
+    if (!PointNearestToAxes(centers, directions, &scene_center)) {
       Eigen::Vector3d mean_point = Eigen::Vector3d::Zero();
       for (const auto& [id, point] : model.points) mean_point += point.xyz / model.points.size();
       scene_center = model.points.empty() ? Eigen::Vector3d(mean_center + mean_direction.normalized()) : mean_point;
