@@ -7,6 +7,7 @@
 //   dense/images/, dense/sparse/  undistorted images and model
 //   dense/stereo/depth_maps/<image name>.{photometric,geometric}.bin   COLMAP arrays
 //   dense/stereo/normal_maps/...  idem, 3 channels
+//   dense/stereo/confidence_maps/...  idem, 1 channel in [0, 1]
 //   dense/fused.ply               fused points
 //   ground_truth/                 synthetic truth: depth/<image name>.bin, masks/<image name>.png, mesh.ply
 //   hull/, layers/, surfels/, texture/, renders/, scores/, report/   per-representation folders
@@ -35,6 +36,13 @@ class Workspace {
   }
   std::string NormalMapPath(const std::string& image_name, const std::string& kind) const {
     return Path("dense/stereo/normal_maps/" + image_name + "." + kind + ".bin");
+  }
+  std::string ConfidenceMapPath(const std::string& image_name, const std::string& kind) const {
+    return Path(ConfidenceMapRelative(image_name, kind));
+  }
+  // Workspace-relative form, for stages' declared inputs and outputs.
+  static std::string ConfidenceMapRelative(const std::string& image_name, const std::string& kind) {
+    return "dense/stereo/confidence_maps/" + image_name + "." + kind + ".bin";
   }
   std::string GroundTruthDepthPath(const std::string& image_name) const {
     return Path("ground_truth/depth/" + image_name + ".bin");

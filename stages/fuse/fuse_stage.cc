@@ -67,7 +67,7 @@ class FuseStage : public Stage {
     for (const std::string& name : names) {
       inputs.push_back("dense/stereo/depth_maps/" + name + "." + kind + ".bin");
       inputs.push_back("dense/stereo/normal_maps/" + name + "." + kind + ".bin");
-      inputs.push_back("dense/stereo/confidence_maps/" + name + "." + kind + ".bin");
+      inputs.push_back(Workspace::ConfidenceMapRelative(name, kind));
     }
     inputs.push_back("ground_truth/mesh.ply");  // metrics only; "missing" on real data
     return inputs;
@@ -96,7 +96,7 @@ class FuseStage : public Stage {
       }
       view.depth = ReadColmapArray(depth_path);
       view.normals = ReadOptional(workspace.NormalMapPath(name, kind), view.depth, 3);
-      view.confidence = ReadOptional(workspace.Path("dense/stereo/confidence_maps/" + name + "." + kind + ".bin"), view.depth, 1);
+      view.confidence = ReadOptional(workspace.ConfidenceMapPath(name, kind), view.depth, 1);
       const std::string image_path = workspace.ImagesDir() + "/" + name;
       if (fs::exists(image_path)) {
         view.image = ReadImageColor(image_path);

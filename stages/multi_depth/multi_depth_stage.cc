@@ -22,7 +22,7 @@ namespace ibmr {
 namespace {
 
 std::string ConfidencePath(const Workspace& workspace, const std::string& name, const std::string& kind) {
-  return workspace.Path("dense/stereo/confidence_maps/" + name + "." + kind + ".bin");
+  return workspace.ConfidenceMapPath(name, kind);
 }
 
 // Loads a view's maps; `with_normals` false skips the normal map (neighbours do not need it).
@@ -97,7 +97,7 @@ class MultiDepthStage : public Stage {
     for (const std::string& name : names) {
       inputs.push_back("dense/stereo/depth_maps/" + name + ".photometric.bin");
       inputs.push_back("dense/stereo/normal_maps/" + name + ".photometric.bin");
-      inputs.push_back("dense/stereo/confidence_maps/" + name + ".photometric.bin");
+      inputs.push_back(Workspace::ConfidenceMapRelative(name, "photometric"));
     }
     inputs.push_back("ground_truth/depth");  // metrics only; "missing" on real data
     return inputs;
@@ -108,7 +108,7 @@ class MultiDepthStage : public Stage {
     for (const std::string& name : Names(context)) {
       outputs.push_back("dense/stereo/depth_maps/" + name + ".geometric.bin");
       outputs.push_back("dense/stereo/normal_maps/" + name + ".geometric.bin");
-      outputs.push_back("dense/stereo/confidence_maps/" + name + ".geometric.bin");
+      outputs.push_back(Workspace::ConfidenceMapRelative(name, "geometric"));
     }
     return outputs;
   }

@@ -180,7 +180,7 @@ class PlaneSweepStage : public Stage {
       }
       WriteColmapArray(context.workspace.DepthMapPath(name, "photometric"), result.depth);
       WriteColmapArray(context.workspace.NormalMapPath(name, "photometric"), result.normals);
-      WriteColmapArray(context.workspace.Path("dense/stereo/confidence_maps/" + name + ".photometric.bin"), result.confidence);
+      WriteColmapArray(context.workspace.ConfidenceMapPath(name, "photometric"), result.confidence);
       evaluations += result.evaluations;
       std::lock_guard<std::mutex> lock(mutex);
       valid_sum += result.valid_fraction;
