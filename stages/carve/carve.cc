@@ -162,6 +162,36 @@ NodeState Classify(const std::vector<PreparedView>& views, const Eigen::Vector3d
   return any_partial ? NodeState::kPartial : NodeState::kFull;
 }
 
+// The visual-hull test of one point against discrete silhouettes: in every view, one of the 2x2
+// pixels whose centres surround the projection is silhouette (out of an image, or behind a camera:
+// kept unless that view's outside is known empty). Taking the pixel that contains the projection
+// instead would drop points of the object whose projection falls in a pixel whose centre, the
+// mask's sample, lies just outside the silhouette; the 2x2 neighbourhood keeps them at the cost of
+// at most half a pixel of extra hull.
+bool PointInAllSilhouettes(const std::vector<PreparedView>& views, const Eigen::Vector3d& point) {
+  for (const PreparedView& v : views) {
+    const Eigen::Vector3d x = v.rotation * point + v.translation;
+    if (x.z() <= 1e-12) {
+      if (v.outside_empty) return false;
+      continue;
+    }
+    const Eigen::Vector2d pixel = v.pinhole ? Eigen::Vector2d(v.fx * x.x() / x.z() + v.cx, v.fy * x.y() / x.z() + v.cy)
+                                            : v.view->camera.ImgFromCam(x);
+    // Pixel centres are at +0.5: the 2x2 block starts at floor(p - 0.5).
+    const int c0 = static_cast<int>(std::floor(std::clamp(pixel.x() - 0.5, -kBig, kBig)));
+    const int r0 = static_cast<int>(std::floor(std::clamp(pixel.y() - 0.5, -kBig, kBig)));
+    bool inside = false;
+    for (int r = r0; r <= r0 + 1 && !inside; ++r) {
+      for (int c = c0; c <= c0 + 1 && !inside; ++c) {
+        const bool in_image = c >= 0 && r >= 0 && c < v.width && r < v.height;
+        inside = in_image ? v.silhouette.at<uint8_t>(r, c) != 0 : !v.outside_empty;
+      }
+    }
+    if (!inside) return false;
+  }
+  return true;
+}
+
 // The rect of the root cube is non-empty and not entirely behind the camera.
 bool SeesCube(const PreparedView& view, const Eigen::Vector3d& min, double size) {
   PreparedView unknown_outside = view;
@@ -238,6 +268,7 @@ CarveResult CarveOctree(const std::vector<CarveView>& views, const Eigen::Vector
     const auto start = std::chrono::steady_clock::now();
     std::vector<OctreeNode>& nodes = result.octree.levels[level];
     std::vector<uint8_t> unseen(nodes.size(), 0);
+    std::vector<uint8_t> by_centre(nodes.size(), 0);  // partial nodes: 1 kept, 2 dropped by the centre test
     const double cell = result.octree.CellSize(level);
     tbb::parallel_for(tbb::blocked_range<size_t>(0, nodes.size(), 256), [&](const tbb::blocked_range<size_t>& range) {
       for (size_t i = range.begin(); i != range.end(); ++i) {
@@ -246,6 +277,12 @@ CarveResult CarveOctree(const std::vector<CarveView>& views, const Eigen::Vector
                                           : Classify<false>(prepared, result.octree.CellMin(level, nodes[i]), cell,
                                                             &is_unseen);
         unseen[i] = is_unseen;
+        if (options.leaf_test == LeafTest::kCentre && nodes[i].state == NodeState::kPartial) {
+          const Eigen::Vector3d centre = result.octree.CellMin(level, nodes[i]) + Eigen::Vector3d::Constant(0.5 * cell);
+          by_centre[i] = PointInAllSilhouettes(prepared, centre) ? 1 : 2;
+          // The finest level's partial leaves are decided here; coarser ones are refined further.
+          if (level == options.levels) nodes[i].state = by_centre[i] == 1 ? NodeState::kFull : NodeState::kEmpty;
+        }
       }
     });
     LevelStats stats;
@@ -255,6 +292,10 @@ CarveResult CarveOctree(const std::vector<CarveView>& views, const Eigen::Vector
     for (size_t i = 0; i < nodes.size(); ++i) {
       const OctreeNode& node = nodes[i];
       stats.unseen += unseen[i];
+      if (level == options.levels) {
+        stats.leaves_kept_by_centre += by_centre[i] == 1;
+        stats.leaves_dropped_by_centre += by_centre[i] == 2;
+      }
       if (node.state == NodeState::kEmpty) ++stats.empty;
       if (node.state == NodeState::kFull) ++stats.full;
       if (node.state != NodeState::kPartial) continue;
@@ -265,6 +306,10 @@ CarveResult CarveOctree(const std::vector<CarveView>& views, const Eigen::Vector
                                       static_cast<uint16_t>(2 * node.y + ((c >> 1) & 1)),
                                       static_cast<uint16_t>(2 * node.z + ((c >> 2) & 1)), NodeState::kPartial});
       }
+    }
+    if (options.leaf_test == LeafTest::kCentre) {
+      for (uint8_t& flag : by_centre) flag = flag == 1;
+      result.octree.centre_kept.push_back(std::move(by_centre));
     }
     stats.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
     result.stats.push_back(stats);
@@ -298,13 +343,23 @@ std::vector<uint8_t> CarveBruteForce(const std::vector<CarveView>& views, const 
   return grid;
 }
 
+namespace {
+
+// Node i of level l belongs to the hull at `level` (see HullCells).
+bool InHull(const Octree& octree, int l, int level, size_t i) {
+  const NodeState state = octree.levels[l][i].state;
+  if (state == NodeState::kFull) return true;
+  if (l != level || state != NodeState::kPartial) return false;
+  return static_cast<size_t>(l) >= octree.centre_kept.size() || octree.centre_kept[l].empty() || octree.centre_kept[l][i];
+}
+
+}  // namespace
+
 std::vector<HullCell> HullCells(const Octree& octree, int level) {
   std::vector<HullCell> cells;
   for (int l = 0; l <= std::min(level, octree.MaxLevel()); ++l) {
-    for (const OctreeNode& node : octree.levels[l]) {
-      if (node.state == NodeState::kFull || (l == level && node.state == NodeState::kPartial)) {
-        cells.push_back(HullCell{octree.CellMin(l, node), octree.CellSize(l)});
-      }
+    for (size_t i = 0; i < octree.levels[l].size(); ++i) {
+      if (InHull(octree, l, level, i)) cells.push_back(HullCell{octree.CellMin(l, octree.levels[l][i]), octree.CellSize(l)});
     }
   }
   return cells;
@@ -315,8 +370,9 @@ std::vector<uint8_t> DenseHull(const Octree& octree, int level) {
   std::vector<uint8_t> grid(n * n * n, 0);
   for (int l = 0; l <= std::min(level, octree.MaxLevel()); ++l) {
     const size_t span = size_t{1} << (level - l);
-    for (const OctreeNode& node : octree.levels[l]) {
-      if (!(node.state == NodeState::kFull || (l == level && node.state == NodeState::kPartial))) continue;
+    for (size_t i = 0; i < octree.levels[l].size(); ++i) {
+      if (!InHull(octree, l, level, i)) continue;
+      const OctreeNode& node = octree.levels[l][i];
       for (size_t z = node.z * span; z < (node.z + 1) * span; ++z) {
         for (size_t y = node.y * span; y < (node.y + 1) * span; ++y) {
           std::fill_n(grid.begin() + (z * n + y) * n + node.x * span, span, 1);

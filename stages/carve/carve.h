@@ -26,8 +26,17 @@
 // border (the object may extend out of view); for the others it is empty (the whole object is in
 // view). A cube is empty when any view says empty; full when every view says full or unknown and
 // one says full; unseen (kept as full, counted) when every view says unknown; else partial, and
-// subdivided at the next level. Partial leaves of the finest level are kept: the hull (full and
-// partial cells) is conservative, it contains the visual hull of the silhouettes.
+// subdivided at the next level. Partial leaves of the finest level are decided by `leaf_test`:
+//   centre (default)  the leaf is kept when its centre projects into every silhouette (one of the
+//                     2x2 pixels around the projection is silhouette; outside an
+//                     image: kept unless that view's outside is known empty), the textbook visual
+//                     hull on the finest grid; coarser full and empty nodes agree with it, since every
+//                     centre below a full node lies in every silhouette and every centre below an
+//                     empty node lies in some view's background. The hull mesh is the boundary of
+//                     these cells dilated by one cell, so it still encloses the conservative hull
+//                     except where the object is thinner than a cell.
+//   box               every partial leaf is kept: the hull is conservative, it contains the visual
+//                     hull of the silhouettes (and is up to one cell fatter).
 #pragma once
 
 #include <Eigen/Core>
@@ -45,10 +54,12 @@
 namespace ibmr {
 
 enum class OutsideImage { kAuto, kUnknown, kEmpty };
+enum class LeafTest { kCentre, kBox };
 
 struct CarveOptions {
   int levels = 7;                      // finest octree level (root cube = level 0), in [1, 10]
   OutsideImage outside = OutsideImage::kAuto;  // auto: empty unless the silhouette touches the border
+  LeafTest leaf_test = LeafTest::kCentre;      // how partial leaves of the finest level are decided
   // Mesh: boundary faces of the hull dilated by one cell, then Taubin lambda|mu smoothing (the
   // Lumigraph's "Taubin's polyhedral smoothing") with each vertex kept within
   // `max_displacement` cells of its start, so the undilated hull stays inside the mesh.
@@ -57,7 +68,7 @@ struct CarveOptions {
   double smooth_mu = -0.53;            // in (-1, 0), |mu| > lambda
   double max_displacement = 0.5;       // cells, in [0, 1)
   int max_mesh_level = 8;              // mesh at min(level, this); dense grid of 8^level bytes, in [1, 9]
-  double level_tolerance = 0.002;      // held-out IoU tolerance of the automatic level choice, in [0, 1]
+  double level_tolerance = 0.005;      // held-out IoU tolerance of the automatic level choice, in [0, 1]
 
   // Returns false and sets `error` (starting with the YAML key) when a value is out of range.
   bool Check(std::string* error) const;
@@ -85,6 +96,11 @@ struct Octree {
   Eigen::Vector3d origin = Eigen::Vector3d::Zero();  // min corner of the root cube, world units
   double size = 1.0;                                 // root cube side, world units
   std::vector<std::vector<OctreeNode>> levels;
+  // With LeafTest::kCentre, per level, per node: 1 when the node is partial and its centre passes
+  // the centre test, so that a coarser level's hull can be cut by the same rule as the finest one
+  // (the held-out level choice compares like with like). Empty per level when not computed (box
+  // test, or an octree read from a file): partial nodes then count as kept.
+  std::vector<std::vector<uint8_t>> centre_kept;
 
   int MaxLevel() const { return static_cast<int>(levels.size()) - 1; }
   double CellSize(int level) const { return size / static_cast<double>(1 << level); }
@@ -99,12 +115,16 @@ struct HullCell {
   double size = 0.0;
 };
 
-// The hull at `level` (<= MaxLevel): full nodes of levels <= level and partial nodes of `level`.
+// The hull at `level` (<= MaxLevel): full nodes of levels <= level and partial nodes of `level`
+// (only those whose centre passes the centre test, when Octree::centre_kept holds that level).
 std::vector<HullCell> HullCells(const Octree& octree, int level);
 
 struct LevelStats {
   int level = 0;
   size_t nodes = 0, empty = 0, full = 0, partial = 0, unseen = 0;
+  // Finest level with LeafTest::kCentre: partial leaves decided by their centre (counted in
+  // `full` / `empty` too; `partial` is then 0).
+  size_t leaves_kept_by_centre = 0, leaves_dropped_by_centre = 0;
   double seconds = 0.0;
 };
 

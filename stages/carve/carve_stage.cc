@@ -15,7 +15,8 @@
 //
 // Outputs: hull/octree.bin (layout in carve.h), hull/hull.ply (binary PLY, comment
 // "ibmr conservative_hull 1"), hull/levels.json (per level: nodes, empty/full/partial, seconds,
-// held-out IoU; chosen level), hull/depth_bounds.json ({"<image>": {"near": z, "far": z}} per
+// held-out IoU; at the finest level the partial leaves kept and dropped by the centre test, see
+// `leaf_test` in carve.h; chosen level), hull/depth_bounds.json ({"<image>": {"near": z, "far": z}} per
 // training view, z along the optical axis, from the finest hull).
 #include <spdlog/spdlog.h>
 #include <tbb/parallel_for.h>
@@ -39,6 +40,7 @@ namespace ibmr {
 namespace {
 
 const std::vector<std::string> kOutsideNames = {"auto", "unknown", "empty"};
+const std::vector<std::string> kLeafTestNames = {"centre", "box"};
 const std::vector<std::string> kVolumeNames = {"auto", "bbox", "sparse", "frustums"};
 
 double Median(std::vector<double> values) {
@@ -114,7 +116,7 @@ class CarveStage : public Stage {
   std::string Summary() const override {
     return "octree visual hull from silhouettes (O(1) distance-map test), smoothed hull mesh, depth bounds";
   }
-  std::string Version() const override { return "1"; }
+  std::string Version() const override { return "2"; }
   HoldoutRole Role() const override { return HoldoutRole::kTrainingOnly; }
 
   std::vector<ParamSpec> Parameters() const override {
@@ -122,6 +124,10 @@ class CarveStage : public Stage {
         {"levels", ParamType::kInt, "7", "finest octree level (root cube = 0, cells of side/2^levels), in [1, 10]"},
         {"outside", ParamType::kString, "auto",
          "out-of-image space: auto (empty unless the silhouette touches the border), unknown, empty", kOutsideNames},
+        {"leaf_test", ParamType::kString, "centre",
+         "partial cells of the finest level: centre (kept when the centre projects into every silhouette, the "
+         "visual hull on the grid) or box (all kept, a conservative hull)",
+         kLeafTestNames},
         {"volume", ParamType::kString, "auto", "carving volume: auto (bbox if given, else frustums), bbox, sparse, frustums",
          kVolumeNames},
         {"bbox", ParamType::kDoubleList, "[]", "carving box [xmin, ymin, zmin, xmax, ymax, zmax], world units"},
@@ -132,7 +138,7 @@ class CarveStage : public Stage {
         {"smooth_mu", ParamType::kDouble, "-0.53", "Taubin mu, in (-1, 0), |mu| > lambda"},
         {"max_displacement", ParamType::kDouble, "0.5", "largest vertex move while smoothing, cells, in [0, 1)"},
         {"max_mesh_level", ParamType::kInt, "8", "the mesh is built at min(chosen level, this), in [1, 9]"},
-        {"level_tolerance", ParamType::kDouble, "0.002",
+        {"level_tolerance", ParamType::kDouble, "0.005",
          "chosen level: smallest whose held-out IoU is within this of the best level's, in [0, 1]"},
     };
   }
@@ -241,6 +247,10 @@ class CarveStage : public Stage {
       nlohmann::json entry = {{"level", s.level},    {"nodes", s.nodes},     {"empty", s.empty},
                               {"full", s.full},      {"partial", s.partial}, {"unseen", s.unseen},
                               {"seconds", s.seconds}, {"cell_size", octree.CellSize(static_cast<int>(level))}};
+      if (s.leaves_kept_by_centre + s.leaves_dropped_by_centre > 0) {
+        entry["leaves_kept_by_centre"] = s.leaves_kept_by_centre;
+        entry["leaves_dropped_by_centre"] = s.leaves_dropped_by_centre;
+      }
       if (level > 0 && carved.stats[level - 1].nodes > 0) {
         entry["node_ratio"] = static_cast<double>(s.nodes) / carved.stats[level - 1].nodes;
       }
@@ -322,6 +332,7 @@ class CarveStage : public Stage {
     options.outside = outside == "unknown" ? OutsideImage::kUnknown
                       : outside == "empty" ? OutsideImage::kEmpty
                                            : OutsideImage::kAuto;
+    options.leaf_test = params.String("leaf_test") == "box" ? LeafTest::kBox : LeafTest::kCentre;
     options.smooth_iterations = static_cast<int>(std::clamp<int64_t>(params.Int("smooth_iterations"), -1, 100000));
     options.smooth_lambda = params.Double("smooth_lambda");
     options.smooth_mu = params.Double("smooth_mu");
@@ -405,6 +416,7 @@ class CarveStage : public Stage {
     const double half = Median(distances);
     CarveOptions coarse = options;
     coarse.levels = std::min(options.levels, 6);
+    coarse.leaf_test = LeafTest::kBox;  // the box must contain the conservative hull
     const CarveResult result =
         CarveOctree(views, center - Eigen::Vector3d::Constant(half), 2 * half, coarse, context.progress);
     const std::vector<HullCell> cells = HullCells(result.octree, coarse.levels);

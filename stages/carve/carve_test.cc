@@ -1,6 +1,7 @@
 // Tests of the carve stage: options, the octree file round trip, the synthetic object ring with
-// exact masks at level 7 (no ground-truth-occupied voxel carved, IoU >= 0.99 with the brute-force
-// per-voxel test on the same grid, hull mesh encloses the object), depth bounds against true
+// exact masks at level 7 (no ground-truth-occupied voxel carved, IoU >= 0.99 with the object's
+// visual hull by brute force on the same grid; leaf_test box equals the brute-force projected-box
+// test and contains it; hull mesh encloses the object), depth bounds against true
 // depth, the held-out level choice through the adapter, and bad input (wrong-size mask, empty
 // silhouette, a camera that does not see the volume).
 #include "stages/carve/carve.h"
@@ -26,7 +27,10 @@ void RegisterStage_carve(StageRegistry* registry);
 
 namespace {
 
-// A small object ring rendered once for all tests: scene, exact masks and depth maps.
+// A small object ring rendered once for all tests: scene, exact masks and depth maps. 960x720, so
+// that a level-7 cell spans about four pixels: the masks resolve the grid. (At 240x180 a cell is
+// about one pixel, and the half-pixel tolerance that keeps every object voxel against masks sampled
+// at pixel centres is itself a shell of half a cell: IoU 0.962 with the centre-sample hull.)
 struct Ring {
   SynthOptions options;
   SynthScene scene;
@@ -38,8 +42,8 @@ const Ring& TheRing() {
   static const Ring* ring = [] {
     auto* r = new Ring;
     r->options.views = 16;
-    r->options.width = 240;
-    r->options.height = 180;
+    r->options.width = 960;
+    r->options.height = 720;
     r->options.supersample = 1;
     r->options.subdivision = 4;
     r->options.sparse_points = 0;
@@ -184,18 +188,35 @@ TEST(CarveSynthetic, Level7ContainsTheObjectAndMatchesBruteForce) {
   }
   ASSERT_GT(truth_count, 50000u);
   EXPECT_EQ(carved_truth, 0u) << "ground-truth-occupied voxels carved";
-  const std::vector<uint8_t> brute = CarveBruteForce(ring.views, result.outside_empty, origin, size, 7);
-  const double iou = GridIou(hull, brute);
-  EXPECT_GE(iou, 0.99);
-  // Against the centre-sample visual hull the conservative hull is up to one cell fatter at the
-  // surface (a cube is kept while any part of its projected box touches the silhouette).
+  // The object's visual hull by brute force on the same grid (a voxel is kept when its centre
+  // projects into every silhouette): the default leaf test decides the finest partial cells the
+  // same way, and coarser full/empty nodes agree with it.
   const std::vector<uint8_t> centre_hull = CentreSampleHull(ring.views, result.outside_empty, origin, cell, n);
-  const double centre_iou = GridIou(hull, centre_hull);
-  EXPECT_GE(centre_iou, 0.85);
-  size_t centre_missing = 0;
-  for (size_t i = 0; i < hull.size(); ++i) centre_missing += centre_hull[i] && !hull[i];
+  const double iou = GridIou(hull, centre_hull);
+  EXPECT_GE(iou, 0.99);
+  EXPECT_EQ(result.stats[7].partial, 0u);
+  EXPECT_GT(result.stats[7].leaves_kept_by_centre, 0u);
+  EXPECT_GT(result.stats[7].leaves_dropped_by_centre, 0u);
+
+  // leaf_test box: every partial leaf kept, a conservative hull equal to the brute-force per-voxel
+  // projected-box test, containing the centre-sample hull and up to one cell fatter.
+  CarveOptions box_options = options;
+  box_options.leaf_test = LeafTest::kBox;
+  const CarveResult box_result = CarveOctree(ring.views, origin, size, box_options);
+  const std::vector<uint8_t> box_hull = DenseHull(box_result.octree, 7);
+  const std::vector<uint8_t> brute = CarveBruteForce(ring.views, result.outside_empty, origin, size, 7);
+  EXPECT_GE(GridIou(box_hull, brute), 0.9999);
+  size_t centre_missing = 0, hull_missing = 0;
+  for (size_t i = 0; i < hull.size(); ++i) {
+    centre_missing += centre_hull[i] && !box_hull[i];
+    hull_missing += hull[i] && !box_hull[i];
+  }
   EXPECT_EQ(centre_missing, 0u) << "the conservative hull must contain the centre-sample hull";
-  std::cout << "[carve test] level 7: IoU vs centre-sample visual hull " << centre_iou << std::endl;
+  EXPECT_EQ(hull_missing, 0u) << "the conservative hull must contain the centre-test hull";
+  const double box_centre_iou = GridIou(box_hull, centre_hull);
+  EXPECT_LT(box_centre_iou, iou);
+  std::cout << "[carve test] level 7: IoU vs centre-sample visual hull " << iou << " (leaf_test centre), "
+            << box_centre_iou << " (leaf_test box, which equals the brute-force box test)" << std::endl;
   // Node counts grow like the surface (~4x per level), not the volume (8x).
   for (int level = 4; level <= 7; ++level) {
     const double ratio = static_cast<double>(result.stats[level].nodes) / result.stats[level - 1].nodes;
@@ -203,8 +224,7 @@ TEST(CarveSynthetic, Level7ContainsTheObjectAndMatchesBruteForce) {
     EXPECT_GT(ratio, 2.5) << "level " << level;
   }
   // Informational: volume IoU with the object itself (the visual hull cannot see the dents).
-  std::cout << "[carve test] level 7: " << truth_count << " object voxels, 0 carved; IoU vs brute force " << iou
-            << ", vs object " << GridIou(hull, truth) << std::endl;
+  std::cout << "[carve test] level 7: " << truth_count << " object voxels, 0 carved; IoU vs object " << GridIou(hull, truth) << std::endl;
 
   // The smoothed mesh still encloses every object voxel and the hull.
   HullMeshStats stats;
@@ -332,6 +352,7 @@ StageContext CarveContext(const Stage& stage, const std::string& root, NullProgr
   context.progress = progress;
   context.params.Set("levels", int64_t{6});
   context.params.Set("outside", std::string("auto"));
+  context.params.Set("leaf_test", std::string("centre"));
   context.params.Set("volume", std::string("auto"));
   context.params.Set("bbox", std::vector<double>{});
   context.params.Set("volume_margin", 0.05);
@@ -392,7 +413,7 @@ TEST(CarveStage, BadMasksAreNamed) {
   const std::string root = RingWorkspace("bad", {});
   NullProgress progress;
   // An empty silhouette: skipped with a warning, listed in the record.
-  WriteImage(root + "/masks/" + ring.views[5].name + ".png", cv::Mat::zeros(180, 240, CV_8UC1));
+  WriteImage(root + "/masks/" + ring.views[5].name + ".png", cv::Mat::zeros(ring.options.height, ring.options.width, CV_8UC1));
   StageContext context = CarveContext(*stage, root, &progress);
   context.params.Set("levels", int64_t{4});
   stage->Run(context);
@@ -410,7 +431,7 @@ TEST(CarveStage, BadMasksAreNamed) {
   }
   // Every silhouette empty: a clear error, not an empty hull reported as success.
   for (const CarveView& view : ring.views) {
-    WriteImage(root + "/masks/" + view.name + ".png", cv::Mat::zeros(180, 240, CV_8UC1));
+    WriteImage(root + "/masks/" + view.name + ".png", cv::Mat::zeros(ring.options.height, ring.options.width, CV_8UC1));
   }
   StageContext empty = CarveContext(*stage, root, &progress);
   EXPECT_THROW(stage->Run(empty), InputError);
