@@ -30,14 +30,29 @@ nlohmann::json ToJson(const PoseEvaluation& eval) {
           {"max_rotation_error_deg", eval.max_rotation_deg},
           {"median_centre_error_over_ring_diameter", eval.median_centre_fraction},
           {"max_centre_error_over_ring_diameter", eval.max_centre_fraction},
-          {"median_focal_error_fraction", eval.median_focal_fraction}, {"cameras", cameras}};
+          {"median_focal_error_fraction", eval.median_focal_fraction},
+          {"alignment", "similarity fitted to centres and orientations"},
+          {"centre_only_alignment",
+           {{"median_rotation_error_deg", eval.centre_only.median_rotation_deg},
+            {"mean_rotation_error_deg", eval.centre_only.mean_rotation_deg},
+            {"max_rotation_error_deg", eval.centre_only.max_rotation_deg},
+            {"median_centre_error_over_ring_diameter", eval.centre_only.median_centre_fraction},
+            {"max_centre_error_over_ring_diameter", eval.centre_only.max_centre_fraction}}},
+          {"identical_to_truth", eval.identical_to_truth}, {"cameras", cameras}};
 }
 
 void Log(const PoseEvaluation& eval) {
+  if (eval.identical_to_truth) {
+    spdlog::warn("[eval_poses] the model is the truth itself (every pose equal): nothing is measured; did sfm fall "
+                 "back to the known cameras? (see records/sfm.json)");
+  }
   spdlog::info("[eval_poses] {} of {} registered; rotation error median {:.3f} deg (max {:.3f}); centre error median "
                "{:.3f}% of the ring diameter (max {:.3f}%); focal error median {:.3f}%",
                eval.registered, eval.total, eval.median_rotation_deg, eval.max_rotation_deg,
                100 * eval.median_centre_fraction, 100 * eval.max_centre_fraction, 100 * eval.median_focal_fraction);
+  spdlog::info("[eval_poses] aligned by the centres only: rotation error median {:.3f} deg, centre error median "
+               "{:.3f}%",
+               eval.centre_only.median_rotation_deg, 100 * eval.centre_only.median_centre_fraction);
 }
 
 class EvalPosesStage : public Stage {
@@ -46,7 +61,7 @@ class EvalPosesStage : public Stage {
   std::string Summary() const override {
     return "Pose errors of sparse/ against ground_truth/sparse/ after a similarity alignment";
   }
-  std::string Version() const override { return "1"; }
+  std::string Version() const override { return "2"; }
   HoldoutRole Role() const override { return HoldoutRole::kAllViews; }
   std::vector<ParamSpec> Parameters() const override {
     return {{"min_common", ParamType::kInt, "3", "Cameras needed in both models for the alignment; >= 3"},
