@@ -87,6 +87,7 @@ bool MultiDepthOptions::Check(std::string* error) const {
   };
   if (!(depth_tolerance > 0 && depth_tolerance <= 0.5)) return fail("depth_tolerance: must be in (0, 0.5], got " + std::to_string(depth_tolerance));
   if (min_consistent_views < 1 || min_consistent_views > 64) return fail("min_consistent_views: must be in [1, 64], got " + std::to_string(min_consistent_views));
+  if (!(violation_tolerance > 0 && violation_tolerance <= 1)) return fail("violation_tolerance: must be in (0, 1], got " + std::to_string(violation_tolerance));
   if (!(max_violation_ratio >= 0)) return fail("max_violation_ratio: must be >= 0, got " + std::to_string(max_violation_ratio));
   if (!(min_confidence >= 0 && min_confidence <= 1)) return fail("min_confidence: must be in [0, 1], got " + std::to_string(min_confidence));
   if (max_neighbors < 1 || max_neighbors > 64) return fail("max_neighbors: must be in [1, 64], got " + std::to_string(max_neighbors));
@@ -135,6 +136,7 @@ struct Votes {
 Votes Vote(const Eigen::Vector3f& ray, float depth, float confidence, const std::vector<PreparedNeighbor>& prepared,
            const MultiDepthOptions& options) {
   const float tolerance = static_cast<float>(options.depth_tolerance), smooth = 5 * tolerance;
+  const float see_through = std::max(tolerance, static_cast<float>(options.violation_tolerance));
   Votes votes;
   votes.weight_sum = votes.confidence_sum = confidence;
   votes.weighted_depth = confidence * depth;
@@ -150,10 +152,11 @@ Votes Vote(const Eigen::Vector3f& ray, float depth, float confidence, const std:
     if (neighbor_confidence < options.min_confidence) continue;
     const float relative = (neighbor_depth - in_neighbor.z()) / in_neighbor.z();
     if (relative < -tolerance) continue;  // visibility: a nearer surface hides the point from this view
-    if (relative > tolerance) {           // the neighbour saw through the point: free-space violation
+    if (relative > see_through) {         // the neighbour saw through the point: free-space violation
       ++votes.violations;
       continue;
     }
+    if (relative > tolerance) continue;   // neither agreement nor clearly free space
     ++votes.confirmations;
     votes.confidence_sum += neighbor_confidence;
     if (options.refine_depth) {

@@ -4,8 +4,8 @@
 // where the neighbour's own depth map decides its vote:
 //   * visibility v_st (line ~5880): the neighbour's depth at the projection is clearly smaller than
 //     the sample's depth in that view -> a nearer surface hides the sample there: no vote;
-//   * clearly larger -> the neighbour saw through the sample (a free-space violation): a vote
-//     against it;
+//   * clearly larger (by more than violation_tolerance) -> the neighbour saw through the sample
+//     (a free-space violation): a vote against it;
 //   * within a relative tolerance -> depth compatibility (the "controlled depth compatibility"
 //     term): a vote for it.
 // Samples that fewer than `min_consistent_views` neighbours confirm, or that more neighbours see
@@ -31,6 +31,11 @@ struct MultiDepthOptions {
   double depth_tolerance = 0.01;     // relative depth difference counted as agreement, in (0, 0.5]
   int min_consistent_views = 2;      // other views that must confirm a sample, in [1, 64]
   double max_violation_ratio = 0.5;  // reject when free-space violations > ratio * confirmations, >= 0
+  // A neighbour sees through a sample only when its depth there is farther by more than this
+  // (relative; at least depth_tolerance). Between the two tolerances the neighbour neither
+  // confirms nor contradicts: two noisy estimates of one surface often differ by a little more
+  // than the agreement tolerance, and counting that as free space rejects good samples.
+  double violation_tolerance = 0.03;  // in (0, 1]
   double min_confidence = 0.1;       // photometric confidence below this: sample dropped, in [0, 1]
   bool refine_depth = true;          // replace depth by the weighted mean of the confirming depths
   int max_neighbors = 8;             // neighbour views per key view (closest viewing directions), [1, 64]

@@ -68,6 +68,8 @@ class MultiDepthStage : public Stage {
     return {
         {"depth_tolerance", ParamType::kDouble, "0.01", "Relative depth difference that counts as agreement, in (0, 0.5]"},
         {"min_consistent_views", ParamType::kInt, "2", "Other views that must confirm a sample, in [1, 64]"},
+        {"violation_tolerance", ParamType::kDouble, "0.03",
+         "A neighbour sees through a sample when its depth is farther by more than this (relative), in (0, 1]"},
         {"max_violation_ratio", ParamType::kDouble, "0.5", "Reject when free-space violations exceed ratio * confirmations, >= 0"},
         {"min_confidence", ParamType::kDouble, "0.1", "Photometric confidence below this drops a sample, in [0, 1]"},
         {"refine_depth", ParamType::kBool, "true", "Replace depth by the confidence-weighted mean of confirming depths"},
@@ -212,6 +214,7 @@ class MultiDepthStage : public Stage {
     options.depth_tolerance = params.Double("depth_tolerance");
     options.min_consistent_views = static_cast<int>(params.Int("min_consistent_views"));
     options.max_violation_ratio = params.Double("max_violation_ratio");
+    options.violation_tolerance = params.Double("violation_tolerance");
     options.min_confidence = params.Double("min_confidence");
     options.refine_depth = params.Bool("refine_depth");
     options.max_neighbors = static_cast<int>(params.Int("max_neighbors"));

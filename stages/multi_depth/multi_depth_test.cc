@@ -135,6 +135,9 @@ TEST(MultiDepthOptions, RejectsInvalidRanges) {
   o.max_violation_ratio = -1;
   expect_error(o, "max_violation_ratio");
   o = MultiDepthOptions();
+  o.violation_tolerance = 0;
+  expect_error(o, "violation_tolerance");
+  o = MultiDepthOptions();
   o.min_confidence = 1.5;
   expect_error(o, "min_confidence");
   o = MultiDepthOptions();
@@ -281,6 +284,27 @@ TEST(MultiDepth, FloatingBlobInFreeSpaceIsRejected) {
     EXPECT_GT(result.stats.violated, blob * 9 / 10);
     if (fill) EXPECT_GT(true_surface, blob / 4);  // from the blob's rim inwards, where other views confirm
   }
+}
+
+// Neighbours whose depths lie 2% behind the key's surface: past the agreement tolerance (1%), but
+// free space only when the violation tolerance is below 2%.
+TEST(MultiDepth, SmallDisagreementIsNotFreeSpace) {
+  const Scene scene = MakeScene();
+  std::vector<DepthView> views = scene.truth;
+  for (size_t i = 1; i < views.size(); ++i) {
+    for (float& d : views[i].depth.data) d *= 1.02f;
+  }
+  size_t samples = 0;
+  for (const float d : views[0].depth.data) samples += d > 0;
+  MultiDepthOptions options;
+  options.fill_from_neighbors = false;
+  options.violation_tolerance = 0.01;
+  const MultiDepthResult strict = MakeDepthConsistent(views[0], Others(views, 0), options);
+  EXPECT_GT(strict.stats.violated, samples * 9 / 10);
+  options.violation_tolerance = 0.03;
+  const MultiDepthResult lenient = MakeDepthConsistent(views[0], Others(views, 0), options);
+  EXPECT_LT(lenient.stats.violated, samples / 10);  // silhouettes: the scaled maps differ in shape there
+  EXPECT_GT(lenient.stats.unconfirmed, samples * 8 / 10);  // nor do they confirm
 }
 
 TEST(MultiDepth, LowConfidenceSamplesAreDropped) {
