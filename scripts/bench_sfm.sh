@@ -25,6 +25,8 @@ RUNS=(
   "dino_sparse|middlebury_dino_sparse_sfm.yaml|"
   "temple_ring_known|middlebury_temple_ring_sfm.yaml|"
   "temple_ring_estimated|middlebury_temple_ring_sfm.yaml|sfm.known_intrinsics=false"
+  "synth_known|synth_sfm.yaml|"
+  "synth_estimated|synth_sfm.yaml|sfm.known_intrinsics=false"
 )
 SELECTED=("$@")
 for entry in "${RUNS[@]}"; do

@@ -4,6 +4,8 @@
 
 #include <gtest/gtest.h>
 
+#include <unistd.h>
+
 #include <filesystem>
 
 #include "pipeline/core/colmap_text_io.h"
@@ -122,6 +124,11 @@ TEST(EvalPoses, AlignmentUsesOrientationsAndCentres) {
 TEST(EvalPoses, TruthAgainstItselfIsFlagged) {
   const SparseModel truth = Ring(8);
   EXPECT_TRUE(EvaluatePoses(truth, truth, EvalPosesOptions()).identical_to_truth);
+  // Through a text round trip (the sfm fallback writes the known cameras back).
+  const fs::path dir = fs::temp_directory_path() / ("ibmr_eval_identical_" + std::to_string(::getpid()));
+  WriteSparseModelText(dir.string(), truth);
+  EXPECT_TRUE(EvaluatePoses(ReadSparseModelText(dir.string()), truth, EvalPosesOptions()).identical_to_truth);
+  fs::remove_all(dir);
   EXPECT_FALSE(EvaluatePoses(Transformed(truth, 2.0, Eigen::Matrix3d::Identity(), Eigen::Vector3d::Zero()), truth,
                              EvalPosesOptions()).identical_to_truth);
 }
