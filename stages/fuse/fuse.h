@@ -106,4 +106,15 @@ FusionAccuracy EvaluateFusion(const PointCloud& cloud, const TriangleMesh& mesh,
                               const std::vector<Eigen::Vector3f>& surface_samples, double threshold,
                               const std::vector<char>* visible = nullptr);
 
+// How many of the cloud's points that project into a view (in front of it, inside the image) land
+// on its silhouette (`mask` nonzero, nearest pixel): the check that fused points lie on the object
+// where no true surface is known (real photographs with silhouettes from the `silhouettes` stage).
+struct SilhouetteHits {
+  size_t projected = 0;
+  size_t on_silhouette = 0;
+  double Fraction() const { return projected ? static_cast<double>(on_silhouette) / projected : 0.0; }
+};
+SilhouetteHits ProjectOntoSilhouette(const PointCloud& cloud, const Camera& camera, const Rigid3d& cam_from_world,
+                                     const cv::Mat& mask);
+
 }  // namespace ibmr

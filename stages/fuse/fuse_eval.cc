@@ -184,4 +184,21 @@ FusionAccuracy EvaluateFusion(const PointCloud& cloud, const TriangleMesh& mesh,
   return result;
 }
 
+SilhouetteHits ProjectOntoSilhouette(const PointCloud& cloud, const Camera& camera, const Rigid3d& cam_from_world,
+                                     const cv::Mat& mask) {
+  SilhouetteHits hits;
+  if (mask.empty() || mask.type() != CV_8UC1) return hits;
+  const double sx = static_cast<double>(mask.cols) / camera.width, sy = static_cast<double>(mask.rows) / camera.height;
+  for (const Eigen::Vector3f& point : cloud.positions) {
+    const Eigen::Vector3d in_cam = cam_from_world * point.cast<double>();
+    if (in_cam.z() <= 0) continue;
+    const Eigen::Vector2d pixel = camera.ImgFromCam(in_cam);
+    const int x = static_cast<int>(std::floor(pixel.x() * sx)), y = static_cast<int>(std::floor(pixel.y() * sy));
+    if (x < 0 || y < 0 || x >= mask.cols || y >= mask.rows) continue;
+    ++hits.projected;
+    hits.on_silhouette += mask.at<uint8_t>(y, x) != 0;
+  }
+  return hits;
+}
+
 }  // namespace ibmr

@@ -70,6 +70,7 @@ class FuseStage : public Stage {
       inputs.push_back(Workspace::ConfidenceMapRelative(name, kind));
     }
     inputs.push_back("ground_truth/mesh.ply");  // metrics only; "missing" on real data
+    inputs.push_back("masks");                  // metrics only (silhouette check); may be missing
     return inputs;
   }
 
@@ -122,6 +123,7 @@ class FuseStage : public Stage {
     spdlog::info("[fuse] {} views, {} samples -> {} points ({} seen in >= {} views)", names.size(), stats.samples, stats.points,
                  stats.kept_points, options.min_views);
     if (fs::exists(workspace.GroundTruthMeshPath())) Evaluate(context, model, names, cloud);
+    if (fs::is_directory(workspace.MasksDir())) CheckSilhouettes(context, model, names, cloud);
   }
 
  private:
@@ -163,6 +165,39 @@ class FuseStage : public Stage {
     m["accuracy_90_over_threshold"] = a.accuracy_90 / threshold;
     spdlog::info("[fuse] accuracy (90%) {:.4g}, completeness {:.1f}% ({:.1f}% of the seen surface) within {:.4g}", a.accuracy_90,
                  100 * a.completeness, 100 * std::max(0.0, a.completeness_visible), threshold);
+  }
+
+  // Fraction of the fused points, per training view with a mask, that project onto the silhouette.
+  static void CheckSilhouettes(StageContext& context, const SparseModel& model, const std::vector<std::string>& names,
+                               const PointCloud& cloud) {
+    std::vector<double> fractions;
+    nlohmann::json per_view = nlohmann::json::object();
+    SilhouetteHits total;
+    for (const std::string& name : names) {
+      const std::string path = context.workspace.MaskPath(name);
+      if (!fs::exists(path)) continue;
+      const Image& image = *model.FindImage(name);
+      const cv::Mat mask = ReadImageUnchanged(path);
+      if (mask.type() != CV_8UC1) {
+        spdlog::warn("[fuse] {}: not an 8-bit one-channel mask; not used for the silhouette check", path);
+        continue;
+      }
+      const SilhouetteHits hits = ProjectOntoSilhouette(cloud, model.CameraOf(image), image.cam_from_world, mask);
+      if (hits.projected == 0) continue;
+      per_view[name] = hits.Fraction();
+      fractions.push_back(hits.Fraction());
+      total.projected += hits.projected;
+      total.on_silhouette += hits.on_silhouette;
+    }
+    if (fractions.empty()) return;
+    std::sort(fractions.begin(), fractions.end());
+    nlohmann::json& m = context.metrics;
+    m["on_silhouette_fraction"] = total.Fraction();
+    m["on_silhouette_fraction_min_view"] = fractions.front();
+    m["on_silhouette_fraction_median_view"] = fractions[fractions.size() / 2];
+    m["on_silhouette_per_view"] = per_view;
+    spdlog::info("[fuse] {:.1f}% of the fused points project onto the silhouettes of masks/ ({} views; worst view {:.1f}%)",
+                 100 * total.Fraction(), fractions.size(), 100 * fractions.front());
   }
 
   static std::vector<std::string> Names(const StageContext& context) {

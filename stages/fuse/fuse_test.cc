@@ -8,6 +8,7 @@
 #include <unistd.h>
 
 #include <filesystem>
+#include <opencv2/imgproc.hpp>
 #include <random>
 
 #include "pipeline/core/colmap_array_io.h"
@@ -177,6 +178,31 @@ TEST(Fuse, LowConfidenceSamplesMakeNoPoints) {
   FuseStats stats;
   EXPECT_EQ(fuser.Finish(&stats).size(), 0u);
   EXPECT_EQ(stats.samples, 0u);
+}
+
+// Points on a fronto-parallel square at depth 2 seen by one camera; the mask covers the left half
+// of the image: the points left of the optical axis are on the silhouette, those behind the
+// camera or outside the image are not counted.
+TEST(SilhouetteCheck, CountsPointsLandingOnTheMask) {
+  const Camera camera = Camera::Pinhole(100, 80, 50, 50, 50, 40);
+  const Rigid3d cam_from_world;  // identity
+  cv::Mat mask = cv::Mat::zeros(80, 100, CV_8UC1);
+  mask.colRange(0, 50).setTo(255);
+  PointCloud cloud;
+  for (int i = 0; i < 40; ++i) {
+    const float x = -1.5f + 3.0f * (i + 0.5f) / 40;  // projects to 50 + 25 x: columns 13..87
+    cloud.positions.emplace_back(x, 0.1f, 2.0f);
+  }
+  cloud.positions.emplace_back(0.f, 0.f, -2.f);  // behind the camera
+  cloud.positions.emplace_back(10.f, 0.f, 2.f);  // out of the image
+  const SilhouetteHits hits = ProjectOntoSilhouette(cloud, camera, cam_from_world, mask);
+  EXPECT_EQ(hits.projected, 40u);
+  EXPECT_EQ(hits.on_silhouette, 20u);
+  EXPECT_DOUBLE_EQ(hits.Fraction(), 0.5);
+  // A mask at half the camera's resolution samples the same places.
+  cv::Mat half;
+  cv::resize(mask, half, cv::Size(50, 40), 0, 0, cv::INTER_NEAREST);
+  EXPECT_EQ(ProjectOntoSilhouette(cloud, camera, cam_from_world, half).on_silhouette, 20u);
 }
 
 TEST(FuseStage, WritesAReadablePlyAndRecordsAccuracy) {
