@@ -141,6 +141,13 @@ std::vector<std::string> FixedIntrinsicsArgs(const KnownIntrinsics& intrinsics) 
           "--Mapper.ba_refine_extra_params", "0"};
 }
 
+std::vector<std::string> FilterArgs(const SfmOptions& options) {
+  std::ostringstream error;
+  error << options.filter_max_reproj_error;
+  return {"--Mapper.filter_max_reproj_error", error.str(), "--Mapper.ba_global_max_refinements",
+          std::to_string(options.global_refinements)};
+}
+
 // One full attempt. Returns the model with the most registered images (empty when none).
 SparseModel RunAttempt(const Attempt& a, const std::string& image_dir, const std::vector<std::string>& names,
                        const KnownIntrinsics& intrinsics, const std::string& work_dir, const SfmOptions& options,
@@ -186,6 +193,7 @@ SparseModel RunAttempt(const Attempt& a, const std::string& image_dir, const std
                                      "--Mapper.abs_pose_min_num_inliers", std::to_string(a.abs_pose_min_num_inliers),
                                      "--Mapper.abs_pose_min_inlier_ratio", std::to_string(a.abs_pose_min_inlier_ratio)};
   for (const std::string& s : FixedIntrinsicsArgs(intrinsics)) mapper.push_back(s);
+  for (const std::string& s : FilterArgs(options)) mapper.push_back(s);
   // "Registering image #12 (5)": the running count of registered images.
   if (!runner->Run(a.index, "mapper", mapper, "mapping (registered views)", n, std::regex(R"(Registering image #\d+ \((\d+)\))"),
                    &error)) {
@@ -224,9 +232,11 @@ SparseModel RunAttempt(const Attempt& a, const std::string& image_dir, const std
                                      "--Mapper.abs_pose_min_num_inliers", "10", "--Mapper.abs_pose_min_inlier_ratio", "0.05",
                                      "--Mapper.abs_pose_max_error", "16"};
     for (const std::string& s : FixedIntrinsicsArgs(intrinsics)) args.push_back(s);
+    for (const std::string& s : FilterArgs(options)) args.push_back(s);
     std::vector<std::string> tri_args = {"--database_path", database, "--image_path", image_dir, "--input_path", reg,
                                          "--output_path", tri};
     for (const std::string& s : FixedIntrinsicsArgs(intrinsics)) tri_args.push_back(s);
+    for (const std::string& s : FilterArgs(options)) tri_args.push_back(s);
     std::vector<std::string> ba_args = {"--input_path", tri, "--output_path", ba};
     if (!intrinsics.model.empty()) {
       ba_args.insert(ba_args.end(), {"--BundleAdjustment.refine_focal_length", "0",
@@ -253,6 +263,12 @@ bool SfmOptions::Check(std::string* error) const {
   if (colmap.empty()) return Fail(error, "colmap: must name the COLMAP executable");
   if (max_image_size < 100) return Fail(error, "max_image_size: must be >= 100, got " + std::to_string(max_image_size));
   if (max_num_features < 100) return Fail(error, "max_num_features: must be >= 100, got " + std::to_string(max_num_features));
+  if (!(filter_max_reproj_error > 0 && filter_max_reproj_error <= 100)) {
+    return Fail(error, "filter_max_reproj_error: must be in (0, 100] pixels, got " + std::to_string(filter_max_reproj_error));
+  }
+  if (global_refinements < 1 || global_refinements > 100) {
+    return Fail(error, "global_refinements: must be in 1..100, got " + std::to_string(global_refinements));
+  }
   if (max_attempts < 1 || max_attempts > 5) return Fail(error, "max_attempts: must be in 1..5, got " + std::to_string(max_attempts));
   if (num_threads == 0 || num_threads < -1) return Fail(error, "num_threads: must be -1 (all) or > 0, got " + std::to_string(num_threads));
   static const std::set<std::string> kModels = {"SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV", "FULL_OPENCV"};

@@ -112,6 +112,9 @@ class SfmStage : public Stage {
         {"max_image_size", ParamType::kInt, "3200", "Longest image side for feature extraction (px); >= 100"},
         {"max_num_features", ParamType::kInt, "8192", "SIFT features per image, first attempt; >= 100"},
         {"max_attempts", ParamType::kInt, "3", "Attempts with stronger settings while views stay unregistered; 1..5"},
+        {"filter_max_reproj_error", ParamType::kDouble, "4.0",
+         "Drop observations reprojecting farther than this (px) between bundle adjustments; (0, 100]"},
+        {"global_refinements", ParamType::kInt, "5", "Filter-and-adjust rounds of each global bundle adjustment; 1..100"},
         {"register_remaining", ParamType::kBool, "true", "Register views the mapper left out (image_registrator + BA)"},
         {"min_registered_fraction", ParamType::kDouble, "0.5", "Below this fraction of views the run has failed; (0, 1]"},
         {"on_failure", ParamType::kString, "error", "On failure: error, or keep_input (write the known cameras back)",
@@ -188,6 +191,8 @@ class SfmStage : public Stage {
     options.max_num_features = static_cast<int>(params.Int("max_num_features"));
     options.max_attempts = static_cast<int>(params.Int("max_attempts"));
     options.register_remaining = params.Bool("register_remaining");
+    options.filter_max_reproj_error = params.Double("filter_max_reproj_error");
+    options.global_refinements = static_cast<int>(std::clamp<int64_t>(params.Int("global_refinements"), -1, 1000));
     options.num_threads = static_cast<int>(params.Int("num_threads"));
     return options;
   }

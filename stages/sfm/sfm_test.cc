@@ -52,6 +52,12 @@ TEST(SfmOptions, RejectsBadValues) {
   o = {};
   o.num_threads = 0;
   expect_key(o, "num_threads");
+  o = {};
+  o.filter_max_reproj_error = 0;
+  expect_key(o, "filter_max_reproj_error");
+  o = {};
+  o.global_refinements = 0;
+  expect_key(o, "global_refinements");
 }
 
 TEST(Sfm, MissingColmapSaysWhatToInstall) {
