@@ -3,12 +3,14 @@
 // only ever see the previous complete file or the new complete file.
 #include "pipeline/core/atomic_file.h"
 
+#include <signal.h>
 #include <unistd.h>
 
 #include <cerrno>
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
+#include <regex>
 #include <system_error>
 
 #include "pipeline/core/errors.h"
@@ -92,6 +94,32 @@ std::string ReadFile(const std::string& path) {
   std::fclose(file);
   if (failed) throw IoError("cannot read " + path + ": " + reason);
   return bytes;
+}
+
+size_t RemoveStaleTemporaries(const std::string& path) {
+  static const std::regex kTemporary(R"(.*\.tmp\.?(\d+)(\.[^.]+)?$)");
+  std::error_code ec;
+  const fs::path root(path);
+  const fs::path folder = fs::is_directory(root, ec) ? root : root.parent_path();
+  const std::string prefix = fs::is_directory(root, ec) ? "" : root.filename().stem().string();
+  if (folder.empty() || !fs::is_directory(folder, ec)) return 0;
+  size_t removed = 0;
+  const auto consider = [&](const fs::directory_entry& entry) {
+    if (!entry.is_regular_file(ec)) return;
+    const std::string name = entry.path().filename().string();
+    if (!prefix.empty() && name.rfind(prefix, 0) != 0) return;  // a file's own temporaries only
+    std::smatch match;
+    if (!std::regex_match(name, match, kTemporary)) return;
+    const long pid = std::stol(match[1]);
+    if (pid <= 0 || pid == ::getpid() || (::kill(static_cast<pid_t>(pid), 0) == 0 || errno == EPERM)) return;
+    if (fs::remove(entry.path(), ec)) ++removed;
+  };
+  if (prefix.empty()) {
+    for (fs::recursive_directory_iterator it(folder, ec), end; !ec && it != end; it.increment(ec)) consider(*it);
+  } else {
+    for (fs::directory_iterator it(folder, ec), end; !ec && it != end; it.increment(ec)) consider(*it);
+  }
+  return removed;
 }
 
 }  // namespace ibmr

@@ -12,6 +12,10 @@ void WriteFileAtomic(const std::string& path, const std::string& bytes);
 // Calls `write(tmp_path)` to produce the file under a temporary name, then renames it onto
 // `path`. For writers that need a path of their own (cv::imwrite). Throws IoError.
 void WriteViaTemporary(const std::string& path, const std::function<void(const std::string& tmp_path)>& write);
+// Removes the temporaries that killed writers left under `path` (a file's folder siblings, or a
+// folder's files, recursively): names "<name>.tmp.<pid>" and "<stem>.tmp<pid><ext>" as written
+// above, whose process no longer exists. Returns how many were removed; never throws.
+size_t RemoveStaleTemporaries(const std::string& path);
 // Reads a whole file; throws IoError naming the path when it cannot.
 std::string ReadFile(const std::string& path);
 

@@ -101,3 +101,34 @@ TEST(AtomicFile, FailedWriterLeavesOldFile) {
 
 }  // namespace
 }  // namespace ibmr
+
+namespace ibmr {
+namespace {
+
+TEST(AtomicFile, StaleTemporariesOfDeadWritersAreRemoved) {
+  const fs::path dir = fs::temp_directory_path() / ("ibmr_stale_tmp_" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir / "maps" / "sub");
+  // A pid no process can have (above Linux's pid_max limit of 2^22).
+  const std::string dead = "999999999", alive = std::to_string(::getpid());
+  const auto touch = [](const fs::path& p) { std::ofstream(p) << "x"; };
+  touch(dir / "maps" / ("a.tmp" + dead + ".png"));            // WriteViaTemporary's name
+  touch(dir / "maps" / "sub" / ("b.bin.tmp." + dead));         // WriteFileAtomic's name
+  touch(dir / "maps" / ("c.tmp" + alive + ".png"));           // a live writer's: kept
+  touch(dir / "maps" / "a.png");                              // finished outputs: kept
+  touch(dir / "fused.ply");
+  touch(dir / ("fused.ply.tmp." + dead));
+  touch(dir / ("other.ply.tmp." + dead));                     // not this output's: kept
+  EXPECT_EQ(RemoveStaleTemporaries((dir / "maps").string()), 2u);
+  EXPECT_EQ(RemoveStaleTemporaries((dir / "fused.ply").string()), 1u);
+  EXPECT_TRUE(fs::exists(dir / "maps" / ("c.tmp" + alive + ".png")));
+  EXPECT_TRUE(fs::exists(dir / "maps" / "a.png"));
+  EXPECT_TRUE(fs::exists(dir / "fused.ply"));
+  EXPECT_TRUE(fs::exists(dir / ("other.ply.tmp." + dead)));
+  EXPECT_FALSE(fs::exists(dir / "maps" / ("a.tmp" + dead + ".png")));
+  EXPECT_EQ(RemoveStaleTemporaries((dir / "missing").string()), 0u);
+  fs::remove_all(dir);
+}
+
+}  // namespace
+}  // namespace ibmr

@@ -10,6 +10,7 @@
 #include <memory>
 #include <thread>
 
+#include "pipeline/core/atomic_file.h"
 #include "pipeline/core/colmap_text_io.h"
 #include "pipeline/core/content_hash.h"
 #include "pipeline/runner/record.h"
@@ -182,6 +183,9 @@ bool Runner::Execute(const Stage& stage, StageContext& context, const std::strin
   if (!context.heldout_images.empty()) {
     spdlog::info("[{}] {} held-out views are kept out", stage.Name(), context.heldout_images.size());
   }
+  size_t stale = 0;
+  for (const std::string& output : record.outputs) stale += RemoveStaleTemporaries(context.workspace.Path(output));
+  if (stale > 0) spdlog::info("[{}] removed {} temporary file(s) left by an interrupted run", stage.Name(), stale);
   ResetPeakMemory();
   const double cpu_start = CpuSeconds();
   const auto wall_start = std::chrono::steady_clock::now();
