@@ -26,6 +26,10 @@ double PeakResidentMb() {
 
 int main(int argc, char** argv) {
   using namespace ibmr;
+  if (argc > 1 && argv[1][0] == '-') {
+    std::cout << "usage: bench_carve [OUT.json [MAX_LEVEL (9)]]   levels 5..MAX_LEVEL on the synthetic ring\n";
+    return std::string(argv[1]) == "--help" || std::string(argv[1]) == "-h" ? 0 : 2;
+  }
   const int max_level = argc > 2 ? std::atoi(argv[2]) : 9;
   SynthOptions synth;  // object_ring, 24 views, 320x240
   synth.sparse_points = 0;
