@@ -13,24 +13,14 @@
 #include <opencv2/imgcodecs.hpp>
 #include <thread>
 
+#include "tests/run_command.h"
+
 namespace fs = std::filesystem;
 
 namespace {
 
-struct CommandResult {
-  int exit_code = -1;
-  std::string output;
-};
-
-CommandResult RunCommand(const std::string& command) {
-  CommandResult result;
-  FILE* pipe = ::popen((command + " 2>&1").c_str(), "r");
-  char buffer[4096];
-  while (pipe && std::fgets(buffer, sizeof(buffer), pipe)) result.output += buffer;
-  const int status = pipe ? ::pclose(pipe) : -1;
-  result.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  return result;
-}
+using ibmr_e2e::CommandResult;
+using ibmr_e2e::RunCommand;
 
 size_t CountFiles(const fs::path& dir, const std::string& suffix) {
   if (!fs::exists(dir)) return 0;

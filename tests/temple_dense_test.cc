@@ -7,26 +7,18 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
-#include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
 #include <sstream>
-#include <sys/wait.h>
+
+#include "tests/run_command.h"
 
 namespace fs = std::filesystem;
 
 namespace {
 
 const fs::path kTemple = fs::path(IBMR_SHARED_DIR) / "datasets" / "middlebury_templeSparseRing";
-
-int RunCommand(const std::string& command, std::string* output) {
-  FILE* pipe = ::popen((command + " 2>&1").c_str(), "r");
-  char buffer[4096];
-  while (pipe && std::fgets(buffer, sizeof(buffer), pipe)) *output += buffer;
-  const int status = pipe ? ::pclose(pipe) : -1;
-  return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-}
 
 nlohmann::json Metrics(const fs::path& workspace, const std::string& stage) {
   std::ifstream in(workspace / "records" / (stage + ".json"));
@@ -66,8 +58,8 @@ TEST(TempleDense, FusedPointsLandOnTheTemple) {
                                    "      num_planes: 96\n"
                                    "  - multi_depth: {min_consistent_views: 2}\n"
                                    "  - fuse: {input_type: geometric, min_views: 2}\n";
-  std::string output;
-  ASSERT_EQ(RunCommand(std::string(IBMR_BINARY) + " run " + (dir / "c.yaml").string(), &output), 0) << output;
+  const ibmr_e2e::CommandResult run = ibmr_e2e::RunCommand(std::string(IBMR_BINARY) + " run " + (dir / "c.yaml").string());
+  ASSERT_EQ(run.exit_code, 0) << run.output;
   const fs::path ws = dir / "ws";
   for (int i = 1; i <= 5; ++i) {
     const std::string name = "templeSR000" + std::to_string(i) + ".png";
