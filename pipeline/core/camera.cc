@@ -20,12 +20,13 @@ struct ModelInfo {
   const char* param_names;
 };
 
-constexpr std::array<ModelInfo, 5> kModels = {{
+constexpr std::array<ModelInfo, 6> kModels = {{
     {CameraModelId::kSimplePinhole, "SIMPLE_PINHOLE", 3, "f, cx, cy"},
     {CameraModelId::kPinhole, "PINHOLE", 4, "fx, fy, cx, cy"},
     {CameraModelId::kSimpleRadial, "SIMPLE_RADIAL", 4, "f, cx, cy, k"},
     {CameraModelId::kRadial, "RADIAL", 5, "f, cx, cy, k1, k2"},
     {CameraModelId::kOpenCV, "OPENCV", 8, "fx, fy, cx, cy, k1, k2, p1, p2"},
+    {CameraModelId::kFullOpenCV, "FULL_OPENCV", 12, "fx, fy, cx, cy, k1, k2, p1, p2, k3, k4, k5, k6"},
 }};
 
 const ModelInfo* FindModel(CameraModelId model) {
@@ -43,10 +44,24 @@ bool HasSingleFocal(CameraModelId model) {
 
 int PrincipalIndex(CameraModelId model) { return HasSingleFocal(model) ? 1 : 2; }
 
-// Distortion coefficients in OpenCV's (k1, k2, p1, p2) layout; zero for missing terms.
+// Distortion coefficients in OpenCV's (k1, k2, p1, p2, k3, k4, k5, k6) layout; zero for missing
+// terms.
 struct Coefficients {
-  double k1 = 0, k2 = 0, p1 = 0, p2 = 0;
+  double k1 = 0, k2 = 0, p1 = 0, p2 = 0, k3 = 0, k4 = 0, k5 = 0, k6 = 0;
+  bool Any() const { return k1 != 0 || k2 != 0 || p1 != 0 || p2 != 0 || k3 != 0 || k4 != 0 || k5 != 0 || k6 != 0; }
 };
+
+// The rational radial factor at r2 = r^2 and its derivative with respect to r2.
+double RadialFactor(const Coefficients& c, double r2, double* derivative = nullptr) {
+  const double numerator = 1.0 + r2 * (c.k1 + r2 * (c.k2 + r2 * c.k3));
+  const double denominator = 1.0 + r2 * (c.k4 + r2 * (c.k5 + r2 * c.k6));
+  if (derivative) {
+    const double d_numerator = c.k1 + r2 * (2.0 * c.k2 + 3.0 * c.k3 * r2);
+    const double d_denominator = c.k4 + r2 * (2.0 * c.k5 + 3.0 * c.k6 * r2);
+    *derivative = (d_numerator * denominator - numerator * d_denominator) / (denominator * denominator);
+  }
+  return numerator / denominator;
+}
 
 Coefficients CoefficientsOf(const Camera& camera) {
   const std::vector<double>& p = camera.params;
@@ -60,10 +75,17 @@ Coefficients CoefficientsOf(const Camera& camera) {
       c.k2 = p.at(4);
       break;
     case CameraModelId::kOpenCV:
+    case CameraModelId::kFullOpenCV:
       c.k1 = p.at(4);
       c.k2 = p.at(5);
       c.p1 = p.at(6);
       c.p2 = p.at(7);
+      if (camera.model == CameraModelId::kFullOpenCV) {
+        c.k3 = p.at(8);
+        c.k4 = p.at(9);
+        c.k5 = p.at(10);
+        c.k6 = p.at(11);
+      }
       break;
     default:
       break;
@@ -71,11 +93,12 @@ Coefficients CoefficientsOf(const Camera& camera) {
   return c;
 }
 
-// OpenCV's model (cv::projectPoints with k3 = 0) on normalised coordinates.
+// OpenCV's model (cv::projectPoints, rational radial factor, no thin-prism or tilt terms) on
+// normalised coordinates.
 Eigen::Vector2d ApplyDistortion(const Coefficients& c, const Eigen::Vector2d& u) {
   const double x = u.x(), y = u.y();
   const double r2 = x * x + y * y;
-  const double radial = 1.0 + r2 * (c.k1 + r2 * c.k2);
+  const double radial = RadialFactor(c, r2);
   return {x * radial + 2.0 * c.p1 * x * y + c.p2 * (r2 + 2.0 * x * x),
           y * radial + c.p1 * (r2 + 2.0 * y * y) + 2.0 * c.p2 * x * y};
 }
@@ -84,8 +107,8 @@ Eigen::Vector2d ApplyDistortion(const Coefficients& c, const Eigen::Vector2d& u)
 Eigen::Matrix2d DistortionJacobian(const Coefficients& c, const Eigen::Vector2d& u) {
   const double x = u.x(), y = u.y();
   const double r2 = x * x + y * y;
-  const double radial = 1.0 + r2 * (c.k1 + r2 * c.k2);
-  const double d_radial_d_r2 = c.k1 + 2.0 * c.k2 * r2;  // d(r2)/dx = 2x, d(r2)/dy = 2y
+  double d_radial_d_r2 = 0;  // d(r2)/dx = 2x, d(r2)/dy = 2y
+  const double radial = RadialFactor(c, r2, &d_radial_d_r2);
   Eigen::Matrix2d j;
   j(0, 0) = radial + 2.0 * x * x * d_radial_d_r2 + 2.0 * c.p1 * y + 6.0 * c.p2 * x;
   j(0, 1) = 2.0 * x * y * d_radial_d_r2 + 2.0 * c.p1 * x + 2.0 * c.p2 * y;
@@ -101,8 +124,8 @@ Eigen::Vector2d UndistortFixedPoint(const Coefficients& c, const Eigen::Vector2d
   for (int i = 0; i < 200; ++i) {
     const double x = u.x(), y = u.y();
     const double r2 = x * x + y * y;
-    const double radial = 1.0 + r2 * (c.k1 + r2 * c.k2);
-    if (!(std::abs(radial) > 1e-12)) break;
+    const double radial = RadialFactor(c, r2);
+    if (!(std::abs(radial) > 1e-12) || !std::isfinite(radial)) break;
     const Eigen::Vector2d tangential(2.0 * c.p1 * x * y + c.p2 * (r2 + 2.0 * x * x),
                                      c.p1 * (r2 + 2.0 * y * y) + 2.0 * c.p2 * x * y);
     const Eigen::Vector2d next = (distorted - tangential) / radial;
@@ -188,10 +211,7 @@ Eigen::Matrix3d Camera::K() const {
   return k;
 }
 
-bool Camera::HasDistortion() const {
-  const Coefficients c = CoefficientsOf(*this);
-  return c.k1 != 0 || c.k2 != 0 || c.p1 != 0 || c.p2 != 0;
-}
+bool Camera::HasDistortion() const { return CoefficientsOf(*this).Any(); }
 
 Eigen::Vector2d Camera::Distort(const Eigen::Vector2d& normalized) const {
   if (!HasDistortion()) return normalized;

@@ -6,11 +6,14 @@
 //   SIMPLE_RADIAL   f, cx, cy, k
 //   RADIAL          f, cx, cy, k1, k2
 //   OPENCV          fx, fy, cx, cy, k1, k2, p1, p2
+//   FULL_OPENCV     fx, fy, cx, cy, k1, k2, p1, p2, k3, k4, k5, k6
 // Pixel convention (COLMAP): the centre of the top-left pixel is at (0.5, 0.5), so a pixel
 // (col, row) of an image covers [col, col+1) x [row, row+1). Middlebury and Strecha files put the
 // centre at (0, 0): their importers add 0.5 to the principal point (see import stage).
 // Distortion acts on normalised coordinates (x/z, y/z) exactly as OpenCV's projectPoints with
-// the distortion vector (k1, k2, p1, p2), which the tests check.
+// the distortion vector (k1, k2, p1, p2[, k3, k4, k5, k6]): the rational radial factor
+// (1 + k1 r^2 + k2 r^4 + k3 r^6) / (1 + k4 r^2 + k5 r^4 + k6 r^6) and the tangential terms, which
+// the tests check.
 #pragma once
 
 #include <Eigen/Core>
@@ -19,12 +22,12 @@
 
 namespace ibmr {
 
-enum class CameraModelId { kSimplePinhole, kPinhole, kSimpleRadial, kRadial, kOpenCV };
+enum class CameraModelId { kSimplePinhole, kPinhole, kSimpleRadial, kRadial, kOpenCV, kFullOpenCV };
 
 // "PINHOLE" -> kPinhole. Returns false for an unknown name.
 bool CameraModelFromName(const std::string& name, CameraModelId* model);
 std::string CameraModelName(CameraModelId model);
-// Number of parameters of a model (3, 4, 4, 5, 8).
+// Number of parameters of a model (3, 4, 4, 5, 8, 12).
 int CameraModelNumParams(CameraModelId model);
 
 struct Camera {

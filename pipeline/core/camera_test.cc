@@ -14,6 +14,7 @@ namespace ibmr {
 namespace {
 
 constexpr double kK1 = -0.27, kK2 = 0.24, kP1 = 0.0018, kP2 = -0.0003;
+constexpr double kK3 = -0.05, kK4 = 0.02, kK5 = 0.01, kK6 = -0.004;  // FULL_OPENCV's rational terms
 
 Camera MakeCamera(CameraModelId model) {
   Camera camera;
@@ -28,16 +29,19 @@ Camera MakeCamera(CameraModelId model) {
     case CameraModelId::kOpenCV:
       camera.params = {520, 515, 321.5, 238.25, kK1, kK2, kP1, kP2};
       break;
+    case CameraModelId::kFullOpenCV:
+      camera.params = {520, 515, 321.5, 238.25, kK1, kK2, kP1, kP2, kK3, kK4, kK5, kK6};
+      break;
   }
   return camera;
 }
 
 const CameraModelId kAllModels[] = {CameraModelId::kSimplePinhole, CameraModelId::kPinhole,
                                     CameraModelId::kSimpleRadial, CameraModelId::kRadial,
-                                    CameraModelId::kOpenCV};
+                                    CameraModelId::kOpenCV, CameraModelId::kFullOpenCV};
 
 TEST(CameraModel, NamesRoundTripAndCounts) {
-  const int expected_counts[] = {3, 4, 4, 5, 8};
+  const int expected_counts[] = {3, 4, 4, 5, 8, 12};
   int i = 0;
   for (CameraModelId model : kAllModels) {
     CameraModelId parsed;
@@ -46,7 +50,7 @@ TEST(CameraModel, NamesRoundTripAndCounts) {
     EXPECT_EQ(CameraModelNumParams(model), expected_counts[i++]);
   }
   CameraModelId parsed;
-  EXPECT_FALSE(CameraModelFromName("FULL_OPENCV", &parsed));
+  EXPECT_FALSE(CameraModelFromName("OPENCV_FISHEYE", &parsed));
   EXPECT_FALSE(CameraModelFromName("pinhole", &parsed));
   EXPECT_EQ(CameraModelName(CameraModelId::kSimpleRadial), "SIMPLE_RADIAL");
 }
@@ -118,6 +122,31 @@ TEST(Camera, MatchesOpenCvProjectPoints) {
     const Eigen::Vector2d normalized = camera.Distort(p.hnormalized());
     EXPECT_NEAR(normalized.x(), (expected[i].x - 321.5) / 520, 1e-9 * std::abs(normalized.x()) + 1e-12);
     EXPECT_NEAR(normalized.y(), (expected[i].y - 238.25) / 515, 1e-9 * std::abs(normalized.y()) + 1e-12);
+  }
+}
+
+// FULL_OPENCV: the rational radial factor, as projectPoints with the 8-term distortion vector.
+TEST(Camera, FullOpenCvMatchesOpenCvProjectPoints) {
+  const Camera camera = MakeCamera(CameraModelId::kFullOpenCV);
+  std::mt19937 rng(43);
+  std::uniform_real_distribution<double> xy(-0.7, 0.7), depth(0.5, 50);
+  std::vector<cv::Point3d> points;
+  for (int i = 0; i < 500; ++i) {
+    const double z = depth(rng);
+    points.emplace_back(xy(rng) * z, xy(rng) * z, z);
+  }
+  const cv::Matx33d k(520, 0, 321.5, 0, 515, 238.25, 0, 0, 1);
+  const std::vector<double> dist = {kK1, kK2, kP1, kP2, kK3, kK4, kK5, kK6};
+  std::vector<cv::Point2d> expected;
+  cv::projectPoints(points, cv::Vec3d(0, 0, 0), cv::Vec3d(0, 0, 0), k, dist, expected);
+  for (size_t i = 0; i < points.size(); ++i) {
+    const Eigen::Vector3d p(points[i].x, points[i].y, points[i].z);
+    const Eigen::Vector2d pixel = camera.ImgFromCam(p);
+    EXPECT_NEAR(pixel.x(), expected[i].x, 1e-9 * std::abs(expected[i].x) + 1e-12);
+    EXPECT_NEAR(pixel.y(), expected[i].y, 1e-9 * std::abs(expected[i].y) + 1e-12);
+    const Eigen::Vector2d back = camera.Undistort(camera.Distort(p.hnormalized()));
+    EXPECT_NEAR(back.x(), p.hnormalized().x(), 1e-8);
+    EXPECT_NEAR(back.y(), p.hnormalized().y(), 1e-8);
   }
 }
 

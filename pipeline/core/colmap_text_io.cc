@@ -78,7 +78,7 @@ std::string ValidModelNames() {
   std::string names;
   for (CameraModelId id : {CameraModelId::kSimplePinhole, CameraModelId::kPinhole,
                            CameraModelId::kSimpleRadial, CameraModelId::kRadial,
-                           CameraModelId::kOpenCV}) {
+                           CameraModelId::kOpenCV, CameraModelId::kFullOpenCV}) {
     names += (names.empty() ? "" : ", ") + CameraModelName(id);
   }
   return names;

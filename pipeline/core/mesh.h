@@ -16,6 +16,7 @@ struct PointCloud {
   std::vector<Eigen::Vector3f> normals;     // empty or one per point, unit length
   std::vector<Color3u8> colors;             // empty or one per point
   std::vector<float> confidence;            // empty or one per point (PLY property "confidence")
+  std::vector<float> radius;                // empty or one per point: a surfel's world radius (PLY "radius")
   std::vector<std::string> comments;        // PLY header comments
 
   size_t size() const { return positions.size(); }

@@ -41,10 +41,11 @@ std::string HeaderStart(const std::vector<std::string>& comments) {
   return header;
 }
 
-std::string VertexHeader(size_t count, bool normals, bool colors, bool confidence) {
+std::string VertexHeader(size_t count, bool normals, bool colors, bool confidence, bool radius = false) {
   std::string h = "element vertex " + std::to_string(count) + "\n";
   h += "property float x\nproperty float y\nproperty float z\n";
   if (normals) h += "property float nx\nproperty float ny\nproperty float nz\n";
+  if (radius) h += "property float radius\n";
   if (colors) h += "property uchar red\nproperty uchar green\nproperty uchar blue\n";
   if (confidence) h += "property float confidence\n";
   return h;
@@ -52,14 +53,17 @@ std::string VertexHeader(size_t count, bool normals, bool colors, bool confidenc
 
 // Appends the packed vertex records; optional arrays are empty or one entry per vertex.
 void AppendVertices(const std::vector<Eigen::Vector3f>& positions, const std::vector<Eigen::Vector3f>& normals,
-                    const std::vector<Color3u8>& colors, const std::vector<float>& confidence, std::string* out) {
-  const size_t record = 12 + (normals.empty() ? 0 : 12) + (colors.empty() ? 0 : 3) + (confidence.empty() ? 0 : 4);
+                    const std::vector<Color3u8>& colors, const std::vector<float>& confidence, std::string* out,
+                    const std::vector<float>& radius = {}) {
+  const size_t record = 12 + (normals.empty() ? 0 : 12) + (radius.empty() ? 0 : 4) + (colors.empty() ? 0 : 3) +
+                        (confidence.empty() ? 0 : 4);
   out->reserve(out->size() + record * positions.size());
   for (size_t i = 0; i < positions.size(); ++i) {
     for (int k = 0; k < 3; ++k) Append<float>(out, positions[i][k]);
     if (!normals.empty()) {
       for (int k = 0; k < 3; ++k) Append<float>(out, normals[i][k]);
     }
+    if (!radius.empty()) Append<float>(out, radius[i]);
     if (!colors.empty()) {
       for (int k = 0; k < 3; ++k) Append<uint8_t>(out, colors[i][k]);
     }
@@ -307,19 +311,20 @@ struct PlyContents {
   std::vector<Eigen::Vector3f> normals;
   std::vector<Color3u8> colors;
   std::vector<float> confidence;
+  std::vector<float> radius;
   std::vector<Eigen::Vector3i> faces;
   std::vector<std::string> comments;
 };
 
 // Vertex attributes we keep, by the index of their slot in a record.
-enum VertexSlot { kX, kY, kZ, kNx, kNy, kNz, kRed, kGreen, kBlue, kConfidence, kNumSlots };
+enum VertexSlot { kX, kY, kZ, kNx, kNy, kNz, kRed, kGreen, kBlue, kConfidence, kRadius, kNumSlots };
 
 int SlotOf(const std::string& name) {
   static const std::pair<const char*, int> kSlots[] = {
       {"x", kX},           {"y", kY},          {"z", kZ},        {"nx", kNx},         {"ny", kNy},
       {"nz", kNz},         {"red", kRed},      {"green", kGreen}, {"blue", kBlue},    {"r", kRed},
       {"g", kGreen},       {"b", kBlue},       {"diffuse_red", kRed}, {"diffuse_green", kGreen},
-      {"diffuse_blue", kBlue}, {"confidence", kConfidence}};
+      {"diffuse_blue", kBlue}, {"confidence", kConfidence}, {"radius", kRadius}};
   for (const auto& entry : kSlots) {
     if (name == entry.first) return entry.second;
   }
@@ -358,6 +363,7 @@ void ReadVertices(const std::string& path, const PlyElement& element, ValueReade
   if (has_normals) out->normals.resize(element.count);
   if (has_colors) out->colors.resize(element.count);
   if (present[kConfidence]) out->confidence.resize(element.count);
+  if (present[kRadius]) out->radius.resize(element.count);
   for (size_t i = 0; i < element.count; ++i) {
     reader->SetContext(element.name, i);
     double values[kNumSlots] = {};
@@ -375,6 +381,7 @@ void ReadVertices(const std::string& path, const PlyElement& element, ValueReade
     if (has_normals) out->normals[i] = Eigen::Vector3d(values[kNx], values[kNy], values[kNz]).cast<float>();
     if (has_colors) out->colors[i] = Color3u8(color[0], color[1], color[2]);
     if (present[kConfidence]) out->confidence[i] = static_cast<float>(values[kConfidence]);
+    if (present[kRadius]) out->radius[i] = static_cast<float>(values[kRadius]);
   }
 }
 
@@ -450,10 +457,12 @@ void WritePointCloudPly(const std::string& path, const PointCloud& cloud) {
   CheckAttributeSize(path, "normals", cloud.normals.size(), n);
   CheckAttributeSize(path, "colours", cloud.colors.size(), n);
   CheckAttributeSize(path, "confidence values", cloud.confidence.size(), n);
+  CheckAttributeSize(path, "radii", cloud.radius.size(), n);
   std::string bytes = HeaderStart(cloud.comments) +
-                      VertexHeader(n, !cloud.normals.empty(), !cloud.colors.empty(), !cloud.confidence.empty()) +
+                      VertexHeader(n, !cloud.normals.empty(), !cloud.colors.empty(), !cloud.confidence.empty(),
+                                   !cloud.radius.empty()) +
                       "end_header\n";
-  AppendVertices(cloud.positions, cloud.normals, cloud.colors, cloud.confidence, &bytes);
+  AppendVertices(cloud.positions, cloud.normals, cloud.colors, cloud.confidence, &bytes, cloud.radius);
   WriteFileAtomic(path, bytes);
 }
 
@@ -464,6 +473,7 @@ PointCloud ReadPointCloudPly(const std::string& path) {
   cloud.normals = std::move(contents.normals);
   cloud.colors = std::move(contents.colors);
   cloud.confidence = std::move(contents.confidence);
+  cloud.radius = std::move(contents.radius);
   cloud.comments = std::move(contents.comments);
   return cloud;
 }

@@ -4,7 +4,7 @@
 // uchar/int counts and int/uint indices; other properties are skipped.
 //
 // Layout written: header "ply / format binary_little_endian 1.0 / comment ... /
-// element vertex N / property float x,y,z [nx,ny,nz] [uchar red,green,blue] [float confidence] /
+// element vertex N / property float x,y,z [nx,ny,nz] [float radius] [uchar red,green,blue] [float confidence] /
 // element face M / property list uchar int vertex_indices / end_header", then the vertex records
 // packed, then the faces. Writes are atomic (temporary file, then rename).
 #pragma once

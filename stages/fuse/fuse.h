@@ -9,10 +9,7 @@
 // merge with each other (each earlier point is a candidate for one pixel only), so the output is at
 // least as dense as one input image. Points seen in fewer than `min_views` views are dropped.
 //
-// Evaluation against a true mesh (Middlebury style, used when ground_truth/ exists): accuracy is
-// the distance from fused points to the mesh (uniform grid over triangles, exact point-triangle
-// distance) at the 90th percentile; completeness the fraction of points sampled uniformly on the
-// true surface that have a fused point within a threshold (voxel hash).
+// Evaluation against a true mesh (used when ground_truth/ exists) is pipeline/core/surface_accuracy.h.
 #pragma once
 
 #include <Eigen/Core>
@@ -25,6 +22,7 @@
 #include "pipeline/core/float_map.h"
 #include "pipeline/core/mesh.h"
 #include "pipeline/core/rigid3.h"
+#include "pipeline/core/surface_accuracy.h"
 
 namespace ibmr {
 
@@ -70,51 +68,5 @@ class PointFuser {
   struct State;
   std::unique_ptr<State> state_;
 };
-
-// Exact distances to a triangle mesh through a uniform grid of triangles.
-class MeshDistance {
- public:
-  explicit MeshDistance(const TriangleMesh& mesh);
-  ~MeshDistance();
-  // Distance from `point` to the mesh, or `max_distance` when it is farther than that.
-  double Distance(const Eigen::Vector3d& point, double max_distance) const;
-
- private:
-  struct Grid;
-  std::unique_ptr<Grid> grid_;
-};
-
-// `count` points uniformly by area on the mesh (seeded, deterministic).
-std::vector<Eigen::Vector3f> SampleSurface(const TriangleMesh& mesh, size_t count, uint32_t seed = 1);
-
-// Marks the surface samples that a view sees: in the image, in front, and within
-// `relative_tolerance` of its true depth map (nearest pixel).
-void MarkVisible(const std::vector<Eigen::Vector3f>& samples, const Camera& camera, const Rigid3d& cam_from_world,
-                 const DepthMap& true_depth, double relative_tolerance, std::vector<char>* visible);
-
-struct FusionAccuracy {
-  double accuracy_90 = 0;        // distance to the mesh below which 90% of the fused points lie
-  double accuracy_median = 0;
-  double completeness = 0;       // fraction of surface samples with a fused point within threshold
-  double completeness_visible = -1;  // the same among samples some view sees (-1: not computed)
-  double threshold = 0;
-  size_t points = 0;
-};
-
-// `visible` (optional, one flag per sample) restricts completeness_visible to seen samples.
-FusionAccuracy EvaluateFusion(const PointCloud& cloud, const TriangleMesh& mesh,
-                              const std::vector<Eigen::Vector3f>& surface_samples, double threshold,
-                              const std::vector<char>* visible = nullptr);
-
-// How many of the cloud's points that project into a view (in front of it, inside the image) land
-// on its silhouette (`mask` nonzero, nearest pixel): the check that fused points lie on the object
-// where no true surface is known (real photographs with silhouettes from the `silhouettes` stage).
-struct SilhouetteHits {
-  size_t projected = 0;
-  size_t on_silhouette = 0;
-  double Fraction() const { return projected ? static_cast<double>(on_silhouette) / projected : 0.0; }
-};
-SilhouetteHits ProjectOntoSilhouette(const PointCloud& cloud, const Camera& camera, const Rigid3d& cam_from_world,
-                                     const cv::Mat& mask);
 
 }  // namespace ibmr

@@ -155,7 +155,7 @@ class FuseStage : public Stage {
       MarkVisible(samples, model.CameraOf(image), image.cam_from_world, ReadColmapArray(truth_path), 0.01, &visible);
       have_visibility = true;
     }
-    const FusionAccuracy a = EvaluateFusion(cloud, mesh, samples, threshold, have_visibility ? &visible : nullptr);
+    const PointSetAccuracy a = EvaluatePointSet(cloud, mesh, samples, threshold, have_visibility ? &visible : nullptr);
     nlohmann::json& m = context.metrics;
     m["accuracy_90"] = a.accuracy_90;
     m["accuracy_median"] = a.accuracy_median;

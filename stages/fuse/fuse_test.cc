@@ -165,7 +165,7 @@ TEST(Fuse, NoisySphereMergesIntoAccurateCompletePoints) {
   single_error /= single;
   EXPECT_LT(fused_error, 0.7 * single_error) << "merging should reduce the noise";
   EXPECT_GT(outward, cloud.size() * 95 / 100);
-  const FusionAccuracy accuracy = EvaluateFusion(cloud, mesh, samples, 0.03, &visible);
+  const PointSetAccuracy accuracy = EvaluatePointSet(cloud, mesh, samples, 0.03, &visible);
   EXPECT_LT(accuracy.accuracy_90, 0.01);
   EXPECT_GT(accuracy.completeness_visible, 0.95);
   EXPECT_LT(accuracy.completeness, accuracy.completeness_visible + 1e-9);

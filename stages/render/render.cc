@@ -116,8 +116,10 @@ ProxySurface PlaneSurface(const Plane& plane, const Camera& camera, const Rigid3
   return surface;
 }
 
-ProxySurface MeshSurface(const TriangleMesh& mesh, const Camera& camera, const Rigid3d& cam_from_world) {
-  const RasterResult raster = Rasterize(mesh, camera, cam_from_world);
+namespace {
+
+// World points of the pixels with a valid depth.
+ProxySurface SurfaceFromDepth(const DepthMap& depth, const Camera& camera, const Rigid3d& cam_from_world) {
   ProxySurface surface;
   surface.width = camera.width;
   surface.height = camera.height;
@@ -126,7 +128,7 @@ ProxySurface MeshSurface(const TriangleMesh& mesh, const Camera& camera, const R
   const Rigid3d world_from_cam = cam_from_world.Inverse();
   for (int y = 0; y < camera.height; ++y) {
     for (int x = 0; x < camera.width; ++x) {
-      const float z = raster.depth.At(x, y);
+      const float z = depth.At(x, y);
       if (!IsValidDepth(z)) continue;
       const Eigen::Vector3d in_cam = camera.CamFromImg(Eigen::Vector2d(x + 0.5, y + 0.5)) * static_cast<double>(z);
       const Eigen::Vector3d p = world_from_cam * in_cam;
@@ -137,8 +139,34 @@ ProxySurface MeshSurface(const TriangleMesh& mesh, const Camera& camera, const R
   return surface;
 }
 
+}  // namespace
+
+ProxySurface MeshSurface(const TriangleMesh& mesh, const Camera& camera, const Rigid3d& cam_from_world) {
+  return SurfaceFromDepth(Rasterize(mesh, camera, cam_from_world).depth, camera, cam_from_world);
+}
+
 DepthMap MeshDepth(const TriangleMesh& mesh, const Camera& camera, const Rigid3d& cam_from_world) {
   return Rasterize(mesh, camera, cam_from_world).depth;
+}
+
+DepthMap MeshDepth(const std::vector<const TriangleMesh*>& layers, const Camera& camera, const Rigid3d& cam_from_world) {
+  DepthMap depth;
+  for (const TriangleMesh* mesh : layers) {
+    const DepthMap next = MeshDepth(*mesh, camera, cam_from_world);
+    if (depth.Empty()) {
+      depth = next;
+      continue;
+    }
+    for (size_t i = 0; i < depth.data.size(); ++i) {
+      if (!IsValidDepth(depth.data[i])) depth.data[i] = next.data[i];
+    }
+  }
+  return depth;
+}
+
+ProxySurface MeshSurface(const std::vector<const TriangleMesh*>& layers, const Camera& camera,
+                         const Rigid3d& cam_from_world) {
+  return SurfaceFromDepth(MeshDepth(layers, camera, cam_from_world), camera, cam_from_world);
 }
 
 bool PlaneAtMeanInverseDepth(const std::vector<Eigen::Vector3d>& points, const Rigid3d& desired_cam_from_world,

@@ -82,6 +82,11 @@ ProxySurface PlaneSurface(const Plane& plane, const Camera& camera, const Rigid3
 ProxySurface MeshSurface(const TriangleMesh& mesh, const Camera& camera, const Rigid3d& cam_from_world);
 // The proxy mesh's z depth from a source camera (0 where not covered), for the visibility test.
 DepthMap MeshDepth(const TriangleMesh& mesh, const Camera& camera, const Rigid3d& cam_from_world);
+// A proxy with fallbacks: each pixel takes the first hit of the first mesh in `layers` that covers
+// it (e.g. a surface reconstruction that leaves holes, then the visual hull that encloses it).
+DepthMap MeshDepth(const std::vector<const TriangleMesh*>& layers, const Camera& camera, const Rigid3d& cam_from_world);
+ProxySurface MeshSurface(const std::vector<const TriangleMesh*>& layers, const Camera& camera,
+                         const Rigid3d& cam_from_world);
 
 // Plane facing the desired camera (normal = its viewing direction) at 1 / mean(1/z) of the points
 // in front of it. Returns false when no point is in front.

@@ -9,6 +9,10 @@
 //   <path> or <name>=<path>  a mesh (binary/ascii PLY), workspace-relative or absolute; visibility
 //                            from its depth in each source camera. A missing file is skipped with a
 //                            warning and listed as skipped in renders/renders.json.
+//   <name>=<path>|<fallback>...  a mesh with fallbacks: where a ray misses the first mesh, the
+//                            first hit of the next one counts (e.g. surfels/mesh.ply|hull/hull.ply:
+//                            the hull fills the surface's holes); a missing fallback is ignored with
+//                            a warning.
 // Writes renders/<proxy>/<image stem>.png and <image stem>.coverage.png (255 covered) per proxy,
 // the primary proxy's copies as renders/<image stem>.png and .coverage.png, and renders/renders.json.
 #include <spdlog/spdlog.h>
@@ -35,8 +39,13 @@ namespace {
 
 struct ProxySpec {
   std::string name;
-  std::string path;  // empty for the plane; absolute otherwise
+  std::string path;                    // empty for the plane; absolute otherwise
+  std::vector<std::string> fallbacks;  // absolute paths of meshes that fill where `path` misses
 };
+
+std::string Absolute(const std::string& path, const Workspace& workspace) {
+  return fs::path(path).is_absolute() ? path : workspace.Path(path);
+}
 
 // "plane" | "path" | "name=path". A default name: the file stem, prefixed by its folder when the
 // stem alone says little ("ground_truth/mesh.ply" -> ground_truth_mesh; "hull/hull.ply" -> hull).
@@ -52,8 +61,12 @@ ProxySpec ParseProxy(const std::string& entry, const Workspace& workspace) {
     spec.name = entry.substr(0, eq);
     path = entry.substr(eq + 1);
   }
+  for (size_t bar = path.rfind('|'); bar != std::string::npos; bar = path.rfind('|')) {
+    spec.fallbacks.insert(spec.fallbacks.begin(), Absolute(path.substr(bar + 1), workspace));
+    path = path.substr(0, bar);
+  }
   const fs::path p(path);
-  spec.path = p.is_absolute() ? path : workspace.Path(path);
+  spec.path = Absolute(path, workspace);
   if (spec.name.empty()) {
     const std::string stem = p.stem().string();
     const std::string folder = p.parent_path().filename().string();
@@ -132,6 +145,7 @@ class RenderStage : public Stage {
     for (const std::string& entry : context.params.StringList("proxies")) {
       const ProxySpec spec = ParseProxy(entry, context.workspace);
       if (!spec.path.empty()) inputs.push_back(spec.path);
+      inputs.insert(inputs.end(), spec.fallbacks.begin(), spec.fallbacks.end());
     }
     return inputs;
   }
@@ -228,7 +242,20 @@ class RenderStage : public Stage {
           proxies_json.push_back(pj);
           continue;
         }
-      } else if (sparse_points.empty() && !have_axes_point) {
+      }
+      std::vector<TriangleMesh> fallbacks;
+      for (const std::string& path : spec.fallbacks) {
+        TriangleMesh fallback = fs::exists(path) ? ReadMeshPly(path) : TriangleMesh();
+        if (fallback.faces.empty() || !fallback.Validate().empty()) {
+          spdlog::warn("[render] proxy {}: fallback {} is missing or has no usable faces; ignored", spec.name, path);
+          continue;
+        }
+        fallbacks.push_back(std::move(fallback));
+      }
+      std::vector<const TriangleMesh*> layers = {&mesh};
+      for (const TriangleMesh& fallback : fallbacks) layers.push_back(&fallback);
+      if (!fallbacks.empty()) pj["fallbacks"] = spec.fallbacks;
+      if (spec.path.empty() && sparse_points.empty() && !have_axes_point) {
         throw InputError("render: plane proxy: no sparse points and the training optical axes are parallel; "
                          "list a mesh proxy instead");
       }
@@ -238,7 +265,7 @@ class RenderStage : public Stage {
       std::vector<SourceView> proxy_sources = sources;  // shares pixels; depth maps per proxy
       if (!spec.path.empty()) {
         tbb::parallel_for(size_t{0}, proxy_sources.size(), [&](size_t i) {
-          proxy_sources[i].proxy_depth = MeshDepth(mesh, proxy_sources[i].camera, proxy_sources[i].cam_from_world);
+          proxy_sources[i].proxy_depth = MeshDepth(layers, proxy_sources[i].camera, proxy_sources[i].cam_from_world);
         });
       }
       const std::string folder = context.workspace.Path("renders/" + spec.name);
@@ -272,7 +299,7 @@ class RenderStage : public Stage {
           }
           surface = PlaneSurface(plane, camera, view.cam_from_world);
         } else {
-          surface = MeshSurface(mesh, camera, view.cam_from_world);
+          surface = MeshSurface(layers, camera, view.cam_from_world);
         }
         const UlrRenderer renderer(used, options);
         const RenderResult result = Downsample(renderer.Render(camera, view.cam_from_world, surface), surface, factor);

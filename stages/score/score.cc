@@ -94,6 +94,10 @@ bool ScoreOptions::Check(std::string* error) const {
     *error = "near_angle_deg: must be in [0, 180), got " + std::to_string(near_angle_deg);
     return false;
   }
+  if (photo_threshold < -1 || photo_threshold > 255) {
+    *error = "photo_threshold: must be in [-1, 255], got " + std::to_string(photo_threshold);
+    return false;
+  }
   if (error_gain < 1 || error_gain > 64) {
     *error = "error_gain: must be in [1, 64], got " + std::to_string(error_gain);
     return false;
@@ -142,6 +146,17 @@ ImageScore ScoreImage(const cv::Mat& real, const cv::Mat& rendered_in, const cv:
     score.mask = Accumulate(real, rendered, ssim, counted, SsimSupport(counted),
                             static_cast<size_t>(cv::countNonZero(foreground)));
   }
+  cv::Mat brightest;
+  cv::Mat channels[3];
+  cv::split(real, channels);
+  cv::max(channels[0], channels[1], brightest);
+  cv::max(brightest, channels[2], brightest);
+  const cv::Mat lit = brightest > options.photo_threshold;
+  cv::Mat black_holes = cv::Mat::zeros(rendered.size(), rendered.type());
+  rendered.copyTo(black_holes, covered);
+  score.photo = Accumulate(real, black_holes, SsimMap(real, black_holes), lit, SsimSupport(lit),
+                           static_cast<size_t>(cv::countNonZero(lit)));
+  score.photo.coverage = score.photo.pixels ? static_cast<double>(cv::countNonZero(lit & covered)) / score.photo.pixels : 0.0;
   return score;
 }
 

@@ -8,6 +8,9 @@
 //    the window radius; all covered pixels when that leaves none);
 //  * coverage: covered fraction of the image, and of the mask where a mask exists;
 //  * the same PSNR / SSIM inside the mask (covered and foreground);
+//  * "photo" PSNR / SSIM over the pixels where the real photo is lit (its largest channel above
+//    `photo_threshold`), uncovered pixels counted as black: a model that leaves holes on the
+//    object pays for them, where the covered-pixel PSNR would not see them;
 //  * optional per-image, per-channel gain correction (lighting can differ between photos): the
 //    least-squares gain g_c = sum(real*render) / sum(render^2) over covered pixels is applied to the
 //    render before the metrics.
@@ -27,6 +30,8 @@ struct ScoreOptions {
   bool gain_correction = false;   // per-image, per-channel least-squares gain on the render
   double near_angle_deg = 1.0;    // views closer than this to a training camera are "near", in [0, 180)
   int error_gain = 4;             // error panel of side-by-side images shows |real - render| * this, in [1, 64]
+  int photo_threshold = 20;       // "photo" pixels: the real photo's largest channel above this, in [-1, 255]
+                                  // (-1: every pixel)
 
   bool Check(std::string* error) const;  // error starts with the YAML key
 };
@@ -42,6 +47,8 @@ struct ImageScore {
   MaskedScore all;          // over covered pixels
   bool has_mask = false;
   MaskedScore mask;         // covered and foreground
+  MaskedScore photo;        // lit pixels of the real photo, uncovered ones rendered black; coverage:
+                            // covered fraction of the lit pixels
   double gains[3] = {1, 1, 1};  // B, G, R gains applied (1 without gain correction)
 };
 

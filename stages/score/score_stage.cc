@@ -34,7 +34,8 @@ nlohmann::json ToJson(const MaskedScore& s) {
 
 // Mean of the per-view entries' metrics over the views selected by `use`.
 nlohmann::json Mean(const nlohmann::json& views, const std::function<bool(const nlohmann::json&)>& use) {
-  const char* const keys[] = {"psnr", "ssim", "coverage", "mask_psnr", "mask_ssim", "mask_coverage"};
+  const char* const keys[] = {"psnr",     "ssim",       "coverage",   "mask_psnr",     "mask_ssim",
+                              "mask_coverage", "photo_psnr", "photo_ssim", "photo_coverage"};
   std::map<std::string, std::pair<double, int>> sums;
   int count = 0;
   for (const auto& [name, view] : views.items()) {
@@ -58,7 +59,7 @@ class ScoreStage : public Stage {
   std::string Summary() const override {
     return "Held-out-view cross-validation: PSNR, SSIM, coverage, masked error, angle to the nearest training view";
   }
-  std::string Version() const override { return "1"; }
+  std::string Version() const override { return "2"; }  // 2: photo_* scores
   HoldoutRole Role() const override { return HoldoutRole::kScoring; }
 
   std::vector<ParamSpec> Parameters() const override {
@@ -68,6 +69,8 @@ class ScoreStage : public Stage {
          "held-out views closer than this (degrees) to a training camera are reported apart, in [0, 180)", {}},
         {"error_gain", ParamType::kInt, "4", "error panel of the side-by-side images: |real - render| times this, in [1, 64]",
          {}},
+        {"photo_threshold", ParamType::kInt, "20",
+         "photo_* scores count the real photo's pixels whose largest channel is above this (holes black), in [-1, 255]", {}},
     };
   }
 
@@ -157,9 +160,10 @@ class ScoreStage : public Stage {
                            {"mean_excluding_near", Mean(views, [&](const nlohmann::json& v) { return !is_near(v); })},
                            {"mean_near", Mean(views, is_near)}};
       context.metrics[name] = pj["mean"];
-      spdlog::info("[score] {}: mean PSNR {:.2f} dB, SSIM {:.3f}, coverage {:.3f} over {} views", name,
-                   pj["mean"].value("psnr", 0.0), pj["mean"].value("ssim", 0.0), pj["mean"].value("coverage", 0.0),
-                   views.size());
+      spdlog::info("[score] {}: mean PSNR {:.2f} dB, SSIM {:.3f}, coverage {:.3f}; lit photo pixels (holes black) "
+                   "{:.2f} dB, covered {:.3f}; over {} views",
+                   name, pj["mean"].value("psnr", 0.0), pj["mean"].value("ssim", 0.0), pj["mean"].value("coverage", 0.0),
+                   pj["mean"].value("photo_psnr", 0.0), pj["mean"].value("photo_coverage", 0.0), views.size());
       out["proxies"][name] = pj;
     }
     if (scored == 0) spdlog::warn("[score] no render to score (is any view held out? see holdout in the config)");
@@ -173,6 +177,7 @@ class ScoreStage : public Stage {
     options.gain_correction = params.Bool("gain_correction");
     options.near_angle_deg = params.Double("near_angle_deg");
     options.error_gain = static_cast<int>(params.Int("error_gain"));
+    options.photo_threshold = static_cast<int>(params.Int("photo_threshold"));
     return options;
   }
 
@@ -222,6 +227,9 @@ class ScoreStage : public Stage {
       v["mask_ssim"] = score.mask.ssim;
       v["mask_coverage"] = score.mask.coverage;
     }
+    v["photo_psnr"] = score.photo.psnr;
+    v["photo_ssim"] = score.photo.ssim;
+    v["photo_coverage"] = score.photo.coverage;
     if (options.gain_correction) v["gains_bgr"] = {score.gains[0], score.gains[1], score.gains[2]};
     if (const Image* image = model.FindImage(image_name)) {
       std::vector<Eigen::Vector3d> others;

@@ -91,6 +91,27 @@ TEST(ScoreImage, MaskedVariantAndGainCorrection) {
   EXPECT_GT(corrected.all.psnr, plain.all.psnr + 10);
 }
 
+// Lit photo pixels with holes counted black: a half-covered exact render of a uniformly lit photo
+// has the MSE of the uncovered half against black; dark pixels of the photo do not count.
+TEST(ScoreImage, PhotoScoreCountsHolesAsBlack) {
+  cv::Mat real(48, 64, CV_8UC3, cv::Scalar(100, 100, 100));
+  real(cv::Rect(0, 40, 64, 8)).setTo(cv::Scalar(10, 15, 20));  // dark background rows: not counted
+  cv::Mat coverage(48, 64, CV_8UC1, cv::Scalar(0));
+  coverage(cv::Rect(0, 0, 32, 48)).setTo(255);
+  const ImageScore s = ScoreImage(real, real.clone(), coverage, cv::Mat(), ScoreOptions());
+  EXPECT_EQ(s.all.psnr, 100.0);
+  EXPECT_EQ(s.photo.pixels, 64u * 40u);
+  EXPECT_NEAR(s.photo.coverage, 0.5, 1e-12);
+  EXPECT_NEAR(s.photo.psnr, 10 * std::log10(255.0 * 255.0 / (0.5 * 100 * 100)), 1e-9);
+  ScoreOptions every;
+  every.photo_threshold = -1;
+  EXPECT_EQ(ScoreImage(real, real.clone(), coverage, cv::Mat(), every).photo.pixels, 64u * 48u);
+  every.photo_threshold = 256;
+  std::string error;
+  EXPECT_FALSE(every.Check(&error));
+  EXPECT_EQ(error.rfind("photo_threshold:", 0), 0u) << error;
+}
+
 TEST(ScoreImage, RejectsSizeMismatch) {
   EXPECT_THROW(ScoreImage(Noise(8, 8, 1), Noise(9, 8, 1), cv::Mat(8, 8, CV_8UC1), cv::Mat(), ScoreOptions()),
                std::invalid_argument);
@@ -152,6 +173,7 @@ TEST(ScoreStage, WritesHeldoutJsonWithSkippedProxy) {
   context.params.Set("gain_correction", false);
   context.params.Set("near_angle_deg", 1.0);
   context.params.Set("error_gain", int64_t{4});
+  context.params.Set("photo_threshold", int64_t{20});
   ASSERT_FALSE(stage->CheckParams(context.params).has_value());
   NullProgress progress;
   context.progress = &progress;

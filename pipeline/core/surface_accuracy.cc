@@ -1,4 +1,4 @@
-// Accuracy and completeness of fused points against a true mesh (Middlebury style; the measuring
+// Accuracy and completeness of a point set against a true mesh (Middlebury style; the measuring
 // part of seed 000 section 6's call for ground truth). Point-to-mesh distance: uniform grid over
 // the triangles and the exact point-triangle distance (Ericson, Real-Time Collision Detection 5.1.5).
 #include <tbb/parallel_for.h>
@@ -8,7 +8,7 @@
 #include <random>
 #include <unordered_map>
 
-#include "stages/fuse/fuse.h"
+#include "pipeline/core/surface_accuracy.h"
 
 namespace ibmr {
 
@@ -138,10 +138,10 @@ void MarkVisible(const std::vector<Eigen::Vector3f>& samples, const Camera& came
   }
 }
 
-FusionAccuracy EvaluateFusion(const PointCloud& cloud, const TriangleMesh& mesh,
-                              const std::vector<Eigen::Vector3f>& surface_samples, double threshold,
-                              const std::vector<char>* visible) {
-  FusionAccuracy result;
+PointSetAccuracy EvaluatePointSet(const PointCloud& cloud, const TriangleMesh& mesh,
+                                 const std::vector<Eigen::Vector3f>& surface_samples, double threshold,
+                                 const std::vector<char>* visible) {
+  PointSetAccuracy result;
   result.threshold = threshold;
   result.points = cloud.size();
   if (cloud.size() > 0 && !mesh.faces.empty()) {

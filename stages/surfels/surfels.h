@@ -1,0 +1,136 @@
+// Surfaces from fused points by oriented particles (surfels) and their triangulation: seed 000
+// section 5 (lines 4454-4586), after Szeliski & Tonnesen, "Surface modeling with oriented particle
+// systems" (SIGGRAPH 1992). Steps:
+//  1. Spacing: the particles' spacing is `spacing_scale` times the median pixel footprint of the
+//     fused points (depth / focal length in the nearest-resolution training view that sees them),
+//     so the particles are as dense as the photographs support.
+//  2. Particles: the fused points averaged per cell of that size (confidence-weighted position,
+//     normal, colour; seed 000 section 4's uncertainty survives as the confidence). Points without
+//     normals get them from the principal axes of their neighbours, turned toward a camera.
+//  3. Pruning: particles that a training depth map sees through (free space: the view saw a surface
+//     behind them along its ray in `free_space_views` views or more), particles outside the hull
+//     (when a closed hull mesh is given), and particles with too little data nearby or too few
+//     particle neighbours (outliers) are deleted.
+//  4. Relaxation: the energy of surfel_potentials.h (co-planarity, co-normality, co-circularity,
+//     repulsion and the confidence-weighted data term) is lowered by Jacobi sweeps of
+//     preconditioned gradient steps: every particle moves by its gradient divided by an upper
+//     estimate of its local curvature, all from the previous sweep's state. Why not Ceres: the
+//     energy is a sum of short-range pair terms whose neighbour sets change as particles move, so
+//     the problem would be rebuilt at every step; local steps are cheap, parallel (TBB), and
+//     deterministic (no dependence on thread scheduling, unlike in-place Gauss-Seidel).
+//  5. Growth (the stretching rule): between two neighbours whose normals agree and whose distance
+//     is more than `stretch_distance` but less than `max_gap` spacings, with no particle near the
+//     midpoint, a particle is added there; rounds of growth and relaxation alternate. Gaps wider than
+//     `max_gap` stay open, so holes in the data stay holes.
+//  6. Triangulation (surfel_mesh.cc, CGAL advancing front): the particles are connected into a
+//     manifold mesh whose edges are at most `max_edge` spacings, so it never spans a hole wider
+//     than that; faces are oriented by the particles' normals.
+#pragma once
+
+#include <Eigen/Core>
+#include <string>
+#include <vector>
+
+#include "pipeline/core/camera.h"
+#include "pipeline/core/float_map.h"
+#include "pipeline/core/mesh.h"
+#include "pipeline/core/progress.h"
+#include "pipeline/core/rigid3.h"
+#include "stages/surfels/surfel_potentials.h"
+
+namespace ibmr {
+
+struct SurfelOptions {
+  double spacing_scale = 2.0;      // particle spacing / median pixel footprint of the points, in (0, 100]
+  double spacing = -1;             // fixed spacing in scene units (> 0); -1: from the footprints
+  int iterations = 30;             // relaxation sweeps per round, in [0, 1000]
+  int grow_rounds = 2;             // rounds of growth, each followed by relaxation, in [0, 20]
+  ParticleWeights weights;         // potentials (unitless; lengths in spacings), each >= 0
+  double stretch_distance = 1.6;   // pairs farther apart than this (spacings) get a midpoint particle, in [1, max_gap)
+  double max_gap = 3.0;            // ... unless farther than this (spacings): a hole, in (1, 20]
+  double max_normal_angle_deg = 35;  // growth only between neighbours whose normals agree within this, (0, 180]
+  int min_support = 3;             // fused points within support_radius needed to keep a particle, in [0, 1000]
+  double support_radius = 1.5;     // spacings, in (0, 20]
+  int min_neighbours = 3;          // particles within 2.5 spacings needed to keep a particle, in [0, 100]
+  int free_space_views = 2;        // delete a particle that this many depth maps see through, in [1, 1000]
+  double free_space_margin = 3.0;  // "see through": the map's depth exceeds the particle's by this many
+                                   // spacings and by 0.5% of the depth, in (0, 1000]
+  double max_edge = 3.0;           // longest triangle edge, spacings, in [1, 20]
+  int max_particles = 2000000;     // refuse to run beyond this many particles (memory), in [1000, 1e9]
+
+  bool Check(std::string* error) const;  // error starts with the YAML key
+};
+
+// A training view: its camera gives footprints; its depth map (optional) gives free space.
+struct SurfelView {
+  Camera camera;  // undistorted (pinhole)
+  Rigid3d cam_from_world;
+  DepthMap depth;  // z depth, any resolution (scaled to the camera); empty: no free-space test
+};
+
+struct SurfelStats {
+  size_t input_points = 0;
+  size_t dropped_nonfinite = 0;     // points with NaN / infinite coordinates or normals, dropped
+  bool estimated_normals = false;   // the input had no normals
+  double median_footprint = 0;      // scene units per pixel
+  double spacing = 0;               // scene units
+  size_t initial_particles = 0;
+  size_t removed_free_space = 0;
+  size_t removed_outside_hull = 0;
+  size_t removed_unsupported = 0;   // too little data or too few neighbours
+  size_t grown = 0;
+  size_t particles = 0;
+  size_t vertices = 0, faces = 0;
+  double mean_step_last_sweep = 0;  // mean particle displacement of the last sweep, spacings
+  double spacing_spread = 0;        // coefficient of variation of nearest-neighbour distances
+  double prune_seconds = 0, relax_seconds = 0, triangulate_seconds = 0;  // wall time per phase
+};
+
+struct SurfelResult {
+  PointCloud surfels;  // positions, unit normals, radius, colours, confidence
+  TriangleMesh mesh;   // vertices = the surfels, with their normals and colours
+  SurfelStats stats;
+};
+
+// Steps 1-6 above. `hull` (optional) is a closed mesh; particles outside it are removed.
+// Throws InputError when no usable point is left or the spacing would make too many particles.
+SurfelResult ReconstructSurfels(const PointCloud& points, const std::vector<SurfelView>& views,
+                                const TriangleMesh* hull, const SurfelOptions& options,
+                                ProgressReporter* progress = nullptr);
+
+// --- The steps, for tests and benchmarks ---
+
+// Unit normals from the 12 nearest neighbours' principal axes, turned toward the first view that
+// sees the point (in front, inside its image), else away from the points' centroid.
+void EstimateNormals(const std::vector<SurfelView>& views, PointCloud* points);
+
+// Median over points of the smallest depth / focal length among the views that see them; 0 when
+// no view sees any point.
+double MedianFootprint(const PointCloud& points, const std::vector<SurfelView>& views);
+
+// Confidence-weighted averages of the points per cell of side `spacing` (normals, colours and
+// confidence averaged likewise; confidence 1 when absent).
+PointCloud ThinToSpacing(const PointCloud& points, double spacing);
+
+// `sweeps` Jacobi sweeps of the particle energy with `data` as the data term. Returns the mean
+// displacement of the last sweep in spacings. `particles` keeps its size.
+double RelaxParticles(const PointCloud& data, double spacing, const ParticleWeights& weights, int sweeps,
+                      PointCloud* particles);
+
+// Per particle, how many views' depth maps see through it: the depth at its projection and at
+// the 8 pixels around it is beyond the particle's by the margin (see free_space_margin).
+std::vector<int> FreeSpaceViolations(const std::vector<Eigen::Vector3f>& positions,
+                                     const std::vector<SurfelView>& views, double spacing, double margin_spacings);
+
+// Coefficient of variation (std / mean) of each particle's nearest-neighbour distance.
+double NearestNeighbourSpread(const std::vector<Eigen::Vector3f>& positions);
+
+// surfel_mesh.cc (CGAL): the advancing-front triangulation with edges at most `max_edge_length`,
+// faces turned to agree with the particles' normals; the mesh's vertices are the particles.
+TriangleMesh TriangulateParticles(const PointCloud& particles, double max_edge_length);
+// surfel_mesh.cc (CGAL): which points lie inside a closed mesh (all true when it is not closed,
+// with `closed` set false).
+std::vector<char> InsideClosedMesh(const TriangleMesh& mesh, const std::vector<Eigen::Vector3f>& points,
+                                   bool* closed);
+
+}  // namespace ibmr

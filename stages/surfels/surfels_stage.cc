@@ -1,0 +1,242 @@
+// Adapter of the surfels stage (seed 000 section 5, lines 4454-4586; see surfels.h): reads
+// dense/fused.ply, the training cameras, their depth maps (free space) and hull/hull.ply when
+// present, and writes
+//   surfels/surfels.ply  binary PLY, one vertex per surfel: float x y z nx ny nz radius, uchar red
+//                        green blue, float confidence (radius in scene units: the disc a splatting
+//                        renderer draws; confidence in [0, 1], 0 for particles grown into gaps
+//                        between low-confidence parents)
+//   surfels/mesh.ply     binary PLY triangle mesh on the surfels: vertex normals and colours, faces
+//                        counter-clockwise seen from outside
+// With ground_truth/mesh.ply (synthetic scenes) the record gets the mesh's accuracy (distance to the
+// true mesh at 90%, of points sampled on it) and completeness (true surface within 1% of the
+// bounding-box diagonal), the Middlebury measures fuse reports for its points.
+#include <spdlog/spdlog.h>
+
+#include <filesystem>
+
+#include "pipeline/core/colmap_array_io.h"
+#include "pipeline/core/errors.h"
+#include "pipeline/core/ply_io.h"
+#include "pipeline/core/stage_api.h"
+#include "pipeline/core/surface_accuracy.h"
+#include "stages/surfels/surfels.h"
+
+namespace fs = std::filesystem;
+
+namespace ibmr {
+
+namespace {
+
+constexpr char kFused[] = "dense/fused.ply";
+constexpr char kHull[] = "hull/hull.ply";
+
+class SurfelsStage : public Stage {
+ public:
+  std::string Name() const override { return "surfels"; }
+  std::string Summary() const override {
+    return "Oriented particles from the fused points, relaxed and grown, and their mesh (surfels/surfels.ply, surfels/mesh.ply)";
+  }
+  std::string Version() const override { return "1"; }
+  HoldoutRole Role() const override { return HoldoutRole::kTrainingOnly; }
+
+  std::vector<ParamSpec> Parameters() const override {
+    const SurfelOptions d;
+    const ParticleWeights& w = d.weights;
+    auto num = [](double v) {
+      std::string s = std::to_string(v);
+      s.erase(s.find_last_not_of('0') + 1);
+      if (s.back() == '.') s.pop_back();
+      return s;
+    };
+    return {
+        {"spacing_scale", ParamType::kDouble, num(d.spacing_scale), "Particle spacing / median pixel footprint of the points, (0, 100]"},
+        {"spacing", ParamType::kDouble, "-1", "Fixed particle spacing in scene units; -1: from the footprints"},
+        {"iterations", ParamType::kInt, std::to_string(d.iterations), "Relaxation sweeps per round, [0, 1000]"},
+        {"grow_rounds", ParamType::kInt, std::to_string(d.grow_rounds), "Rounds of growth (stretching rule) and relaxation, [0, 20]"},
+        {"coplanarity", ParamType::kDouble, num(w.coplanarity), "Weight of the co-planarity potential, >= 0"},
+        {"conormality", ParamType::kDouble, num(w.conormality), "Weight of the co-normality potential, >= 0"},
+        {"cocircularity", ParamType::kDouble, num(w.cocircularity), "Weight of the co-circularity potential, >= 0"},
+        {"repulsion", ParamType::kDouble, num(w.repulsion), "Weight of the short-range repulsion, >= 0"},
+        {"data_weight", ParamType::kDouble, num(w.data), "Weight of the data term (pull toward the fused points), >= 0"},
+        {"sigma", ParamType::kDouble, num(w.sigma), "Interaction radius of the potentials, spacings, (0, 10]"},
+        {"repulsion_radius", ParamType::kDouble, num(w.repulsion_radius), "Repulsion acts closer than this, spacings, (0, 5]"},
+        {"data_sigma", ParamType::kDouble, num(w.data_sigma), "Radius of the data term, spacings, (0, 10]"},
+        {"tangential", ParamType::kDouble, num(w.tangential), "Share of the tangential data pull, [0, 1]"},
+        {"stretch_distance", ParamType::kDouble, num(d.stretch_distance), "Neighbours farther apart get a midpoint particle, spacings, [1, max_gap)"},
+        {"max_gap", ParamType::kDouble, num(d.max_gap), "Gaps wider than this stay open, spacings, (1, 20]"},
+        {"max_normal_angle_deg", ParamType::kDouble, num(d.max_normal_angle_deg), "Growth only between normals within this, degrees, (0, 180]"},
+        {"min_support", ParamType::kInt, std::to_string(d.min_support), "Fused points within support_radius to keep a particle, [0, 1000]"},
+        {"support_radius", ParamType::kDouble, num(d.support_radius), "Spacings, (0, 20]"},
+        {"min_neighbours", ParamType::kInt, std::to_string(d.min_neighbours), "Particles within 2.5 spacings to keep a particle, [0, 100]"},
+        {"free_space_views", ParamType::kInt, std::to_string(d.free_space_views), "Delete particles that this many depth maps see through, [1, 1000]"},
+        {"free_space_margin", ParamType::kDouble, num(d.free_space_margin), "See-through margin, spacings (and 0.5% of depth), (0, 1000]"},
+        {"free_space_maps", ParamType::kString, "geometric", "Depth maps for the free-space test", {"geometric", "photometric", "none"}},
+        {"max_edge", ParamType::kDouble, num(d.max_edge), "Longest triangle edge, spacings, [1, 20]"},
+        {"max_particles", ParamType::kInt, std::to_string(d.max_particles), "Refuse to run beyond this many particles, [1000, 1e9]"},
+        {"use_hull", ParamType::kBool, "true", "Keep the surface inside hull/hull.ply when it exists"},
+        {"eval_samples", ParamType::kInt, "200000", "Samples for accuracy/completeness against ground_truth/mesh.ply, [1000, 1e7]"},
+    };
+  }
+
+  std::optional<ParamError> CheckParams(const Params& params) const override {
+    std::string error;
+    if (!ToOptions(params).Check(&error)) {
+      const size_t colon = error.find(':');
+      return ParamError{error.substr(0, colon), colon == std::string::npos ? error : error.substr(colon + 2)};
+    }
+    const int64_t samples = params.Int("eval_samples");
+    if (samples < 1000 || samples > 10000000) return ParamError{"eval_samples", "must be in [1000, 10000000], got " + std::to_string(samples)};
+    return std::nullopt;
+  }
+
+  std::vector<std::string> Inputs(const StageContext& context) const override {
+    std::vector<std::string> inputs = {"sparse", kFused};
+    const std::string kind = context.params.String("free_space_maps");
+    if (kind != "none") {
+      const std::vector<std::string> names = Names(context);
+      if (names.empty()) inputs.push_back("dense/stereo/depth_maps");
+      for (const std::string& name : names) inputs.push_back("dense/stereo/depth_maps/" + name + "." + kind + ".bin");
+    }
+    if (context.params.Bool("use_hull")) inputs.push_back(kHull);  // optional
+    inputs.push_back("ground_truth/mesh.ply");                      // metrics only
+    return inputs;
+  }
+
+  std::vector<std::string> Outputs(const StageContext&) const override { return {"surfels"}; }
+
+  void Run(StageContext& context) const override {
+    const SurfelOptions options = ToOptions(context.params);
+    const Workspace& workspace = context.workspace;
+    const std::string fused_path = workspace.Path(kFused);
+    if (!fs::exists(fused_path)) throw InputError(fused_path + ": no fused points; run fuse first");
+    const PointCloud points = ReadPointCloudPly(fused_path);
+    if (points.size() == 0) throw InputError(fused_path + ": holds no point; check the fuse record (records/fuse.json)");
+    if (points.normals.empty()) spdlog::warn("[surfels] {}: the points have no normals; estimating them from neighbours", fused_path);
+
+    const SparseModel model = context.LoadModel();
+    const std::vector<std::string> names = context.TrainingImageNames(model);
+    const std::string kind = context.params.String("free_space_maps");
+    std::vector<SurfelView> views;
+    context.progress->Begin("surfels: reading views", names.size());
+    for (const std::string& name : names) {
+      const Image& image = *model.FindImage(name);
+      SurfelView view;
+      view.camera = model.CameraOf(image);
+      view.cam_from_world = image.cam_from_world;
+      if (kind != "none") {
+        const std::string path = workspace.DepthMapPath(name, kind);
+        if (fs::exists(path)) {
+          view.depth = ReadColmapArray(path);
+        } else {
+          spdlog::warn("[surfels] {}: missing; view '{}' takes no part in the free-space test", path, name);
+        }
+      }
+      views.push_back(std::move(view));
+      context.progress->Advance(1, name);
+    }
+    context.progress->End();
+
+    TriangleMesh hull;
+    const bool use_hull = context.params.Bool("use_hull") && fs::exists(workspace.Path(kHull));
+    if (use_hull) hull = ReadMeshPly(workspace.Path(kHull));
+
+    SurfelResult result = ReconstructSurfels(points, views, use_hull ? &hull : nullptr, options, context.progress);
+    const SurfelStats& s = result.stats;
+    if (s.dropped_nonfinite) {
+      spdlog::warn("[surfels] {}: {} of {} points have NaN or infinite coordinates or normals; ignored", fused_path,
+                   s.dropped_nonfinite, s.input_points);
+    }
+    fs::create_directories(workspace.Path("surfels"));
+    result.surfels.comments = {"ibmr surfels " + Version() + ": oriented particles from " + std::string(kFused),
+                               "spacing " + std::to_string(s.spacing)};
+    WritePointCloudPly(workspace.Path("surfels/surfels.ply"), result.surfels);
+    result.mesh.comments = {"ibmr surfels_mesh " + Version()};
+    WriteMeshPly(workspace.Path("surfels/mesh.ply"), result.mesh);
+
+    nlohmann::json& m = context.metrics;
+    m["input_points"] = s.input_points;
+    m["dropped_nonfinite"] = s.dropped_nonfinite;
+    m["estimated_normals"] = s.estimated_normals;
+    m["median_footprint"] = s.median_footprint;
+    m["spacing"] = s.spacing;
+    m["initial_particles"] = s.initial_particles;
+    m["removed_free_space"] = s.removed_free_space;
+    m["removed_outside_hull"] = s.removed_outside_hull;
+    m["removed_unsupported"] = s.removed_unsupported;
+    m["grown"] = s.grown;
+    m["particles"] = s.particles;
+    m["mesh_vertices"] = s.vertices;
+    m["mesh_faces"] = s.faces;
+    m["mean_step_last_sweep"] = s.mean_step_last_sweep;
+    m["spacing_spread"] = s.spacing_spread;
+    m["used_hull"] = use_hull;
+    m["prune_seconds"] = s.prune_seconds;
+    m["relax_seconds"] = s.relax_seconds;
+    m["triangulate_seconds"] = s.triangulate_seconds;
+    spdlog::info("[surfels] {} points -> {} particles (spacing {:.4g}; {} free space, {} outside hull, {} unsupported "
+                 "removed; {} grown) -> mesh of {} faces; {:.1f} s pruning, {:.1f} s relaxing, {:.1f} s triangulating",
+                 s.input_points, s.particles, s.spacing, s.removed_free_space, s.removed_outside_hull,
+                 s.removed_unsupported, s.grown, s.faces, s.prune_seconds, s.relax_seconds, s.triangulate_seconds);
+    if (fs::exists(workspace.GroundTruthMeshPath())) Evaluate(context, result.mesh);
+  }
+
+ private:
+  static void Evaluate(StageContext& context, const TriangleMesh& mesh) {
+    const TriangleMesh truth = ReadMeshPly(context.workspace.GroundTruthMeshPath());
+    Eigen::Vector3f lo, hi;
+    if (!truth.Bounds(&lo, &hi) || truth.faces.empty() || mesh.faces.empty()) return;
+    const double threshold = 0.01 * (hi - lo).norm();
+    const size_t count = static_cast<size_t>(context.params.Int("eval_samples"));
+    PointCloud on_mesh;
+    on_mesh.positions = SampleSurface(mesh, count, 7);
+    const PointSetAccuracy a = EvaluatePointSet(on_mesh, truth, SampleSurface(truth, count), threshold);
+    context.metrics["mesh_accuracy_90"] = a.accuracy_90;
+    context.metrics["mesh_completeness"] = a.completeness;
+    context.metrics["eval_threshold"] = threshold;
+    spdlog::info("[surfels] mesh accuracy (90%) {:.4g}, completeness {:.1f}% within {:.4g}", a.accuracy_90,
+                 100 * a.completeness, threshold);
+  }
+
+  static std::vector<std::string> Names(const StageContext& context) {
+    if (!fs::exists(context.workspace.Path("sparse/images.txt"))) return {};
+    try {
+      return context.TrainingImageNames(context.LoadModel());
+    } catch (const std::exception&) {
+      return {};
+    }
+  }
+
+  static SurfelOptions ToOptions(const Params& params) {
+    SurfelOptions o;
+    o.spacing_scale = params.Double("spacing_scale");
+    o.spacing = params.Double("spacing");
+    o.iterations = static_cast<int>(params.Int("iterations"));
+    o.grow_rounds = static_cast<int>(params.Int("grow_rounds"));
+    o.weights.coplanarity = params.Double("coplanarity");
+    o.weights.conormality = params.Double("conormality");
+    o.weights.cocircularity = params.Double("cocircularity");
+    o.weights.repulsion = params.Double("repulsion");
+    o.weights.data = params.Double("data_weight");
+    o.weights.sigma = params.Double("sigma");
+    o.weights.repulsion_radius = params.Double("repulsion_radius");
+    o.weights.data_sigma = params.Double("data_sigma");
+    o.weights.tangential = params.Double("tangential");
+    o.stretch_distance = params.Double("stretch_distance");
+    o.max_gap = params.Double("max_gap");
+    o.max_normal_angle_deg = params.Double("max_normal_angle_deg");
+    o.min_support = static_cast<int>(params.Int("min_support"));
+    o.support_radius = params.Double("support_radius");
+    o.min_neighbours = static_cast<int>(params.Int("min_neighbours"));
+    o.free_space_views = static_cast<int>(params.Int("free_space_views"));
+    o.free_space_margin = params.Double("free_space_margin");
+    o.max_edge = params.Double("max_edge");
+    o.max_particles = static_cast<int>(std::min<int64_t>(params.Int("max_particles"), 2000000000));
+    return o;
+  }
+};
+
+}  // namespace
+
+void RegisterStage_surfels(StageRegistry* registry) { registry->Add(std::make_unique<SurfelsStage>()); }
+
+}  // namespace ibmr
