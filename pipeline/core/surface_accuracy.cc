@@ -184,6 +184,16 @@ PointSetAccuracy EvaluatePointSet(const PointCloud& cloud, const TriangleMesh& m
   return result;
 }
 
+PointSetAccuracy EvaluateMesh(const TriangleMesh& mesh, const TriangleMesh& truth, size_t samples) {
+  Eigen::Vector3f lo, hi;
+  PointSetAccuracy result;
+  if (!truth.Bounds(&lo, &hi) || truth.faces.empty() || mesh.faces.empty()) return result;
+  PointCloud on_mesh;
+  on_mesh.positions = SampleSurface(mesh, samples, 7);
+  if (on_mesh.positions.empty()) return result;
+  return EvaluatePointSet(on_mesh, truth, SampleSurface(truth, samples), 0.01 * (hi - lo).norm());
+}
+
 SilhouetteHits ProjectOntoSilhouette(const PointCloud& cloud, const Camera& camera, const Rigid3d& cam_from_world,
                                      const cv::Mat& mask) {
   SilhouetteHits hits;

@@ -53,6 +53,11 @@ PointSetAccuracy EvaluatePointSet(const PointCloud& cloud, const TriangleMesh& m
                                  const std::vector<Eigen::Vector3f>& surface_samples, double threshold,
                                  const std::vector<char>* visible = nullptr);
 
+// A reconstructed mesh against the true one: `samples` points uniformly on each, accuracy of the
+// mesh's samples, completeness of the truth's within 1% of the true mesh's bounding-box diagonal
+// (points = 0 when either mesh has no area).
+PointSetAccuracy EvaluateMesh(const TriangleMesh& mesh, const TriangleMesh& truth, size_t samples);
+
 // How many of the cloud's points that project into a view (in front of it, inside the image) land
 // on its silhouette (`mask` nonzero, nearest pixel): the check that fused points lie on the object
 // where no true surface is known (real photographs with silhouettes from the `silhouettes` stage).

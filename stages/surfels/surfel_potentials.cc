@@ -7,7 +7,8 @@
 namespace ibmr {
 
 double PairEnergy(const Eigen::Vector3d& p_i, const Eigen::Vector3d& n_i, const Eigen::Vector3d& p_j,
-                  const Eigen::Vector3d& n_j, double spacing, const ParticleWeights& w, PairGradient* gradient) {
+                  const Eigen::Vector3d& n_j, double spacing, const ParticleWeights& w, PairGradient* gradient,
+                  Curvature* curvature) {
   const Eigen::Vector3d u = (p_j - p_i) / spacing;
   const double d2 = u.squaredNorm();
   const double d = std::sqrt(d2);
@@ -30,11 +31,17 @@ double PairEnergy(const Eigen::Vector3d& p_i, const Eigen::Vector3d& n_i, const 
     gradient->n_i += psi * (2 * w.coplanarity * a_i * u + 2 * w.conormality * difference + 2 * w.cocircularity * b * u);
     gradient->n_j += psi * (2 * w.coplanarity * a_j * u - 2 * w.conormality * difference + 2 * w.cocircularity * b * u);
   }
+  if (curvature) {
+    const double r2 = d2 * inv_sigma2;
+    curvature->position += psi * (4 * w.coplanarity + 8 * w.cocircularity) * (1 + r2) + (gap > 0 ? 2 * w.repulsion / (h * h) : 0.0);
+    curvature->normal += psi * (2 * w.conormality + 2 * (w.coplanarity + w.cocircularity) * d2);
+  }
   return energy;
 }
 
 double DataEnergy(const Eigen::Vector3d& p, const Eigen::Vector3d& n, const Eigen::Vector3d& q, double confidence,
-                  double spacing, const ParticleWeights& w, Eigen::Vector3d* grad_p, Eigen::Vector3d* grad_n) {
+                  double spacing, const ParticleWeights& w, Eigen::Vector3d* grad_p, Eigen::Vector3d* grad_n,
+                  Curvature* curvature) {
   const Eigen::Vector3d v = (q - p) / spacing;
   const double inv_sigma2 = 1.0 / (w.data_sigma * w.data_sigma);
   const double psi = std::exp(-0.5 * v.squaredNorm() * inv_sigma2);
@@ -47,19 +54,12 @@ double DataEnergy(const Eigen::Vector3d& p, const Eigen::Vector3d& n, const Eige
     *grad_p -= d_v / spacing;
   }
   if (grad_n) *grad_n += scale * psi * 2 * (1 - t) * a * v;
+  if (curvature) {
+    const double r2 = v.squaredNorm() * inv_sigma2;
+    curvature->position += scale * psi * 2 * (1 + r2);
+    curvature->normal += scale * psi * 2 * (1 + r2) * v.squaredNorm();
+  }
   return scale * psi * body;
-}
-
-double PairStiffness(double distance, const ParticleWeights& w) {
-  const double r2 = distance * distance / (w.sigma * w.sigma);
-  const double psi = std::exp(-0.5 * r2);
-  const double h = w.repulsion_radius;
-  return psi * (4 * w.coplanarity + 8 * w.cocircularity) * (1 + r2) + (distance < h ? 2 * w.repulsion / (h * h) : 0.0);
-}
-
-double DataStiffness(double distance, double confidence, const ParticleWeights& w) {
-  const double r2 = distance * distance / (w.data_sigma * w.data_sigma);
-  return w.data * confidence * std::exp(-0.5 * r2) * 2 * (1 + r2);
 }
 
 }  // namespace ibmr

@@ -43,19 +43,24 @@ struct PairGradient {
   Eigen::Vector3d p_j = Eigen::Vector3d::Zero(), n_j = Eigen::Vector3d::Zero();
 };
 
-// E_pair of particles i and j (spacing s > 0); adds its gradient to `gradient` when not null.
+// Upper estimates of the energy's curvature in a particle's position (per spacing^-2) and in its
+// normal, summed over its terms: the solver divides the gradient by them (a Jacobi
+// preconditioner), so steps stay stable however many neighbours a particle has.
+struct Curvature {
+  double position = 0;
+  double normal = 0;
+};
+
+// E_pair of particles i and j (spacing s > 0); adds its gradient to `gradient` and particle i's
+// curvature to `curvature` when they are not null.
 double PairEnergy(const Eigen::Vector3d& p_i, const Eigen::Vector3d& n_i, const Eigen::Vector3d& p_j,
                   const Eigen::Vector3d& n_j, double spacing, const ParticleWeights& weights,
-                  PairGradient* gradient = nullptr);
+                  PairGradient* gradient = nullptr, Curvature* curvature = nullptr);
 
-// The data term of one particle and one data point q of confidence c; adds d/dp and d/dn.
+// The data term of one particle and one data point q of confidence c; adds d/dp, d/dn and the
+// particle's curvature.
 double DataEnergy(const Eigen::Vector3d& p, const Eigen::Vector3d& n, const Eigen::Vector3d& q, double confidence,
                   double spacing, const ParticleWeights& weights, Eigen::Vector3d* grad_p = nullptr,
-                  Eigen::Vector3d* grad_n = nullptr);
-
-// An upper estimate of the energy's curvature in a particle's position from one pair or data term,
-// per spacing^-2: the solver divides gradients by the sum (a Jacobi preconditioner).
-double PairStiffness(double distance_in_spacings, const ParticleWeights& weights);
-double DataStiffness(double distance_in_spacings, double confidence, const ParticleWeights& weights);
+                  Eigen::Vector3d* grad_n = nullptr, Curvature* curvature = nullptr);
 
 }  // namespace ibmr

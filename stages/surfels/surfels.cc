@@ -20,6 +20,7 @@ namespace {
 
 constexpr double kNeighbourRadius = 2.5;  // spacings: potentials beyond are < 5% (sigma 1)
 constexpr double kDataRadius = 2.0;       // spacings: psi_D (sigma 1) is 0.14 there
+constexpr int kDataNearest = 64;          // at most this many data points per particle (the nearest)
 
 using Neighbours = std::vector<std::pair<uint32_t, float>>;
 using Clock = std::chrono::steady_clock;
@@ -247,6 +248,7 @@ bool SurfelOptions::Check(std::string* error) const {
   if (free_space_views < 1 || free_space_views > 1000) return fail(Range("free_space_views", "[1, 1000]"));
   if (!(free_space_margin > 0 && free_space_margin <= 1000)) return fail(Range("free_space_margin", "(0, 1000]"));
   if (!(max_edge >= 1 && max_edge <= 20)) return fail(Range("max_edge", "[1, 20]"));
+  if (max_hole_edges < 0 || max_hole_edges > 1000) return fail(Range("max_hole_edges", "[0, 1000]"));
   if (max_particles < 1000 || max_particles > 1000000000) return fail(Range("max_particles", "[1000, 1e9]"));
   return true;
 }
@@ -344,17 +346,24 @@ PointCloud ThinToSpacing(const PointCloud& points, double spacing) {
 
 namespace {
 
-// Neighbour lists of every point within `radius` of `queries[i]`, as one flat array (CSR).
+// Neighbour lists of every point within `radius` of `queries[i]` (the `nearest` closest of them
+// when > 0), as one flat array (CSR).
 struct NeighbourLists {
   std::vector<uint32_t> offsets, indices;
-  void Build(const PointIndex& index, const std::vector<Eigen::Vector3f>& queries, float radius) {
+  void Build(const PointIndex& index, const std::vector<Eigen::Vector3f>& queries, float radius, int nearest = 0) {
     std::vector<std::vector<uint32_t>> lists(queries.size());
     tbb::parallel_for(tbb::blocked_range<size_t>(0, queries.size()), [&](const tbb::blocked_range<size_t>& range) {
       Neighbours found;
       for (size_t i = range.begin(); i < range.end(); ++i) {
-        index.Radius(queries[i], radius, &found);
+        if (nearest > 0) {
+          index.Nearest(queries[i], nearest, &found);
+        } else {
+          index.Radius(queries[i], radius, &found);
+        }
         lists[i].reserve(found.size());
-        for (const auto& entry : found) lists[i].push_back(entry.first);
+        for (const auto& entry : found) {
+          if (entry.second <= radius * radius) lists[i].push_back(entry.first);
+        }
       }
     });
     offsets.assign(1, 0);
@@ -379,12 +388,11 @@ double RelaxParticles(const PointCloud& data, double spacing, const ParticleWeig
   const double max_step = 0.3 * spacing;
   const PointIndex data_index(data.positions);
   NeighbourLists data_near, particle_near;
-  data_near.Build(data_index, particles->positions, static_cast<float>((kDataRadius + 0.5) * spacing));
+  data_near.Build(data_index, particles->positions, static_cast<float>((kDataRadius + 0.5) * spacing), kDataNearest);
   std::vector<Eigen::Vector3f> next_positions(n), next_normals(n);
   std::vector<double> steps(n, 0.0);
   const double data_radius2 = kDataRadius * kDataRadius * spacing * spacing;
   const double pair_radius2 = kNeighbourRadius * kNeighbourRadius * spacing * spacing;
-  const double inv_sigma2 = 1.0 / (weights.sigma * weights.sigma);
   for (int sweep = 0; sweep < sweeps; ++sweep) {
     if (sweep % kListSweeps == 0) {
       const PointIndex index(particles->positions);
@@ -395,33 +403,24 @@ double RelaxParticles(const PointCloud& data, double spacing, const ParticleWeig
         const Eigen::Vector3d p = particles->positions[i].cast<double>();
         const Eigen::Vector3d normal = particles->normals[i].cast<double>();
         PairGradient gradient;
-        double stiffness_p = 1e-9, stiffness_n = 1e-9;
+        Curvature curvature{1e-9, 1e-9};
         for (uint32_t e = particle_near.offsets[i]; e < particle_near.offsets[i + 1]; ++e) {
           const uint32_t j = particle_near.indices[e];
           if (j == i) continue;
           const Eigen::Vector3d q = particles->positions[j].cast<double>();
-          const double d2 = (q - p).squaredNorm();
-          if (d2 > pair_radius2) continue;
-          PairEnergy(p, normal, q, particles->normals[j].cast<double>(), spacing, weights, &gradient);
-          const double d = std::sqrt(d2) / spacing;
-          stiffness_p += PairStiffness(d, weights);
-          stiffness_n += std::exp(-0.5 * d * d * inv_sigma2) *
-                         (2 * weights.conormality + 2 * (weights.coplanarity + weights.cocircularity) * d * d);
+          if ((q - p).squaredNorm() > pair_radius2) continue;
+          PairEnergy(p, normal, q, particles->normals[j].cast<double>(), spacing, weights, &gradient, &curvature);
         }
         for (uint32_t e = data_near.offsets[i]; e < data_near.offsets[i + 1]; ++e) {
           const uint32_t k = data_near.indices[e];
           const Eigen::Vector3d q = data.positions[k].cast<double>();
-          const double d2 = (q - p).squaredNorm();
-          if (d2 > data_radius2) continue;
+          if ((q - p).squaredNorm() > data_radius2) continue;
           const double c = data.confidence.empty() ? 1.0 : std::max(0.0f, data.confidence[k]);
-          DataEnergy(p, normal, q, c, spacing, weights, &gradient.p_i, &gradient.n_i);
-          const double d = std::sqrt(d2) / spacing;
-          stiffness_p += DataStiffness(d, c, weights);
-          stiffness_n += DataStiffness(d, c, weights) * d * d;
+          DataEnergy(p, normal, q, c, spacing, weights, &gradient.p_i, &gradient.n_i, &curvature);
         }
-        Eigen::Vector3d step = -gradient.p_i * spacing * spacing / stiffness_p;
+        Eigen::Vector3d step = -gradient.p_i * spacing * spacing / curvature.position;
         if (step.norm() > max_step) step *= max_step / step.norm();
-        Eigen::Vector3d turn = -(gradient.n_i - gradient.n_i.dot(normal) * normal) / stiffness_n;
+        Eigen::Vector3d turn = -(gradient.n_i - gradient.n_i.dot(normal) * normal) / curvature.normal;
         if (turn.norm() > 0.3) turn *= 0.3 / turn.norm();
         next_positions[i] = (p + step).cast<float>();
         next_normals[i] = (normal + turn).normalized().cast<float>();
@@ -524,6 +523,8 @@ SurfelResult ReconstructSurfels(const PointCloud& input, const std::vector<Surfe
   // 3. Pruning before relaxation, so that floaters do not pull on the surface.
   auto prune_free_space_and_hull = [&]() {
     const Clock::time_point start = Clock::now();
+    // Support (views that saw a surface at the particle's depth) is not weighed against the
+    // violations: on templeRing that kept floaters along the silhouettes and cost 0.5 dB held out.
     const std::vector<int> violations =
         FreeSpaceViolations(particles.positions, views, spacing, options.free_space_margin);
     std::vector<char> remove(particles.size(), 0);
@@ -532,6 +533,7 @@ SurfelResult ReconstructSurfels(const PointCloud& input, const std::vector<Surfe
     if (hull) {
       bool closed = true;
       const std::vector<char> inside = InsideClosedMesh(*hull, particles.positions, &closed);
+      stats.hull_closed = closed;
       std::vector<char> outside(inside.size());
       for (size_t i = 0; i < inside.size(); ++i) outside[i] = !inside[i];
       stats.removed_outside_hull += RemoveFlagged(outside, &particles);
@@ -585,6 +587,7 @@ SurfelResult ReconstructSurfels(const PointCloud& input, const std::vector<Surfe
   stats.spacing_spread = NearestNeighbourSpread(particles.positions);
   const Clock::time_point triangulate_start = Clock::now();
   result.mesh = TriangulateParticles(particles, options.max_edge * spacing);
+  stats.holes_filled = FillSmallHoles(options.max_hole_edges, &result.mesh);
   stats.triangulate_seconds = Seconds(triangulate_start);
   stats.vertices = result.mesh.vertices.size();
   stats.faces = result.mesh.faces.size();

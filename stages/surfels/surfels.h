@@ -7,8 +7,8 @@
 //  2. Particles: the fused points averaged per cell of that size (confidence-weighted position,
 //     normal, colour; seed 000 section 4's uncertainty survives as the confidence). Points without
 //     normals get them from the principal axes of their neighbours, turned toward a camera.
-//  3. Pruning: particles that a training depth map sees through (free space: the view saw a surface
-//     behind them along its ray in `free_space_views` views or more), particles outside the hull
+//  3. Pruning: particles that training depth maps see through (free space: a view saw a surface
+//     behind them along its ray) in `free_space_views` views or more, particles outside the hull
 //     (when a closed hull mesh is given), and particles with too little data nearby or too few
 //     particle neighbours (outliers) are deleted.
 //  4. Relaxation: the energy of surfel_potentials.h (co-planarity, co-normality, co-circularity,
@@ -24,7 +24,8 @@
 //     `max_gap` stay open, so holes in the data stay holes.
 //  6. Triangulation (surfel_mesh.cc, CGAL advancing front): the particles are connected into a
 //     manifold mesh whose edges are at most `max_edge` spacings, so it never spans a hole wider
-//     than that; faces are oriented by the particles' normals.
+//     than that; faces are oriented by the particles' normals. Openings bounded by at most
+//     `max_hole_edges` edges (fill_holes.cc) are closed; larger ones stay open.
 #pragma once
 
 #include <Eigen/Core>
@@ -41,13 +42,13 @@
 namespace ibmr {
 
 struct SurfelOptions {
-  double spacing_scale = 2.0;      // particle spacing / median pixel footprint of the points, in (0, 100]
+  double spacing_scale = 3.5;      // particle spacing / median pixel footprint of the points, in (0, 100]
   double spacing = -1;             // fixed spacing in scene units (> 0); -1: from the footprints
-  int iterations = 30;             // relaxation sweeps per round, in [0, 1000]
-  int grow_rounds = 2;             // rounds of growth, each followed by relaxation, in [0, 20]
+  int iterations = 15;             // relaxation sweeps per round, in [0, 1000]
+  int grow_rounds = 1;             // rounds of growth, each followed by relaxation, in [0, 20]
   ParticleWeights weights;         // potentials (unitless; lengths in spacings), each >= 0
   double stretch_distance = 1.6;   // pairs farther apart than this (spacings) get a midpoint particle, in [1, max_gap)
-  double max_gap = 3.0;            // ... unless farther than this (spacings): a hole, in (1, 20]
+  double max_gap = 4.0;            // ... unless farther than this (spacings): a hole, in (1, 20]
   double max_normal_angle_deg = 35;  // growth only between neighbours whose normals agree within this, (0, 180]
   int min_support = 3;             // fused points within support_radius needed to keep a particle, in [0, 1000]
   double support_radius = 1.5;     // spacings, in (0, 20]
@@ -55,7 +56,8 @@ struct SurfelOptions {
   int free_space_views = 2;        // delete a particle that this many depth maps see through, in [1, 1000]
   double free_space_margin = 3.0;  // "see through": the map's depth exceeds the particle's by this many
                                    // spacings and by 0.5% of the depth, in (0, 1000]
-  double max_edge = 3.0;           // longest triangle edge, spacings, in [1, 20]
+  double max_edge = 4.0;           // longest triangle edge, spacings, in [1, 20]
+  int max_hole_edges = 24;         // close mesh holes bounded by at most this many edges, in [0, 1000]
   int max_particles = 2000000;     // refuse to run beyond this many particles (memory), in [1000, 1e9]
 
   bool Check(std::string* error) const;  // error starts with the YAML key
@@ -77,10 +79,12 @@ struct SurfelStats {
   size_t initial_particles = 0;
   size_t removed_free_space = 0;
   size_t removed_outside_hull = 0;
+  bool hull_closed = false;         // a hull was given and is a closed mesh (otherwise not used)
   size_t removed_unsupported = 0;   // too little data or too few neighbours
   size_t grown = 0;
   size_t particles = 0;
   size_t vertices = 0, faces = 0;
+  size_t holes_filled = 0;
   double mean_step_last_sweep = 0;  // mean particle displacement of the last sweep, spacings
   double spacing_spread = 0;        // coefficient of variation of nearest-neighbour distances
   double prune_seconds = 0, relax_seconds = 0, triangulate_seconds = 0;  // wall time per phase
@@ -88,7 +92,7 @@ struct SurfelStats {
 
 struct SurfelResult {
   PointCloud surfels;  // positions, unit normals, radius, colours, confidence
-  TriangleMesh mesh;   // vertices = the surfels, with their normals and colours
+  TriangleMesh mesh;   // vertices = the surfels (then the centres of filled holes), normals, colours
   SurfelStats stats;
 };
 
@@ -128,8 +132,12 @@ double NearestNeighbourSpread(const std::vector<Eigen::Vector3f>& positions);
 // surfel_mesh.cc (CGAL): the advancing-front triangulation with edges at most `max_edge_length`,
 // faces turned to agree with the particles' normals; the mesh's vertices are the particles.
 TriangleMesh TriangulateParticles(const PointCloud& particles, double max_edge_length);
-// surfel_mesh.cc (CGAL): which points lie inside a closed mesh (all true when it is not closed,
-// with `closed` set false).
+// Closes the mesh's holes bounded by at most `max_edges` edges (a fan around a new centroid
+// vertex); returns how many. Larger holes and loops through a vertex twice stay open.
+size_t FillSmallHoles(int max_edges, TriangleMesh* mesh);
+
+// surfel_mesh.cc (CGAL): which points lie inside a closed mesh, by the parity of ray crossings
+// (all true when it is not closed, with `closed` set false; up to 0.5% open edges are tolerated).
 std::vector<char> InsideClosedMesh(const TriangleMesh& mesh, const std::vector<Eigen::Vector3f>& points,
                                    bool* closed);
 

@@ -13,6 +13,7 @@
 #include <spdlog/spdlog.h>
 
 #include <filesystem>
+#include <iostream>
 
 #include "pipeline/core/colmap_array_io.h"
 #include "pipeline/core/errors.h"
@@ -72,6 +73,7 @@ class SurfelsStage : public Stage {
         {"free_space_margin", ParamType::kDouble, num(d.free_space_margin), "See-through margin, spacings (and 0.5% of depth), (0, 1000]"},
         {"free_space_maps", ParamType::kString, "geometric", "Depth maps for the free-space test", {"geometric", "photometric", "none"}},
         {"max_edge", ParamType::kDouble, num(d.max_edge), "Longest triangle edge, spacings, [1, 20]"},
+        {"max_hole_edges", ParamType::kInt, std::to_string(d.max_hole_edges), "Close mesh holes bounded by at most this many edges, [0, 1000]"},
         {"max_particles", ParamType::kInt, std::to_string(d.max_particles), "Refuse to run beyond this many particles, [1000, 1e9]"},
         {"use_hull", ParamType::kBool, "true", "Keep the surface inside hull/hull.ply when it exists"},
         {"eval_samples", ParamType::kInt, "200000", "Samples for accuracy/completeness against ground_truth/mesh.ply, [1000, 1e7]"},
@@ -167,9 +169,15 @@ class SurfelsStage : public Stage {
     m["particles"] = s.particles;
     m["mesh_vertices"] = s.vertices;
     m["mesh_faces"] = s.faces;
+    m["holes_filled"] = s.holes_filled;
     m["mean_step_last_sweep"] = s.mean_step_last_sweep;
     m["spacing_spread"] = s.spacing_spread;
-    m["used_hull"] = use_hull;
+    m["used_hull"] = use_hull && s.hull_closed;
+    if (use_hull && !s.hull_closed) {
+      spdlog::warn("[surfels] {}: not a closed mesh, so inside and outside are undefined; the surface is not bounded "
+                   "by it (re-run carve, or set surfels.use_hull: false)",
+                   workspace.Path(kHull));
+    }
     m["prune_seconds"] = s.prune_seconds;
     m["relax_seconds"] = s.relax_seconds;
     m["triangulate_seconds"] = s.triangulate_seconds;
@@ -183,18 +191,13 @@ class SurfelsStage : public Stage {
  private:
   static void Evaluate(StageContext& context, const TriangleMesh& mesh) {
     const TriangleMesh truth = ReadMeshPly(context.workspace.GroundTruthMeshPath());
-    Eigen::Vector3f lo, hi;
-    if (!truth.Bounds(&lo, &hi) || truth.faces.empty() || mesh.faces.empty()) return;
-    const double threshold = 0.01 * (hi - lo).norm();
-    const size_t count = static_cast<size_t>(context.params.Int("eval_samples"));
-    PointCloud on_mesh;
-    on_mesh.positions = SampleSurface(mesh, count, 7);
-    const PointSetAccuracy a = EvaluatePointSet(on_mesh, truth, SampleSurface(truth, count), threshold);
+    const PointSetAccuracy a = EvaluateMesh(mesh, truth, static_cast<size_t>(context.params.Int("eval_samples")));
+    if (a.points == 0) return;
     context.metrics["mesh_accuracy_90"] = a.accuracy_90;
     context.metrics["mesh_completeness"] = a.completeness;
-    context.metrics["eval_threshold"] = threshold;
+    context.metrics["eval_threshold"] = a.threshold;
     spdlog::info("[surfels] mesh accuracy (90%) {:.4g}, completeness {:.1f}% within {:.4g}", a.accuracy_90,
-                 100 * a.completeness, threshold);
+                 100 * a.completeness, a.threshold);
   }
 
   static std::vector<std::string> Names(const StageContext& context) {
@@ -230,13 +233,43 @@ class SurfelsStage : public Stage {
     o.free_space_views = static_cast<int>(params.Int("free_space_views"));
     o.free_space_margin = params.Double("free_space_margin");
     o.max_edge = params.Double("max_edge");
+    o.max_hole_edges = static_cast<int>(params.Int("max_hole_edges"));
     o.max_particles = static_cast<int>(std::min<int64_t>(params.Int("max_particles"), 2000000000));
     return o;
   }
 };
 
+// `ibmr mesh-accuracy MESH TRUTH [SAMPLES]`: the measures above for any mesh (a Poisson baseline,
+// another tool's output), printed as JSON.
+int MeshAccuracyCommand(const std::vector<std::string>& args) {
+  if (args.size() < 2 || args.size() > 3 || args[0] == "--help") {
+    std::cout << "usage: ibmr mesh-accuracy MESH.ply TRUTH.ply [SAMPLES]   (prints JSON: accuracy_90, completeness "
+                 "within 1% of the truth's bounding-box diagonal)\n";
+    return !args.empty() && args[0] == "--help" ? 0 : 2;
+  }
+  try {
+    const size_t samples = args.size() == 3 ? std::stoul(args[2]) : 200000;
+    const TriangleMesh mesh = ReadMeshPly(args[0]);
+    const PointSetAccuracy a = EvaluateMesh(mesh, ReadMeshPly(args[1]), samples);
+    if (a.points == 0) throw InputError(args[0] + " or " + args[1] + ": a mesh without area; nothing to measure");
+    std::cout << nlohmann::json{{"mesh", args[0]},           {"truth", args[1]},
+                                {"faces", mesh.faces.size()}, {"accuracy_90", a.accuracy_90},
+                                {"accuracy_median", a.accuracy_median}, {"completeness", a.completeness},
+                                {"threshold", a.threshold},   {"samples", samples}}
+                     .dump(2)
+              << "\n";
+    return 0;
+  } catch (const std::exception& e) {
+    std::cerr << e.what() << "\n";
+    return 1;
+  }
+}
+
 }  // namespace
 
-void RegisterStage_surfels(StageRegistry* registry) { registry->Add(std::make_unique<SurfelsStage>()); }
+void RegisterStage_surfels(StageRegistry* registry) {
+  registry->Add(std::make_unique<SurfelsStage>());
+  registry->AddCommand({"mesh-accuracy", "Accuracy and completeness of a mesh against a true mesh (JSON)", MeshAccuracyCommand});
+}
 
 }  // namespace ibmr

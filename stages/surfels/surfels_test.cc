@@ -105,7 +105,8 @@ TEST(SurfelOptions, RejectsInvalidRanges) {
       {"sigma", [](SurfelOptions* o) { o->weights.sigma = 0; }},
       {"tangential", [](SurfelOptions* o) { o->weights.tangential = 1.5; }},
       {"max_gap", [](SurfelOptions* o) { o->max_gap = 1; }},
-      {"stretch_distance", [](SurfelOptions* o) { o->stretch_distance = 3.5; }},
+      {"stretch_distance", [](SurfelOptions* o) { o->stretch_distance = 4.5; }},
+      {"max_hole_edges", [](SurfelOptions* o) { o->max_hole_edges = -1; }},
       {"max_normal_angle_deg", [](SurfelOptions* o) { o->max_normal_angle_deg = 0; }},
       {"min_support", [](SurfelOptions* o) { o->min_support = -1; }},
       {"free_space_views", [](SurfelOptions* o) { o->free_space_views = 0; }},
@@ -228,7 +229,7 @@ TEST(Surfels, NoisyPlaneConvergesToThePlane) {
     tilt += std::acos(std::min(1.0f, std::abs(result.surfels.normals[i].z())));
   }
   EXPECT_LT(std::sqrt(sum / result.surfels.size()), 0.3 * sigma);
-  EXPECT_LT(tilt / result.surfels.size() * 180 / M_PI, 2.0);
+  EXPECT_LT(tilt / result.surfels.size() * 180 / M_PI, 3.0);
   EXPECT_LT(result.stats.spacing_spread, 0.25);  // the plane's edges included
 }
 

@@ -1,0 +1,71 @@
+// Small holes of the particle mesh closed by a fan around their centroid. The advancing front
+// leaves a few small openings where particles are uneven; openings bounded by at most
+// `max_edges` edges (a hole a few spacings across) are closed, larger ones stay open: a missing
+// part of the data stays missing. Boundary loops that pass a vertex twice (two openings touching
+// at a vertex) are left alone, so the fill never makes a vertex non-manifold.
+#include <unordered_map>
+
+#include "stages/surfels/surfels.h"
+
+namespace ibmr {
+
+size_t FillSmallHoles(int max_edges, TriangleMesh* mesh) {
+  // Directed boundary edges: a face's edge (a, b) with no face using (b, a). The hole's loop runs
+  // the other way, b -> a, which is the orientation its filling faces take.
+  std::unordered_map<uint64_t, int> directed;
+  auto key = [](int a, int b) { return (static_cast<uint64_t>(static_cast<uint32_t>(a)) << 32) | static_cast<uint32_t>(b); };
+  for (const auto& f : mesh->faces) {
+    for (int k = 0; k < 3; ++k) ++directed[key(f[k], f[(k + 1) % 3])];
+  }
+  std::unordered_map<int, int> next;     // loop successor of a boundary vertex
+  std::unordered_map<int, int> starts;   // how many boundary edges start at a vertex
+  for (const auto& f : mesh->faces) {
+    for (int k = 0; k < 3; ++k) {
+      const int a = f[k], b = f[(k + 1) % 3];
+      if (directed.count(key(b, a))) continue;
+      next[b] = a;
+      ++starts[b];
+    }
+  }
+  std::unordered_map<int, char> visited;
+  size_t filled = 0;
+  for (const auto& [first, unused] : next) {
+    if (visited[first]) continue;
+    std::vector<int> loop;
+    bool simple = true;
+    int v = first;
+    while (!visited[v]) {
+      visited[v] = 1;
+      loop.push_back(v);
+      simple = simple && starts[v] == 1;
+      const auto it = next.find(v);
+      if (it == next.end()) {
+        simple = false;
+        break;
+      }
+      v = it->second;
+      if (static_cast<int>(loop.size()) > max_edges) simple = false;
+    }
+    if (!simple || v != first || loop.size() < 3 || static_cast<int>(loop.size()) > max_edges) continue;
+    if (loop.size() == 3) {
+      mesh->faces.emplace_back(loop[0], loop[1], loop[2]);
+    } else {
+      Eigen::Vector3f centre = Eigen::Vector3f::Zero(), normal = Eigen::Vector3f::Zero();
+      Eigen::Vector3i color = Eigen::Vector3i::Zero();
+      for (const int u : loop) {
+        centre += mesh->vertices[u];
+        if (!mesh->normals.empty()) normal += mesh->normals[u];
+        if (!mesh->colors.empty()) color += mesh->colors[u].cast<int>();
+      }
+      const int c = static_cast<int>(mesh->vertices.size());
+      mesh->vertices.push_back(centre / static_cast<float>(loop.size()));
+      if (!mesh->normals.empty()) mesh->normals.push_back(normal.normalized());
+      if (!mesh->colors.empty()) mesh->colors.push_back((color / static_cast<int>(loop.size())).cast<uint8_t>());
+      for (size_t k = 0; k < loop.size(); ++k) mesh->faces.emplace_back(loop[k], loop[(k + 1) % loop.size()], c);
+    }
+    ++filled;
+  }
+  return filled;
+}
+
+}  // namespace ibmr
