@@ -117,11 +117,14 @@ size_t RemoveFlagged(const std::vector<char>& remove, PointCloud* particles) {
   return removed;
 }
 
-// Particles with fewer than `min_support` data points within `radius`, or fewer than
-// `min_neighbours` particles within kNeighbourRadius spacings (grown particles need no data).
+// Particles with fewer than `min_support` data points within support_radius (nor fewer than
+// `min_support_fraction` of the median particle's count: sparse clusters of fused points, floaters
+// that few samples agreed on, weigh as much as the surface once thinned), or fewer than
+// `min_neighbours` particles within kNeighbourRadius spacings. Grown particles need no data.
 std::vector<char> Unsupported(const PointIndex& data_index, const PointCloud& particles,
                               const std::vector<char>& grown, double spacing, const SurfelOptions& options) {
   std::vector<char> remove(particles.size(), 0);
+  std::vector<int> support(particles.size(), -1);
   const PointIndex particle_index(particles.positions);
   tbb::parallel_for(tbb::blocked_range<size_t>(0, particles.size()), [&](const tbb::blocked_range<size_t>& range) {
     Neighbours found;
@@ -133,9 +136,19 @@ std::vector<char> Unsupported(const PointIndex& data_index, const PointCloud& pa
       }
       if (grown[i] || options.min_support == 0) continue;
       data_index.Radius(particles.positions[i], static_cast<float>(options.support_radius * spacing), &found);
-      if (static_cast<int>(found.size()) < options.min_support) remove[i] = 1;
+      support[i] = static_cast<int>(found.size());
     }
   });
+  std::vector<int> counted;
+  for (const int count : support) {
+    if (count >= 0) counted.push_back(count);
+  }
+  if (counted.empty()) return remove;
+  std::nth_element(counted.begin(), counted.begin() + counted.size() / 2, counted.end());
+  const double limit = std::max<double>(options.min_support, options.min_support_fraction * counted[counted.size() / 2]);
+  for (size_t i = 0; i < support.size(); ++i) {
+    if (support[i] >= 0 && support[i] < limit) remove[i] = 1;
+  }
   return remove;
 }
 
@@ -244,6 +257,7 @@ bool SurfelOptions::Check(std::string* error) const {
   if (!(max_normal_angle_deg > 0 && max_normal_angle_deg <= 180)) return fail(Range("max_normal_angle_deg", "(0, 180]"));
   if (min_support < 0 || min_support > 1000) return fail(Range("min_support", "[0, 1000]"));
   if (!(support_radius > 0 && support_radius <= 20)) return fail(Range("support_radius", "(0, 20]"));
+  if (!(min_support_fraction >= 0 && min_support_fraction <= 1)) return fail(Range("min_support_fraction", "[0, 1]"));
   if (min_neighbours < 0 || min_neighbours > 100) return fail(Range("min_neighbours", "[0, 100]"));
   if (free_space_views < 1 || free_space_views > 1000) return fail(Range("free_space_views", "[1, 1000]"));
   if (!(free_space_margin > 0 && free_space_margin <= 1000)) return fail(Range("free_space_margin", "(0, 1000]"));

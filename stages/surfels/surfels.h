@@ -52,6 +52,8 @@ struct SurfelOptions {
   double max_normal_angle_deg = 35;  // growth only between neighbours whose normals agree within this, (0, 180]
   int min_support = 3;             // fused points within support_radius needed to keep a particle, in [0, 1000]
   double support_radius = 1.5;     // spacings, in (0, 20]
+  double min_support_fraction = 0;  // ... and at least this fraction of the median particle's, in [0, 1]
+                                    // (0.2 cost templeRing 0.4 dB held out: it thins the surface too)
   int min_neighbours = 3;          // particles within 2.5 spacings needed to keep a particle, in [0, 100]
   int free_space_views = 2;        // delete a particle that this many depth maps see through, in [1, 1000]
   double free_space_margin = 3.0;  // "see through": the map's depth exceeds the particle's by this many

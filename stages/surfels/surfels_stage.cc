@@ -68,6 +68,7 @@ class SurfelsStage : public Stage {
         {"max_normal_angle_deg", ParamType::kDouble, num(d.max_normal_angle_deg), "Growth only between normals within this, degrees, (0, 180]"},
         {"min_support", ParamType::kInt, std::to_string(d.min_support), "Fused points within support_radius to keep a particle, [0, 1000]"},
         {"support_radius", ParamType::kDouble, num(d.support_radius), "Spacings, (0, 20]"},
+        {"min_support_fraction", ParamType::kDouble, num(d.min_support_fraction), "Fused points near a particle / the median particle's, to keep it, [0, 1]"},
         {"min_neighbours", ParamType::kInt, std::to_string(d.min_neighbours), "Particles within 2.5 spacings to keep a particle, [0, 100]"},
         {"free_space_views", ParamType::kInt, std::to_string(d.free_space_views), "Delete particles that this many depth maps see through, [1, 1000]"},
         {"free_space_margin", ParamType::kDouble, num(d.free_space_margin), "See-through margin, spacings (and 0.5% of depth), (0, 1000]"},
@@ -229,6 +230,7 @@ class SurfelsStage : public Stage {
     o.max_normal_angle_deg = params.Double("max_normal_angle_deg");
     o.min_support = static_cast<int>(params.Int("min_support"));
     o.support_radius = params.Double("support_radius");
+    o.min_support_fraction = params.Double("min_support_fraction");
     o.min_neighbours = static_cast<int>(params.Int("min_neighbours"));
     o.free_space_views = static_cast<int>(params.Int("free_space_views"));
     o.free_space_margin = params.Double("free_space_margin");

@@ -109,6 +109,7 @@ TEST(SurfelOptions, RejectsInvalidRanges) {
       {"max_hole_edges", [](SurfelOptions* o) { o->max_hole_edges = -1; }},
       {"max_normal_angle_deg", [](SurfelOptions* o) { o->max_normal_angle_deg = 0; }},
       {"min_support", [](SurfelOptions* o) { o->min_support = -1; }},
+      {"min_support_fraction", [](SurfelOptions* o) { o->min_support_fraction = 1.5; }},
       {"free_space_views", [](SurfelOptions* o) { o->free_space_views = 0; }},
       {"free_space_margin", [](SurfelOptions* o) { o->free_space_margin = 0; }},
       {"max_edge", [](SurfelOptions* o) { o->max_edge = 0.5; }},
