@@ -1,5 +1,6 @@
-// The oriented particle system of seed 000 section 5 (lines 4454-4586): spacing, initial particles,
-// pruning, Jacobi relaxation of the potentials, the stretching rule (see surfels.h for the steps).
+// The oriented particle system of seed 000 section 5 (lines 4454-4586): options, normals, spacing,
+// initial particles, and the whole sequence of steps (see surfels.h). The relaxation is in
+// particle_relaxation.cc, pruning and growth in particle_pruning.cc, the mesh in surfel_mesh.cc.
 #include "stages/surfels/surfels.h"
 
 #include <tbb/parallel_for.h>
@@ -12,201 +13,20 @@
 #include <unordered_map>
 
 #include "pipeline/core/errors.h"
+#include "stages/surfels/particle_cloud.h"
+#include "stages/surfels/particle_pruning.h"
 #include "stages/surfels/point_index.h"
 
 namespace ibmr {
 
 namespace {
 
-constexpr double kNeighbourRadius = 2.5;  // spacings: potentials beyond are < 5% (sigma 1)
-constexpr double kDataRadius = 2.0;       // spacings: psi_D (sigma 1) is 0.14 there
-constexpr int kDataNearest = 64;          // at most this many data points per particle (the nearest)
-
 using Neighbours = std::vector<std::pair<uint32_t, float>>;
 using Clock = std::chrono::steady_clock;
 
 double Seconds(Clock::time_point start) { return std::chrono::duration<double>(Clock::now() - start).count(); }
 
-bool Finite(const Eigen::Vector3f& v) { return std::isfinite(v.x()) && std::isfinite(v.y()) && std::isfinite(v.z()); }
-
 std::string Range(const char* key, const std::string& range) { return std::string(key) + ": must be in " + range; }
-
-// Keeps the entries of `keep`; every per-point attribute follows.
-PointCloud Select(const PointCloud& cloud, const std::vector<char>& keep) {
-  PointCloud out;
-  out.comments = cloud.comments;
-  for (size_t i = 0; i < cloud.size(); ++i) {
-    if (!keep[i]) continue;
-    out.positions.push_back(cloud.positions[i]);
-    if (!cloud.normals.empty()) out.normals.push_back(cloud.normals[i]);
-    if (!cloud.colors.empty()) out.colors.push_back(cloud.colors[i]);
-    if (!cloud.confidence.empty()) out.confidence.push_back(cloud.confidence[i]);
-    if (!cloud.radius.empty()) out.radius.push_back(cloud.radius[i]);
-  }
-  return out;
-}
-
-// Reorders the points along a Morton (Z-order) curve of their positions, so that neighbours in
-// space are neighbours in memory: the relaxation's neighbour lists then stay in cache.
-void SortSpatially(PointCloud* cloud) {
-  const size_t n = cloud->size();
-  if (n < 2) return;
-  Eigen::Vector3f lo = cloud->positions[0], hi = lo;
-  for (const auto& p : cloud->positions) lo = lo.cwiseMin(p), hi = hi.cwiseMax(p);
-  const Eigen::Vector3f scale = (2097151.0f / (hi - lo).cwiseMax(Eigen::Vector3f::Constant(1e-20f)).array()).matrix();
-  auto spread = [](uint64_t v) {  // 21 bits -> every third of 63 bits
-    v &= 0x1FFFFF;
-    v = (v | v << 32) & 0x1F00000000FFFFULL;
-    v = (v | v << 16) & 0x1F0000FF0000FFULL;
-    v = (v | v << 8) & 0x100F00F00F00F00FULL;
-    v = (v | v << 4) & 0x10C30C30C30C30C3ULL;
-    v = (v | v << 2) & 0x1249249249249249ULL;
-    return v;
-  };
-  std::vector<std::pair<uint64_t, uint32_t>> keys(n);
-  for (size_t i = 0; i < n; ++i) {
-    const Eigen::Vector3f q = (cloud->positions[i] - lo).cwiseProduct(scale);
-    keys[i] = {spread(static_cast<uint64_t>(q.x())) | spread(static_cast<uint64_t>(q.y())) << 1 |
-                   spread(static_cast<uint64_t>(q.z())) << 2,
-               static_cast<uint32_t>(i)};
-  }
-  std::sort(keys.begin(), keys.end());
-  auto permute = [&](auto& values) {
-    if (values.empty()) return;
-    auto copy = values;
-    for (size_t i = 0; i < n; ++i) values[i] = copy[keys[i].second];
-  };
-  permute(cloud->positions);
-  permute(cloud->normals);
-  permute(cloud->colors);
-  permute(cloud->confidence);
-  permute(cloud->radius);
-}
-
-// Projects a world point into a view: pixel and depth; false when behind or outside the image.
-bool Project(const SurfelView& view, const Eigen::Vector3f& point, Eigen::Vector2d* pixel, double* z) {
-  const Eigen::Vector3d in_cam = view.cam_from_world * point.cast<double>();
-  if (in_cam.z() <= 0) return false;
-  *pixel = view.camera.ImgFromCam(in_cam);
-  *z = in_cam.z();
-  return pixel->x() >= 0 && pixel->y() >= 0 && pixel->x() < view.camera.width && pixel->y() < view.camera.height;
-}
-
-// Drops points with non-finite coordinates or normals; returns how many.
-size_t DropNonFinite(PointCloud* cloud) {
-  std::vector<char> keep(cloud->size(), 1);
-  size_t dropped = 0;
-  for (size_t i = 0; i < cloud->size(); ++i) {
-    const bool ok = Finite(cloud->positions[i]) && (cloud->normals.empty() || Finite(cloud->normals[i]));
-    keep[i] = ok;
-    dropped += !ok;
-  }
-  if (dropped) *cloud = Select(*cloud, keep);
-  return dropped;
-}
-
-// Removes the particles whose flag is set; returns how many.
-size_t RemoveFlagged(const std::vector<char>& remove, PointCloud* particles) {
-  std::vector<char> keep(remove.size());
-  size_t removed = 0;
-  for (size_t i = 0; i < remove.size(); ++i) {
-    keep[i] = !remove[i];
-    removed += remove[i] != 0;
-  }
-  if (removed) *particles = Select(*particles, keep);
-  return removed;
-}
-
-// Particles with fewer than `min_support` data points within support_radius (nor fewer than
-// `min_support_fraction` of the median particle's count: sparse clusters of fused points, floaters
-// that few samples agreed on, weigh as much as the surface once thinned), or fewer than
-// `min_neighbours` particles within kNeighbourRadius spacings. Grown particles need no data.
-std::vector<char> Unsupported(const PointIndex& data_index, const PointCloud& particles,
-                              const std::vector<char>& grown, double spacing, const SurfelOptions& options) {
-  std::vector<char> remove(particles.size(), 0);
-  std::vector<int> support(particles.size(), -1);
-  const PointIndex particle_index(particles.positions);
-  tbb::parallel_for(tbb::blocked_range<size_t>(0, particles.size()), [&](const tbb::blocked_range<size_t>& range) {
-    Neighbours found;
-    for (size_t i = range.begin(); i < range.end(); ++i) {
-      particle_index.Radius(particles.positions[i], static_cast<float>(kNeighbourRadius * spacing), &found);
-      if (static_cast<int>(found.size()) - 1 < options.min_neighbours) {
-        remove[i] = 1;
-        continue;
-      }
-      if (grown[i] || options.min_support == 0) continue;
-      data_index.Radius(particles.positions[i], static_cast<float>(options.support_radius * spacing), &found);
-      support[i] = static_cast<int>(found.size());
-    }
-  });
-  std::vector<int> counted;
-  for (const int count : support) {
-    if (count >= 0) counted.push_back(count);
-  }
-  if (counted.empty()) return remove;
-  std::nth_element(counted.begin(), counted.begin() + counted.size() / 2, counted.end());
-  const double limit = std::max<double>(options.min_support, options.min_support_fraction * counted[counted.size() / 2]);
-  for (size_t i = 0; i < support.size(); ++i) {
-    if (support[i] >= 0 && support[i] < limit) remove[i] = 1;
-  }
-  return remove;
-}
-
-// The stretching rule: midpoints of agreeing neighbour pairs across small gaps.
-PointCloud StretchCandidates(const PointCloud& particles, double spacing, const SurfelOptions& options) {
-  const PointIndex index(particles.positions);
-  const double cos_limit = std::cos(options.max_normal_angle_deg * M_PI / 180.0);
-  const float free_radius = static_cast<float>(0.5 * options.stretch_distance * spacing * 0.85);
-  std::vector<PointCloud> per_chunk(particles.size() / 4096 + 1);
-  tbb::parallel_for(size_t{0}, per_chunk.size(), [&](size_t chunk) {
-    Neighbours pairs, near;
-    PointCloud& out = per_chunk[chunk];
-    const size_t end = std::min(particles.size(), (chunk + 1) * 4096);
-    for (size_t i = chunk * 4096; i < end; ++i) {
-      index.Radius(particles.positions[i], static_cast<float>(options.max_gap * spacing), &pairs);
-      for (const auto& [j, d2] : pairs) {
-        if (j <= i) continue;
-        const double d = std::sqrt(d2) / spacing;
-        if (d <= options.stretch_distance) continue;
-        if (particles.normals[i].dot(particles.normals[j]) < cos_limit) continue;
-        const Eigen::Vector3f mid = 0.5f * (particles.positions[i] + particles.positions[j]);
-        index.Radius(mid, free_radius, &near);
-        if (!near.empty()) continue;
-        out.positions.push_back(mid);
-        out.normals.push_back((particles.normals[i] + particles.normals[j]).normalized());
-        out.colors.push_back(((particles.colors[i].cast<int>() + particles.colors[j].cast<int>()) / 2).cast<uint8_t>());
-        out.confidence.push_back(std::min(particles.confidence[i], particles.confidence[j]));
-      }
-    }
-  });
-  // Several pairs can share a gap: keep candidates greedily, none within free_radius of a kept one.
-  PointCloud all;
-  for (const PointCloud& chunk : per_chunk) {
-    all.positions.insert(all.positions.end(), chunk.positions.begin(), chunk.positions.end());
-    all.normals.insert(all.normals.end(), chunk.normals.begin(), chunk.normals.end());
-    all.colors.insert(all.colors.end(), chunk.colors.begin(), chunk.colors.end());
-    all.confidence.insert(all.confidence.end(), chunk.confidence.begin(), chunk.confidence.end());
-  }
-  std::vector<char> keep(all.size(), 0);
-  if (!all.positions.empty()) {
-    const PointIndex candidates(all.positions);
-    Neighbours near;
-    for (size_t i = 0; i < all.size(); ++i) {
-      candidates.Radius(all.positions[i], free_radius, &near);
-      bool blocked = false;
-      for (const auto& entry : near) blocked = blocked || (entry.first < i && keep[entry.first]);
-      keep[i] = !blocked;
-    }
-  }
-  return Select(all, keep);
-}
-
-void Append(const PointCloud& more, PointCloud* cloud) {
-  cloud->positions.insert(cloud->positions.end(), more.positions.begin(), more.positions.end());
-  cloud->normals.insert(cloud->normals.end(), more.normals.begin(), more.normals.end());
-  cloud->colors.insert(cloud->colors.end(), more.colors.begin(), more.colors.end());
-  cloud->confidence.insert(cloud->confidence.end(), more.confidence.begin(), more.confidence.end());
-}
 
 // World radius of each surfel: 0.6 times the mean distance to its 6 nearest particles (a disc of
 // radius s / sqrt(3) covers a hexagonal arrangement of spacing s; 0.6 leaves a little overlap).
@@ -263,6 +83,7 @@ bool SurfelOptions::Check(std::string* error) const {
   if (!(free_space_margin > 0 && free_space_margin <= 1000)) return fail(Range("free_space_margin", "(0, 1000]"));
   if (!(max_edge >= 1 && max_edge <= 20)) return fail(Range("max_edge", "[1, 20]"));
   if (max_hole_edges < 0 || max_hole_edges > 1000) return fail(Range("max_hole_edges", "[0, 1000]"));
+  if (min_component_faces < 0 || min_component_faces > 1000000) return fail(Range("min_component_faces", "[0, 1e6]"));
   if (max_particles < 1000 || max_particles > 1000000000) return fail(Range("max_particles", "[1000, 1e9]"));
   return true;
 }
@@ -293,7 +114,7 @@ void EstimateNormals(const std::vector<SurfelView>& views, PointCloud* points) {
       for (const SurfelView& view : views) {
         Eigen::Vector2d pixel;
         double z;
-        if (!Project(view, points->positions[i], &pixel, &z)) continue;
+        if (!ProjectToView(view, points->positions[i], &pixel, &z)) continue;
         toward = view.cam_from_world.Inverse().translation - points->positions[i].cast<double>();
         break;
       }
@@ -310,7 +131,7 @@ double MedianFootprint(const PointCloud& points, const std::vector<SurfelView>& 
     for (const SurfelView& view : views) {
       Eigen::Vector2d pixel;
       double z;
-      if (!Project(view, points.positions[i], &pixel, &z)) continue;
+      if (!ProjectToView(view, points.positions[i], &pixel, &z)) continue;
       const double footprint = z / (0.5 * (view.camera.FocalX() + view.camera.FocalY()));
       if (best == 0 || footprint < best) best = footprint;
     }
@@ -356,124 +177,6 @@ PointCloud ThinToSpacing(const PointCloud& points, double spacing) {
     out.confidence.push_back(static_cast<float>(cell.confidence / cell.count));
   }
   return out;
-}
-
-namespace {
-
-// Neighbour lists of every point within `radius` of `queries[i]` (the `nearest` closest of them
-// when > 0), as one flat array (CSR).
-struct NeighbourLists {
-  std::vector<uint32_t> offsets, indices;
-  void Build(const PointIndex& index, const std::vector<Eigen::Vector3f>& queries, float radius, int nearest = 0) {
-    std::vector<std::vector<uint32_t>> lists(queries.size());
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, queries.size()), [&](const tbb::blocked_range<size_t>& range) {
-      Neighbours found;
-      for (size_t i = range.begin(); i < range.end(); ++i) {
-        if (nearest > 0) {
-          index.Nearest(queries[i], nearest, &found);
-        } else {
-          index.Radius(queries[i], radius, &found);
-        }
-        lists[i].reserve(found.size());
-        for (const auto& entry : found) {
-          if (entry.second <= radius * radius) lists[i].push_back(entry.first);
-        }
-      }
-    });
-    offsets.assign(1, 0);
-    indices.clear();
-    for (const auto& list : lists) {
-      indices.insert(indices.end(), list.begin(), list.end());
-      offsets.push_back(static_cast<uint32_t>(indices.size()));
-    }
-  }
-};
-
-}  // namespace
-
-double RelaxParticles(const PointCloud& data, double spacing, const ParticleWeights& weights, int sweeps,
-                      PointCloud* particles) {
-  const size_t n = particles->size();
-  if (n == 0 || sweeps <= 0) return 0;
-  // Candidate lists with a margin of half a spacing: data neighbours are gathered once per call,
-  // particle neighbours every kListSweeps sweeps (steps are capped at max_step, and typical steps are
-  // a few hundredths of a spacing); each term then checks the true distance.
-  constexpr int kListSweeps = 5;
-  const double max_step = 0.3 * spacing;
-  const PointIndex data_index(data.positions);
-  NeighbourLists data_near, particle_near;
-  data_near.Build(data_index, particles->positions, static_cast<float>((kDataRadius + 0.5) * spacing), kDataNearest);
-  std::vector<Eigen::Vector3f> next_positions(n), next_normals(n);
-  std::vector<double> steps(n, 0.0);
-  const double data_radius2 = kDataRadius * kDataRadius * spacing * spacing;
-  const double pair_radius2 = kNeighbourRadius * kNeighbourRadius * spacing * spacing;
-  for (int sweep = 0; sweep < sweeps; ++sweep) {
-    if (sweep % kListSweeps == 0) {
-      const PointIndex index(particles->positions);
-      particle_near.Build(index, particles->positions, static_cast<float>((kNeighbourRadius + 0.5) * spacing));
-    }
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, n), [&](const tbb::blocked_range<size_t>& range) {
-      for (size_t i = range.begin(); i < range.end(); ++i) {
-        const Eigen::Vector3d p = particles->positions[i].cast<double>();
-        const Eigen::Vector3d normal = particles->normals[i].cast<double>();
-        PairGradient gradient;
-        Curvature curvature{1e-9, 1e-9};
-        for (uint32_t e = particle_near.offsets[i]; e < particle_near.offsets[i + 1]; ++e) {
-          const uint32_t j = particle_near.indices[e];
-          if (j == i) continue;
-          const Eigen::Vector3d q = particles->positions[j].cast<double>();
-          if ((q - p).squaredNorm() > pair_radius2) continue;
-          PairEnergy(p, normal, q, particles->normals[j].cast<double>(), spacing, weights, &gradient, &curvature);
-        }
-        for (uint32_t e = data_near.offsets[i]; e < data_near.offsets[i + 1]; ++e) {
-          const uint32_t k = data_near.indices[e];
-          const Eigen::Vector3d q = data.positions[k].cast<double>();
-          if ((q - p).squaredNorm() > data_radius2) continue;
-          const double c = data.confidence.empty() ? 1.0 : std::max(0.0f, data.confidence[k]);
-          DataEnergy(p, normal, q, c, spacing, weights, &gradient.p_i, &gradient.n_i, &curvature);
-        }
-        Eigen::Vector3d step = -gradient.p_i * spacing * spacing / curvature.position;
-        if (step.norm() > max_step) step *= max_step / step.norm();
-        Eigen::Vector3d turn = -(gradient.n_i - gradient.n_i.dot(normal) * normal) / curvature.normal;
-        if (turn.norm() > 0.3) turn *= 0.3 / turn.norm();
-        next_positions[i] = (p + step).cast<float>();
-        next_normals[i] = (normal + turn).normalized().cast<float>();
-        steps[i] = step.norm() / spacing;
-      }
-    });
-    particles->positions.swap(next_positions);
-    particles->normals.swap(next_normals);
-  }
-  return std::accumulate(steps.begin(), steps.end(), 0.0) / static_cast<double>(n);
-}
-
-std::vector<int> FreeSpaceViolations(const std::vector<Eigen::Vector3f>& positions,
-                                     const std::vector<SurfelView>& views, double spacing, double margin_spacings) {
-  std::vector<int> violations(positions.size(), 0);
-  tbb::parallel_for(size_t{0}, positions.size(), [&](size_t i) {
-    for (const SurfelView& view : views) {
-      if (view.depth.Empty()) continue;
-      Eigen::Vector2d pixel;
-      double z;
-      if (!Project(view, positions[i], &pixel, &z)) continue;
-      const int x = static_cast<int>(pixel.x() * view.depth.width / view.camera.width);
-      const int y = static_cast<int>(pixel.y() * view.depth.height / view.camera.height);
-      if (x < 0 || y < 0 || x >= view.depth.width || y >= view.depth.height) continue;
-      // The nearest pixel and its 8 neighbours must all see farther: a particle on the surface next
-      // to a silhouette, whose projection lands a pixel off onto the background, is not free space.
-      const double limit = z + std::max(margin_spacings * spacing, 0.005 * z);
-      bool through = true;
-      for (int dy = -1; dy <= 1 && through; ++dy) {
-        for (int dx = -1; dx <= 1 && through; ++dx) {
-          const int u = std::clamp(x + dx, 0, view.depth.width - 1), v = std::clamp(y + dy, 0, view.depth.height - 1);
-          const float seen = view.depth.At(u, v);
-          through = IsValidDepth(seen) && seen > limit;
-        }
-      }
-      violations[i] += through;
-    }
-  });
-  return violations;
 }
 
 double NearestNeighbourSpread(const std::vector<Eigen::Vector3f>& positions) {
@@ -601,6 +304,7 @@ SurfelResult ReconstructSurfels(const PointCloud& input, const std::vector<Surfe
   stats.spacing_spread = NearestNeighbourSpread(particles.positions);
   const Clock::time_point triangulate_start = Clock::now();
   result.mesh = TriangulateParticles(particles, options.max_edge * spacing);
+  stats.small_component_faces = RemoveSmallComponents(options.min_component_faces, &result.mesh);
   stats.holes_filled = FillSmallHoles(options.max_hole_edges, &result.mesh);
   stats.triangulate_seconds = Seconds(triangulate_start);
   stats.vertices = result.mesh.vertices.size();

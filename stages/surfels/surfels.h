@@ -24,8 +24,9 @@
 //     `max_gap` stay open, so holes in the data stay holes.
 //  6. Triangulation (surfel_mesh.cc, CGAL advancing front): the particles are connected into a
 //     manifold mesh whose edges are at most `max_edge` spacings, so it never spans a hole wider
-//     than that; faces are oriented by the particles' normals. Openings bounded by at most
-//     `max_hole_edges` edges (fill_holes.cc) are closed; larger ones stay open.
+//     than that; faces are oriented by the particles' normals. Pieces of fewer than
+//     `min_component_faces` faces are dropped, and openings bounded by at most `max_hole_edges`
+//     edges are closed (mesh_cleaning.cc); larger ones stay open.
 #pragma once
 
 #include <Eigen/Core>
@@ -60,6 +61,7 @@ struct SurfelOptions {
                                    // spacings and by 0.5% of the depth, in (0, 1000]
   double max_edge = 4.0;           // longest triangle edge, spacings, in [1, 20]
   int max_hole_edges = 24;         // close mesh holes bounded by at most this many edges, in [0, 1000]
+  int min_component_faces = 50;    // drop mesh pieces with fewer faces than this, in [0, 1e6]
   int max_particles = 2000000;     // refuse to run beyond this many particles (memory), in [1000, 1e9]
 
   bool Check(std::string* error) const;  // error starts with the YAML key
@@ -87,6 +89,7 @@ struct SurfelStats {
   size_t particles = 0;
   size_t vertices = 0, faces = 0;
   size_t holes_filled = 0;
+  size_t small_component_faces = 0;  // faces of small pieces removed
   double mean_step_last_sweep = 0;  // mean particle displacement of the last sweep, spacings
   double spacing_spread = 0;        // coefficient of variation of nearest-neighbour distances
   double prune_seconds = 0, relax_seconds = 0, triangulate_seconds = 0;  // wall time per phase
@@ -134,9 +137,13 @@ double NearestNeighbourSpread(const std::vector<Eigen::Vector3f>& positions);
 // surfel_mesh.cc (CGAL): the advancing-front triangulation with edges at most `max_edge_length`,
 // faces turned to agree with the particles' normals; the mesh's vertices are the particles.
 TriangleMesh TriangulateParticles(const PointCloud& particles, double max_edge_length);
-// Closes the mesh's holes bounded by at most `max_edges` edges (a fan around a new centroid
-// vertex); returns how many. Larger holes and loops through a vertex twice stay open.
+// mesh_cleaning.cc: closes the mesh's holes bounded by at most `max_edges` edges (a fan around a
+// new centroid vertex); returns how many. Larger holes and loops through a vertex twice stay open.
 size_t FillSmallHoles(int max_edges, TriangleMesh* mesh);
+// mesh_cleaning.cc: removes the faces of connected pieces with fewer than `min_faces` faces (their
+// vertices stay, unused); returns how many faces. Hand-written rather than OpenMesh: a halfedge
+// structure refuses the non-manifold vertices the advancing front occasionally leaves.
+size_t RemoveSmallComponents(int min_faces, TriangleMesh* mesh);
 
 // surfel_mesh.cc (CGAL): which points lie inside a closed mesh, by the parity of ray crossings
 // (all true when it is not closed, with `closed` set false; up to 0.5% open edges are tolerated).

@@ -75,6 +75,7 @@ class SurfelsStage : public Stage {
         {"free_space_maps", ParamType::kString, "geometric", "Depth maps for the free-space test", {"geometric", "photometric", "none"}},
         {"max_edge", ParamType::kDouble, num(d.max_edge), "Longest triangle edge, spacings, [1, 20]"},
         {"max_hole_edges", ParamType::kInt, std::to_string(d.max_hole_edges), "Close mesh holes bounded by at most this many edges, [0, 1000]"},
+        {"min_component_faces", ParamType::kInt, std::to_string(d.min_component_faces), "Drop mesh pieces with fewer faces, [0, 1e6]"},
         {"max_particles", ParamType::kInt, std::to_string(d.max_particles), "Refuse to run beyond this many particles, [1000, 1e9]"},
         {"use_hull", ParamType::kBool, "true", "Keep the surface inside hull/hull.ply when it exists"},
         {"eval_samples", ParamType::kInt, "200000", "Samples for accuracy/completeness against ground_truth/mesh.ply, [1000, 1e7]"},
@@ -171,6 +172,7 @@ class SurfelsStage : public Stage {
     m["mesh_vertices"] = s.vertices;
     m["mesh_faces"] = s.faces;
     m["holes_filled"] = s.holes_filled;
+    m["small_component_faces"] = s.small_component_faces;
     m["mean_step_last_sweep"] = s.mean_step_last_sweep;
     m["spacing_spread"] = s.spacing_spread;
     m["used_hull"] = use_hull && s.hull_closed;
@@ -236,6 +238,7 @@ class SurfelsStage : public Stage {
     o.free_space_margin = params.Double("free_space_margin");
     o.max_edge = params.Double("max_edge");
     o.max_hole_edges = static_cast<int>(params.Int("max_hole_edges"));
+    o.min_component_faces = static_cast<int>(params.Int("min_component_faces"));
     o.max_particles = static_cast<int>(std::min<int64_t>(params.Int("max_particles"), 2000000000));
     return o;
   }

@@ -114,6 +114,7 @@ TEST(SurfelOptions, RejectsInvalidRanges) {
       {"free_space_margin", [](SurfelOptions* o) { o->free_space_margin = 0; }},
       {"max_edge", [](SurfelOptions* o) { o->max_edge = 0.5; }},
       {"max_particles", [](SurfelOptions* o) { o->max_particles = 10; }},
+      {"min_component_faces", [](SurfelOptions* o) { o->min_component_faces = -1; }},
   };
   for (const auto& [key, breaks] : cases) {
     SurfelOptions options;
@@ -274,6 +275,38 @@ TEST(Surfels, AMissingStripWiderThanAFewSpacingsStaysOpen) {
     spanning += lo < 0 && hi > 0;
   }
   EXPECT_GT(spanning, 20u);
+}
+
+TEST(SurfelMesh, CleaningDropsSmallPiecesAndClosesSmallHoles) {
+  TriangleMesh mesh;  // a 6x6 vertex grid (50 faces) with one interior vertex's fan removed, and a lone triangle
+  for (int y = 0; y < 6; ++y)
+    for (int x = 0; x < 6; ++x) mesh.vertices.emplace_back(x, y, 0);
+  for (int y = 0; y < 5; ++y) {
+    for (int x = 0; x < 5; ++x) {
+      const int a = y * 6 + x, b = a + 1, c = a + 6, d = c + 1;
+      if (a == 14 || b == 14 || c == 14 || d == 14) continue;  // vertex (2, 2): a hole of 8 boundary edges
+      mesh.faces.emplace_back(a, b, d);
+      mesh.faces.emplace_back(a, d, c);
+    }
+  }
+  const size_t grid_faces = mesh.faces.size();
+  mesh.vertices.emplace_back(10, 10, 0);
+  mesh.vertices.emplace_back(11, 10, 0);
+  mesh.vertices.emplace_back(10, 11, 0);
+  mesh.faces.emplace_back(36, 37, 38);
+  EXPECT_EQ(RemoveSmallComponents(5, &mesh), 1u);
+  EXPECT_EQ(mesh.faces.size(), grid_faces);
+  EXPECT_EQ(FillSmallHoles(4, &mesh), 0u);  // the hole has 8 edges: larger than allowed, stays open
+  EXPECT_EQ(FillSmallHoles(8, &mesh), 1u);
+  EXPECT_EQ(mesh.faces.size(), grid_faces + 8);
+  for (size_t f = grid_faces; f < mesh.faces.size(); ++f) {  // the fill faces up like the grid
+    const auto& face = mesh.faces[f];
+    const Eigen::Vector3f n = (mesh.vertices[face[1]] - mesh.vertices[face[0]]).cross(mesh.vertices[face[2]] - mesh.vertices[face[0]]);
+    EXPECT_GT(n.z(), 0);
+  }
+  bool closed = true;
+  EulerCharacteristic(mesh, &closed);
+  EXPECT_FALSE(closed);  // the grid's outer border stays open: 20 edges
 }
 
 // Two views above the plane z = 0 that saw the plane; a cluster floating at z = 0.5 is free space.

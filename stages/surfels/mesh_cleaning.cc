@@ -1,8 +1,10 @@
-// Small holes of the particle mesh closed by a fan around their centroid. The advancing front
+// Cleaning of the particle mesh: small disconnected pieces removed (floaters that survived the
+// pruning as a handful of particles), small holes closed by a fan around their centroid. The advancing front
 // leaves a few small openings where particles are uneven; openings bounded by at most
 // `max_edges` edges (a hole a few spacings across) are closed, larger ones stay open: a missing
 // part of the data stays missing. Boundary loops that pass a vertex twice (two openings touching
 // at a vertex) are left alone, so the fill never makes a vertex non-manifold.
+#include <numeric>
 #include <unordered_map>
 
 #include "stages/surfels/surfels.h"
@@ -66,6 +68,35 @@ size_t FillSmallHoles(int max_edges, TriangleMesh* mesh) {
     ++filled;
   }
   return filled;
+}
+
+size_t RemoveSmallComponents(int min_faces, TriangleMesh* mesh) {
+  if (min_faces <= 1 || mesh->faces.empty()) return 0;
+  // Union-find over vertices joined by faces; a component's size is its face count.
+  std::vector<int> parent(mesh->vertices.size());
+  std::iota(parent.begin(), parent.end(), 0);
+  auto find = [&](int v) {
+    while (parent[v] != v) v = parent[v] = parent[parent[v]];
+    return v;
+  };
+  for (const auto& f : mesh->faces) {
+    parent[find(f[1])] = find(f[0]);
+    parent[find(f[2])] = find(f[0]);
+  }
+  std::unordered_map<int, int> faces_of;
+  for (const auto& f : mesh->faces) ++faces_of[find(f[0])];
+  std::vector<Eigen::Vector3i> kept;
+  kept.reserve(mesh->faces.size());
+  size_t removed = 0;
+  for (const auto& f : mesh->faces) {
+    if (faces_of[find(f[0])] >= min_faces) {
+      kept.push_back(f);
+    } else {
+      ++removed;
+    }
+  }
+  mesh->faces.swap(kept);
+  return removed;
 }
 
 }  // namespace ibmr

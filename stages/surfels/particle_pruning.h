@@ -1,0 +1,23 @@
+// Pruning and growth of the particle system (particle_pruning.cc; seed 000 section 5).
+#pragma once
+
+#include <vector>
+
+#include "pipeline/core/mesh.h"
+#include "stages/surfels/point_index.h"
+#include "stages/surfels/surfels.h"
+
+namespace ibmr {
+
+// Flags particles with fewer than `min_support` data points within support_radius (nor fewer than
+// `min_support_fraction` of the median particle's count), or fewer than `min_neighbours`
+// particles within 2.5 spacings. Particles flagged in `grown` need no data.
+std::vector<char> Unsupported(const PointIndex& data_index, const PointCloud& particles,
+                              const std::vector<char>& grown, double spacing, const SurfelOptions& options);
+
+// The stretching rule: midpoints of neighbour pairs more than stretch_distance and less than
+// max_gap spacings apart whose normals agree, where no particle is near the midpoint (at most one
+// candidate per gap).
+PointCloud StretchCandidates(const PointCloud& particles, double spacing, const SurfelOptions& options);
+
+}  // namespace ibmr

@@ -1,0 +1,110 @@
+// Relaxation of the oriented particle system (seed 000 section 5, lines 4454-4586): Jacobi
+// sweeps of preconditioned gradient steps on the energy of surfel_potentials.h (see surfels.h,
+// step 4, for why this scheme and not Ceres).
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <cmath>
+#include <numeric>
+
+#include "stages/surfels/point_index.h"
+#include "stages/surfels/surfels.h"
+
+namespace ibmr {
+
+namespace {
+
+constexpr double kNeighbourRadius = 2.5;  // spacings: potentials beyond are < 5% (sigma 1)
+constexpr double kDataRadius = 2.0;       // spacings: psi_D (sigma 1) is 0.14 there
+constexpr int kDataNearest = 64;          // at most this many data points per particle (the nearest)
+
+using Neighbours = std::vector<std::pair<uint32_t, float>>;
+
+// Neighbour lists of every point within `radius` of `queries[i]` (the `nearest` closest of them
+// when > 0), as one flat array (CSR).
+struct NeighbourLists {
+  std::vector<uint32_t> offsets, indices;
+  void Build(const PointIndex& index, const std::vector<Eigen::Vector3f>& queries, float radius, int nearest = 0) {
+    std::vector<std::vector<uint32_t>> lists(queries.size());
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, queries.size()), [&](const tbb::blocked_range<size_t>& range) {
+      Neighbours found;
+      for (size_t i = range.begin(); i < range.end(); ++i) {
+        if (nearest > 0) {
+          index.Nearest(queries[i], nearest, &found);
+        } else {
+          index.Radius(queries[i], radius, &found);
+        }
+        lists[i].reserve(found.size());
+        for (const auto& entry : found) {
+          if (entry.second <= radius * radius) lists[i].push_back(entry.first);
+        }
+      }
+    });
+    offsets.assign(1, 0);
+    indices.clear();
+    for (const auto& list : lists) {
+      indices.insert(indices.end(), list.begin(), list.end());
+      offsets.push_back(static_cast<uint32_t>(indices.size()));
+    }
+  }
+};
+
+}  // namespace
+
+double RelaxParticles(const PointCloud& data, double spacing, const ParticleWeights& weights, int sweeps,
+                      PointCloud* particles) {
+  const size_t n = particles->size();
+  if (n == 0 || sweeps <= 0) return 0;
+  // Candidate lists with a margin of half a spacing: data neighbours are gathered once per call,
+  // particle neighbours every kListSweeps sweeps (steps are capped at max_step, and typical steps are
+  // a few hundredths of a spacing); each term then checks the true distance.
+  constexpr int kListSweeps = 5;
+  const double max_step = 0.3 * spacing;
+  const PointIndex data_index(data.positions);
+  NeighbourLists data_near, particle_near;
+  data_near.Build(data_index, particles->positions, static_cast<float>((kDataRadius + 0.5) * spacing), kDataNearest);
+  std::vector<Eigen::Vector3f> next_positions(n), next_normals(n);
+  std::vector<double> steps(n, 0.0);
+  const double data_radius2 = kDataRadius * kDataRadius * spacing * spacing;
+  const double pair_radius2 = kNeighbourRadius * kNeighbourRadius * spacing * spacing;
+  for (int sweep = 0; sweep < sweeps; ++sweep) {
+    if (sweep % kListSweeps == 0) {
+      const PointIndex index(particles->positions);
+      particle_near.Build(index, particles->positions, static_cast<float>((kNeighbourRadius + 0.5) * spacing));
+    }
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, n), [&](const tbb::blocked_range<size_t>& range) {
+      for (size_t i = range.begin(); i < range.end(); ++i) {
+        const Eigen::Vector3d p = particles->positions[i].cast<double>();
+        const Eigen::Vector3d normal = particles->normals[i].cast<double>();
+        PairGradient gradient;
+        Curvature curvature{1e-9, 1e-9};
+        for (uint32_t e = particle_near.offsets[i]; e < particle_near.offsets[i + 1]; ++e) {
+          const uint32_t j = particle_near.indices[e];
+          if (j == i) continue;
+          const Eigen::Vector3d q = particles->positions[j].cast<double>();
+          if ((q - p).squaredNorm() > pair_radius2) continue;
+          PairEnergy(p, normal, q, particles->normals[j].cast<double>(), spacing, weights, &gradient, &curvature);
+        }
+        for (uint32_t e = data_near.offsets[i]; e < data_near.offsets[i + 1]; ++e) {
+          const uint32_t k = data_near.indices[e];
+          const Eigen::Vector3d q = data.positions[k].cast<double>();
+          if ((q - p).squaredNorm() > data_radius2) continue;
+          const double c = data.confidence.empty() ? 1.0 : std::max(0.0f, data.confidence[k]);
+          DataEnergy(p, normal, q, c, spacing, weights, &gradient.p_i, &gradient.n_i, &curvature);
+        }
+        Eigen::Vector3d step = -gradient.p_i * spacing * spacing / curvature.position;
+        if (step.norm() > max_step) step *= max_step / step.norm();
+        Eigen::Vector3d turn = -(gradient.n_i - gradient.n_i.dot(normal) * normal) / curvature.normal;
+        if (turn.norm() > 0.3) turn *= 0.3 / turn.norm();
+        next_positions[i] = (p + step).cast<float>();
+        next_normals[i] = (normal + turn).normalized().cast<float>();
+        steps[i] = step.norm() / spacing;
+      }
+    });
+    particles->positions.swap(next_positions);
+    particles->normals.swap(next_normals);
+  }
+  return std::accumulate(steps.begin(), steps.end(), 0.0) / static_cast<double>(n);
+}
+
+}  // namespace ibmr
