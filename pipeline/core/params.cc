@@ -78,4 +78,11 @@ nlohmann::json Params::ResultJson(const std::vector<ParamSpec>& specs) const {
   return out;
 }
 
+ParamError ParamError::FromCheck(const std::string& check_message) {
+  const size_t colon = check_message.find(':');
+  if (colon == std::string::npos) return ParamError{"", check_message};
+  const size_t start = check_message.find_first_not_of(' ', colon + 1);
+  return ParamError{check_message.substr(0, colon), start == std::string::npos ? "" : check_message.substr(start)};
+}
+
 }  // namespace ibmr

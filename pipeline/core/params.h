@@ -32,6 +32,8 @@ using ParamValue = std::variant<int64_t, double, bool, std::string, std::vector<
 struct ParamError {
   std::string key;
   std::string message;
+  // From an Options::Check() message "key: what is wrong" (the whole message when it has no key).
+  static ParamError FromCheck(const std::string& check_message);
 };
 
 class Params {

@@ -71,7 +71,7 @@ class CalibrateStage : public Stage {
 
   std::optional<ParamError> CheckParams(const Params& params) const override {
     std::string error;
-    if (!ToOptions(params).Check(&error)) return ParamError{error.substr(0, error.find(':')), error.substr(error.find(':') + 2)};
+    if (!ToOptions(params).Check(&error)) return ParamError::FromCheck(error);
     try {
       std::regex check(params.String("name_filter"));
     } catch (const std::regex_error& e) {

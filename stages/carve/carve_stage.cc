@@ -145,10 +145,7 @@ class CarveStage : public Stage {
 
   std::optional<ParamError> CheckParams(const Params& params) const override {
     std::string error;
-    if (!ToOptions(params).Check(&error)) {
-      const size_t colon = error.find(':');
-      return ParamError{error.substr(0, colon), error.substr(colon + 2)};
-    }
+    if (!ToOptions(params).Check(&error)) return ParamError::FromCheck(error);
     const std::vector<double> box = params.DoubleList("bbox");
     if (!box.empty() && (box.size() != 6 || !(box[0] < box[3] && box[1] < box[4] && box[2] < box[5]))) {
       return ParamError{"bbox", "must be [xmin, ymin, zmin, xmax, ymax, zmax] with min < max"};

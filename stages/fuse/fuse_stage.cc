@@ -46,10 +46,7 @@ class FuseStage : public Stage {
 
   std::optional<ParamError> CheckParams(const Params& params) const override {
     std::string error;
-    if (!ToOptions(params).Check(&error)) {
-      const size_t colon = error.find(':');
-      return ParamError{error.substr(0, colon), colon == std::string::npos ? error : error.substr(colon + 2)};
-    }
+    if (!ToOptions(params).Check(&error)) return ParamError::FromCheck(error);
     const int64_t samples = params.Int("eval_samples");
     if (samples < 1000 || samples > 10000000) return ParamError{"eval_samples", "must be in [1000, 10000000], got " + std::to_string(samples)};
     const double threshold = params.Double("eval_threshold");

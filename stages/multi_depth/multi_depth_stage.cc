@@ -82,10 +82,7 @@ class MultiDepthStage : public Stage {
 
   std::optional<ParamError> CheckParams(const Params& params) const override {
     std::string error;
-    if (!ToOptions(params).Check(&error)) {
-      const size_t colon = error.find(':');
-      return ParamError{error.substr(0, colon), colon == std::string::npos ? error : error.substr(colon + 2)};
-    }
+    if (!ToOptions(params).Check(&error)) return ParamError::FromCheck(error);
     return std::nullopt;
   }
 

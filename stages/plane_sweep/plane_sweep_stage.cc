@@ -112,7 +112,7 @@ class PlaneSweepStage : public Stage {
 
   std::optional<ParamError> CheckParams(const Params& params) const override {
     std::string error;
-    if (!ToOptions(params).Check(&error)) return ParamError{error.substr(0, error.find(':')), error.substr(error.find(':') + 2)};
+    if (!ToOptions(params).Check(&error)) return ParamError::FromCheck(error);
     const std::vector<double> box = params.DoubleList("bounding_box");
     if (!box.empty() && (box.size() != 6 || box[0] >= box[3] || box[1] >= box[4] || box[2] >= box[5])) {
       return ParamError{"bounding_box", "must be empty or [xmin, ymin, zmin, xmax, ymax, zmax] with min < max"};

@@ -125,7 +125,7 @@ class RenderStage : public Stage {
 
   std::optional<ParamError> CheckParams(const Params& params) const override {
     std::string error;
-    if (!ToOptions(params).Check(&error)) return ParamError{error.substr(0, error.find(':')), error.substr(error.find(':') + 2)};
+    if (!ToOptions(params).Check(&error)) return ParamError::FromCheck(error);
     if (params.Int("supersample") < 1 || params.Int("supersample") > 4) {
       return ParamError{"supersample", "must be in [1, 4], got " + std::to_string(params.Int("supersample"))};
     }

@@ -76,7 +76,7 @@ class ScoreStage : public Stage {
 
   std::optional<ParamError> CheckParams(const Params& params) const override {
     std::string error;
-    if (!ToOptions(params).Check(&error)) return ParamError{error.substr(0, error.find(':')), error.substr(error.find(':') + 2)};
+    if (!ToOptions(params).Check(&error)) return ParamError::FromCheck(error);
     return std::nullopt;
   }
 

@@ -125,7 +125,7 @@ class SfmStage : public Stage {
 
   std::optional<ParamError> CheckParams(const Params& params) const override {
     std::string error;
-    if (!ToOptions(params).Check(&error)) return ParamError{error.substr(0, error.find(':')), error.substr(error.find(':') + 2)};
+    if (!ToOptions(params).Check(&error)) return ParamError::FromCheck(error);
     const double fraction = params.Double("min_registered_fraction");
     if (!(fraction > 0 && fraction <= 1)) return ParamError{"min_registered_fraction", "must be in (0, 1]"};
     return std::nullopt;

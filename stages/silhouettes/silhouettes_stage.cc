@@ -74,10 +74,7 @@ class SilhouettesStage : public Stage {
 
   std::optional<ParamError> CheckParams(const Params& params) const override {
     std::string error;
-    if (!ToOptions(params).Check(&error)) {
-      const size_t colon = error.find(':');
-      return ParamError{error.substr(0, colon), error.substr(colon + 2)};
-    }
+    if (!ToOptions(params).Check(&error)) return ParamError::FromCheck(error);
     const std::string& mode = params.String("mode");
     if (mode == "background" && params.String("background").empty()) {
       return ParamError{"background", "mode background needs a background image"};
