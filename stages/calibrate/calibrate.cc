@@ -166,16 +166,12 @@ void FillColmapCamera(const CalibrateOptions& options, CalibrationResult* result
       camera.model = CameraModelId::kOpenCV;
       break;
     case DistortionModel::kFullOpenCV:
-      // The core Camera has no FULL_OPENCV; `camera` keeps the OPENCV part (k3 dropped) for
-      // in-memory use, cameras.txt gets the full model.
       result->colmap_model_name = "FULL_OPENCV";
       result->colmap_params = {fx, fy, cx, cy, k1, k2, p1, p2, k3, 0, 0, 0};
-      camera.model = CameraModelId::kOpenCV;
+      camera.model = CameraModelId::kFullOpenCV;
       break;
   }
-  camera.params = options.model == DistortionModel::kFullOpenCV
-                      ? std::vector<double>(result->colmap_params.begin(), result->colmap_params.begin() + 8)
-                      : result->colmap_params;
+  camera.params = result->colmap_params;
 }
 
 }  // namespace

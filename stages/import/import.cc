@@ -36,7 +36,7 @@ bool ImportOptions::Check(std::string* error) const {
   CameraModelId model;
   if (!CameraModelFromName(folder_camera_model, &model)) {
     *error = "folder_camera_model: unknown camera model '" + folder_camera_model +
-             "'; use SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, RADIAL or OPENCV";
+             "'; use SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, RADIAL, OPENCV or FULL_OPENCV";
     return false;
   }
   return true;
@@ -130,6 +130,7 @@ Camera FolderCamera(int width, int height, double exif_focal_pixels, const Impor
     case CameraModelId::kSimpleRadial: camera.params = {focal, cx, cy, 0}; break;
     case CameraModelId::kRadial: camera.params = {focal, cx, cy, 0, 0}; break;
     case CameraModelId::kOpenCV: camera.params = {focal, focal, cx, cy, 0, 0, 0, 0}; break;
+    case CameraModelId::kFullOpenCV: camera.params = {focal, focal, cx, cy, 0, 0, 0, 0, 0, 0, 0, 0}; break;
   }
   return camera;
 }

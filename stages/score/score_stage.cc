@@ -227,9 +227,11 @@ class ScoreStage : public Stage {
       v["mask_ssim"] = score.mask.ssim;
       v["mask_coverage"] = score.mask.coverage;
     }
-    v["photo_psnr"] = score.photo.psnr;
-    v["photo_ssim"] = score.photo.ssim;
-    v["photo_coverage"] = score.photo.coverage;
+    if (score.photo.pixels > 0) {  // a photo without lit pixels has no photo score (not 0 dB in the mean)
+      v["photo_psnr"] = score.photo.psnr;
+      v["photo_ssim"] = score.photo.ssim;
+      v["photo_coverage"] = score.photo.coverage;
+    }
     if (options.gain_correction) v["gains_bgr"] = {score.gains[0], score.gains[1], score.gains[2]};
     if (const Image* image = model.FindImage(image_name)) {
       std::vector<Eigen::Vector3d> others;

@@ -29,6 +29,15 @@ size_t FillSmallHoles(int max_edges, TriangleMesh* mesh) {
       ++starts[b];
     }
   }
+  // A loop of L edges around a piece of fewer than 2 L^2 faces is that piece's outer border (a disc
+  // bounded by L edges has about L^2 / 5 faces), not a hole in it: it stays open.
+  const std::vector<int> piece = ConnectedPieces(*mesh);
+  std::unordered_map<int, size_t> faces_of;
+  std::unordered_map<int, int> piece_of_vertex;
+  for (size_t i = 0; i < mesh->faces.size(); ++i) {
+    ++faces_of[piece[i]];
+    for (int k = 0; k < 3; ++k) piece_of_vertex[mesh->faces[i][k]] = piece[i];
+  }
   std::unordered_map<int, char> visited;
   size_t filled = 0;
   for (const auto& [first, unused] : next) {
@@ -49,6 +58,7 @@ size_t FillSmallHoles(int max_edges, TriangleMesh* mesh) {
       if (static_cast<int>(loop.size()) > max_edges) simple = false;
     }
     if (!simple || v != first || loop.size() < 3 || static_cast<int>(loop.size()) > max_edges) continue;
+    if (faces_of[piece_of_vertex[first]] < 2 * loop.size() * loop.size()) continue;
     if (loop.size() == 3) {
       mesh->faces.emplace_back(loop[0], loop[1], loop[2]);
     } else {
@@ -70,31 +80,34 @@ size_t FillSmallHoles(int max_edges, TriangleMesh* mesh) {
   return filled;
 }
 
-size_t RemoveSmallComponents(int min_faces, TriangleMesh* mesh) {
-  if (min_faces <= 1 || mesh->faces.empty()) return 0;
-  // Union-find over vertices joined by faces; a component's size is its face count.
-  std::vector<int> parent(mesh->vertices.size());
+std::vector<int> ConnectedPieces(const TriangleMesh& mesh) {
+  // Union-find over vertices joined by faces.
+  std::vector<int> parent(mesh.vertices.size());
   std::iota(parent.begin(), parent.end(), 0);
   auto find = [&](int v) {
     while (parent[v] != v) v = parent[v] = parent[parent[v]];
     return v;
   };
-  for (const auto& f : mesh->faces) {
+  for (const auto& f : mesh.faces) {
     parent[find(f[1])] = find(f[0]);
     parent[find(f[2])] = find(f[0]);
   }
+  std::vector<int> piece(mesh.faces.size());
+  for (size_t i = 0; i < mesh.faces.size(); ++i) piece[i] = find(mesh.faces[i][0]);
+  return piece;
+}
+
+size_t RemoveSmallComponents(int min_faces, TriangleMesh* mesh) {
+  if (min_faces <= 1 || mesh->faces.empty()) return 0;
+  const std::vector<int> piece = ConnectedPieces(*mesh);
   std::unordered_map<int, int> faces_of;
-  for (const auto& f : mesh->faces) ++faces_of[find(f[0])];
+  for (const int p : piece) ++faces_of[p];
   std::vector<Eigen::Vector3i> kept;
   kept.reserve(mesh->faces.size());
-  size_t removed = 0;
-  for (const auto& f : mesh->faces) {
-    if (faces_of[find(f[0])] >= min_faces) {
-      kept.push_back(f);
-    } else {
-      ++removed;
-    }
+  for (size_t i = 0; i < mesh->faces.size(); ++i) {
+    if (faces_of[piece[i]] >= min_faces) kept.push_back(mesh->faces[i]);
   }
+  const size_t removed = mesh->faces.size() - kept.size();
   mesh->faces.swap(kept);
   return removed;
 }

@@ -82,7 +82,8 @@ size_t DropNonFinite(PointCloud* cloud) {
   std::vector<char> keep(cloud->size(), 1);
   size_t dropped = 0;
   for (size_t i = 0; i < cloud->size(); ++i) {
-    const bool ok = finite(cloud->positions[i]) && (cloud->normals.empty() || finite(cloud->normals[i]));
+    const bool ok = finite(cloud->positions[i]) && (cloud->normals.empty() || finite(cloud->normals[i])) &&
+                    (cloud->confidence.empty() || std::isfinite(cloud->confidence[i]));
     keep[i] = ok;
     dropped += !ok;
   }

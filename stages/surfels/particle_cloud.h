@@ -17,7 +17,7 @@ void Append(const PointCloud& more, PointCloud* cloud);
 // Reorders the points along a Morton (Z-order) curve, so that neighbours in space are neighbours
 // in memory.
 void SortSpatially(PointCloud* cloud);
-// Drops points with non-finite coordinates or normals; returns how many.
+// Drops points with non-finite coordinates, normals or confidence; returns how many.
 size_t DropNonFinite(PointCloud* cloud);
 // Removes the points whose flag is set; returns how many.
 size_t RemoveFlagged(const std::vector<char>& remove, PointCloud* particles);

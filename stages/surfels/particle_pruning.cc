@@ -72,11 +72,13 @@ PointCloud StretchCandidates(const PointCloud& particles, double spacing, const 
         const double d = std::sqrt(d2) / spacing;
         if (d <= options.stretch_distance) continue;
         if (particles.normals[i].dot(particles.normals[j]) < cos_limit) continue;
+        const Eigen::Vector3f normal_sum = particles.normals[i] + particles.normals[j];
+        if (normal_sum.norm() < 1e-3f) continue;  // opposite normals (max_normal_angle_deg 180): no plane
         const Eigen::Vector3f mid = 0.5f * (particles.positions[i] + particles.positions[j]);
         index.Radius(mid, free_radius, &near);
         if (!near.empty()) continue;
         out.positions.push_back(mid);
-        out.normals.push_back((particles.normals[i] + particles.normals[j]).normalized());
+        out.normals.push_back(normal_sum.normalized());
         out.colors.push_back(((particles.colors[i].cast<int>() + particles.colors[j].cast<int>()) / 2).cast<uint8_t>());
         out.confidence.push_back(std::min(particles.confidence[i], particles.confidence[j]));
       }

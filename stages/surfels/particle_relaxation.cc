@@ -23,7 +23,8 @@ using Neighbours = std::vector<std::pair<uint32_t, float>>;
 // Neighbour lists of every point within `radius` of `queries[i]` (the `nearest` closest of them
 // when > 0), as one flat array (CSR).
 struct NeighbourLists {
-  std::vector<uint32_t> offsets, indices;
+  std::vector<size_t> offsets;
+  std::vector<uint32_t> indices;
   void Build(const PointIndex& index, const std::vector<Eigen::Vector3f>& queries, float radius, int nearest = 0) {
     std::vector<std::vector<uint32_t>> lists(queries.size());
     tbb::parallel_for(tbb::blocked_range<size_t>(0, queries.size()), [&](const tbb::blocked_range<size_t>& range) {
@@ -44,7 +45,7 @@ struct NeighbourLists {
     indices.clear();
     for (const auto& list : lists) {
       indices.insert(indices.end(), list.begin(), list.end());
-      offsets.push_back(static_cast<uint32_t>(indices.size()));
+      offsets.push_back(indices.size());
     }
   }
 };
@@ -55,22 +56,34 @@ double RelaxParticles(const PointCloud& data, double spacing, const ParticleWeig
                       PointCloud* particles) {
   const size_t n = particles->size();
   if (n == 0 || sweeps <= 0) return 0;
-  // Candidate lists with a margin of half a spacing: data neighbours are gathered once per call,
-  // particle neighbours every kListSweeps sweeps (steps are capped at max_step, and typical steps are
-  // a few hundredths of a spacing); each term then checks the true distance.
-  constexpr int kListSweeps = 5;
+  // Candidate lists with a margin of half a spacing, rebuilt when the particles have moved enough to
+  // use it up: the particle lists when the largest displacement since their build exceeds a
+  // quarter spacing (two particles may approach each other by twice that), the data lists when it
+  // exceeds half a spacing. Each term then checks the true distance, so nothing within reach is
+  // missed.
+  const double margin = 0.5 * spacing;
   const double max_step = 0.3 * spacing;
   const PointIndex data_index(data.positions);
   NeighbourLists data_near, particle_near;
-  data_near.Build(data_index, particles->positions, static_cast<float>((kDataRadius + 0.5) * spacing), kDataNearest);
+  std::vector<Eigen::Vector3f> data_anchor, particle_anchor;
+  auto largest_move = [&](const std::vector<Eigen::Vector3f>& anchor) {
+    double largest = 0;
+    for (size_t i = 0; i < n; ++i) largest = std::max<double>(largest, (particles->positions[i] - anchor[i]).norm());
+    return largest;
+  };
   std::vector<Eigen::Vector3f> next_positions(n), next_normals(n);
   std::vector<double> steps(n, 0.0);
   const double data_radius2 = kDataRadius * kDataRadius * spacing * spacing;
   const double pair_radius2 = kNeighbourRadius * kNeighbourRadius * spacing * spacing;
   for (int sweep = 0; sweep < sweeps; ++sweep) {
-    if (sweep % kListSweeps == 0) {
+    if (data_anchor.empty() || largest_move(data_anchor) > margin) {
+      data_near.Build(data_index, particles->positions, static_cast<float>(kDataRadius * spacing + margin), kDataNearest);
+      data_anchor = particles->positions;
+    }
+    if (particle_anchor.empty() || 2 * largest_move(particle_anchor) > margin) {
       const PointIndex index(particles->positions);
-      particle_near.Build(index, particles->positions, static_cast<float>((kNeighbourRadius + 0.5) * spacing));
+      particle_near.Build(index, particles->positions, static_cast<float>(kNeighbourRadius * spacing + margin));
+      particle_anchor = particles->positions;
     }
     tbb::parallel_for(tbb::blocked_range<size_t>(0, n), [&](const tbb::blocked_range<size_t>& range) {
       for (size_t i = range.begin(); i < range.end(); ++i) {
@@ -78,14 +91,14 @@ double RelaxParticles(const PointCloud& data, double spacing, const ParticleWeig
         const Eigen::Vector3d normal = particles->normals[i].cast<double>();
         PairGradient gradient;
         Curvature curvature{1e-9, 1e-9};
-        for (uint32_t e = particle_near.offsets[i]; e < particle_near.offsets[i + 1]; ++e) {
+        for (size_t e = particle_near.offsets[i]; e < particle_near.offsets[i + 1]; ++e) {
           const uint32_t j = particle_near.indices[e];
           if (j == i) continue;
           const Eigen::Vector3d q = particles->positions[j].cast<double>();
           if ((q - p).squaredNorm() > pair_radius2) continue;
           PairEnergy(p, normal, q, particles->normals[j].cast<double>(), spacing, weights, &gradient, &curvature);
         }
-        for (uint32_t e = data_near.offsets[i]; e < data_near.offsets[i + 1]; ++e) {
+        for (size_t e = data_near.offsets[i]; e < data_near.offsets[i + 1]; ++e) {
           const uint32_t k = data_near.indices[e];
           const Eigen::Vector3d q = data.positions[k].cast<double>();
           if ((q - p).squaredNorm() > data_radius2) continue;

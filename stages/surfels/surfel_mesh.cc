@@ -56,16 +56,22 @@ TriangleMesh TriangulateParticles(const PointCloud& particles, double max_edge_l
   CGAL::advancing_front_surface_reconstruction(points.begin(), points.end(), std::back_inserter(facets),
                                                EdgeBound{max_edge_length * max_edge_length});
   mesh.faces.reserve(facets.size());
-  for (const auto& f : facets) {
-    Eigen::Vector3i face(static_cast<int>(f[0]), static_cast<int>(f[1]), static_cast<int>(f[2]));
-    if (!particles.normals.empty()) {
-      const Eigen::Vector3f& a = particles.positions[face[0]];
-      const Eigen::Vector3f normal = (particles.positions[face[1]] - a).cross(particles.positions[face[2]] - a);
-      const Eigen::Vector3f vertex_normals =
-          particles.normals[face[0]] + particles.normals[face[1]] + particles.normals[face[2]];
-      if (normal.dot(vertex_normals) < 0) std::swap(face[1], face[2]);
-    }
-    mesh.faces.push_back(face);
+  for (const auto& f : facets) mesh.faces.emplace_back(static_cast<int>(f[0]), static_cast<int>(f[1]), static_cast<int>(f[2]));
+  if (particles.normals.empty()) return mesh;
+  // The advancing front orients each connected piece consistently; whether a piece faces out is
+  // decided by the majority of its faces against the particles' normals, and the whole piece
+  // turned if needed (turning faces one by one would break the consistency where normals are noisy).
+  const std::vector<int> piece = ConnectedPieces(mesh);
+  std::vector<double> votes(mesh.vertices.size(), 0.0);
+  for (size_t i = 0; i < mesh.faces.size(); ++i) {
+    const Eigen::Vector3i& face = mesh.faces[i];
+    const Eigen::Vector3f& a = mesh.vertices[face[0]];
+    const Eigen::Vector3f normal = (mesh.vertices[face[1]] - a).cross(mesh.vertices[face[2]] - a);
+    const Eigen::Vector3f vertex_normals = particles.normals[face[0]] + particles.normals[face[1]] + particles.normals[face[2]];
+    votes[piece[i]] += normal.dot(vertex_normals) >= 0 ? 1.0 : -1.0;
+  }
+  for (size_t i = 0; i < mesh.faces.size(); ++i) {
+    if (votes[piece[i]] < 0) std::swap(mesh.faces[i][1], mesh.faces[i][2]);
   }
   return mesh;
 }

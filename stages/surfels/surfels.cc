@@ -9,6 +9,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <limits>
 #include <numeric>
 #include <unordered_map>
 
@@ -84,7 +85,7 @@ bool SurfelOptions::Check(std::string* error) const {
   if (!(max_edge >= 1 && max_edge <= 20)) return fail(Range("max_edge", "[1, 20]"));
   if (max_hole_edges < 0 || max_hole_edges > 1000) return fail(Range("max_hole_edges", "[0, 1000]"));
   if (min_component_faces < 0 || min_component_faces > 1000000) return fail(Range("min_component_faces", "[0, 1e6]"));
-  if (max_particles < 1000 || max_particles > 1000000000) return fail(Range("max_particles", "[1000, 1e9]"));
+  if (max_particles < 1000 || max_particles > 50000000) return fail(Range("max_particles", "[1000, 5e7]"));
   return true;
 }
 
@@ -149,12 +150,19 @@ PointCloud ThinToSpacing(const PointCloud& points, double spacing) {
     double weight = 0, confidence = 0;
     int count = 0;
   };
+  // Cells are keyed by 21 bits per axis from the points' lower corner: the extent must fit.
+  Eigen::Vector3d lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::max());
+  Eigen::Vector3d hi = -lo;
+  for (const auto& p : points.positions) lo = lo.cwiseMin(p.cast<double>()), hi = hi.cwiseMax(p.cast<double>());
+  if (!points.positions.empty() && ((hi - lo) / spacing).maxCoeff() >= 2097151) {
+    throw InputError("surfels: the points span " + std::to_string((hi - lo).maxCoeff()) + " scene units, over 2 million " +
+                     "spacings of " + std::to_string(spacing) + "; raise surfels.spacing_scale or crop the points");
+  }
   std::unordered_map<int64_t, size_t> cell_of;
   std::vector<Cell> cells;
   for (size_t i = 0; i < points.size(); ++i) {
-    const Eigen::Vector3i c = (points.positions[i].cast<double>() / spacing).array().floor().cast<int>();
-    const int64_t key = (static_cast<int64_t>(c.x() & 0x1FFFFF) << 42) | (static_cast<int64_t>(c.y() & 0x1FFFFF) << 21) |
-                        (c.z() & 0x1FFFFF);
+    const Eigen::Vector3d c = ((points.positions[i].cast<double>() - lo) / spacing).array().floor();
+    const int64_t key = (static_cast<int64_t>(c.x()) << 42) | (static_cast<int64_t>(c.y()) << 21) | static_cast<int64_t>(c.z());
     const auto [it, inserted] = cell_of.emplace(key, cells.size());
     if (inserted) cells.emplace_back();
     Cell& cell = cells[it->second];

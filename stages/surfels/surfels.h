@@ -62,7 +62,7 @@ struct SurfelOptions {
   double max_edge = 4.0;           // longest triangle edge, spacings, in [1, 20]
   int max_hole_edges = 24;         // close mesh holes bounded by at most this many edges, in [0, 1000]
   int min_component_faces = 50;    // drop mesh pieces with fewer faces than this, in [0, 1e6]
-  int max_particles = 2000000;     // refuse to run beyond this many particles (memory), in [1000, 1e9]
+  int max_particles = 2000000;     // refuse to run beyond this many particles (memory), in [1000, 5e7]
 
   bool Check(std::string* error) const;  // error starts with the YAML key
 };
@@ -137,8 +137,11 @@ double NearestNeighbourSpread(const std::vector<Eigen::Vector3f>& positions);
 // surfel_mesh.cc (CGAL): the advancing-front triangulation with edges at most `max_edge_length`,
 // faces turned to agree with the particles' normals; the mesh's vertices are the particles.
 TriangleMesh TriangulateParticles(const PointCloud& particles, double max_edge_length);
+// mesh_cleaning.cc: per face, an id of the connected piece it belongs to (faces sharing a vertex).
+std::vector<int> ConnectedPieces(const TriangleMesh& mesh);
 // mesh_cleaning.cc: closes the mesh's holes bounded by at most `max_edges` edges (a fan around a
-// new centroid vertex); returns how many. Larger holes and loops through a vertex twice stay open.
+// new centroid vertex); returns how many. Larger holes, loops through a vertex twice, and the outer
+// border of a small piece (fewer than 2 L^2 faces for a loop of L edges) stay open.
 size_t FillSmallHoles(int max_edges, TriangleMesh* mesh);
 // mesh_cleaning.cc: removes the faces of connected pieces with fewer than `min_faces` faces (their
 // vertices stay, unused); returns how many faces. Hand-written rather than OpenMesh: a halfedge

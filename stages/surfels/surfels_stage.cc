@@ -76,7 +76,7 @@ class SurfelsStage : public Stage {
         {"max_edge", ParamType::kDouble, num(d.max_edge), "Longest triangle edge, spacings, [1, 20]"},
         {"max_hole_edges", ParamType::kInt, std::to_string(d.max_hole_edges), "Close mesh holes bounded by at most this many edges, [0, 1000]"},
         {"min_component_faces", ParamType::kInt, std::to_string(d.min_component_faces), "Drop mesh pieces with fewer faces, [0, 1e6]"},
-        {"max_particles", ParamType::kInt, std::to_string(d.max_particles), "Refuse to run beyond this many particles, [1000, 1e9]"},
+        {"max_particles", ParamType::kInt, std::to_string(d.max_particles), "Refuse to run beyond this many particles, [1000, 5e7]"},
         {"use_hull", ParamType::kBool, "true", "Keep the surface inside hull/hull.ply when it exists"},
         {"eval_samples", ParamType::kInt, "200000", "Samples for accuracy/completeness against ground_truth/mesh.ply, [1000, 1e7]"},
     };
@@ -236,7 +236,7 @@ class SurfelsStage : public Stage {
     o.max_edge = params.Double("max_edge");
     o.max_hole_edges = static_cast<int>(params.Int("max_hole_edges"));
     o.min_component_faces = static_cast<int>(params.Int("min_component_faces"));
-    o.max_particles = static_cast<int>(std::min<int64_t>(params.Int("max_particles"), 2000000000));
+    o.max_particles = static_cast<int>(std::clamp<int64_t>(params.Int("max_particles"), -1, 2000000000));
     return o;
   }
 };
@@ -250,9 +250,10 @@ int MeshAccuracyCommand(const std::vector<std::string>& args) {
     return !args.empty() && args[0] == "--help" ? 0 : 2;
   }
   try {
-    const size_t samples = args.size() == 3 ? std::stoul(args[2]) : 200000;
+    const long long samples = args.size() == 3 ? std::stoll(args[2]) : 200000;
+    if (samples < 1000 || samples > 10000000) throw InputError("SAMPLES: must be in [1000, 10000000], got " + args[2]);
     const TriangleMesh mesh = ReadMeshPly(args[0]);
-    const PointSetAccuracy a = EvaluateMesh(mesh, ReadMeshPly(args[1]), samples);
+    const PointSetAccuracy a = EvaluateMesh(mesh, ReadMeshPly(args[1]), static_cast<size_t>(samples));
     if (a.points == 0) throw InputError(args[0] + " or " + args[1] + ": a mesh without area; nothing to measure");
     std::cout << nlohmann::json{{"mesh", args[0]},           {"truth", args[1]},
                                 {"faces", mesh.faces.size()}, {"accuracy_90", a.accuracy_90},

@@ -277,36 +277,44 @@ TEST(Surfels, AMissingStripWiderThanAFewSpacingsStaysOpen) {
   EXPECT_GT(spanning, 20u);
 }
 
-TEST(SurfelMesh, CleaningDropsSmallPiecesAndClosesSmallHoles) {
-  TriangleMesh mesh;  // a 6x6 vertex grid (50 faces) with one interior vertex's fan removed, and a lone triangle
-  for (int y = 0; y < 6; ++y)
-    for (int x = 0; x < 6; ++x) mesh.vertices.emplace_back(x, y, 0);
-  for (int y = 0; y < 5; ++y) {
-    for (int x = 0; x < 5; ++x) {
-      const int a = y * 6 + x, b = a + 1, c = a + 6, d = c + 1;
-      if (a == 14 || b == 14 || c == 14 || d == 14) continue;  // vertex (2, 2): a hole of 8 boundary edges
+// An n x n vertex grid in z = 0 (faces up), without the faces around vertex `hole` (-1: none).
+TriangleMesh Grid(int n, int hole) {
+  TriangleMesh mesh;
+  for (int y = 0; y < n; ++y)
+    for (int x = 0; x < n; ++x) mesh.vertices.emplace_back(x, y, 0);
+  for (int y = 0; y + 1 < n; ++y) {
+    for (int x = 0; x + 1 < n; ++x) {
+      const int a = y * n + x, b = a + 1, c = a + n, d = c + 1;
+      if (a == hole || b == hole || c == hole || d == hole) continue;
       mesh.faces.emplace_back(a, b, d);
       mesh.faces.emplace_back(a, d, c);
     }
   }
+  return mesh;
+}
+
+TEST(SurfelMesh, CleaningDropsSmallPiecesAndClosesSmallHoles) {
+  TriangleMesh mesh = Grid(20, 10 * 20 + 10);  // a hole of 8 boundary edges in a 722-face sheet
   const size_t grid_faces = mesh.faces.size();
-  mesh.vertices.emplace_back(10, 10, 0);
-  mesh.vertices.emplace_back(11, 10, 0);
-  mesh.vertices.emplace_back(10, 11, 0);
-  mesh.faces.emplace_back(36, 37, 38);
+  const int n = static_cast<int>(mesh.vertices.size());
+  mesh.vertices.emplace_back(50, 50, 0);  // and a lone triangle
+  mesh.vertices.emplace_back(51, 50, 0);
+  mesh.vertices.emplace_back(50, 51, 0);
+  mesh.faces.emplace_back(n, n + 1, n + 2);
   EXPECT_EQ(RemoveSmallComponents(5, &mesh), 1u);
   EXPECT_EQ(mesh.faces.size(), grid_faces);
   EXPECT_EQ(FillSmallHoles(4, &mesh), 0u);  // the hole has 8 edges: larger than allowed, stays open
-  EXPECT_EQ(FillSmallHoles(8, &mesh), 1u);
+  EXPECT_EQ(FillSmallHoles(8, &mesh), 1u);  // the sheet's border (76 edges) stays open
   EXPECT_EQ(mesh.faces.size(), grid_faces + 8);
   for (size_t f = grid_faces; f < mesh.faces.size(); ++f) {  // the fill faces up like the grid
     const auto& face = mesh.faces[f];
-    const Eigen::Vector3f n = (mesh.vertices[face[1]] - mesh.vertices[face[0]]).cross(mesh.vertices[face[2]] - mesh.vertices[face[0]]);
-    EXPECT_GT(n.z(), 0);
+    const Eigen::Vector3f normal = (mesh.vertices[face[1]] - mesh.vertices[face[0]]).cross(mesh.vertices[face[2]] - mesh.vertices[face[0]]);
+    EXPECT_GT(normal.z(), 0);
   }
-  bool closed = true;
-  EulerCharacteristic(mesh, &closed);
-  EXPECT_FALSE(closed);  // the grid's outer border stays open: 20 edges
+  // A small patch's outer border is no hole, however few its edges: it is not capped.
+  TriangleMesh patch = Grid(6, -1);  // 50 faces, border of 20 edges
+  EXPECT_EQ(FillSmallHoles(24, &patch), 0u);
+  EXPECT_EQ(patch.faces.size(), 50u);
 }
 
 // Two views above the plane z = 0 that saw the plane; a cluster floating at z = 0.5 is free space.
