@@ -56,12 +56,12 @@ double RelaxParticles(const PointCloud& data, double spacing, const ParticleWeig
                       PointCloud* particles) {
   const size_t n = particles->size();
   if (n == 0 || sweeps <= 0) return 0;
-  // Candidate lists with a margin of half a spacing, rebuilt when the particles have moved enough to
-  // use it up: the particle lists when the largest displacement since their build exceeds a
-  // quarter spacing (two particles may approach each other by twice that), the data lists when it
-  // exceeds half a spacing. Each term then checks the true distance, so nothing within reach is
+  // Candidate lists with a margin of one spacing, rebuilt when the particles have moved enough to
+  // use it up: the particle lists when the largest displacement since their build exceeds half the
+  // margin (two particles may approach each other by twice that), the data lists when it exceeds
+  // the margin. Each term then checks the true distance, so nothing within reach is
   // missed.
-  const double margin = 0.5 * spacing;
+  const double margin = 1.0 * spacing;
   const double max_step = 0.3 * spacing;
   const PointIndex data_index(data.positions);
   NeighbourLists data_near, particle_near;
