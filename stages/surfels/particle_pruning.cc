@@ -23,9 +23,9 @@ using Neighbours = std::vector<std::pair<uint32_t, float>>;
 // Particles with fewer than `min_support` data points within support_radius (nor fewer than
 // `min_support_fraction` of the median particle's count: sparse clusters of fused points, floaters
 // that few samples agreed on, weigh as much as the surface once thinned), or fewer than
-// `min_neighbours` particles within kNeighbourRadius spacings. Grown particles need no data.
-std::vector<char> Unsupported(const PointIndex& data_index, const PointCloud& particles,
-                              const std::vector<char>& grown, double spacing, const SurfelOptions& options) {
+// `min_neighbours` particles within kNeighbourRadius spacings. Data support only when `check_data`.
+std::vector<char> Unsupported(const PointIndex& data_index, const PointCloud& particles, bool check_data,
+                              double spacing, const SurfelOptions& options) {
   std::vector<char> remove(particles.size(), 0);
   std::vector<int> support(particles.size(), -1);
   const PointIndex particle_index(particles.positions);
@@ -37,7 +37,7 @@ std::vector<char> Unsupported(const PointIndex& data_index, const PointCloud& pa
         remove[i] = 1;
         continue;
       }
-      if (grown[i] || options.min_support == 0) continue;
+      if (!check_data || options.min_support == 0) continue;
       data_index.Radius(particles.positions[i], static_cast<float>(options.support_radius * spacing), &found);
       support[i] = static_cast<int>(found.size());
     }

@@ -11,9 +11,10 @@ namespace ibmr {
 
 // Flags particles with fewer than `min_support` data points within support_radius (nor fewer than
 // `min_support_fraction` of the median particle's count), or fewer than `min_neighbours`
-// particles within 2.5 spacings. Particles flagged in `grown` need no data.
-std::vector<char> Unsupported(const PointIndex& data_index, const PointCloud& particles,
-                              const std::vector<char>& grown, double spacing, const SurfelOptions& options);
+// particles within 2.5 spacings. Data support is checked only when `check_data` (after growth, the
+// grown particles have none by design).
+std::vector<char> Unsupported(const PointIndex& data_index, const PointCloud& particles, bool check_data,
+                              double spacing, const SurfelOptions& options);
 
 // The stretching rule: midpoints of neighbour pairs more than stretch_distance and less than
 // max_gap spacings apart whose normals agree, where no particle is near the midpoint (at most one

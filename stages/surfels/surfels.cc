@@ -266,20 +266,12 @@ SurfelResult ReconstructSurfels(const PointCloud& input, const std::vector<Surfe
     stats.prune_seconds += Seconds(start);
   };
   const PointIndex data_index(data.positions);
-  std::vector<char> grown(particles.size(), 0);
-  auto prune_unsupported = [&]() {
-    const std::vector<char> remove = Unsupported(data_index, particles, grown, spacing, options);
-    std::vector<char> keep_grown;
-    for (size_t i = 0; i < remove.size(); ++i) {
-      if (!remove[i]) keep_grown.push_back(grown[i]);
-    }
-    stats.removed_unsupported += RemoveFlagged(remove, &particles);
-    grown.swap(keep_grown);
+  auto prune_unsupported = [&](bool check_data) {
+    stats.removed_unsupported += RemoveFlagged(Unsupported(data_index, particles, check_data, spacing, options), &particles);
   };
   progress->Begin("surfels: relaxation rounds", static_cast<size_t>(options.grow_rounds) + 1);
   prune_free_space_and_hull();
-  grown.assign(particles.size(), 0);
-  prune_unsupported();
+  prune_unsupported(true);
 
   // 4-5. Relaxation, then rounds of growth and relaxation.
   const Clock::time_point relax_start = Clock::now();
@@ -292,7 +284,6 @@ SurfelResult ReconstructSurfels(const PointCloud& input, const std::vector<Surfe
       continue;
     }
     Append(added, &particles);
-    grown.resize(particles.size(), 1);
     stats.grown += added.size();
     stats.mean_step_last_sweep = RelaxParticles(data, spacing, options.weights, options.iterations, &particles);
     progress->Advance(1, "grown " + std::to_string(added.size()));
@@ -302,8 +293,7 @@ SurfelResult ReconstructSurfels(const PointCloud& input, const std::vector<Surfe
   // Pruning again after growth: free space and hull, then isolated particles (data support was
   // checked before growth; grown particles have none by design).
   prune_free_space_and_hull();
-  grown.assign(particles.size(), 1);
-  prune_unsupported();
+  prune_unsupported(false);
   if (particles.size() < 3) throw InputError("surfels: every particle was removed (free space, hull or outliers)");
 
   // 6. Triangulation and the surfels' radii.
