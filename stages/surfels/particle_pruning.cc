@@ -135,4 +135,20 @@ std::vector<int> FreeSpaceViolations(const std::vector<Eigen::Vector3f>& positio
   return violations;
 }
 
+std::vector<int> OffSilhouette(const std::vector<Eigen::Vector3f>& positions, const std::vector<SurfelView>& views) {
+  std::vector<int> off(positions.size(), 0);
+  tbb::parallel_for(size_t{0}, positions.size(), [&](size_t i) {
+    for (const SurfelView& view : views) {
+      if (view.mask.empty()) continue;
+      Eigen::Vector2d pixel;
+      double z;
+      if (!ProjectToView(view, positions[i], &pixel, &z)) continue;
+      const int x = std::min(static_cast<int>(pixel.x() * view.mask.cols / view.camera.width), view.mask.cols - 1);
+      const int y = std::min(static_cast<int>(pixel.y() * view.mask.rows / view.camera.height), view.mask.rows - 1);
+      off[i] += view.mask.at<uint8_t>(y, x) == 0;
+    }
+  });
+  return off;
+}
+
 }  // namespace ibmr

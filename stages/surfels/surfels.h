@@ -8,7 +8,8 @@
 //     normal, colour; seed 000 section 4's uncertainty survives as the confidence). Points without
 //     normals get them from the principal axes of their neighbours, turned toward a camera.
 //  3. Pruning: particles that training depth maps see through (free space: a view saw a surface
-//     behind them along its ray) in `free_space_views` views or more, particles outside the hull
+//     behind them along its ray) in `free_space_views` views or more, particles that land on the
+//     background of `silhouette_views` training masks or more (when set), particles outside the hull
 //     (when a closed hull mesh is given), and particles with too little data nearby or too few
 //     particle neighbours (outliers) are deleted.
 //  4. Relaxation: the energy of surfel_potentials.h (co-planarity, co-normality, co-circularity,
@@ -30,6 +31,7 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <opencv2/core.hpp>
 #include <string>
 #include <vector>
 
@@ -57,6 +59,7 @@ struct SurfelOptions {
                                     // (0.2 cost templeRing 0.4 dB held out: it thins the surface too)
   int min_neighbours = 3;          // particles within 2.5 spacings needed to keep a particle, in [0, 100]
   int free_space_views = 2;        // delete a particle that this many depth maps see through, in [1, 1000]
+  int silhouette_views = 0;        // delete a particle that lands on this many views' background (masks); 0: off, in [0, 1000]
   double free_space_margin = 3.0;  // "see through": the map's depth exceeds the particle's by this many
                                    // spacings and by 0.5% of the depth, in (0, 1000]
   double max_edge = 4.0;           // longest triangle edge, spacings, in [1, 20]
@@ -72,6 +75,7 @@ struct SurfelView {
   Camera camera;  // undistorted (pinhole)
   Rigid3d cam_from_world;
   DepthMap depth;  // z depth, any resolution (scaled to the camera); empty: no free-space test
+  cv::Mat mask;    // CV_8UC1 silhouette (0 background), camera size; empty: no silhouette test
 };
 
 struct SurfelStats {
@@ -83,6 +87,7 @@ struct SurfelStats {
   size_t initial_particles = 0;
   size_t removed_free_space = 0;
   size_t removed_outside_hull = 0;
+  size_t removed_off_silhouette = 0;
   bool hull_closed = false;         // a hull was given and is a closed mesh (otherwise not used)
   size_t removed_unsupported = 0;   // too little data or too few neighbours
   size_t grown = 0;
@@ -130,6 +135,9 @@ double RelaxParticles(const PointCloud& data, double spacing, const ParticleWeig
 // the 8 pixels around it is beyond the particle's by the margin (see free_space_margin).
 std::vector<int> FreeSpaceViolations(const std::vector<Eigen::Vector3f>& positions,
                                      const std::vector<SurfelView>& views, double spacing, double margin_spacings);
+
+// Per particle, in how many views with a mask it projects onto the background (nearest pixel).
+std::vector<int> OffSilhouette(const std::vector<Eigen::Vector3f>& positions, const std::vector<SurfelView>& views);
 
 // Coefficient of variation (std / mean) of each particle's nearest-neighbour distance.
 double NearestNeighbourSpread(const std::vector<Eigen::Vector3f>& positions);

@@ -1,6 +1,6 @@
 // Adapter of the surfels stage (seed 000 section 5, lines 4454-4586; see surfels.h): reads
-// dense/fused.ply, the training cameras, their depth maps (free space) and hull/hull.ply when
-// present, and writes
+// dense/fused.ply, the training cameras, their depth maps (free space), hull/hull.ply when present
+// and masks/ when silhouette_views > 0, and writes
 //   surfels/surfels.ply  binary PLY, one vertex per surfel: float x y z nx ny nz radius, uchar red
 //                        green blue, float confidence (radius in scene units: the disc a splatting
 //                        renderer draws; confidence in [0, 1], 0 for particles grown into gaps
@@ -17,6 +17,7 @@
 
 #include "pipeline/core/colmap_array_io.h"
 #include "pipeline/core/errors.h"
+#include "pipeline/core/image_io.h"
 #include "pipeline/core/ply_io.h"
 #include "pipeline/core/stage_api.h"
 #include "pipeline/core/surface_accuracy.h"
@@ -72,6 +73,7 @@ class SurfelsStage : public Stage {
         {"min_neighbours", ParamType::kInt, std::to_string(d.min_neighbours), "Particles within 2.5 spacings to keep a particle, [0, 100]"},
         {"free_space_views", ParamType::kInt, std::to_string(d.free_space_views), "Delete particles that this many depth maps see through, [1, 1000]"},
         {"free_space_margin", ParamType::kDouble, num(d.free_space_margin), "See-through margin, spacings (and 0.5% of depth), (0, 1000]"},
+        {"silhouette_views", ParamType::kInt, std::to_string(d.silhouette_views), "Delete particles on this many views' background (masks/); 0: off, [0, 1000]"},
         {"free_space_maps", ParamType::kString, "geometric", "Depth maps for the free-space test", {"geometric", "photometric", "none"}},
         {"max_edge", ParamType::kDouble, num(d.max_edge), "Longest triangle edge, spacings, [1, 20]"},
         {"max_hole_edges", ParamType::kInt, std::to_string(d.max_hole_edges), "Close mesh holes bounded by at most this many edges, [0, 1000]"},
@@ -99,6 +101,7 @@ class SurfelsStage : public Stage {
       for (const std::string& name : names) inputs.push_back("dense/stereo/depth_maps/" + name + "." + kind + ".bin");
     }
     if (context.params.Bool("use_hull")) inputs.push_back(kHull);  // optional
+    if (context.params.Int("silhouette_views") > 0) inputs.push_back("masks");
     inputs.push_back("ground_truth/mesh.ply");                      // metrics only
     return inputs;
   }
@@ -132,6 +135,15 @@ class SurfelsStage : public Stage {
           spdlog::warn("[surfels] {}: missing; view '{}' takes no part in the free-space test", path, name);
         }
       }
+      if (options.silhouette_views > 0) {
+        const std::string mask_path = workspace.MaskPath(name);
+        if (fs::exists(mask_path)) {
+          view.mask = ReadImageUnchanged(mask_path);
+          if (view.mask.type() != CV_8UC1) {
+            throw InputError(mask_path + ": not an 8-bit one-channel mask; re-run silhouettes (or set surfels.silhouette_views: 0)");
+          }
+        }
+      }
       views.push_back(std::move(view));
       context.progress->Advance(1, name);
     }
@@ -163,6 +175,7 @@ class SurfelsStage : public Stage {
     m["initial_particles"] = s.initial_particles;
     m["removed_free_space"] = s.removed_free_space;
     m["removed_outside_hull"] = s.removed_outside_hull;
+    m["removed_off_silhouette"] = s.removed_off_silhouette;
     m["removed_unsupported"] = s.removed_unsupported;
     m["grown"] = s.grown;
     m["particles"] = s.particles;
@@ -233,6 +246,7 @@ class SurfelsStage : public Stage {
     o.min_neighbours = static_cast<int>(params.Int("min_neighbours"));
     o.free_space_views = static_cast<int>(params.Int("free_space_views"));
     o.free_space_margin = params.Double("free_space_margin");
+    o.silhouette_views = static_cast<int>(params.Int("silhouette_views"));
     o.max_edge = params.Double("max_edge");
     o.max_hole_edges = static_cast<int>(params.Int("max_hole_edges"));
     o.min_component_faces = static_cast<int>(params.Int("min_component_faces"));

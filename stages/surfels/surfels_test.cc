@@ -111,6 +111,7 @@ TEST(SurfelOptions, RejectsInvalidRanges) {
       {"min_support", [](SurfelOptions* o) { o->min_support = -1; }},
       {"min_support_fraction", [](SurfelOptions* o) { o->min_support_fraction = 1.5; }},
       {"free_space_views", [](SurfelOptions* o) { o->free_space_views = 0; }},
+      {"silhouette_views", [](SurfelOptions* o) { o->silhouette_views = -1; }},
       {"free_space_margin", [](SurfelOptions* o) { o->free_space_margin = 0; }},
       {"max_edge", [](SurfelOptions* o) { o->max_edge = 0.5; }},
       {"max_particles", [](SurfelOptions* o) { o->max_particles = 10; }},
@@ -352,6 +353,28 @@ TEST(Surfels, ParticlesThatDepthMapsSeeThroughAreRemoved) {
   const SurfelResult pruned = ReconstructSurfels(data, views, nullptr, options);
   for (const auto& p : pruned.surfels.positions) ASSERT_LT(p.z(), 0.2f) << p.transpose();
   EXPECT_GT(pruned.stats.removed_free_space, 10u);
+}
+
+// One view above the plane z = 0 whose silhouette keeps the half x < 0.
+TEST(Surfels, ParticlesOnTheBackgroundOfMasksAreRemoved) {
+  const PointCloud data = NoisyPlane(20000, 0.002, [](const Eigen::Vector3f&) { return false; });
+  SurfelView view;
+  view.camera = Camera::Pinhole(200, 200, 60, 60, 100, 100);
+  view.cam_from_world = LookAt(Eigen::Vector3d(0, 0, 3), Eigen::Vector3d(0, 0, 0), Eigen::Vector3d::UnitY());
+  view.mask = cv::Mat(200, 200, CV_8UC1, cv::Scalar(0));
+  for (int y = 0; y < 200; ++y) {
+    for (int x = 0; x < 200; ++x) {
+      const Eigen::Vector3d ray = view.cam_from_world.Inverse().rotation * view.camera.CamFromImg(Eigen::Vector2d(x + 0.5, y + 0.5));
+      if (ray.x() < 0) view.mask.at<uint8_t>(y, x) = 255;  // world x < 0 where the ray meets z = 0
+    }
+  }
+  SurfelOptions options = FixedSpacing(0.06);
+  const SurfelResult all = ReconstructSurfels(data, {view}, nullptr, options);
+  EXPECT_EQ(all.stats.removed_off_silhouette, 0u);
+  options.silhouette_views = 1;
+  const SurfelResult kept = ReconstructSurfels(data, {view}, nullptr, options);
+  EXPECT_GT(kept.stats.removed_off_silhouette, all.surfels.size() / 3);
+  for (const auto& p : kept.surfels.positions) ASSERT_LT(p.x(), 0.03f) << p.transpose();
 }
 
 TEST(Surfels, TheHullBoundsTheSurface) {
