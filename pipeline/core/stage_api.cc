@@ -2,6 +2,7 @@
 #include "pipeline/core/stage_api.h"
 
 #include <algorithm>
+#include <filesystem>
 #include <stdexcept>
 
 #include "pipeline/core/colmap_text_io.h"
@@ -57,6 +58,15 @@ std::vector<std::string> StageContext::TrainingImageNames(const SparseModel& mod
     names.push_back(name);
   }
   return names;
+}
+
+std::vector<std::string> StageContext::TrainingImageNamesIfReadable() const {
+  if (!std::filesystem::exists(workspace.Path("sparse/images.txt"))) return {};
+  try {
+    return TrainingImageNames(LoadModel());
+  } catch (const std::exception&) {
+    return {};
+  }
 }
 
 void StageRegistry::Add(std::unique_ptr<Stage> stage) {

@@ -48,6 +48,9 @@ struct StageContext {
   // Names of the views this stage may reconstruct from, sorted (held-out views removed for
   // kTrainingOnly stages).
   std::vector<std::string> TrainingImageNames(const SparseModel& model) const;
+  // The same from the workspace's sparse/, or empty when it is missing or unreadable: for declaring
+  // per-view inputs before the stage runs (Run() then reports the problem).
+  std::vector<std::string> TrainingImageNamesIfReadable() const;
 };
 
 class Stage {

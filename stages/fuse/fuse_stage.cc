@@ -57,7 +57,7 @@ class FuseStage : public Stage {
   std::vector<std::string> Inputs(const StageContext& context) const override {
     const std::string kind = context.params.String("input_type");
     std::vector<std::string> inputs = {"sparse", "images"};
-    const std::vector<std::string> names = Names(context);
+    const std::vector<std::string> names = context.TrainingImageNamesIfReadable();
     if (names.empty()) {
       for (const char* folder : {"dense/stereo/depth_maps", "dense/stereo/normal_maps", "dense/stereo/confidence_maps"}) inputs.push_back(folder);
     }
@@ -195,15 +195,6 @@ class FuseStage : public Stage {
     m["on_silhouette_per_view"] = per_view;
     spdlog::info("[fuse] {:.1f}% of the fused points project onto the silhouettes of masks/ ({} views; worst view {:.1f}%)",
                  100 * total.Fraction(), fractions.size(), 100 * fractions.front());
-  }
-
-  static std::vector<std::string> Names(const StageContext& context) {
-    if (!fs::exists(context.workspace.Path("sparse/images.txt"))) return {};
-    try {
-      return context.TrainingImageNames(context.LoadModel());
-    } catch (const std::exception&) {
-      return {};
-    }
   }
 
   static FuseOptions ToOptions(const Params& params) {

@@ -88,7 +88,7 @@ class MultiDepthStage : public Stage {
 
   std::vector<std::string> Inputs(const StageContext& context) const override {
     std::vector<std::string> inputs = {"sparse"};
-    const std::vector<std::string> names = Names(context);
+    const std::vector<std::string> names = context.TrainingImageNamesIfReadable();
     if (names.empty()) {  // before sparse/ exists: the folders, for dependency order only
       for (const char* folder : {"dense/stereo/depth_maps", "dense/stereo/normal_maps", "dense/stereo/confidence_maps"}) inputs.push_back(folder);
       return inputs;
@@ -104,7 +104,7 @@ class MultiDepthStage : public Stage {
 
   std::vector<std::string> Outputs(const StageContext& context) const override {
     std::vector<std::string> outputs;
-    for (const std::string& name : Names(context)) {
+    for (const std::string& name : context.TrainingImageNamesIfReadable()) {
       outputs.push_back("dense/stereo/depth_maps/" + name + ".geometric.bin");
       outputs.push_back("dense/stereo/normal_maps/" + name + ".geometric.bin");
       outputs.push_back(Workspace::ConfidenceMapRelative(name, "geometric"));
@@ -195,15 +195,6 @@ class MultiDepthStage : public Stage {
     total->truth_pixels += a.truth_pixels;
     total->estimated += a.estimated;
     total->within_tolerance += a.within_tolerance;
-  }
-
-  static std::vector<std::string> Names(const StageContext& context) {
-    if (!fs::exists(context.workspace.Path("sparse/images.txt"))) return {};
-    try {
-      return context.TrainingImageNames(context.LoadModel());
-    } catch (const std::exception&) {
-      return {};  // Run() reports the problem
-    }
   }
 
   static MultiDepthOptions ToOptions(const Params& params) {

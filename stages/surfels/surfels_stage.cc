@@ -96,7 +96,7 @@ class SurfelsStage : public Stage {
     std::vector<std::string> inputs = {"sparse", kFused};
     const std::string kind = context.params.String("free_space_maps");
     if (kind != "none") {
-      const std::vector<std::string> names = Names(context);
+      const std::vector<std::string> names = context.TrainingImageNamesIfReadable();
       if (names.empty()) inputs.push_back("dense/stereo/depth_maps");
       for (const std::string& name : names) inputs.push_back("dense/stereo/depth_maps/" + name + "." + kind + ".bin");
     }
@@ -211,15 +211,6 @@ class SurfelsStage : public Stage {
     context.metrics["eval_threshold"] = a.threshold;
     spdlog::info("[surfels] mesh accuracy (90%) {:.4g}, completeness {:.1f}% within {:.4g}", a.accuracy_90,
                  100 * a.completeness, a.threshold);
-  }
-
-  static std::vector<std::string> Names(const StageContext& context) {
-    if (!fs::exists(context.workspace.Path("sparse/images.txt"))) return {};
-    try {
-      return context.TrainingImageNames(context.LoadModel());
-    } catch (const std::exception&) {
-      return {};
-    }
   }
 
   static SurfelOptions ToOptions(const Params& params) {
