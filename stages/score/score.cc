@@ -154,7 +154,9 @@ ImageScore ScoreImage(const cv::Mat& real, const cv::Mat& rendered_in, const cv:
   const cv::Mat lit = brightest > options.photo_threshold;
   cv::Mat black_holes = cv::Mat::zeros(rendered.size(), rendered.type());
   rendered.copyTo(black_holes, covered);
-  score.photo = Accumulate(real, black_holes, SsimMap(real, black_holes), lit, SsimSupport(lit),
+  // Renders are already black where uncovered (render.h): the SSIM map is then the one above.
+  const bool same = cv::norm(black_holes, rendered, cv::NORM_INF) == 0;
+  score.photo = Accumulate(real, black_holes, same ? ssim : SsimMap(real, black_holes), lit, SsimSupport(lit),
                            static_cast<size_t>(cv::countNonZero(lit)));
   score.photo.coverage = score.photo.pixels ? static_cast<double>(cv::countNonZero(lit & covered)) / score.photo.pixels : 0.0;
   return score;
