@@ -5,6 +5,7 @@
 
 #include <cctype>
 #include <cstring>
+#include <filesystem>
 
 #include "pipeline/core/atomic_file.h"
 #include "pipeline/core/errors.h"
@@ -70,6 +71,16 @@ void WriteColmapArray(const std::string& path, const FloatMap& map) {
   bytes.resize(header + count * sizeof(float));
   std::memcpy(&bytes[header], map.data.data(), count * sizeof(float));
   WriteFileAtomic(path, bytes);
+}
+
+FloatMap ReadColmapArrayMatching(const std::string& path, const FloatMap& depth, int channels) {
+  if (!std::filesystem::exists(path)) return FloatMap();
+  FloatMap map = ReadColmapArray(path);
+  if (map.width != depth.width || map.height != depth.height || map.channels != channels) {
+    throw InputError(path + ": expected " + std::to_string(depth.width) + "x" + std::to_string(depth.height) + "x" +
+                     std::to_string(channels) + " like its depth map; rerun the stage that wrote it");
+  }
+  return map;
 }
 
 }  // namespace ibmr

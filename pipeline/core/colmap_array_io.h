@@ -12,4 +12,8 @@ namespace ibmr {
 FloatMap ReadColmapArray(const std::string& path);               // throws IoError
 void WriteColmapArray(const std::string& path, const FloatMap& map);  // atomic
 
+// A map that goes with `depth` (a normal or confidence map): empty when `path` does not exist;
+// throws InputError naming the file when it is not depth.width x depth.height x `channels`.
+FloatMap ReadColmapArrayMatching(const std::string& path, const FloatMap& depth, int channels);
+
 }  // namespace ibmr

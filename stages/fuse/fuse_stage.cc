@@ -93,8 +93,8 @@ class FuseStage : public Stage {
                          (kind == "geometric" ? "multi_depth" : "plane_sweep") + " first (or set fuse.input_type)");
       }
       view.depth = ReadColmapArray(depth_path);
-      view.normals = ReadOptional(workspace.NormalMapPath(name, kind), view.depth, 3);
-      view.confidence = ReadOptional(workspace.ConfidenceMapPath(name, kind), view.depth, 1);
+      view.normals = ReadColmapArrayMatching(workspace.NormalMapPath(name, kind), view.depth, 3);
+      view.confidence = ReadColmapArrayMatching(workspace.ConfidenceMapPath(name, kind), view.depth, 1);
       const std::string image_path = workspace.ImagesDir() + "/" + name;
       if (fs::exists(image_path)) {
         view.image = ReadImageColor(image_path);
@@ -124,16 +124,6 @@ class FuseStage : public Stage {
   }
 
  private:
-  static FloatMap ReadOptional(const std::string& path, const DepthMap& depth, int channels) {
-    if (!fs::exists(path)) return FloatMap();
-    FloatMap map = ReadColmapArray(path);
-    if (map.width != depth.width || map.height != depth.height || map.channels != channels) {
-      throw InputError(path + ": expected " + std::to_string(depth.width) + "x" + std::to_string(depth.height) + "x" +
-                       std::to_string(channels) + " like its depth map; rerun the stage that wrote it");
-    }
-    return map;
-  }
-
   void Evaluate(StageContext& context, const SparseModel& model, const std::vector<std::string>& names,
                 const PointCloud& cloud) const {
     const Workspace& workspace = context.workspace;

@@ -337,4 +337,25 @@ RenderResult Downsample(const RenderResult& fine, const ProxySurface& fine_surfa
   return result;
 }
 
+RenderResult FillHoles(const RenderResult& model, const RenderResult& background) {
+  RenderResult filled;
+  filled.image = model.image.clone();
+  filled.coverage = model.coverage.clone();
+  filled.covered_pixels = 0;
+  for (int y = 0; y < filled.image.rows; ++y) {
+    cv::Vec3b* out = filled.image.ptr<cv::Vec3b>(y);
+    uint8_t* covered = filled.coverage.ptr<uint8_t>(y);
+    const cv::Vec3b* fill = background.image.ptr<cv::Vec3b>(y);
+    const uint8_t* fill_covered = background.coverage.ptr<uint8_t>(y);
+    for (int x = 0; x < filled.image.cols; ++x) {
+      if (!covered[x] && fill_covered[x]) {
+        out[x] = fill[x];
+        covered[x] = 255;
+      }
+      if (covered[x]) ++filled.covered_pixels;
+    }
+  }
+  return filled;
+}
+
 }  // namespace ibmr

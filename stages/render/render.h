@@ -113,6 +113,11 @@ struct RenderResult {
 // half of its other sub-samples are.
 RenderResult Downsample(const RenderResult& fine, const ProxySurface& fine_surface, int factor);
 
+// A model's render with its holes filled by a background render of the same view (issue: "a
+// background fallback for every renderer"): covered pixels keep the model's colour, uncovered ones
+// take the background's where it is covered.
+RenderResult FillHoles(const RenderResult& model, const RenderResult& background);
+
 // The renderer: prepares per-source projection data once, then renders any number of views.
 class UlrRenderer {
  public:

@@ -13,12 +13,20 @@
 //                            first hit of the next one counts (e.g. surfels/mesh.ply|hull/hull.ply:
 //                            the hull fills the surface's holes); a missing fallback is ignored with
 //                            a warning.
+//   splat_depth              point splatting of the training views' depth maps (seed 004; splat.h):
+//                            dense/stereo/depth_maps/<view>.<splat_depth_type>.bin with the photos,
+//                            skins and outliers flagged (depth_images.h), every drawable sample kept
+//   splat_depth_merged       the same after tile merging [N 4.6]: one sample per surface point
+//   splat_surfels            the oriented discs of surfels/surfels.ply
 // Writes renders/<proxy>/<image stem>.png and <image stem>.coverage.png (255 covered) per proxy,
 // the primary proxy's copies as renders/<image stem>.png and .coverage.png, and renders/renders.json.
+// With `background: plane`, every other model's holes are also filled from the plane proxy's render
+// of the same view: <image stem>.filled.png and .filled.coverage.png, scored apart by score.
 #include <spdlog/spdlog.h>
 #include <tbb/parallel_for.h>
 
 #include <chrono>
+#include <map>
 #include <set>
 #include <filesystem>
 #include <mutex>
@@ -29,7 +37,9 @@
 #include "pipeline/core/per_view.h"
 #include "pipeline/core/ply_io.h"
 #include "pipeline/core/stage_api.h"
+#include "stages/render/depth_image_io.h"
 #include "stages/render/render.h"
+#include "stages/render/splat.h"
 
 namespace fs = std::filesystem;
 
@@ -37,9 +47,12 @@ namespace ibmr {
 
 namespace {
 
+enum class ModelKind { kPlane, kMesh, kSplatDepth, kSplatDepthMerged, kSplatSurfels };
+
 struct ProxySpec {
   std::string name;
-  std::string path;                    // empty for the plane; absolute otherwise
+  ModelKind kind = ModelKind::kMesh;
+  std::string path;                    // empty for the plane and the depth-image splats; absolute otherwise
   std::vector<std::string> fallbacks;  // absolute paths of meshes that fill where `path` misses
 };
 
@@ -51,15 +64,24 @@ std::string Absolute(const std::string& path, const Workspace& workspace) {
 // stem alone says little ("ground_truth/mesh.ply" -> ground_truth_mesh; "hull/hull.ply" -> hull).
 ProxySpec ParseProxy(const std::string& entry, const Workspace& workspace) {
   ProxySpec spec;
-  if (entry == "plane") {
-    spec.name = "plane";
-    return spec;
-  }
   std::string path = entry;
   const size_t eq = entry.find('=');
   if (eq != std::string::npos) {
     spec.name = entry.substr(0, eq);
     path = entry.substr(eq + 1);
+  }
+  if (path == "plane" || path == "splat_depth" || path == "splat_depth_merged") {
+    spec.kind = path == "plane"         ? ModelKind::kPlane
+                : path == "splat_depth" ? ModelKind::kSplatDepth
+                                        : ModelKind::kSplatDepthMerged;
+    if (spec.name.empty()) spec.name = path;
+    return spec;
+  }
+  if (path == "splat_surfels") {
+    spec.kind = ModelKind::kSplatSurfels;
+    if (spec.name.empty()) spec.name = path;
+    spec.path = workspace.Path("surfels/surfels.ply");
+    return spec;
   }
   for (size_t bar = path.rfind('|'); bar != std::string::npos; bar = path.rfind('|')) {
     spec.fallbacks.insert(spec.fallbacks.begin(), Absolute(path.substr(bar + 1), workspace));
@@ -93,7 +115,7 @@ class RenderStage : public Stage {
   std::string Summary() const override {
     return "Unstructured lumigraph rendering of held-out views from the training views (plane / mesh proxies)";
   }
-  std::string Version() const override { return "1"; }
+  std::string Version() const override { return "2"; }  // 2: splat models, background fill
   HoldoutRole Role() const override { return HoldoutRole::kScoring; }
 
   std::vector<ParamSpec> Parameters() const override {
@@ -116,6 +138,36 @@ class RenderStage : public Stage {
         {"visibility_epsilon", ParamType::kDouble, "0.01", "relative depth tolerance of visibility, in (0, 1)", {}},
         {"supersample", ParamType::kInt, "1",
          "sub-samples per pixel side, box-filtered (anti-aliased silhouettes), in [1, 4]", {}},
+        {"background", ParamType::kString, "plane",
+         "fills every model's holes in a second image <view>.filled.png, scored apart: plane (the plane proxy) or "
+         "none",
+         {}},
+        {"splat_depth_type", ParamType::kString, "geometric",
+         "depth maps splat_depth draws: geometric (multi_depth) or photometric (plane_sweep)", {}},
+        {"splat_radius_scale", ParamType::kDouble, "1",
+         "scales the splats' radii (source pixel half-diagonals, surfel radii), in (0, 8]", {}},
+        {"splat_max_radius_px", ParamType::kDouble, "8", "bound on a splat's radius in output pixels, in [0.5, 256]",
+         {}},
+        {"splat_depth_tolerance", ParamType::kDouble, "0.05",
+         "relative depth band of samples blended at a pixel, in (0, 1)", {}},
+        {"splat_angle_epsilon_deg", ParamType::kDouble, "0.5",
+         "softens the 1/angle^2 weight of a sample's source ray, in (0, 90]", {}},
+        {"splat_k", ParamType::kInt, "4",
+         "source views blended per pixel by splat_depth (ULR's k); 0: all, weighted 1/angle^2, in [0, 8]", {}},
+        {"splat_min_confidence", ParamType::kDouble, "0", "depth samples below this confidence are not drawn, in [0, 1]",
+         {}},
+        {"skin_tolerance", ParamType::kDouble, "0.02", "relative free-space margin of skin detection, in (0, 1)", {}},
+        {"skin_views", ParamType::kInt, "8", "views each depth image is tested against for skins (0: none), in [0, 64]",
+         {}},
+        {"free_space_views", ParamType::kInt, "2",
+         "a depth sample in front of the depth of this many of the skin_views views is dropped (0: kept), in [0, 64]",
+         {}},
+        {"color_tolerance", ParamType::kInt, "0",
+         "a depth sample whose colour differs by more than this (0-255) from most views that see its surface is "
+         "dropped (0: no colour test), in [0, 255]",
+         {}},
+        {"merge_tolerance", ParamType::kDouble, "0.01", "relative depth agreement of merged samples, in (0, 1)", {}},
+        {"merge_views", ParamType::kInt, "8", "views a depth sample is compared with when merging, in [1, 64]", {}},
         {"novel_look_at", ParamType::kDoubleList, "[]",
          "extra camera: eye x y z, target x y z [, up x y z] (intrinsics of the first training view); rendered as "
          "novel.png",
@@ -126,6 +178,22 @@ class RenderStage : public Stage {
   std::optional<ParamError> CheckParams(const Params& params) const override {
     std::string error;
     if (!ToOptions(params).Check(&error)) return ParamError::FromCheck(error);
+    if (!ToSplatOptions(params).Check(&error) || !ToDepthImageOptions(params).Check(&error)) {
+      // The YAML keys carry a prefix the options structs do not know.
+      const ParamError e = ParamError::FromCheck(error);
+      static const std::set<std::string> unprefixed = {"skin_tolerance", "skin_views", "free_space_views", "color_tolerance",
+                                                       "merge_tolerance", "merge_views", "tile_size"};
+      return ParamError{unprefixed.count(e.key) ? e.key : (e.key == "min_confidence" ? "splat_min_confidence" : "splat_" + e.key),
+                        e.message};
+    }
+    const std::string background = params.String("background");
+    if (background != "plane" && background != "none") {
+      return ParamError{"background", "must be plane or none, got \"" + background + "\""};
+    }
+    const std::string depth_type = params.String("splat_depth_type");
+    if (depth_type != "geometric" && depth_type != "photometric") {
+      return ParamError{"splat_depth_type", "must be geometric or photometric, got \"" + depth_type + "\""};
+    }
     if (params.Int("supersample") < 1 || params.Int("supersample") > 4) {
       return ParamError{"supersample", "must be in [1, 4], got " + std::to_string(params.Int("supersample"))};
     }
@@ -144,6 +212,9 @@ class RenderStage : public Stage {
     std::vector<std::string> inputs = {"images", "sparse"};
     for (const std::string& entry : context.params.StringList("proxies")) {
       const ProxySpec spec = ParseProxy(entry, context.workspace);
+      if (spec.kind == ModelKind::kSplatDepth || spec.kind == ModelKind::kSplatDepthMerged) {
+        inputs.push_back(context.workspace.Path("dense/stereo"));
+      }
       if (!spec.path.empty()) inputs.push_back(spec.path);
       inputs.insert(inputs.end(), spec.fallbacks.begin(), spec.fallbacks.end());
     }
@@ -218,28 +289,83 @@ class RenderStage : public Stage {
     Eigen::Vector3d axes_point = Eigen::Vector3d::Zero();
     const bool have_axes_point = PointNearestToAxes(centers, directions, &axes_point);
 
+    const int factor = static_cast<int>(context.params.Int("supersample"));
+    // Leave-one-out sources of a desired view (a training view rendered from the others).
+    const auto sources_for = [&](const std::vector<SourceView>& all, const Desired& view, std::vector<SourceView>* own) {
+      if (!context.params.Bool("exclude_self")) return &all;
+      for (const SourceView& s : all) {
+        if (s.name != view.name) own->push_back(s);
+      }
+      return own->size() != all.size() ? static_cast<const std::vector<SourceView>*>(own) : &all;
+    };
+    // ULR over a plane (no `layers`) or meshes (the first hit of the first mesh that covers a pixel).
+    const auto render_ulr = [&](const std::vector<SourceView>& all, const std::vector<const TriangleMesh*>& layers,
+                                const Desired& view, std::string* plane_kind, size_t* used_sources) {
+      std::vector<SourceView> own;
+      const std::vector<SourceView>* used = sources_for(all, view, &own);
+      *used_sources = used->size();
+      const Camera camera = factor > 1 ? view.camera.Scaled(factor) : view.camera;
+      ProxySurface surface;
+      if (layers.empty()) {
+        Plane plane;
+        if (PlaneAtMeanInverseDepth(sparse_points, view.cam_from_world, &plane)) {
+          *plane_kind = "mean_inverse_depth";
+        } else {
+          plane.normal = view.cam_from_world.Inverse().rotation * Eigen::Vector3d::UnitZ();
+          plane.point = axes_point;
+          *plane_kind = "nearest_to_axes";
+        }
+        surface = PlaneSurface(plane, camera, view.cam_from_world);
+      } else {
+        surface = MeshSurface(layers, camera, view.cam_from_world);
+      }
+      const UlrRenderer renderer(used, options);
+      return Downsample(renderer.Render(camera, view.cam_from_world, surface), surface, factor);
+    };
+    const bool plane_possible = !sparse_points.empty() || have_axes_point;
+
+    // The background that fills every other model's holes (`background: plane`), one per view.
+    std::map<std::string, RenderResult> background;
+    if (context.params.String("background") == "plane" && plane_possible) {
+      std::mutex mutex;
+      std::vector<std::string> keys;
+      for (const Desired& view : desired) keys.push_back(view.stem);
+      ForEachView(context, "render background plane", keys, [&](const std::string& key) {
+        const Desired& view = desired[std::find(keys.begin(), keys.end(), key) - keys.begin()];
+        std::string plane_kind;
+        size_t used = 0;
+        RenderResult result = render_ulr(sources, {}, view, &plane_kind, &used);
+        std::lock_guard<std::mutex> lock(mutex);
+        background[view.stem] = std::move(result);
+      });
+    }
+
     nlohmann::json proxies_json = nlohmann::json::array();
     std::string primary;
     fs::create_directories(context.workspace.Path("renders"));
     for (const std::string& entry : context.params.StringList("proxies")) {
       const ProxySpec spec = ParseProxy(entry, context.workspace);
-      nlohmann::json pj = {{"name", spec.name}, {"path", spec.path.empty() ? "plane" : spec.path}};
+      const bool is_mesh = spec.kind == ModelKind::kMesh;
+      nlohmann::json pj = {{"name", spec.name},
+                           {"path", spec.kind == ModelKind::kPlane ? "plane"
+                                    : spec.path.empty()            ? context.workspace.Path("dense/stereo")
+                                                                   : spec.path}};
+      const auto skip = [&](const std::string& reason) {
+        spdlog::warn("[render] proxy {}: {}; skipped", spec.name, reason);
+        pj["status"] = "skipped";
+        pj["reason"] = reason;
+        proxies_json.push_back(pj);
+      };
       TriangleMesh mesh;
-      if (!spec.path.empty()) {
+      if (is_mesh) {
         if (!fs::exists(spec.path)) {
-          spdlog::warn("[render] proxy {}: {} does not exist; skipped", spec.name, spec.path);
-          pj["status"] = "skipped";
-          pj["reason"] = spec.path + " does not exist";
-          proxies_json.push_back(pj);
+          skip(spec.path + " does not exist");
           continue;
         }
         mesh = ReadMeshPly(spec.path);
         const std::string invalid = mesh.Validate();
         if (mesh.faces.empty() || !invalid.empty()) {
-          spdlog::warn("[render] proxy {}: {} has no usable faces ({}); skipped", spec.name, spec.path, invalid);
-          pj["status"] = "skipped";
-          pj["reason"] = spec.path + " has no usable faces";
-          proxies_json.push_back(pj);
+          skip(spec.path + " has no usable faces" + (invalid.empty() ? "" : " (" + invalid + ")"));
           continue;
         }
       }
@@ -252,57 +378,89 @@ class RenderStage : public Stage {
         }
         fallbacks.push_back(std::move(fallback));
       }
-      std::vector<const TriangleMesh*> layers = {&mesh};
+      std::vector<const TriangleMesh*> layers;
+      if (is_mesh) layers.push_back(&mesh);
       for (const TriangleMesh& fallback : fallbacks) layers.push_back(&fallback);
       if (!fallbacks.empty()) pj["fallbacks"] = spec.fallbacks;
-      if (spec.path.empty() && sparse_points.empty() && !have_axes_point) {
+      if (spec.kind == ModelKind::kPlane && !plane_possible) {
         throw InputError("render: plane proxy: no sparse points and the training optical axes are parallel; "
                          "list a mesh proxy instead");
       }
+      const auto start = std::chrono::steady_clock::now();
+      // Splat models: the samples once, then any number of views.
+      SplatCloud cloud;
+      if (spec.kind == ModelKind::kSplatSurfels) {
+        if (!fs::exists(spec.path)) {
+          skip(spec.path + " does not exist (run the surfels stage)");
+          continue;
+        }
+        cloud = CloudFromSurfels(ReadPointCloudPly(spec.path), 0.f);
+        if (cloud.size() == 0) {
+          skip(spec.path + " holds no finite surfel");
+          continue;
+        }
+        pj["samples"] = cloud.size();
+      } else if (spec.kind == ModelKind::kSplatDepth || spec.kind == ModelKind::kSplatDepthMerged) {
+        SplatModelStats stats;
+        try {
+          stats = BuildDepthSplats(context, model, training, spec.kind == ModelKind::kSplatDepthMerged, &cloud);
+        } catch (const InputError& e) {  // no depth maps (yet): like a missing mesh, not fatal
+          skip(e.what());
+          continue;
+        }
+        pj["samples_before_merge"] = stats.drawable;
+        pj["samples"] = cloud.size();
+        pj["skin_connections"] = stats.skins;
+        pj["outliers"] = stats.outliers;
+        pj["merged_away"] = stats.merged;
+        pj["prepare_seconds"] = stats.seconds;
+        context.metrics["samples_" + spec.name] = cloud.size();
+      }
       const bool is_primary = primary.empty();
       if (is_primary) primary = spec.name;
-      const auto start = std::chrono::steady_clock::now();
       std::vector<SourceView> proxy_sources = sources;  // shares pixels; depth maps per proxy
-      if (!spec.path.empty()) {
+      if (is_mesh) {
         tbb::parallel_for(size_t{0}, proxy_sources.size(), [&](size_t i) {
           proxy_sources[i].proxy_depth = MeshDepth(layers, proxy_sources[i].camera, proxy_sources[i].cam_from_world);
         });
       }
+      const SplatOptions splat_options = ToSplatOptions(context.params);
       const std::string folder = context.workspace.Path("renders/" + spec.name);
       fs::create_directories(folder);
       std::mutex mutex;
       nlohmann::json views_json = nlohmann::json::object();
       std::vector<std::string> keys;
       for (const Desired& view : desired) keys.push_back(spec.name + "__" + view.stem);
+      double splat_seconds = 0, splat_megapixels = 0;
       ForEachView(context, "render " + spec.name, keys, [&](const std::string& key) {
         const Desired& view = desired[std::find(keys.begin(), keys.end(), key) - keys.begin()];
-        std::vector<SourceView> own;
-        const std::vector<SourceView>* used = &proxy_sources;
-        if (context.params.Bool("exclude_self")) {
-          for (const SourceView& s : proxy_sources) {
-            if (s.name != view.name) own.push_back(s);
-          }
-          if (own.size() != proxy_sources.size()) used = &own;
-        }
-        const int factor = static_cast<int>(context.params.Int("supersample"));
-        const Camera camera = factor > 1 ? view.camera.Scaled(factor) : view.camera;
-        ProxySurface surface;
         std::string plane_kind;
-        if (spec.path.empty()) {
-          Plane plane;
-          if (PlaneAtMeanInverseDepth(sparse_points, view.cam_from_world, &plane)) {
-            plane_kind = "mean_inverse_depth";
-          } else {
-            plane.normal = view.cam_from_world.Inverse().rotation * Eigen::Vector3d::UnitZ();
-            plane.point = axes_point;
-            plane_kind = "nearest_to_axes";
-          }
-          surface = PlaneSurface(plane, camera, view.cam_from_world);
+        size_t used_sources = 0;
+        RenderResult result;
+        if (spec.kind == ModelKind::kPlane || is_mesh) {
+          result = render_ulr(proxy_sources, layers, view, &plane_kind, &used_sources);
         } else {
-          surface = MeshSurface(layers, camera, view.cam_from_world);
+          const auto splat_start = std::chrono::steady_clock::now();
+          const Camera camera = factor > 1 ? view.camera.Scaled(factor) : view.camera;
+          const SplatImage splats = RenderSplats(cloud, camera, view.cam_from_world, splat_options);
+          ProxySurface surface;  // Downsample needs only which sub-samples were hit
+          surface.width = camera.width;
+          surface.height = camera.height;
+          surface.hit.assign(static_cast<size_t>(camera.width) * camera.height, 0);
+          for (int y = 0; y < camera.height; ++y) {
+            for (int x = 0; x < camera.width; ++x) surface.hit[static_cast<size_t>(y) * camera.width + x] = splats.coverage.at<uint8_t>(y, x) != 0;
+          }
+          RenderResult fine;
+          fine.image = splats.image;
+          fine.coverage = splats.coverage;
+          fine.covered_pixels = splats.covered_pixels;
+          result = Downsample(fine, surface, factor);
+          used_sources = spec.kind == ModelKind::kSplatSurfels ? 0 : training.size();
+          const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - splat_start).count();
+          std::lock_guard<std::mutex> lock(mutex);
+          splat_seconds += seconds;
+          splat_megapixels += 1e-6 * view.camera.width * view.camera.height;
         }
-        const UlrRenderer renderer(used, options);
-        const RenderResult result = Downsample(renderer.Render(camera, view.cam_from_world, surface), surface, factor);
         WriteImage(folder + "/" + view.stem + ".png", result.image);
         WriteImage(folder + "/" + view.stem + ".coverage.png", result.coverage);
         if (is_primary) {
@@ -313,8 +471,15 @@ class RenderStage : public Stage {
                              {"render", "renders/" + spec.name + "/" + view.stem + ".png"},
                              {"coverage", static_cast<double>(result.covered_pixels) /
                                               (static_cast<double>(view.camera.width) * view.camera.height)},
-                             {"sources", used->size()}};
+                             {"sources", used_sources}};
         if (!plane_kind.empty()) vj["plane"] = plane_kind;
+        const auto fill = background.find(view.stem);
+        if (spec.kind != ModelKind::kPlane && fill != background.end()) {
+          const RenderResult filled = FillHoles(result, fill->second);
+          WriteImage(folder + "/" + view.stem + ".filled.png", filled.image);
+          WriteImage(folder + "/" + view.stem + ".filled.coverage.png", filled.coverage);
+          vj["filled"] = "renders/" + spec.name + "/" + view.stem + ".filled.png";
+        }
         std::lock_guard<std::mutex> lock(mutex);
         views_json[view.name] = vj;
       });
@@ -323,6 +488,11 @@ class RenderStage : public Stage {
       pj["primary"] = is_primary;
       pj["views"] = views_json;
       pj["seconds"] = seconds;
+      if (cloud.size() > 0 && splat_megapixels > 0) {
+        // Speed of the splatting alone: milliseconds per output megapixel per million samples.
+        pj["ms_per_megapixel_per_million_splats"] = 1e3 * splat_seconds / splat_megapixels / (1e-6 * cloud.size());
+        context.metrics["ms_per_megapixel_per_million_splats_" + spec.name] = pj["ms_per_megapixel_per_million_splats"];
+      }
       proxies_json.push_back(pj);
       context.metrics["seconds_" + spec.name] = seconds;
       spdlog::info("[render] proxy {}: {} views in {:.2f} s", spec.name, desired.size(), seconds);
@@ -342,6 +512,57 @@ class RenderStage : public Stage {
   }
 
  private:
+  struct SplatModelStats {
+    size_t drawable = 0, skins = 0, outliers = 0, merged = 0;
+    double seconds = 0;
+  };
+
+  // The splat_depth model: the training views' depth images, flagged, skins found, merged [N 4.3-4.6].
+  static SplatModelStats BuildDepthSplats(StageContext& context, const SparseModel& model,
+                                          const std::vector<std::string>& training, bool merge, SplatCloud* cloud) {
+    const auto start = std::chrono::steady_clock::now();
+    DepthImageOptions options = ToDepthImageOptions(context.params);
+    options.merge = merge;
+    std::vector<DepthImage> images =
+        LoadDepthImages(context.workspace, model, training, context.params.String("splat_depth_type"));
+    SplatModelStats stats;
+    for (DepthImage& image : images) {
+      FlagSamples(&image, options.min_confidence);
+      for (const uint8_t flag : image.flags) stats.drawable += IsDrawable(flag);
+    }
+    stats.skins = DetectSkins(&images, options, &stats.outliers);
+    stats.merged = MergeTiles(&images, options);
+    *cloud = CloudFromDepthImages(images);
+    stats.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    spdlog::info("[render] splat_depth{}: {} views, {} samples, {} skin connections, {} outliers, {} merged "
+                 "away -> {} splats ({:.1f} s)",
+                 merge ? "_merged" : "", images.size(), stats.drawable, stats.skins, stats.outliers, stats.merged,
+                 cloud->size(), stats.seconds);
+    return stats;
+  }
+
+  static SplatOptions ToSplatOptions(const Params& params) {
+    SplatOptions options;
+    options.radius_scale = params.Double("splat_radius_scale");
+    options.max_radius_px = params.Double("splat_max_radius_px");
+    options.depth_tolerance = params.Double("splat_depth_tolerance");
+    options.angle_epsilon_deg = params.Double("splat_angle_epsilon_deg");
+    options.k = static_cast<int>(params.Int("splat_k"));
+    return options;
+  }
+
+  static DepthImageOptions ToDepthImageOptions(const Params& params) {
+    DepthImageOptions options;
+    options.min_confidence = params.Double("splat_min_confidence");
+    options.skin_tolerance = params.Double("skin_tolerance");
+    options.skin_views = static_cast<int>(params.Int("skin_views"));
+    options.free_space_views = static_cast<int>(params.Int("free_space_views"));
+    options.color_tolerance = static_cast<int>(params.Int("color_tolerance"));
+    options.merge_tolerance = params.Double("merge_tolerance");
+    options.merge_views = static_cast<int>(params.Int("merge_views"));
+    return options;
+  }
+
   static RenderOptions ToOptions(const Params& params) {
     RenderOptions options;
     options.k = static_cast<int>(params.Int("k"));

@@ -355,7 +355,10 @@ TEST(RenderStage, RendersHeldOutViewsAndSkipsMissingProxy) {
   context.heldout_images = {"v0.png", "v4.png"};
   for (const ParamSpec& spec : stage->Parameters()) {
     if (spec.key == "proxies") {
-      context.params.Set("proxies", std::vector<std::string>{"ground_truth/mesh.ply", "plane", "hull/hull.ply"});
+      context.params.Set("proxies", std::vector<std::string>{"ground_truth/mesh.ply", "plane", "hull/hull.ply",
+                                                             "splat_depth", "splat_surfels"});
+    } else if (spec.type == ParamType::kString) {
+      context.params.Set(spec.key, spec.default_yaml);
     } else if (spec.type == ParamType::kInt) {
       context.params.Set(spec.key, static_cast<int64_t>(std::stoll(spec.default_yaml)));
     } else if (spec.type == ParamType::kDouble) {
@@ -377,9 +380,19 @@ TEST(RenderStage, RendersHeldOutViewsAndSkipsMissingProxy) {
   EXPECT_TRUE(fs::exists(root / "renders/v4.png"));
   const nlohmann::json summary = nlohmann::json::parse(std::ifstream((root / "renders/renders.json").string()));
   EXPECT_EQ(summary["primary"], "ground_truth_mesh");
-  ASSERT_EQ(summary["proxies"].size(), 3u);
+  ASSERT_EQ(summary["proxies"].size(), 5u);
   EXPECT_EQ(summary["proxies"][2]["status"], "skipped");
   EXPECT_NE(summary["proxies"][2]["reason"].get<std::string>().find("hull/hull.ply"), std::string::npos);
+  // No depth maps and no surfels in this workspace: the splat models are skipped, naming the file.
+  EXPECT_EQ(summary["proxies"][3]["status"], "skipped");
+  EXPECT_NE(summary["proxies"][3]["reason"].get<std::string>().find(".geometric.bin"), std::string::npos)
+      << summary["proxies"][3]["reason"];
+  EXPECT_EQ(summary["proxies"][4]["status"], "skipped");
+  EXPECT_NE(summary["proxies"][4]["reason"].get<std::string>().find("surfels/surfels.ply"), std::string::npos);
+  // background: plane fills the mesh model's holes in a second image; the plane itself has none.
+  EXPECT_TRUE(fs::exists(root / "renders/ground_truth_mesh/v0.filled.png"));
+  EXPECT_TRUE(fs::exists(root / "renders/ground_truth_mesh/v0.filled.coverage.png"));
+  EXPECT_FALSE(fs::exists(root / "renders/plane/v0.filled.png"));
   for (const auto& name : {"v1.png", "v2.png", "v3.png", "v5.png"}) {
     EXPECT_NE(std::find(summary["training_views"].begin(), summary["training_views"].end(), name),
               summary["training_views"].end());

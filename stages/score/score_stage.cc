@@ -34,8 +34,9 @@ nlohmann::json ToJson(const MaskedScore& s) {
 
 // Mean of the per-view entries' metrics over the views selected by `use`.
 nlohmann::json Mean(const nlohmann::json& views, const std::function<bool(const nlohmann::json&)>& use) {
-  const char* const keys[] = {"psnr",     "ssim",       "coverage",   "mask_psnr",     "mask_ssim",
-                              "mask_coverage", "photo_psnr", "photo_ssim", "photo_coverage"};
+  const char* const keys[] = {"psnr",          "ssim",          "coverage",        "mask_psnr",
+                              "mask_ssim",     "mask_coverage", "photo_psnr",      "photo_ssim",
+                              "photo_coverage", "filled_psnr",  "filled_coverage", "filled_photo_psnr"};
   std::map<std::string, std::pair<double, int>> sums;
   int count = 0;
   for (const auto& [name, view] : views.items()) {
@@ -59,7 +60,7 @@ class ScoreStage : public Stage {
   std::string Summary() const override {
     return "Held-out-view cross-validation: PSNR, SSIM, coverage, masked error, angle to the nearest training view";
   }
-  std::string Version() const override { return "2"; }  // 2: photo_* scores
+  std::string Version() const override { return "3"; }  // 2: photo_* scores; 3: filled_* scores
   HoldoutRole Role() const override { return HoldoutRole::kScoring; }
 
   std::vector<ParamSpec> Parameters() const override {
@@ -233,6 +234,22 @@ class ScoreStage : public Stage {
       v["photo_coverage"] = score.photo.coverage;
     }
     if (options.gain_correction) v["gains_bgr"] = {score.gains[0], score.gains[1], score.gains[2]};
+    // The render with its holes filled by the background (render.background): the same metrics,
+    // so a model is judged both alone (holes black) and as it would be shown.
+    const std::string filled_path = ws.Path("renders/" + proxy + "/" + stem + ".filled.png");
+    const std::string filled_coverage_path = ws.Path("renders/" + proxy + "/" + stem + ".filled.coverage.png");
+    if (fs::exists(filled_path) && fs::exists(filled_coverage_path)) {
+      const cv::Mat filled = ReadImageColor(filled_path);
+      const cv::Mat filled_coverage = ReadImageUnchanged(filled_coverage_path);
+      if (filled.size() != real.size() || filled_coverage.size() != real.size() || filled_coverage.type() != CV_8UC1) {
+        throw InputError(filled_path + ": size differs from the photo " + real_path + "; re-run the render stage");
+      }
+      const ImageScore filled_score = ScoreImage(real, filled, filled_coverage, mask, options);
+      v["filled_psnr"] = filled_score.all.psnr;
+      v["filled_ssim"] = filled_score.all.ssim;
+      v["filled_coverage"] = filled_score.all.coverage;
+      if (filled_score.photo.pixels > 0) v["filled_photo_psnr"] = filled_score.photo.psnr;
+    }
     if (const Image* image = model.FindImage(image_name)) {
       std::vector<Eigen::Vector3d> others;
       std::vector<std::string> other_names;

@@ -1,0 +1,21 @@
+// Reads the depth images of seed 004's model (depth_images.h) from the workspace: per training
+// view its photo, its depth map of `kind` (photometric or geometric, COLMAP's .bin arrays under
+// dense/stereo/), and the confidence and normal maps beside it when they exist. The photo is
+// resampled to the depth map's resolution (area averaging) and the camera scaled with it.
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include "pipeline/core/sparse_model.h"
+#include "pipeline/core/workspace.h"
+#include "stages/render/depth_images.h"
+
+namespace ibmr {
+
+// Throws InputError naming the missing depth map (and the stage to run) or a photo whose size
+// disagrees with its camera. Views load in parallel.
+std::vector<DepthImage> LoadDepthImages(const Workspace& workspace, const SparseModel& model,
+                                        const std::vector<std::string>& names, const std::string& kind);
+
+}  // namespace ibmr

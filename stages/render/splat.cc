@@ -1,0 +1,323 @@
+// Point splatting with quadratic depth falloff and blending by confidence and angle (seed 004
+// section 5.4). See splat.h.
+#include "stages/render/splat.h"
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+#include "pipeline/core/depth_normals.h"
+
+namespace ibmr {
+
+namespace {
+
+constexpr int kBandRows = 16;  // rows of one band; a band's buffers stay in cache
+// Smallest radius drawn, in desired pixels: a disc this wide always contains a pixel centre, so a
+// minified sample is never lost between pixel centres.
+constexpr float kMinRadius = 0.71f;
+// A depth sample's disc: the smallest that covers its pixel's square, half the pixel's diagonal.
+constexpr float kHalfDiagonal = 0.70710678f;
+
+// One sample as the desired camera sees it.
+struct Projected {
+  float u, v, z;     // pixel coordinates (COLMAP convention: pixel centres at +0.5) and depth
+  float radius;      // pixels
+  float confidence;
+  float angle;       // radians between the source ray and the desired ray at the sample (0: a surfel)
+  int source;        // the sample's source view (-1: a surfel)
+  uint32_t sample;   // index into the cloud (its colour)
+};
+
+// The k sources with the smallest angles among the samples at one pixel (ULR's neighbourhood
+// [U 124]), ascending; a source appears once, with its smallest angle.
+struct Nearest {
+  static constexpr int kMax = 8;
+  float angle[kMax];
+  int source[kMax];
+  int count = 0;
+
+  void Add(int src, float a, int k) {
+    for (int j = 0; j < count; ++j) {
+      if (source[j] != src) continue;
+      if (a >= angle[j]) return;
+      // Smaller angle for a listed source: bubble it up.
+      for (; j > 0 && angle[j - 1] > a; --j) {
+        angle[j] = angle[j - 1];
+        source[j] = source[j - 1];
+      }
+      angle[j] = a;
+      source[j] = src;
+      return;
+    }
+    if (count == k && a >= angle[k - 1]) return;
+    int j = count < k ? count++ : k - 1;
+    for (; j > 0 && angle[j - 1] > a; --j) {
+      angle[j] = angle[j - 1];
+      source[j] = source[j - 1];
+    }
+    angle[j] = a;
+    source[j] = src;
+  }
+  bool Has(int src) const {
+    for (int j = 0; j < count; ++j) {
+      if (source[j] == src) return true;
+    }
+    return false;
+  }
+};
+
+bool Fail(std::string* error, const std::string& key, const std::string& what) {
+  *error = key + ": " + what;
+  return false;
+}
+
+}  // namespace
+
+bool SplatOptions::Check(std::string* error) const {
+  if (!(radius_scale > 0 && radius_scale <= 8)) return Fail(error, "radius_scale", "must be in (0, 8]");
+  if (!(max_radius_px >= 0.5 && max_radius_px <= 256)) return Fail(error, "max_radius_px", "must be in [0.5, 256]");
+  if (!(depth_tolerance > 0 && depth_tolerance < 1)) return Fail(error, "depth_tolerance", "must be in (0, 1)");
+  if (k < 0 || k > 8) return Fail(error, "k", "must be in [0, 8]");
+  if (!(angle_epsilon_deg > 0 && angle_epsilon_deg <= 90)) {
+    return Fail(error, "angle_epsilon_deg", "must be in (0, 90]");
+  }
+  return true;
+}
+
+SplatCloud CloudFromDepthImages(const std::vector<DepthImage>& images) {
+  SplatCloud cloud;
+  for (size_t i = 0; i < images.size(); ++i) {
+    const DepthImage& image = images[i];
+    const Eigen::Matrix3f world_from_cam = image.cam_from_world.R().transpose().cast<float>();
+    const Eigen::Vector3f center = image.cam_from_world.Inverse().translation.cast<float>();
+    cloud.source_centers.push_back(center);
+    const std::vector<Eigen::Vector3f> rays = PixelRays(image.camera, image.width(), image.height());
+    const float focal = static_cast<float>(std::sqrt(image.camera.FocalX() * image.camera.FocalY()));
+    for (int y = 0; y < image.height(); ++y) {
+      for (int x = 0; x < image.width(); ++x) {
+        const size_t k = static_cast<size_t>(y) * image.width() + x;
+        if (!image.flags.empty() && !IsDrawable(image.flags[k])) continue;
+        const float z = image.depth.data[k];
+        if (!IsValidDepth(z)) continue;
+        cloud.positions.push_back(world_from_cam * (rays[k] * z) + center);
+        Eigen::Vector3f normal = Eigen::Vector3f::Zero();
+        if (!image.normals.Empty()) {
+          const Eigen::Vector3f n(image.normals.At(x, y, 0), image.normals.At(x, y, 1), image.normals.At(x, y, 2));
+          if (n.squaredNorm() > 0.25f) normal = world_from_cam * n.normalized();
+        }
+        cloud.normals.push_back(normal);
+        cloud.colors.push_back(image.image.at<cv::Vec3b>(y, x));
+        cloud.confidence.push_back(std::max(image.Confidence(x, y), 1e-3f));
+        cloud.footprint.push_back(kHalfDiagonal * z / focal);
+        cloud.source.push_back(static_cast<int>(i));
+      }
+    }
+  }
+  return cloud;
+}
+
+SplatCloud CloudFromSurfels(const PointCloud& surfels, float default_radius) {
+  SplatCloud cloud;
+  for (size_t i = 0; i < surfels.size(); ++i) {
+    if (!surfels.positions[i].allFinite()) continue;
+    cloud.positions.push_back(surfels.positions[i]);
+    Eigen::Vector3f normal = Eigen::Vector3f::Zero();
+    if (i < surfels.normals.size() && surfels.normals[i].allFinite() && surfels.normals[i].squaredNorm() > 0.25f) {
+      normal = surfels.normals[i].normalized();
+    }
+    cloud.normals.push_back(normal);
+    const Color3u8 c = i < surfels.colors.size() ? surfels.colors[i] : Color3u8{128, 128, 128};
+    cloud.colors.push_back(cv::Vec3b(c[2], c[1], c[0]));
+    const float confidence = i < surfels.confidence.size() ? surfels.confidence[i] : 1.f;
+    cloud.confidence.push_back(std::isfinite(confidence) ? std::max(confidence, 1e-3f) : 1.f);
+    const float radius = i < surfels.radius.size() ? surfels.radius[i] : default_radius;
+    cloud.footprint.push_back(std::isfinite(radius) && radius > 0 ? radius : default_radius);
+    cloud.source.push_back(-1);
+  }
+  return cloud;
+}
+
+SplatImage RenderSplats(const SplatCloud& cloud, const Camera& camera, const Rigid3d& cam_from_world,
+                        const SplatOptions& options) {
+  const int width = camera.width, height = camera.height;
+  SplatImage out;
+  out.image = cv::Mat(height, width, CV_8UC3, cv::Scalar::all(0));
+  out.coverage = cv::Mat(height, width, CV_8UC1, cv::Scalar::all(0));
+  out.depth = DepthMap(width, height, 1, 0.f);
+  if (cloud.size() == 0 || width <= 0 || height <= 0) return out;
+
+  const Eigen::Matrix3f rotation = cam_from_world.R().cast<float>();
+  const Eigen::Vector3f translation = cam_from_world.translation.cast<float>();
+  const Eigen::Vector3f desired_center = cam_from_world.Inverse().translation.cast<float>();
+  const float fx = static_cast<float>(camera.FocalX()), fy = static_cast<float>(camera.FocalY());
+  const float cx = static_cast<float>(camera.PrincipalX()), cy = static_cast<float>(camera.PrincipalY());
+  const float focal = std::sqrt(fx * fy);
+  const float radius_scale = static_cast<float>(options.radius_scale);
+  const float max_radius = std::max(static_cast<float>(options.max_radius_px), kMinRadius);
+  const double epsilon = options.angle_epsilon_deg * M_PI / 180.0;
+  const float epsilon2 = static_cast<float>(epsilon * epsilon);
+  const float epsilon_angle = static_cast<float>(epsilon);
+  const int k = options.k;
+
+  // 1. Project every sample (parallel); samples outside the image or facing away are marked by
+  //    a negative radius.
+  std::vector<Projected> projected(cloud.size());
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, cloud.size()), [&](const tbb::blocked_range<size_t>& range) {
+    for (size_t i = range.begin(); i < range.end(); ++i) {
+      Projected& s = projected[i];
+      s.radius = -1;
+      const Eigen::Vector3f& p = cloud.positions[i];
+      const Eigen::Vector3f x = rotation * p + translation;
+      if (!(x.z() > 0)) continue;
+      const Eigen::Vector3f to_desired = desired_center - p;
+      const Eigen::Vector3f& n = cloud.normals[i];
+      // A disc (or a depth sample's tangent plane) seen from behind is not drawn; a small margin
+      // keeps noisy normals at grazing angles.
+      if (n.dot(to_desired) < -0.1f * to_desired.norm()) continue;
+      s.u = fx * x.x() / x.z() + cx;
+      s.v = fy * x.y() / x.z() + cy;
+      s.z = x.z();
+      s.radius = std::clamp(radius_scale * focal * cloud.footprint[i] / x.z(), kMinRadius, max_radius);
+      if (s.u + s.radius < 0 || s.v + s.radius < 0 || s.u - s.radius > width || s.v - s.radius > height ||
+          !std::isfinite(s.u) || !std::isfinite(s.v)) {
+        s.radius = -1;
+        continue;
+      }
+      s.angle = 0;
+      s.source = cloud.source[i];
+      if (s.source >= 0) {
+        const Eigen::Vector3f to_source = cloud.source_centers[s.source] - p;
+        s.angle = std::atan2(to_source.cross(to_desired).norm(), to_source.dot(to_desired));
+      }
+      s.confidence = cloud.confidence[i];
+      s.sample = static_cast<uint32_t>(i);
+    }
+  });
+
+  // 2. Bin the samples by bands of rows (counting sort; a splat spanning two bands is in both).
+  const int bands = (height + kBandRows - 1) / kBandRows;
+  const auto row_range = [&](const Projected& s, int* y0, int* y1) {
+    *y0 = std::max(0, static_cast<int>(std::ceil(s.v - s.radius - 0.5f)));
+    *y1 = std::min(height - 1, static_cast<int>(std::floor(s.v + s.radius - 0.5f)));
+  };
+  std::vector<uint32_t> band_start(bands + 1, 0);
+  for (const Projected& s : projected) {
+    if (s.radius < 0) continue;
+    int y0, y1;
+    row_range(s, &y0, &y1);
+    if (y0 > y1) continue;
+    for (int b = y0 / kBandRows; b <= y1 / kBandRows; ++b) ++band_start[b + 1];
+    ++out.splats_drawn;
+  }
+  for (int b = 0; b < bands; ++b) band_start[b + 1] += band_start[b];
+  std::vector<uint32_t> band_items(band_start[bands]);
+  {
+    std::vector<uint32_t> fill(band_start.begin(), band_start.end() - 1);
+    for (size_t i = 0; i < projected.size(); ++i) {
+      const Projected& s = projected[i];
+      if (s.radius < 0) continue;
+      int y0, y1;
+      row_range(s, &y0, &y1);
+      if (y0 > y1) continue;
+      for (int b = y0 / kBandRows; b <= y1 / kBandRows; ++b) band_items[fill[b]++] = static_cast<uint32_t>(i);
+    }
+  }
+
+  // 3. Per band: the front-most falloff depth, then the blend of every sample within the tolerance.
+  const float half_tolerance = static_cast<float>(options.depth_tolerance) * 0.5f;
+  const float band_tolerance = 1.f + static_cast<float>(options.depth_tolerance);
+  std::vector<size_t> band_covered(bands, 0), band_hits(bands, 0);
+  tbb::parallel_for(0, bands, [&](int band) {
+    const int row0 = band * kBandRows, row1 = std::min(height, row0 + kBandRows);
+    const size_t pixels = static_cast<size_t>(row1 - row0) * width;
+    std::vector<float> front(pixels, std::numeric_limits<float>::infinity());
+    std::vector<float> sum(4 * pixels, 0.f);  // B, G, R, weight
+    // Visits the pixel centres of splat `s` inside this band with (offset, squared normalised radius).
+    const auto for_pixels = [&](const Projected& s, auto&& visit) {
+      const int y0 = std::max(row0, static_cast<int>(std::ceil(s.v - s.radius - 0.5f)));
+      const int y1 = std::min(row1 - 1, static_cast<int>(std::floor(s.v + s.radius - 0.5f)));
+      const int x0 = std::max(0, static_cast<int>(std::ceil(s.u - s.radius - 0.5f)));
+      const int x1 = std::min(width - 1, static_cast<int>(std::floor(s.u + s.radius - 0.5f)));
+      const float inverse_r2 = 1.f / (s.radius * s.radius);
+      for (int y = y0; y <= y1; ++y) {
+        const float dy = y + 0.5f - s.v;
+        for (int x = x0; x <= x1; ++x) {
+          const float dx = x + 0.5f - s.u;
+          const float d2 = (dx * dx + dy * dy) * inverse_r2;
+          if (d2 < 1.f) visit(static_cast<size_t>(y - row0) * width + x, d2);
+        }
+      }
+    };
+    const uint32_t first = band_start[band], last = band_start[band + 1];
+    // With k > 0, a pixel first picks its k nearest sources among every sample that lands on it;
+    // only their samples take part in the z test and the blend. Each source's depth map is one
+    // consistent surface, so an outlier of a distant view can neither hide nor tint the pixel.
+    std::vector<Nearest> nearest(k > 0 ? pixels : 0);
+    if (k > 0) {
+      for (uint32_t item = first; item < last; ++item) {
+        const Projected& s = projected[band_items[item]];
+        for_pixels(s, [&](size_t pixel, float) { nearest[pixel].Add(s.source, s.angle, k); });
+      }
+    }
+    const auto counts = [&](const Projected& s, size_t pixel) { return k == 0 || nearest[pixel].Has(s.source); };
+    for (uint32_t item = first; item < last; ++item) {
+      const Projected& s = projected[band_items[item]];
+      for_pixels(s, [&](size_t pixel, float d2) {
+        if (counts(s, pixel)) front[pixel] = std::min(front[pixel], s.z * (1.f + half_tolerance * d2));
+      });
+    }
+    const auto in_front = [&](const Projected& s, size_t pixel, float d2) {
+      return s.z * (1.f + half_tolerance * d2) <= front[pixel] * band_tolerance;
+    };
+    for (uint32_t item = first; item < last; ++item) {
+      const Projected& s = projected[band_items[item]];
+      const cv::Vec3b& color = cloud.colors[s.sample];
+      for_pixels(s, [&](size_t pixel, float d2) {
+        if (!counts(s, pixel) || !in_front(s, pixel, d2)) return;
+        float angle_weight;
+        if (k > 0) {
+          const Nearest& n = nearest[pixel];
+          // ULR [U 124-130]: threshold at the k-th smallest angle (pi when fewer sources see the
+          // pixel), weight (1 - angle / threshold) / angle.
+          const float threshold = n.count == k ? n.angle[k - 1] : static_cast<float>(M_PI);
+          angle_weight = std::max(0.f, 1.f - s.angle / threshold) / std::max(s.angle, epsilon_angle);
+          if (n.count == k && angle_weight <= 0 && n.angle[0] == threshold) angle_weight = 1.f;  // all equal
+        } else {
+          angle_weight = 1.f / (s.angle * s.angle + epsilon2);
+        }
+        const float w = s.confidence * angle_weight * (1.f - d2);
+        if (!(w > 0)) return;
+        float* acc = &sum[4 * pixel];
+        acc[0] += w * color[0];
+        acc[1] += w * color[1];
+        acc[2] += w * color[2];
+        acc[3] += w;
+        ++band_hits[band];
+      });
+    }
+    for (int y = row0; y < row1; ++y) {
+      cv::Vec3b* row = out.image.ptr<cv::Vec3b>(y);
+      uint8_t* covered = out.coverage.ptr<uint8_t>(y);
+      for (int x = 0; x < width; ++x) {
+        const size_t pixel = static_cast<size_t>(y - row0) * width + x;
+        const float* acc = &sum[4 * pixel];
+        if (!(acc[3] > 0)) continue;
+        for (int c = 0; c < 3; ++c) row[x][c] = cv::saturate_cast<uint8_t>(acc[c] / acc[3]);
+        covered[x] = 255;
+        out.depth.At(x, y) = front[pixel];
+        ++band_covered[band];
+      }
+    }
+  });
+  for (int b = 0; b < bands; ++b) {
+    out.covered_pixels += band_covered[b];
+    out.pixel_hits += band_hits[b];
+  }
+  return out;
+}
+
+}  // namespace ibmr

@@ -1,0 +1,220 @@
+// Tests of point splatting from depth images and surfels (seed 004): no holes and bounded overlap on
+// a fronto-parallel plane at the source resolution, epipole consistency, skins across a depth step
+// (found where another view saw through them, never drawn), tile merging that culls redundancy but
+// no surface, back-facing surfels, option checks.
+#include "stages/render/splat.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+#include "stages/render/depth_images.h"
+
+namespace ibmr {
+namespace {
+
+constexpr int kWidth = 80, kHeight = 60;
+constexpr double kFocal = 70;
+
+cv::Vec3b Texture(double x, double y) {
+  const double r = 128 + 90 * std::sin(7.0 * x + 1.3 * std::cos(5.0 * y));
+  const double g = 128 + 90 * std::sin(6.0 * y + 0.7) * std::cos(3.0 * x);
+  const double b = 128 + 90 * std::cos(4.0 * (x + y));
+  return cv::Vec3b(cv::saturate_cast<uint8_t>(b), cv::saturate_cast<uint8_t>(g), cv::saturate_cast<uint8_t>(r));
+}
+
+Camera TestCamera() { return Camera::Pinhole(kWidth, kHeight, kFocal, kFocal, kWidth / 2.0, kHeight / 2.0); }
+
+// A camera at `center` looking along +z (identity rotation).
+Rigid3d At(const Eigen::Vector3d& center) { return Rigid3d(Eigen::Matrix3d::Identity(), -center); }
+
+// Scene: a background plane z = 4 and, when `step`, a foreground square |x|, |y| <= 0.4 at z = 2.
+// Exact depth image (ray cast through pixel centres), colours from the texture, normals -z.
+DepthImage View(const Eigen::Vector3d& center, bool step, const std::string& name) {
+  DepthImage image;
+  image.name = name;
+  image.camera = TestCamera();
+  image.cam_from_world = At(center);
+  image.depth = DepthMap(kWidth, kHeight);
+  image.normals = FloatMap(kWidth, kHeight, 3);
+  image.image = cv::Mat(kHeight, kWidth, CV_8UC3);
+  for (int y = 0; y < kHeight; ++y) {
+    for (int x = 0; x < kWidth; ++x) {
+      const Eigen::Vector3d ray((x + 0.5 - kWidth / 2.0) / kFocal, (y + 0.5 - kHeight / 2.0) / kFocal, 1.0);
+      double z = 4 - center.z();
+      Eigen::Vector3d p = center + ray * z;
+      if (step) {
+        const double zf = 2 - center.z();
+        const Eigen::Vector3d q = center + ray * zf;
+        if (std::abs(q.x()) <= 0.4 && std::abs(q.y()) <= 0.4) {
+          z = zf;
+          p = q;
+        }
+      }
+      image.depth.At(x, y) = static_cast<float>(z);
+      image.normals.At(x, y, 2) = -1.f;
+      image.image.at<cv::Vec3b>(y, x) = Texture(p.x() + (z < 3 ? 0.3 : 0), p.y());
+    }
+  }
+  FlagSamples(&image, 0.0);
+  return image;
+}
+
+TEST(SplatOptions, DefaultsValidAndRangesChecked) {
+  std::string error;
+  EXPECT_TRUE(SplatOptions().Check(&error)) << error;
+  EXPECT_TRUE(DepthImageOptions().Check(&error)) << error;
+  SplatOptions o;
+  o.radius_scale = 0;
+  EXPECT_FALSE(o.Check(&error));
+  EXPECT_EQ(error.rfind("radius_scale:", 0), 0u) << error;
+  o = SplatOptions();
+  o.depth_tolerance = 1;
+  EXPECT_FALSE(o.Check(&error));
+  EXPECT_EQ(error.rfind("depth_tolerance:", 0), 0u) << error;
+  o = SplatOptions();
+  o.max_radius_px = 0.1;
+  EXPECT_FALSE(o.Check(&error));
+  DepthImageOptions d;
+  d.tile_size = 2;
+  EXPECT_FALSE(d.Check(&error));
+  EXPECT_EQ(error.rfind("tile_size:", 0), 0u) << error;
+  d = DepthImageOptions();
+  d.skin_views = -1;
+  EXPECT_FALSE(d.Check(&error));
+}
+
+// A fronto-parallel plane seen at the source resolution: every pixel covered, each by at most two
+// splats on average, from the source's own viewpoint and from a slightly moved one.
+TEST(Splat, FrontoParallelPlaneHasNoHolesAndBoundedOverlap) {
+  std::vector<DepthImage> images = {View(Eigen::Vector3d::Zero(), false, "a")};
+  const SplatCloud cloud = CloudFromDepthImages(images);
+  ASSERT_EQ(cloud.size(), static_cast<size_t>(kWidth * kHeight));
+  for (const Eigen::Vector3d& eye : {Eigen::Vector3d(0, 0, 0), Eigen::Vector3d(0.05, 0.03, 0.02)}) {
+    const SplatImage out = RenderSplats(cloud, TestCamera(), At(eye), SplatOptions());
+    // Inner pixels (the moved view sees past the source's border at its edges).
+    size_t inner = 0, holes = 0;
+    for (int y = 4; y < kHeight - 4; ++y) {
+      for (int x = 4; x < kWidth - 4; ++x) {
+        ++inner;
+        holes += out.coverage.at<uint8_t>(y, x) == 0;
+      }
+    }
+    EXPECT_EQ(holes, 0u) << "eye " << eye.transpose() << ": " << holes << " of " << inner << " inner pixels uncovered";
+    ASSERT_GT(out.covered_pixels, 0u);
+    const double overlap = static_cast<double>(out.pixel_hits) / out.covered_pixels;
+    EXPECT_GE(overlap, 1.0);
+    EXPECT_LE(overlap, 2.0) << "eye " << eye.transpose();
+  }
+  // Twice too large splats overlap more than twice: the measure can fail.
+  SplatOptions large;
+  large.radius_scale = 2.2;
+  const SplatImage out = RenderSplats(cloud, TestCamera(), At(Eigen::Vector3d::Zero()), large);
+  EXPECT_GT(static_cast<double>(out.pixel_hits) / out.covered_pixels, 2.0);
+}
+
+// Epipole consistency [U 50]: a desired camera at a source camera reproduces that source's photo,
+// though other sources see the same surface.
+TEST(Splat, DesiredCameraAtASourceReproducesItsImage) {
+  std::vector<DepthImage> images = {View({0, 0, 0}, true, "a"), View({0.3, 0, 0}, true, "b"),
+                                    View({-0.2, 0.2, 0}, true, "c")};
+  const SplatCloud cloud = CloudFromDepthImages(images);
+  SplatOptions options;
+  const SplatImage out = RenderSplats(cloud, TestCamera(), images[1].cam_from_world, options);
+  double squared = 0;
+  size_t counted = 0;
+  for (int y = 0; y < kHeight; ++y) {
+    for (int x = 0; x < kWidth; ++x) {
+      ASSERT_NE(out.coverage.at<uint8_t>(y, x), 0) << "pixel " << x << "," << y << " uncovered";
+      const cv::Vec3b a = out.image.at<cv::Vec3b>(y, x), b = images[1].image.at<cv::Vec3b>(y, x);
+      for (int c = 0; c < 3; ++c) squared += (a[c] - b[c]) * (a[c] - b[c]);
+      counted += 3;
+    }
+  }
+  const double psnr = 10 * std::log10(255.0 * 255.0 / std::max(squared / counted, 1e-12));
+  EXPECT_GT(psnr, 40.0);
+}
+
+// Skins [N 4.4]: between a view and one displaced sideways, the connections across the square's
+// border (depth 2 to 4) are skins where the other view sees the background through them; no
+// connection inside a surface is. A render from between the views draws no sample between the
+// two depths.
+TEST(Splat, SkinsAcrossADepthStepAreFoundAndNeverDrawn) {
+  std::vector<DepthImage> images = {View({0, 0, 0}, true, "a"), View({0.6, 0, 0}, true, "b")};
+  DepthImageOptions options;
+  options.skin_views = 1;
+  const size_t skins = DetectSkins(&images, options);
+  EXPECT_GT(skins, 0u);
+  const DepthImage& a = images[0];
+  size_t flagged = 0, at_step = 0;
+  for (int y = 0; y < kHeight; ++y) {
+    for (int x = 0; x < kWidth; ++x) {
+      if (!(a.flags[y * kWidth + x] & kSampleSkin)) continue;
+      ++flagged;
+      // A skin end has a 4-neighbour on the other side of the step.
+      bool step = false;
+      for (const auto& [dx, dy] : {std::pair{1, 0}, {-1, 0}, {0, 1}, {0, -1}}) {
+        const int nx = x + dx, ny = y + dy;
+        if (nx >= 0 && ny >= 0 && nx < kWidth && ny < kHeight) step = step || std::abs(a.depth.At(nx, ny) - a.depth.At(x, y)) > 1;
+      }
+      at_step += step;
+    }
+  }
+  EXPECT_GT(flagged, 0u);
+  EXPECT_EQ(at_step, flagged) << "skin flags away from the depth step";
+  // View b sits to the right (+x): it sees behind the square's right border in a, not its left
+  // (rows well inside the square: b shares a's height, so the top and bottom borders are grazing).
+  int right = 0, left = 0;
+  for (int y = 20; y < 40; ++y) {
+    for (int x = 0; x < kWidth; ++x) {
+      if (!(a.flags[y * kWidth + x] & kSampleSkin)) continue;
+      (x > kWidth / 2 ? right : left)++;
+    }
+  }
+  EXPECT_GT(right, 10);
+  EXPECT_EQ(left, 0);
+
+  const SplatCloud cloud = CloudFromDepthImages(images);
+  const SplatImage out = RenderSplats(cloud, TestCamera(), At({0.3, 0, 0}), SplatOptions());
+  size_t between = 0;
+  for (const float z : out.depth.data) between += z > 2.1f && z < 3.9f;
+  EXPECT_EQ(between, 0u) << "pixels drawn at a depth between the square and the background";
+}
+
+// Merging [N 4.6]: two views of one plane hold each surface point twice; merging culls about one of
+// each pair and the render still covers what it covered.
+TEST(Splat, MergingCullsRedundancyButNoSurface) {
+  std::vector<DepthImage> images = {View({0, 0, 0}, false, "a"), View({0.02, 0, 0.5}, false, "b")};
+  const SplatCloud all = CloudFromDepthImages(images);
+  const SplatImage before = RenderSplats(all, TestCamera(), At({0.01, 0, 0.2}), SplatOptions());
+  const size_t culled = MergeTiles(&images, DepthImageOptions());
+  EXPECT_GT(culled, static_cast<size_t>(kWidth * kHeight) / 2);
+  // View b is nearer the plane: it samples it more densely and keeps its samples.
+  size_t culled_b = 0;
+  for (const uint8_t flag : images[1].flags) culled_b += (flag & kSampleMerged) != 0;
+  EXPECT_LT(culled_b, culled / 10);
+  const SplatCloud merged = CloudFromDepthImages(images);
+  EXPECT_EQ(merged.size(), all.size() - culled);
+  const SplatImage after = RenderSplats(merged, TestCamera(), At({0.01, 0, 0.2}), SplatOptions());
+  EXPECT_GE(after.covered_pixels, before.covered_pixels * 99 / 100);
+}
+
+// Surfels are discs: drawn facing the camera, not from behind.
+TEST(Splat, SurfelsFacingAwayAreNotDrawn) {
+  PointCloud surfels;
+  surfels.positions = {Eigen::Vector3f(0, 0, 2)};
+  surfels.normals = {Eigen::Vector3f(0, 0, -1)};
+  surfels.radius = {0.05f};
+  surfels.colors = {Color3u8{200, 100, 50}};
+  SplatCloud cloud = CloudFromSurfels(surfels, 0.01f);
+  SplatImage out = RenderSplats(cloud, TestCamera(), At(Eigen::Vector3d::Zero()), SplatOptions());
+  // Radius 70 * 0.05 / 2 = 1.75 px around the centre pixel; colour kept (BGR).
+  ASSERT_GT(out.covered_pixels, 0u);
+  EXPECT_EQ(out.image.at<cv::Vec3b>(kHeight / 2, kWidth / 2), cv::Vec3b(50, 100, 200));
+  cloud.normals[0] = Eigen::Vector3f(0, 0, 1);
+  out = RenderSplats(cloud, TestCamera(), At(Eigen::Vector3d::Zero()), SplatOptions());
+  EXPECT_EQ(out.covered_pixels, 0u);
+}
+
+}  // namespace
+}  // namespace ibmr
