@@ -5,11 +5,14 @@
 #include <algorithm>
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include "pipeline/core/atomic_file.h"
 #include "pipeline/core/colmap_text_io.h"
 #include "pipeline/core/errors.h"
+#include "pipeline/core/image_io.h"
 #include "pipeline/core/stage_api.h"
 #include "stages/import/import.h"
 
@@ -68,6 +71,10 @@ class ImportStage : public Stage {
         {"format", ParamType::kString, "auto", "Source format; auto detects _par.txt, gt_dense_cameras/, cameras.txt",
          kFormatNames},
         {"images", ParamType::kPath, "\"\"", "Image folder for a COLMAP model source; empty: <source>/../images"},
+        {"max_image_size", ParamType::kInt, "0",
+         "Longest image side kept (px): larger photos are resampled (area averaging) and their cameras scaled; 0: as "
+         "they are",
+         {}},
         {"focal_prior", ParamType::kDouble, "1.2", "Focal length without EXIF, times max(width, height); > 0"},
         {"folder_camera_model", ParamType::kString, "SIMPLE_RADIAL", "Camera model for a plain image folder",
          {"SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV"}},
@@ -77,6 +84,10 @@ class ImportStage : public Stage {
   std::optional<ParamError> CheckParams(const Params& params) const override {
     std::string error;
     if (!ToOptions(params).Check(&error)) return ParamError::FromCheck(error);
+    const int64_t max_size = params.Int("max_image_size");
+    if (max_size != 0 && (max_size < 16 || max_size > 100000)) {
+      return ParamError{"max_image_size", "must be 0 (keep) or in [16, 100000], got " + std::to_string(max_size)};
+    }
     return std::nullopt;
   }
 
@@ -94,8 +105,13 @@ class ImportStage : public Stage {
     if (!fs::is_directory(source)) throw InputError("import.source: '" + source + "' is not a folder");
     ImportOptions options = ToOptions(context.params);
     if (options.format == ImportFormat::kAuto) options.format = DetectFormat(source);
-    const Capture capture = ReadCapture(source, options, context.params);
+    Capture capture = ReadCapture(source, options, context.params);
+    const size_t resized = LimitImageSize(&capture, static_cast<int>(context.params.Int("max_image_size")));
     CopyImages(capture, context);
+    if (resized > 0) {
+      context.metrics["resized_images"] = resized;
+      spdlog::info("[import] {} images resampled to at most {} px", resized, context.params.Int("max_image_size"));
+    }
     WriteSparseModelText(context.workspace.SparseDir(), capture.model);
     std::string list_text;
     for (const std::string& name : capture.names) list_text += name + "\n";
@@ -131,6 +147,7 @@ class ImportStage : public Stage {
     SparseModel model;
     std::vector<std::string> names;
     std::string image_dir;
+    std::map<std::string, cv::Size> resize_to;  // photos resampled on import (max_image_size)
   };
 
   Capture ReadCapture(const std::string& source, const ImportOptions& options, const Params& params) const {
@@ -202,13 +219,56 @@ class ImportStage : public Stage {
     return model;
   }
 
+  // Scales the cameras of images whose longest side exceeds `max_size` (> 0) and records the size
+  // their photos must be resampled to; 2D observations scale with them. Returns how many.
+  static size_t LimitImageSize(Capture* capture, int max_size) {
+    if (max_size <= 0) return 0;
+    std::map<std::string, int> camera_of;  // image name -> camera id
+    for (const auto& [id, image] : capture->model.images) camera_of[image.name] = image.camera_id;
+    if (capture->model.images.empty()) {  // a plain folder: one camera per image, in name order
+      for (size_t i = 0; i < capture->names.size(); ++i) camera_of[capture->names[i]] = static_cast<int>(i) + 1;
+    }
+    std::map<int, double> factor_of;  // camera id -> factor (< 1)
+    for (auto& [id, camera] : capture->model.cameras) {
+      const int longest = std::max(camera.width, camera.height);
+      if (longest <= max_size) continue;
+      const double factor = static_cast<double>(max_size) / longest;
+      const int old_width = camera.width, old_height = camera.height;
+      camera = camera.Scaled(factor);
+      factor_of[id] = factor;
+      for (auto& [image_id, image] : capture->model.images) {
+        if (image.camera_id != id) continue;
+        for (Point2D& point : image.points2D) {
+          point.xy.x() *= static_cast<double>(camera.width) / old_width;
+          point.xy.y() *= static_cast<double>(camera.height) / old_height;
+        }
+      }
+    }
+    size_t resized = 0;
+    for (const std::string& name : capture->names) {
+      const auto it = camera_of.find(name);
+      if (it == camera_of.end() || !factor_of.count(it->second)) continue;
+      const Camera& camera = capture->model.cameras.at(it->second);
+      capture->resize_to[name] = cv::Size(camera.width, camera.height);
+      ++resized;
+    }
+    return resized;
+  }
+
   void CopyImages(const Capture& capture, const StageContext& context) const {
     const fs::path target = context.workspace.ImagesDir();
     fs::create_directories(target);
     for (const std::string& name : capture.names) {
       const fs::path from = fs::path(capture.image_dir) / name;
       if (!fs::exists(from)) throw InputError(from.string() + ": image named in the camera file is missing");
-      PlaceImage(from, target / name);
+      const auto resize = capture.resize_to.find(name);
+      if (resize == capture.resize_to.end()) {
+        PlaceImage(from, target / name);
+        continue;
+      }
+      cv::Mat image = ReadImageColor(from.string());
+      cv::resize(image, image, resize->second, 0, 0, cv::INTER_AREA);
+      WriteImage((target / name).string(), image);  // atomic
     }
     // Images of an earlier import that are not part of this one would confuse later stages.
     for (const auto& entry : fs::directory_iterator(target)) {

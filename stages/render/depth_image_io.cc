@@ -27,16 +27,20 @@ std::vector<DepthImage> LoadDepthImages(const Workspace& workspace, const Sparse
       throw InputError("render: camera of " + image.name + " has lens distortion; splatting needs undistorted "
                        "depth maps and photos (PINHOLE cameras)");
     }
-    const std::string depth_path = workspace.DepthMapPath(image.name, kind);
+    const bool truth = kind == "truth";
+    const std::string depth_path = truth ? workspace.GroundTruthDepthPath(image.name) : workspace.DepthMapPath(image.name, kind);
     if (!fs::exists(depth_path)) {
       throw InputError(depth_path + ": no " + kind + " depth map for training view '" + image.name + "'; run " +
-                       (kind == "geometric" ? "multi_depth" : "plane_sweep") + " first, or drop splat_depth from "
-                       "render.proxies");
+                       (truth ? "synth (only synthetic scenes have true depth)"
+                              : kind == "geometric" ? "multi_depth" : "plane_sweep") +
+                       " first, or drop the splat_depth model from render.proxies");
     }
     out.depth = ReadColmapArray(depth_path);
     if (out.depth.channels != 1 || out.depth.width <= 0) throw InputError(depth_path + ": not a 1-channel depth map");
-    out.confidence = ReadColmapArrayMatching(workspace.ConfidenceMapPath(image.name, kind), out.depth, 1);
-    out.normals = ReadColmapArrayMatching(workspace.NormalMapPath(image.name, kind), out.depth, 3);
+    if (!truth) {
+      out.confidence = ReadColmapArrayMatching(workspace.ConfidenceMapPath(image.name, kind), out.depth, 1);
+      out.normals = ReadColmapArrayMatching(workspace.NormalMapPath(image.name, kind), out.depth, 3);
+    }
     out.camera = out.depth.width == camera.width ? camera : camera.Scaled(static_cast<double>(out.depth.width) / camera.width);
     out.cam_from_world = image.cam_from_world;
     if (out.normals.Empty()) out.normals = NormalsFromDepth(out.camera, out.depth);

@@ -1,6 +1,7 @@
 // Reads the depth images of seed 004's model (depth_images.h) from the workspace: per training
 // view its photo, its depth map of `kind` (photometric or geometric, COLMAP's .bin arrays under
-// dense/stereo/), and the confidence and normal maps beside it when they exist. The photo is
+// dense/stereo/; "truth": ground_truth/depth/<view>.bin of synthetic scenes), and the confidence
+// and normal maps beside it when they exist. The photo is
 // resampled to the depth map's resolution (area averaging) and the camera scaled with it.
 #pragma once
 

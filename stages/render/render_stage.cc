@@ -13,8 +13,9 @@
 //                            first hit of the next one counts (e.g. surfels/mesh.ply|hull/hull.ply:
 //                            the hull fills the surface's holes); a missing fallback is ignored with
 //                            a warning.
-//   splat_depth              point splatting of the training views' depth maps (seed 004; splat.h):
-//                            dense/stereo/depth_maps/<view>.<splat_depth_type>.bin with the photos,
+//   splat_depth[:TYPE]       point splatting of the training views' depth maps (seed 004; splat.h):
+//                            dense/stereo/depth_maps/<view>.<TYPE>.bin (TYPE: splat_depth_type by
+//                            default; "truth": ground_truth/depth/<view>.bin) with the photos,
 //                            skins and outliers flagged (depth_images.h), every drawable sample kept
 //   splat_depth_merged       the same after tile merging [N 4.6]: one sample per surface point
 //   splat_surfels            the oriented discs of surfels/surfels.ply
@@ -53,6 +54,7 @@ struct ProxySpec {
   std::string name;
   ModelKind kind = ModelKind::kMesh;
   std::string path;                    // empty for the plane and the depth-image splats; absolute otherwise
+  std::string depth_type;              // splat_depth[:TYPE]: the depth maps drawn (empty: splat_depth_type)
   std::vector<std::string> fallbacks;  // absolute paths of meshes that fill where `path` misses
 };
 
@@ -69,6 +71,13 @@ ProxySpec ParseProxy(const std::string& entry, const Workspace& workspace) {
   if (eq != std::string::npos) {
     spec.name = entry.substr(0, eq);
     path = entry.substr(eq + 1);
+  }
+  for (const std::string splat : {"splat_depth:", "splat_depth_merged:"}) {
+    if (path.rfind(splat, 0) == 0) {
+      spec.depth_type = path.substr(splat.size());
+      path = splat.substr(0, splat.size() - 1);
+      if (spec.name.empty()) spec.name = path + "_" + spec.depth_type;
+    }
   }
   if (path == "plane" || path == "splat_depth" || path == "splat_depth_merged") {
     spec.kind = path == "plane"         ? ModelKind::kPlane
@@ -143,7 +152,9 @@ class RenderStage : public Stage {
          "none",
          {}},
         {"splat_depth_type", ParamType::kString, "geometric",
-         "depth maps splat_depth draws: geometric (multi_depth) or photometric (plane_sweep)", {}},
+         "depth maps splat_depth draws: geometric (multi_depth), photometric (plane_sweep) or truth "
+         "(ground_truth/depth); an entry splat_depth:TYPE overrides it",
+         {}},
         {"splat_radius_scale", ParamType::kDouble, "1",
          "scales the splats' radii (source pixel half-diagonals, surfel radii), in (0, 8]", {}},
         {"splat_max_radius_px", ParamType::kDouble, "8", "bound on a splat's radius in output pixels, in [0.5, 256]",
@@ -190,9 +201,12 @@ class RenderStage : public Stage {
     if (background != "plane" && background != "none") {
       return ParamError{"background", "must be plane or none, got \"" + background + "\""};
     }
-    const std::string depth_type = params.String("splat_depth_type");
-    if (depth_type != "geometric" && depth_type != "photometric") {
-      return ParamError{"splat_depth_type", "must be geometric or photometric, got \"" + depth_type + "\""};
+    const auto bad_type = [](const std::string& type) {
+      return type != "geometric" && type != "photometric" && type != "truth";
+    };
+    if (bad_type(params.String("splat_depth_type"))) {
+      return ParamError{"splat_depth_type",
+                        "must be geometric, photometric or truth, got \"" + params.String("splat_depth_type") + "\""};
     }
     if (params.Int("supersample") < 1 || params.Int("supersample") > 4) {
       return ParamError{"supersample", "must be in [1, 4], got " + std::to_string(params.Int("supersample"))};
@@ -204,6 +218,10 @@ class RenderStage : public Stage {
     if (params.StringList("proxies").empty()) return ParamError{"proxies", "list at least one proxy (e.g. [plane])"};
     for (const std::string& entry : params.StringList("proxies")) {
       if (entry.empty() || entry.back() == '=') return ParamError{"proxies", "empty proxy entry \"" + entry + "\""};
+      const ProxySpec spec = ParseProxy(entry, Workspace("."));
+      if (!spec.depth_type.empty() && bad_type(spec.depth_type)) {
+        return ParamError{"proxies", "\"" + entry + "\": depth type must be geometric, photometric or truth"};
+      }
     }
     return std::nullopt;
   }
@@ -213,7 +231,8 @@ class RenderStage : public Stage {
     for (const std::string& entry : context.params.StringList("proxies")) {
       const ProxySpec spec = ParseProxy(entry, context.workspace);
       if (spec.kind == ModelKind::kSplatDepth || spec.kind == ModelKind::kSplatDepthMerged) {
-        inputs.push_back(context.workspace.Path("dense/stereo"));
+        const std::string type = spec.depth_type.empty() ? context.params.String("splat_depth_type") : spec.depth_type;
+        inputs.push_back(context.workspace.Path(type == "truth" ? "ground_truth/depth" : "dense/stereo"));
       }
       if (!spec.path.empty()) inputs.push_back(spec.path);
       inputs.insert(inputs.end(), spec.fallbacks.begin(), spec.fallbacks.end());
@@ -403,7 +422,9 @@ class RenderStage : public Stage {
       } else if (spec.kind == ModelKind::kSplatDepth || spec.kind == ModelKind::kSplatDepthMerged) {
         SplatModelStats stats;
         try {
-          stats = BuildDepthSplats(context, model, training, spec.kind == ModelKind::kSplatDepthMerged, &cloud);
+          stats = BuildDepthSplats(context, model, training,
+                                   spec.depth_type.empty() ? context.params.String("splat_depth_type") : spec.depth_type,
+                                   spec.kind == ModelKind::kSplatDepthMerged, &cloud);
         } catch (const InputError& e) {  // no depth maps (yet): like a missing mesh, not fatal
           skip(e.what());
           continue;
@@ -519,12 +540,13 @@ class RenderStage : public Stage {
 
   // The splat_depth model: the training views' depth images, flagged, skins found, merged [N 4.3-4.6].
   static SplatModelStats BuildDepthSplats(StageContext& context, const SparseModel& model,
-                                          const std::vector<std::string>& training, bool merge, SplatCloud* cloud) {
+                                          const std::vector<std::string>& training, const std::string& depth_type,
+                                          bool merge, SplatCloud* cloud) {
     const auto start = std::chrono::steady_clock::now();
     DepthImageOptions options = ToDepthImageOptions(context.params);
     options.merge = merge;
     std::vector<DepthImage> images =
-        LoadDepthImages(context.workspace, model, training, context.params.String("splat_depth_type"));
+        LoadDepthImages(context.workspace, model, training, depth_type);
     SplatModelStats stats;
     for (DepthImage& image : images) {
       FlagSamples(&image, options.min_confidence);
@@ -534,9 +556,9 @@ class RenderStage : public Stage {
     stats.merged = MergeTiles(&images, options);
     *cloud = CloudFromDepthImages(images);
     stats.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-    spdlog::info("[render] splat_depth{}: {} views, {} samples, {} skin connections, {} outliers, {} merged "
+    spdlog::info("[render] splat_depth{} ({}): {} views, {} samples, {} skin connections, {} outliers, {} merged "
                  "away -> {} splats ({:.1f} s)",
-                 merge ? "_merged" : "", images.size(), stats.drawable, stats.skins, stats.outliers, stats.merged,
+                 merge ? "_merged" : "", depth_type, images.size(), stats.drawable, stats.skins, stats.outliers, stats.merged,
                  cloud->size(), stats.seconds);
     return stats;
   }
