@@ -8,6 +8,7 @@
 
 #include "pipeline/core/colmap_text_io.h"
 #include "pipeline/core/errors.h"
+#include "pipeline/core/image_io.h"
 #include "pipeline/core/stage_api.h"
 
 namespace fs = std::filesystem;
@@ -27,7 +28,7 @@ std::string TempDir(const std::string& name) {
 }
 
 // Runs the import adapter on `source` into a fresh workspace and returns the model written.
-SparseModel RunImport(const std::string& source, const std::string& workspace) {
+SparseModel RunImport(const std::string& source, const std::string& workspace, int64_t max_image_size = 0) {
   StageRegistry registry;
   RegisterStage_import(&registry);
   const Stage* stage = registry.Find("import");
@@ -38,6 +39,7 @@ SparseModel RunImport(const std::string& source, const std::string& workspace) {
   context.params.Set("images", std::string());
   context.params.Set("focal_prior", 1.2);
   context.params.Set("folder_camera_model", std::string("SIMPLE_RADIAL"));
+  context.params.Set("max_image_size", max_image_size);
   NullProgress progress;
   context.progress = &progress;
   EXPECT_FALSE(stage->CheckParams(context.params).has_value());
@@ -153,6 +155,31 @@ TEST(ImportStrecha, FountainCamerasMatchTheFiles) {
     EXPECT_GT(to.dot(image.ViewingDirection()), 0.8) << image.name;
   }
   fs::remove_all(workspace);
+}
+
+// max_image_size: the 3072x2048 photos are resampled to 768x512 and the cameras scaled with them,
+// so a world point projects to the same place relative to the image (a quarter of the pixels).
+TEST(ImportStrecha, MaxImageSizeResamplesPhotosAndScalesCameras) {
+  const std::string source = kDatasets + "/strecha_fountain-P11";
+  if (!fs::exists(source)) GTEST_SKIP() << source << " is absent; real-data test skipped";
+  const std::string full_dir = TempDir("fountain_full"), small_dir = TempDir("fountain_small");
+  const SparseModel full = RunImport(source, full_dir);
+  const SparseModel small = RunImport(source, small_dir, 768);
+  const Image& image = *small.FindImage("0004.jpg");
+  const Camera& camera = small.CameraOf(image);
+  EXPECT_EQ(camera.width, 768);
+  EXPECT_EQ(camera.height, 512);
+  const cv::Mat photo = ReadImageColor(Workspace(small_dir).ImagesDir() + "/0004.jpg");
+  EXPECT_EQ(photo.cols, 768);
+  EXPECT_EQ(photo.rows, 512);
+  const Camera& full_camera = full.CameraOf(*full.FindImage("0004.jpg"));
+  const Eigen::Vector3d point = image.Center() + 8.0 * image.ViewingDirection() + Eigen::Vector3d(0.5, -0.3, 0.2);
+  const Eigen::Vector2d p_small = camera.ImgFromCam(image.cam_from_world * point);
+  const Eigen::Vector2d p_full = full_camera.ImgFromCam(image.cam_from_world * point);
+  EXPECT_NEAR(p_small.x(), p_full.x() / 4, 1e-6);
+  EXPECT_NEAR(p_small.y(), p_full.y() / 4, 1e-6);
+  fs::remove_all(full_dir);
+  fs::remove_all(small_dir);
 }
 
 TEST(ImportFolder, MissingSourceIsAClearError) {
