@@ -2,7 +2,9 @@
 // "real-time" [U 85]): render time per megapixel per source view, on a given number of threads.
 // Scene: a textured ground plane seen by a ring of N source cameras; desired views between them;
 // proxies: the plane (no visibility maps) and a 2-triangle-per-cell grid mesh of the same plane
-// (visibility maps from the rasterizer; their construction is timed apart).
+// (visibility maps from the rasterizer; their construction is timed apart). Point splatting (seed
+// 004) of the sources' depth maps of the plane, all samples and merged by tiles: milliseconds per
+// output megapixel per million splats.
 //
 //   build-x/stages/render/bench_render [--threads 2] [--width 640] [--height 480] [--out FILE.json]
 // Writes JSON (stdout when --out is absent).
@@ -15,7 +17,9 @@
 #include <nlohmann/json.hpp>
 #include <string>
 
+#include "stages/render/depth_images.h"
 #include "stages/render/render.h"
+#include "stages/render/splat.h"
 
 namespace {
 
@@ -112,7 +116,8 @@ int main(int argc, char** argv) {
         render_seconds += Seconds(start);
       }
       const double per_view = render_seconds / desired_views;
-      runs.push_back({{"proxy", proxy},
+      runs.push_back({{"model", "ulr"},
+                      {"proxy", proxy},
                       {"sources", sources_count},
                       {"desired_views", desired_views},
                       {"seconds_per_view", per_view},
@@ -122,8 +127,46 @@ int main(int argc, char** argv) {
                       {"ms_per_megapixel", 1e3 * per_view / megapixels},
                       {"ms_per_megapixel_per_source", 1e3 * per_view / megapixels / sources_count}});
     }
+    // Splats: each source's depth map of the plane z = 0 (the mesh's depth), then tile merging.
+    std::vector<ibmr::DepthImage> images(sources.size());
+    for (size_t i = 0; i < sources.size(); ++i) {
+      images[i].camera = sources[i].camera;
+      images[i].cam_from_world = sources[i].cam_from_world;
+      images[i].image = sources[i].image;
+      images[i].depth = ibmr::MeshDepth(mesh, sources[i].camera, sources[i].cam_from_world);
+      ibmr::FlagSamples(&images[i], 0.0);
+    }
+    for (const bool merge : {false, true}) {
+      auto start = std::chrono::steady_clock::now();
+      ibmr::DepthImageOptions depth_options;
+      depth_options.merge = merge;
+      ibmr::DetectSkins(&images, depth_options);
+      if (merge) ibmr::MergeTiles(&images, depth_options);
+      const ibmr::SplatCloud cloud = ibmr::CloudFromDepthImages(images);
+      const double prepare_seconds = Seconds(start);
+      double render_seconds = 0;
+      size_t covered = 0;
+      for (int d = 0; d < desired_views; ++d) {
+        const double a = 2 * M_PI * (d + 0.37) / desired_views;
+        const Rigid3d pose = ibmr::LookAt(Eigen::Vector3d(1.4 * std::cos(a), 1.4 * std::sin(a), 3.1),
+                                          Eigen::Vector3d::Zero(), Eigen::Vector3d(0, 1, 0));
+        start = std::chrono::steady_clock::now();
+        covered += ibmr::RenderSplats(cloud, sources[0].camera, pose, ibmr::SplatOptions()).covered_pixels;
+        render_seconds += Seconds(start);
+      }
+      const double per_view = render_seconds / desired_views;
+      runs.push_back({{"model", merge ? "splat_depth_merged" : "splat_depth"},
+                      {"sources", sources_count},
+                      {"desired_views", desired_views},
+                      {"splats", cloud.size()},
+                      {"prepare_seconds", prepare_seconds},
+                      {"seconds_per_view", per_view},
+                      {"covered_fraction", covered / (desired_views * width * height * 1.0)},
+                      {"ms_per_megapixel", 1e3 * per_view / megapixels},
+                      {"ms_per_megapixel_per_million_splats", 1e3 * per_view / megapixels / (cloud.size() * 1e-6)}});
+    }
   }
-  const nlohmann::json result = {{"benchmark", "render (unstructured lumigraph, per pixel, CPU)"},
+  const nlohmann::json result = {{"benchmark", "render (unstructured lumigraph per pixel; point splatting; CPU)"},
                                  {"threads", threads},
                                  {"width", width},
                                  {"height", height},
