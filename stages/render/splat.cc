@@ -21,6 +21,9 @@ constexpr int kBandRows = 16;  // rows of one band; a band's buffers stay in cac
 constexpr float kMinRadius = 0.71f;
 // A depth sample's disc: the smallest that covers its pixel's square, half the pixel's diagonal.
 constexpr float kHalfDiagonal = 0.70710678f;
+// Rim samples: the relative depth jump to a 4-neighbour that makes a silhouette, and their weight.
+constexpr float kRimStep = 0.05f;
+constexpr float kRimWeight = 0.05f;
 
 // One sample as the desired camera sees it.
 struct Projected {
@@ -111,7 +114,17 @@ SplatCloud CloudFromDepthImages(const std::vector<DepthImage>& images) {
         }
         cloud.normals.push_back(normal);
         cloud.colors.push_back(image.image.at<cv::Vec3b>(y, x));
-        cloud.confidence.push_back(std::max(image.Confidence(x, y), 1e-3f));
+        // A sample on the rim of its image's surface (a 4-neighbour without depth or across a depth
+        // step) has a pixel that straddles the silhouette: its colour is mixed with what lies
+        // behind. Seen from another view the rim is inside the object, so it is kept (it fills
+        // what nothing else covers) but weighs little against interior samples of other views.
+        bool rim = x == 0 || y == 0 || x + 1 == image.width() || y + 1 == image.height();
+        for (const auto& [dx, dy] : {std::pair{1, 0}, {-1, 0}, {0, 1}, {0, -1}}) {
+          if (rim) break;
+          const float n = image.depth.At(x + dx, y + dy);
+          rim = !IsValidDepth(n) || std::abs(n - z) > kRimStep * z;
+        }
+        cloud.confidence.push_back(std::max(image.Confidence(x, y), 1e-3f) * (rim ? kRimWeight : 1.f));
         cloud.footprint.push_back(kHalfDiagonal * z / focal);
         cloud.source.push_back(static_cast<int>(i));
       }
