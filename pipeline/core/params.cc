@@ -63,8 +63,9 @@ std::vector<std::string> Params::StringList(const std::string& key) const {
 
 nlohmann::json Params::ToJson() const {
   nlohmann::json out = nlohmann::json::object();
-  for (const auto& [key, value] : values_) {
-    std::visit([&](const auto& v) { out[key] = v; }, value);
+  for (const auto& entry : values_) {  // not a structured binding: lambdas cannot capture those in C++17
+    const std::string& key = entry.first;
+    std::visit([&](const auto& v) { out[key] = v; }, entry.second);
   }
   return out;
 }

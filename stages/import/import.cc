@@ -3,6 +3,7 @@
 
 #include <Eigen/Core>
 #include <filesystem>
+#include <cmath>
 #include <sstream>
 
 #include "pipeline/core/errors.h"
@@ -111,6 +112,16 @@ void ParseStrechaCamera(const std::string& text, const std::string& path, Camera
   Eigen::Matrix3d world_from_cam;
   world_from_cam << r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8];
   if (!IsRotation(world_from_cam)) throw IoError(path + ": lines 5-7 are not a rotation matrix");
+  for (const double v : {k[0], k[2], k[4], k[5], c[0], c[1], c[2]}) {
+    if (!std::isfinite(v)) throw IoError(path + ": a calibration or centre value is not a finite number");
+  }
+  if (!(k[0] > 0 && k[4] > 0)) throw IoError(path + ": focal lengths (K[0][0], K[1][1]) must be > 0");
+  // Whole pixel counts in a plausible range: a cast of anything else to int is undefined.
+  for (const double v : size) {
+    if (!(v >= 1 && v <= 1e6) || v != std::floor(v)) {
+      throw IoError(path + ": line 9 must be 'width height' in whole pixels (1 to 1000000)");
+    }
+  }
   *camera = Camera::Pinhole(static_cast<int>(size[0]), static_cast<int>(size[1]), k[0], k[4], k[2] + 0.5, k[5] + 0.5);
   const Eigen::Matrix3d rotation = world_from_cam.transpose();
   *cam_from_world = Rigid3d(rotation, -rotation * Eigen::Vector3d(c[0], c[1], c[2]));

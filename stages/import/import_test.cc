@@ -108,6 +108,29 @@ TEST(StrechaCamera, CentreAndProjection) {
   EXPECT_NEAR(pixel.y(), 40.5, 1e-9);
 }
 
+// Found by tests/fuzz/fuzz_strecha_camera: a width of 2e111 was cast to int (undefined behaviour).
+// Sizes, focal lengths and centres out of range are errors naming the file.
+TEST(StrechaCamera, FuzzRegressionOutOfRangeValuesAreErrors) {
+  const std::string rotation = "0 0 0\n0 0 1\n1 0 0\n0 1 0\n";
+  const std::vector<std::string> bad = {
+      "2759.48 0 1520.6\n0 2764 81\n0 0 1\n" + rotation + "1 2 0\n3072 2011111111111111111111111111111111111111\n",
+      "100 0 50\n0 110 40\n0 0 1\n" + rotation + "1 2 3\n100.5 80\n",
+      "100 0 50\n0 110 40\n0 0 1\n" + rotation + "1 2 3\n-100 80\n",
+      "-100 0 50\n0 110 40\n0 0 1\n" + rotation + "1 2 3\n100 80\n",
+      "100 0 nan\n0 110 40\n0 0 1\n" + rotation + "1 2 3\n100 80\n",
+      "100 0 50\n0 110 40\n0 0 1\n" + rotation + "1 inf 3\n100 80\n"};
+  for (const std::string& text : bad) {
+    Camera camera;
+    Rigid3d cam_from_world;
+    try {
+      ParseStrechaCamera(text, "bad.camera", &camera, &cam_from_world);
+      ADD_FAILURE() << "accepted:\n" << text;
+    } catch (const IoError& e) {
+      EXPECT_NE(std::string(e.what()).find("bad.camera"), std::string::npos) << e.what();
+    }
+  }
+}
+
 TEST(ImportMiddlebury, BoundingBoxProjectsInsideEveryTempleView) {
   const std::string source = kDatasets + "/middlebury_templeSparseRing";
   if (!fs::exists(source)) GTEST_SKIP() << source << " is absent; real-data test skipped";
