@@ -26,6 +26,12 @@ class Workspace {
   const std::string& root() const { return root_; }
   // Absolute path of a workspace-relative path ("sparse/cameras.txt").
   std::string Path(const std::string& relative) const { return root_ + "/" + relative; }
+  // `path` relative to the root when it lies inside the workspace, else unchanged: what output
+  // files record, so that a workspace's outputs do not depend on where it sits.
+  std::string Relative(const std::string& path) const {
+    const std::string prefix = root_ + "/";
+    return path.compare(0, prefix.size(), prefix) == 0 ? path.substr(prefix.size()) : path;
+  }
 
   std::string ImagesDir() const { return Path("images"); }
   std::string SparseDir() const { return Path("sparse"); }

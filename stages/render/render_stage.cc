@@ -367,8 +367,8 @@ class RenderStage : public Stage {
       const bool is_mesh = spec.kind == ModelKind::kMesh;
       nlohmann::json pj = {{"name", spec.name},
                            {"path", spec.kind == ModelKind::kPlane ? "plane"
-                                    : spec.path.empty()            ? context.workspace.Path("dense/stereo")
-                                                                   : spec.path}};
+                                    : spec.path.empty()            ? std::string("dense/stereo")
+                                                                   : context.workspace.Relative(spec.path)}};
       const auto skip = [&](const std::string& reason) {
         spdlog::warn("[render] proxy {}: {}; skipped", spec.name, reason);
         pj["status"] = "skipped";
@@ -400,7 +400,10 @@ class RenderStage : public Stage {
       std::vector<const TriangleMesh*> layers;
       if (is_mesh) layers.push_back(&mesh);
       for (const TriangleMesh& fallback : fallbacks) layers.push_back(&fallback);
-      if (!fallbacks.empty()) pj["fallbacks"] = spec.fallbacks;
+      if (!fallbacks.empty()) {
+        pj["fallbacks"] = nlohmann::json::array();
+        for (const std::string& path : spec.fallbacks) pj["fallbacks"].push_back(context.workspace.Relative(path));
+      }
       if (spec.kind == ModelKind::kPlane && !plane_possible) {
         throw InputError("render: plane proxy: no sparse points and the training optical axes are parallel; "
                          "list a mesh proxy instead");
@@ -434,7 +437,7 @@ class RenderStage : public Stage {
         pj["skin_connections"] = stats.skins;
         pj["outliers"] = stats.outliers;
         pj["merged_away"] = stats.merged;
-        pj["prepare_seconds"] = stats.seconds;
+        context.metrics["prepare_seconds_" + spec.name] = stats.seconds;
         context.metrics["samples_" + spec.name] = cloud.size();
       }
       const bool is_primary = primary.empty();
@@ -508,11 +511,10 @@ class RenderStage : public Stage {
       pj["status"] = "rendered";
       pj["primary"] = is_primary;
       pj["views"] = views_json;
-      pj["seconds"] = seconds;
       if (cloud.size() > 0 && splat_megapixels > 0) {
         // Speed of the splatting alone: milliseconds per output megapixel per million samples.
-        pj["ms_per_megapixel_per_million_splats"] = 1e3 * splat_seconds / splat_megapixels / (1e-6 * cloud.size());
-        context.metrics["ms_per_megapixel_per_million_splats_" + spec.name] = pj["ms_per_megapixel_per_million_splats"];
+        context.metrics["ms_per_megapixel_per_million_splats_" + spec.name] =
+            1e3 * splat_seconds / splat_megapixels / (1e-6 * cloud.size());
       }
       proxies_json.push_back(pj);
       context.metrics["seconds_" + spec.name] = seconds;

@@ -14,6 +14,8 @@
 #include <CGAL/Exact_predicates_inexact_constructions_kernel.h>
 #include <tbb/parallel_for.h>
 
+#include <algorithm>
+
 #include <array>
 #include <cmath>
 #include <map>
@@ -41,6 +43,25 @@ struct EdgeBound {
   }
 };
 
+// The advancing front orients each connected piece consistently; whether a piece faces out is
+// decided by the majority of its faces against the particles' normals, and the whole piece
+// turned if needed (turning faces one by one would break the consistency where normals are noisy).
+void OrientPieces(const PointCloud& particles, TriangleMesh* mesh_pointer) {
+  TriangleMesh& mesh = *mesh_pointer;
+  const std::vector<int> piece = ConnectedPieces(mesh);
+  std::vector<double> votes(mesh.vertices.size(), 0.0);
+  for (size_t i = 0; i < mesh.faces.size(); ++i) {
+    const Eigen::Vector3i& face = mesh.faces[i];
+    const Eigen::Vector3f& a = mesh.vertices[face[0]];
+    const Eigen::Vector3f normal = (mesh.vertices[face[1]] - a).cross(mesh.vertices[face[2]] - a);
+    const Eigen::Vector3f vertex_normals = particles.normals[face[0]] + particles.normals[face[1]] + particles.normals[face[2]];
+    votes[piece[i]] += normal.dot(vertex_normals) >= 0 ? 1.0 : -1.0;
+  }
+  for (size_t i = 0; i < mesh.faces.size(); ++i) {
+    if (votes[piece[i]] < 0) std::swap(mesh.faces[i][1], mesh.faces[i][2]);
+  }
+}
+
 }  // namespace
 
 TriangleMesh TriangulateParticles(const PointCloud& particles, double max_edge_length) {
@@ -57,22 +78,17 @@ TriangleMesh TriangulateParticles(const PointCloud& particles, double max_edge_l
                                                EdgeBound{max_edge_length * max_edge_length});
   mesh.faces.reserve(facets.size());
   for (const auto& f : facets) mesh.faces.emplace_back(static_cast<int>(f[0]), static_cast<int>(f[1]), static_cast<int>(f[2]));
-  if (particles.normals.empty()) return mesh;
-  // The advancing front orients each connected piece consistently; whether a piece faces out is
-  // decided by the majority of its faces against the particles' normals, and the whole piece
-  // turned if needed (turning faces one by one would break the consistency where normals are noisy).
-  const std::vector<int> piece = ConnectedPieces(mesh);
-  std::vector<double> votes(mesh.vertices.size(), 0.0);
-  for (size_t i = 0; i < mesh.faces.size(); ++i) {
-    const Eigen::Vector3i& face = mesh.faces[i];
-    const Eigen::Vector3f& a = mesh.vertices[face[0]];
-    const Eigen::Vector3f normal = (mesh.vertices[face[1]] - a).cross(mesh.vertices[face[2]] - a);
-    const Eigen::Vector3f vertex_normals = particles.normals[face[0]] + particles.normals[face[1]] + particles.normals[face[2]];
-    votes[piece[i]] += normal.dot(vertex_normals) >= 0 ? 1.0 : -1.0;
+  if (!particles.normals.empty()) OrientPieces(particles, &mesh);
+  // CGAL emits the facets in an order (and each piece in an orientation) that depends on where its
+  // cells landed in memory, so two runs on the same particles differ. A canonical order, after the
+  // orientation is settled (each face rotated to start at its smallest index, then sorted), makes
+  // the mesh, and all that follows, reproducible.
+  for (Eigen::Vector3i& f : mesh.faces) {
+    while (f[0] > f[1] || f[0] > f[2]) f = Eigen::Vector3i(f[1], f[2], f[0]);
   }
-  for (size_t i = 0; i < mesh.faces.size(); ++i) {
-    if (votes[piece[i]] < 0) std::swap(mesh.faces[i][1], mesh.faces[i][2]);
-  }
+  std::sort(mesh.faces.begin(), mesh.faces.end(), [](const Eigen::Vector3i& a, const Eigen::Vector3i& b) {
+    return std::lexicographical_compare(a.data(), a.data() + 3, b.data(), b.data() + 3);
+  });
   return mesh;
 }
 
