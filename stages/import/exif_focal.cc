@@ -1,6 +1,7 @@
 // Focal length in pixels from EXIF (libexif): the 35 mm equivalent focal length when present
 // (f_px = f35 / 36 * max(w, h), 36 mm being the width of a 35 mm frame), else the focal length in
-// mm times the focal-plane resolution (pixels per unit) when the camera wrote it.
+// mm times the focal-plane resolution (pixels per unit) when the camera wrote it. Also the EXIF
+// orientation tag.
 #include <libexif/exif-data.h>
 
 #include <algorithm>
@@ -48,6 +49,15 @@ double ExifFocalPixels(const std::string& image_path, int width, int height) {
   }
   exif_data_unref(data);
   return focal_pixels;
+}
+
+int ExifOrientation(const std::string& image_path) {
+  ExifData* data = exif_data_new_from_file(image_path.c_str());
+  if (!data) return 1;
+  double value = 1;
+  const bool found = RationalTag(data, EXIF_TAG_ORIENTATION, &value);
+  exif_data_unref(data);
+  return found && value >= 1 && value <= 8 ? static_cast<int>(value) : 1;
 }
 
 }  // namespace ibmr

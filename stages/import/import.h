@@ -45,6 +45,8 @@ Camera FolderCamera(int width, int height, double exif_focal_pixels, const Impor
 
 // Focal length in pixels from the image's EXIF (0 when absent or unusable).
 double ExifFocalPixels(const std::string& image_path, int width, int height);
+// The EXIF orientation tag (1-8; 1, "as stored", when absent or unreadable).
+int ExifOrientation(const std::string& image_path);
 
 // Detects the source format of a folder ("middlebury" when a *_par.txt is present, ...).
 ImportFormat DetectFormat(const std::string& folder);

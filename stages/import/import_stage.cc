@@ -11,6 +11,7 @@
 
 #include "pipeline/core/atomic_file.h"
 #include "pipeline/core/colmap_text_io.h"
+#include "pipeline/core/content_hash.h"
 #include "pipeline/core/errors.h"
 #include "pipeline/core/image_io.h"
 #include "pipeline/core/stage_api.h"
@@ -40,10 +41,45 @@ std::vector<std::string> ListImages(const std::string& folder) {
   return names;
 }
 
+// The size the stages see: decoded as they decode it (ReadImageColor: as stored, EXIF orientation
+// not applied).
 std::pair<int, int> ImageSize(const std::string& path) {
-  const cv::Mat image = cv::imread(path, cv::IMREAD_UNCHANGED);
-  if (image.empty()) throw IoError(path + ": cannot read this image (missing or not an image file)");
+  const cv::Mat image = ReadImageColor(path);
   return {image.cols, image.rows};
+}
+
+// Why a photo of a plain folder cannot be used ("" when it can), and what was converted (added to
+// `notes`): every photo is decoded as the stages will decode it.
+std::string ScreenPhoto(const std::string& path, std::string* notes) {
+  std::error_code ec;
+  const auto bytes = fs::file_size(path, ec);
+  if (ec) return "cannot read the file (" + ec.message() + ")";
+  if (bytes == 0) return "empty file (0 bytes)";
+  cv::Mat raw;
+  try {
+    raw = cv::imread(path, cv::IMREAD_UNCHANGED);
+  } catch (const cv::Exception&) {
+  }
+  if (raw.empty()) return "not an image OpenCV can decode (corrupt, or another kind of file with an image extension)";
+  std::string ext = fs::path(path).extension().string();
+  std::transform(ext.begin(), ext.end(), ext.begin(), ::tolower);
+  if (ext == ".jpg" || ext == ".jpeg") {
+    // libjpeg decodes a truncated file with a warning and grey rows at the bottom: refuse it when
+    // the end-of-image marker (FF D9) is missing from the last bytes.
+    const std::string data = ReadFile(path);
+    const size_t tail = std::min<size_t>(data.size(), 64);
+    if (data.substr(data.size() - tail).find("\xFF\xD9") == std::string::npos) return "truncated JPEG (no end-of-image marker)";
+  }
+  std::vector<std::string> converted;
+  if (raw.channels() == 4) converted.push_back("alpha channel ignored");
+  if (raw.channels() == 1) converted.push_back("greyscale read as colour");
+  if (raw.depth() == CV_16U) converted.push_back("16-bit samples scaled to 8 bits");
+  // Every stage reads photos as stored (as COLMAP does): a rotation the camera asked for in EXIF is
+  // not applied, and the camera model describes the stored pixels.
+  const int orientation = ExifOrientation(path);
+  if (orientation != 1) converted.push_back("EXIF orientation " + std::to_string(orientation) + " ignored: used as stored");
+  for (size_t i = 0; i < converted.size(); ++i) *notes += (i ? ", " : "") + converted[i];
+  return "";
 }
 
 // Hard link when possible (same file system), else a copy under a temporary name, then rename.
@@ -121,6 +157,8 @@ class ImportStage : public Stage {
     context.metrics["cameras"] = capture.model.cameras.size();
     context.metrics["posed_images"] = capture.model.images.size();
     context.metrics["format"] = format;
+    if (!capture.skipped.empty()) context.metrics["skipped_images"] = capture.skipped;
+    if (!capture.converted.empty()) context.metrics["converted_images"] = capture.converted;
     spdlog::info("[import] {} format: {} images, {} posed, {} cameras{}", format, capture.names.size(),
                  capture.model.images.size(), capture.model.cameras.size(),
                  capture.model.images.empty() ? " (no poses: run sfm next)" : "");
@@ -148,6 +186,8 @@ class ImportStage : public Stage {
     std::vector<std::string> names;
     std::string image_dir;
     std::map<std::string, cv::Size> resize_to;  // photos resampled on import (max_image_size)
+    nlohmann::json skipped = nlohmann::json::object();    // photo -> why it was left out
+    nlohmann::json converted = nlohmann::json::object();  // photo -> what reading it converts
   };
 
   Capture ReadCapture(const std::string& source, const ImportOptions& options, const Params& params) const {
@@ -166,7 +206,7 @@ class ImportStage : public Stage {
         break;
       default:
         capture.names = ListImages(source);
-        capture.model = ReadFolder(source, capture.names, options);
+        capture.model = ReadFolder(source, &capture.names, options, &capture.skipped, &capture.converted);
         return capture;
     }
     for (int id : capture.model.ImageIdsByName()) capture.names.push_back(capture.model.images.at(id).name);
@@ -205,10 +245,38 @@ class ImportStage : public Stage {
     return model;
   }
 
-  SparseModel ReadFolder(const std::string& source, const std::vector<std::string>& names,
-                         const ImportOptions& options) const {
+  // A plain folder: photos that cannot be used are skipped with a warning naming them and why
+  // (empty, not an image, truncated, a byte-identical duplicate of another), conversions are said.
+  SparseModel ReadFolder(const std::string& source, std::vector<std::string>* names_in_out, const ImportOptions& options,
+                         nlohmann::json* skipped, nlohmann::json* converted) const {
     SparseModel model;
-    if (names.empty()) throw InputError(source + ": no images (png, jpg, tif, bmp, ppm, pgm) in this folder");
+    std::vector<std::string> names;
+    std::map<std::string, std::string> first_with_hash;
+    for (const std::string& name : *names_in_out) {
+      const std::string path = source + "/" + name;
+      std::string notes;
+      std::string reason = ScreenPhoto(path, &notes);
+      if (reason.empty()) {
+        const std::string hash = HashPath(path);
+        const auto [it, fresh] = first_with_hash.emplace(hash, name);
+        if (!fresh) reason = "byte-identical duplicate of " + it->second + " (no baseline between the two)";
+      }
+      if (!reason.empty()) {
+        spdlog::warn("[import] {}: skipped: {}", path, reason);
+        (*skipped)[name] = reason;
+        continue;
+      }
+      if (!notes.empty()) {
+        spdlog::info("[import] {}: {}", path, notes);
+        (*converted)[name] = notes;
+      }
+      names.push_back(name);
+    }
+    *names_in_out = names;
+    if (names.empty()) {
+      throw InputError(source + ": no usable images (png, jpg, tif, bmp, ppm, pgm) in this folder" +
+                       (skipped->empty() ? std::string() : " (" + std::to_string(skipped->size()) + " skipped, see the warnings)"));
+    }
     for (const std::string& name : names) {
       const std::string path = source + "/" + name;
       const auto [width, height] = ImageSize(path);
