@@ -19,7 +19,8 @@
 //                            skins and outliers flagged (depth_images.h), every drawable sample kept
 //   splat_depth_merged       the same after tile merging [N 4.6]: one sample per surface point
 //   splat_surfels            the oriented discs of surfels/surfels.ply
-// Writes renders/<proxy>/<image stem>.png and <image stem>.coverage.png (255 covered) per proxy,
+// Writes renders/<proxy>/<image stem>.png, <image stem>.coverage.png (255 covered) and
+// <image stem>.json (the view's coverage, sources, files) per proxy,
 // the primary proxy's copies as renders/<image stem>.png and .coverage.png, and renders/renders.json.
 // With `background: plane`, every other model's holes are also filled from the plane proxy's render
 // of the same view: <image stem>.filled.png and .filled.coverage.png, scored apart by score.
@@ -346,17 +347,14 @@ class RenderStage : public Stage {
     // The background that fills every other model's holes (`background: plane`), one per view.
     std::map<std::string, RenderResult> background;
     if (context.params.String("background") == "plane" && plane_possible) {
-      std::mutex mutex;
-      std::vector<std::string> keys;
-      for (const Desired& view : desired) keys.push_back(view.stem);
-      ForEachView(context, "render background plane", keys, [&](const std::string& key) {
-        const Desired& view = desired[std::find(keys.begin(), keys.end(), key) - keys.begin()];
+      // In memory only (no per-view checkpoint): a resumed run needs it for every view it renders.
+      std::vector<RenderResult> results(desired.size());
+      tbb::parallel_for(size_t{0}, desired.size(), [&](size_t i) {
         std::string plane_kind;
         size_t used = 0;
-        RenderResult result = render_ulr(sources, {}, view, &plane_kind, &used);
-        std::lock_guard<std::mutex> lock(mutex);
-        background[view.stem] = std::move(result);
+        results[i] = render_ulr(sources, {}, desired[i], &plane_kind, &used);
       });
+      for (size_t i = 0; i < desired.size(); ++i) background[desired[i].stem] = std::move(results[i]);
     }
 
     nlohmann::json proxies_json = nlohmann::json::array();
@@ -504,9 +502,14 @@ class RenderStage : public Stage {
           WriteImage(folder + "/" + view.stem + ".filled.coverage.png", filled.coverage);
           vj["filled"] = "renders/" + spec.name + "/" + view.stem + ".filled.png";
         }
-        std::lock_guard<std::mutex> lock(mutex);
-        views_json[view.name] = vj;
+        // The view's facts beside its images: a resumed run skips views already rendered and
+        // gathers every view's facts from these files.
+        WriteFileAtomic(folder + "/" + view.stem + ".json", vj.dump(2) + "\n");
       });
+      for (const Desired& view : desired) {
+        const std::string facts = folder + "/" + view.stem + ".json";
+        if (fs::exists(facts)) views_json[view.name] = nlohmann::json::parse(ReadFile(facts));
+      }
       const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
       pj["status"] = "rendered";
       pj["primary"] = is_primary;
