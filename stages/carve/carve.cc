@@ -235,6 +235,8 @@ bool CarveOptions::Check(std::string* error) const {
     *error = "max_displacement: must be in [0, 1) cells, got " + std::to_string(max_displacement);
   } else if (max_mesh_level < 1 || max_mesh_level > 9) {
     *error = "max_mesh_level: must be in [1, 9], got " + std::to_string(max_mesh_level);
+  } else if (mesh_dilation < 0 || mesh_dilation > 2) {
+    *error = "mesh_dilation: must be in [0, 2], got " + std::to_string(mesh_dilation);
   } else if (!(level_tolerance >= 0 && level_tolerance <= 1)) {
     *error = "level_tolerance: must be in [0, 1], got " + std::to_string(level_tolerance);
   } else {

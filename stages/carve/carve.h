@@ -68,6 +68,10 @@ struct CarveOptions {
   double smooth_mu = -0.53;            // in (-1, 0), |mu| > lambda
   double max_displacement = 0.5;       // cells, in [0, 1)
   int max_mesh_level = 8;              // mesh at min(level, this); dense grid of 8^level bytes, in [1, 9]
+  int mesh_dilation = 1;               // cells the hull is dilated by before meshing, in [0, 2]: 1 keeps the
+                                       // whole hull inside the smoothed mesh; 0 fits the silhouettes
+                                       // closer, cutting partial cells by at most max_displacement
+  bool mesh_at_finest = false;         // mesh at the finest level instead of the chosen one
   double level_tolerance = 0.005;      // held-out IoU tolerance of the automatic level choice, in [0, 1]
 
   // Returns false and sets `error` (starting with the YAML key) when a value is out of range.

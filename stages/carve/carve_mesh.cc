@@ -2,11 +2,14 @@
 // 14700-14740: "The external polygons are collected and the resulting polyhedron is then smoothed
 // using Taubin's polyhedral smoothing algorithm"), in OpenMesh.
 //
-// Containment: the faces are those of the hull dilated by one cell (26-neighbourhood), and every
+// Containment (mesh_dilation 1, the default): the faces are those of the hull dilated by one cell
+// (26-neighbourhood), and every
 // vertex stays within `max_displacement` < 1 cell of its start. A point of a smoothed triangle is
 // the same convex combination of moved vertices as of the original ones, so it moved less than
 // one cell; the undilated hull is at least one cell away from the dilated surface, so no
-// intermediate surface crosses it and the mesh still encloses the conservative hull.
+// intermediate surface crosses it and the mesh still encloses the conservative hull. With
+// mesh_dilation 0 the faces are the hull's own and the mesh may cut into its boundary cells by up
+// to max_displacement: a closer fit to the silhouettes, no longer a guaranteed superset.
 #include <OpenMesh/Core/Mesh/TriMesh_ArrayKernelT.hh>
 #include <OpenMesh/Core/System/omstream.hh>
 #include <algorithm>
@@ -43,19 +46,20 @@ TriangleMesh HullMesh(const Octree& octree, int level, const CarveOptions& optio
   *stats = HullMeshStats();
   level = std::min({level, octree.MaxLevel(), options.max_mesh_level});
   const int n = 1 << level;
-  const int m = n + 2;  // padded by one cell each side for the dilation
+  const int m = n + 2 * std::max(1, options.mesh_dilation);  // padded for the dilation
   const std::vector<uint8_t> hull = DenseHull(octree, level);
+  const int pad = std::max(1, options.mesh_dilation);
   std::vector<uint8_t> grid(static_cast<size_t>(m) * m * m, 0);
   for (int z = 0; z < n; ++z) {
     for (int y = 0; y < n; ++y) {
       for (int x = 0; x < n; ++x) {
-        grid[((static_cast<size_t>(z) + 1) * m + y + 1) * m + x + 1] = hull[(static_cast<size_t>(z) * n + y) * n + x];
+        grid[((static_cast<size_t>(z) + pad) * m + y + pad) * m + x + pad] = hull[(static_cast<size_t>(z) * n + y) * n + x];
       }
     }
   }
-  Dilate26(m, &grid);
+  for (int k = 0; k < options.mesh_dilation; ++k) Dilate26(m, &grid);
   const double cell = octree.CellSize(level);
-  const Eigen::Vector3d origin = octree.origin - Eigen::Vector3d::Constant(cell);
+  const Eigen::Vector3d origin = octree.origin - Eigen::Vector3d::Constant(pad * cell);
   const auto occupied = [&](int x, int y, int z) {
     return x >= 0 && y >= 0 && z >= 0 && x < m && y < m && z < m && grid[(static_cast<size_t>(z) * m + y) * m + x];
   };
@@ -151,9 +155,9 @@ TriangleMesh HullMesh(const Octree& octree, int level, const CarveOptions& optio
     result.faces.push_back(face);
   }
   result.ComputeVertexNormals();
-  result.comments = {"ibmr conservative_hull 1",
+  result.comments = {options.mesh_dilation >= 1 ? "ibmr conservative_hull 1" : "ibmr conservative_hull 0",
                      "ibmr octree level " + std::to_string(level) + " cell " + std::to_string(cell) +
-                         ", dilated 1 cell, Taubin " + std::to_string(options.smooth_iterations) +
+                         ", dilated " + std::to_string(options.mesh_dilation) + " cell, Taubin " + std::to_string(options.smooth_iterations) +
                          " iterations, displacement <= " + std::to_string(options.max_displacement) + " cell"};
   return result;
 }

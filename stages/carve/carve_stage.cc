@@ -31,6 +31,7 @@
 #include "pipeline/core/image_io.h"
 #include "pipeline/core/ply_io.h"
 #include "pipeline/core/stage_api.h"
+#include "pipeline/core/rasterizer.h"
 #include "stages/carve/carve.h"
 
 namespace fs = std::filesystem;
@@ -138,6 +139,9 @@ class CarveStage : public Stage {
         {"smooth_mu", ParamType::kDouble, "-0.53", "Taubin mu, in (-1, 0), |mu| > lambda"},
         {"max_displacement", ParamType::kDouble, "0.5", "largest vertex move while smoothing, cells, in [0, 1)"},
         {"max_mesh_level", ParamType::kInt, "8", "the mesh is built at min(chosen level, this), in [1, 9]"},
+        {"mesh_dilation", ParamType::kInt, "1",
+         "cells the hull is dilated by before meshing: 1 encloses the hull, 0 fits the silhouettes closer, in [0, 2]"},
+        {"mesh_at_finest", ParamType::kBool, "false", "mesh the finest level instead of the chosen one"},
         {"level_tolerance", ParamType::kDouble, "0.005",
          "chosen level: smallest whose held-out IoU is within this of the best level's, in [0, 1]"},
     };
@@ -263,8 +267,20 @@ class CarveStage : public Stage {
 
     // Mesh (chosen level) and depth bounds (finest hull: the tightest conservative bounds).
     HullMeshStats mesh_stats;
-    const TriangleMesh mesh = HullMesh(octree, chosen, options, &mesh_stats);
+    const int meshed_level = options.mesh_at_finest ? finest : chosen;
+    const TriangleMesh mesh = HullMesh(octree, meshed_level, options, &mesh_stats);
     if (mesh.faces.empty()) throw InputError("carve: the hull mesh has no face");
+    // How well the mesh fits the silhouettes it was carved from: its projection against each
+    // training mask (the octree cells' own fit is training_iou_*).
+    std::vector<double> mesh_ious(views.size(), 0.0);
+    tbb::parallel_for(size_t{0}, views.size(), [&](size_t i) {
+      const DepthMap depth = Rasterize(mesh, views[i].camera, views[i].cam_from_world).depth;
+      cv::Mat silhouette(views[i].camera.height, views[i].camera.width, CV_8UC1, cv::Scalar(0));
+      for (int y = 0; y < silhouette.rows; ++y) {
+        for (int x = 0; x < silhouette.cols; ++x) silhouette.at<uint8_t>(y, x) = IsValidDepth(depth.At(x, y)) ? 255 : 0;
+      }
+      mesh_ious[i] = MaskIou(silhouette, views[i].mask);
+    });
     nlohmann::json bounds = nlohmann::json::object();
     for (size_t i = 0; i < views.size(); ++i) {
       double near_z = 0, far_z = 0;
@@ -276,7 +292,7 @@ class CarveStage : public Stage {
                      views[i].name);
       }
     }
-    const int mesh_level = std::min({chosen, finest, options.max_mesh_level});
+    const int mesh_level = std::min({meshed_level, finest, options.max_mesh_level});
     const nlohmann::json summary = {
         {"origin", {origin.x(), origin.y(), origin.z()}},
         {"size", size},
@@ -297,6 +313,8 @@ class CarveStage : public Stage {
 
     auto& metrics = context.metrics;
     metrics["views_used"] = finest_values.size();
+    metrics["mesh_iou_median"] = Median(mesh_ious);
+    metrics["mesh_iou_min"] = mesh_ious.empty() ? 0.0 : *std::min_element(mesh_ious.begin(), mesh_ious.end());
     metrics["seconds_per_level"] = level_seconds;
     metrics["finest_level"] = finest;
     metrics["chosen_level"] = chosen;
@@ -339,6 +357,8 @@ class CarveStage : public Stage {
     options.smooth_mu = params.Double("smooth_mu");
     options.max_displacement = params.Double("max_displacement");
     options.max_mesh_level = static_cast<int>(std::clamp<int64_t>(params.Int("max_mesh_level"), -1, 1000));
+    options.mesh_dilation = static_cast<int>(std::clamp<int64_t>(params.Int("mesh_dilation"), -1, 100));
+    options.mesh_at_finest = params.Bool("mesh_at_finest");
     options.level_tolerance = params.Double("level_tolerance");
     return options;
   }

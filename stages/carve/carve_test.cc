@@ -157,6 +157,7 @@ TEST(CarveOptions, RejectsOutOfRange) {
       {"smooth_mu", [](CarveOptions* o) { o->smooth_mu = -0.4; }},
       {"max_displacement", [](CarveOptions* o) { o->max_displacement = 1.0; }},
       {"max_mesh_level", [](CarveOptions* o) { o->max_mesh_level = 10; }},
+      {"mesh_dilation", [](CarveOptions* o) { o->mesh_dilation = 3; }},
       {"level_tolerance", [](CarveOptions* o) { o->level_tolerance = -0.1; }},
   };
   for (const auto& [key, mutate] : cases) {
@@ -244,6 +245,22 @@ TEST(CarveSynthetic, Level7ContainsTheObjectAndMatchesBruteForce) {
             << " of object voxels, " << static_cast<double>(hull_in_mesh) / hull_count << " of hull voxels, "
             << stats.duplicated_vertices << " duplicated vertices" << std::endl;
   EXPECT_GE(containment, 0.9999);
+
+  // Without the dilation the mesh hugs the hull: it no longer claims to be conservative, it holds
+  // fewer voxels outside the hull, and it still holds nearly all of the hull.
+  CarveOptions tight = options;
+  tight.mesh_dilation = 0;
+  const TriangleMesh tight_mesh = HullMesh(result.octree, 7, tight);
+  EXPECT_EQ(tight_mesh.comments.front(), "ibmr conservative_hull 0");
+  const std::vector<uint8_t> in_tight = InsideMesh(tight_mesh, origin, cell, n);
+  size_t outside_hull = 0, tight_outside_hull = 0, tight_hull_in = 0;
+  for (size_t i = 0; i < hull.size(); ++i) {
+    outside_hull += !hull[i] && in_mesh[i];
+    tight_outside_hull += !hull[i] && in_tight[i];
+    tight_hull_in += hull[i] && in_tight[i];
+  }
+  EXPECT_LT(tight_outside_hull * 2, outside_hull) << "the undilated mesh should be much tighter";
+  EXPECT_GE(static_cast<double>(tight_hull_in) / hull_count, 0.9);
 }
 
 TEST(CarveSynthetic, DepthBoundsEncloseTrueDepth) {
@@ -362,6 +379,8 @@ StageContext CarveContext(const Stage& stage, const std::string& root, NullProgr
   context.params.Set("smooth_mu", -0.53);
   context.params.Set("max_displacement", 0.5);
   context.params.Set("max_mesh_level", int64_t{8});
+  context.params.Set("mesh_dilation", int64_t{1});
+  context.params.Set("mesh_at_finest", false);
   context.params.Set("level_tolerance", 0.002);
   return context;
 }
