@@ -22,18 +22,27 @@ void SetUpLogging(const std::string& workspace) {
   auto console = std::make_shared<spdlog::sinks::stderr_color_sink_mt>();
   console->set_pattern("%^%L%$ %H:%M:%S %v");
   std::vector<spdlog::sink_ptr> sinks{console};
+  std::string problem;
   if (!workspace.empty()) {
     std::error_code ec;
     std::filesystem::create_directories(workspace + "/logs", ec);
+    problem = ec ? ec.message() : "";
     if (!ec) {
-      auto file = std::make_shared<spdlog::sinks::basic_file_sink_mt>(workspace + "/logs/ibmr.log");
-      file->set_pattern("%Y-%m-%d %H:%M:%S.%e %l [pid %P] %v");
-      sinks.push_back(file);
+      try {
+        auto file = std::make_shared<spdlog::sinks::basic_file_sink_mt>(workspace + "/logs/ibmr.log");
+        file->set_pattern("%Y-%m-%d %H:%M:%S.%e %l [pid %P] %v");
+        sinks.push_back(file);
+      } catch (const spdlog::spdlog_ex& e) {  // a read-only or full workspace: log to the terminal only
+        problem = e.what();
+      }
     }
   }
   auto logger = std::make_shared<spdlog::logger>("ibmr", sinks.begin(), sinks.end());
   logger->flush_on(spdlog::level::info);
   spdlog::set_default_logger(logger);
+  if (!problem.empty()) {
+    spdlog::warn("cannot write the log {}/logs/ibmr.log ({}); logging to the terminal only", workspace, problem);
+  }
 }
 
 }  // namespace
