@@ -35,6 +35,7 @@ if [ ! -d "$SEEDS" ]; then
     [ -f "$WS/hull/octree.bin" ] && cp "$WS/hull/octree.bin" "$SEEDS/octree/"
     cp "$WS"/records/*.json "$SEEDS/record/" 2>/dev/null || true
     find "$WS/images" -name '*.png' | head -2 | xargs -r -I{} cp {} "$SEEDS/image/"
+    "$ROOT/build/ibmr" export-transforms "$WS" "$SEEDS/transforms/demo_transforms.json" >/dev/null 2>&1 || true
     if [ -d "$WS/sparse" ]; then
       { cat "$WS/sparse/cameras.txt"; printf '\n%%%%\n'; head -c 4000 "$WS/sparse/images.txt"; printf '\n%%%%\n';
         head -c 2000 "$WS/sparse/points3D.txt"; } > "$SEEDS/colmap_text/demo_model"
@@ -42,8 +43,10 @@ if [ ! -d "$SEEDS" ]; then
   fi
 fi
 
+mkdir -p "$SEEDS"/{transforms,poses_bounds}  # harnesses added later seed from scratch or from a demo
 HARNESSES=("$@")
-[ ${#HARNESSES[@]} -eq 0 ] && HARNESSES=(ply colmap_text colmap_array pfm image middlebury_par strecha_camera octree record config)
+[ ${#HARNESSES[@]} -eq 0 ] && HARNESSES=(ply colmap_text colmap_array pfm image middlebury_par strecha_camera octree record config
+                                         transforms poses_bounds)
 failed=()
 for name in "${HARNESSES[@]}"; do
   corpus="$OUT/corpus/$name"

@@ -151,6 +151,10 @@ ImportFormat DetectFormat(const std::string& folder) {
     return ImportFormat::kColmap;
   }
   if (fs::is_directory(fs::path(folder) / "gt_dense_cameras")) return ImportFormat::kStrecha;
+  if (fs::exists(fs::path(folder) / "transforms.json") || fs::exists(fs::path(folder) / "transforms_train.json")) {
+    return ImportFormat::kTransforms;
+  }
+  if (fs::exists(fs::path(folder) / "poses_bounds.npy")) return ImportFormat::kLlff;
   for (const auto& entry : fs::directory_iterator(folder)) {
     const std::string name = entry.path().filename().string();
     if (name.size() > 8 && name.compare(name.size() - 8, 8, "_par.txt") == 0) return ImportFormat::kMiddlebury;

@@ -21,7 +21,7 @@
 
 namespace ibmr {
 
-enum class ImportFormat { kAuto, kFolder, kMiddlebury, kStrecha, kColmap };
+enum class ImportFormat { kAuto, kFolder, kMiddlebury, kStrecha, kColmap, kTransforms, kLlff };
 
 struct ImportOptions {
   ImportFormat format = ImportFormat::kAuto;

@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <filesystem>
 #include <fstream>
+#include <iostream>
 #include <map>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
@@ -14,6 +15,7 @@
 #include "pipeline/core/content_hash.h"
 #include "pipeline/core/errors.h"
 #include "pipeline/core/image_io.h"
+#include "pipeline/core/nerf_formats.h"
 #include "pipeline/core/stage_api.h"
 #include "stages/import/import.h"
 
@@ -23,7 +25,8 @@ namespace ibmr {
 
 namespace {
 
-const std::vector<std::string> kFormatNames = {"auto", "folder", "middlebury", "strecha", "colmap"};
+const std::vector<std::string> kFormatNames = {"auto",   "folder",     "middlebury", "strecha",
+                                               "colmap", "transforms", "llff"};
 
 bool IsImageFile(const fs::path& path) {
   std::string ext = path.extension().string();
@@ -111,6 +114,7 @@ class ImportStage : public Stage {
          "Longest image side kept (px): larger photos are resampled (area averaging) and their cameras scaled; 0: as "
          "they are",
          {}},
+        {"llff_downscale", ParamType::kInt, "1", "LLFF: read images_<N>/ (1: images/), cameras scaled to match; >= 1"},
         {"focal_prior", ParamType::kDouble, "1.2", "Focal length without EXIF, times max(width, height); > 0"},
         {"folder_camera_model", ParamType::kString, "SIMPLE_RADIAL", "Camera model for a plain image folder",
          {"SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV"}},
@@ -120,6 +124,7 @@ class ImportStage : public Stage {
   std::optional<ParamError> CheckParams(const Params& params) const override {
     std::string error;
     if (!ToOptions(params).Check(&error)) return ParamError::FromCheck(error);
+    if (params.Int("llff_downscale") < 1) return ParamError{"llff_downscale", "must be >= 1"};
     const int64_t max_size = params.Int("max_image_size");
     if (max_size != 0 && (max_size < 16 || max_size > 100000)) {
       return ParamError{"max_image_size", "must be 0 (keep) or in [16, 100000], got " + std::to_string(max_size)};
@@ -199,6 +204,38 @@ class ImportStage : public Stage {
         capture.image_dir = (fs::path(source) / "images").string();
         capture.model = ReadStrecha(source, capture.image_dir);
         break;
+      case ImportFormat::kTransforms: {
+        // nerfstudio / instant-ngp transforms.json, or the Blender layout's transforms_train.json
+        // (its test and val splits are other files; hold views out with `holdout` instead).
+        const fs::path json = fs::exists(fs::path(source) / "transforms.json") ? fs::path(source) / "transforms.json"
+                                                                              : fs::path(source) / "transforms_train.json";
+        std::vector<std::string> names;
+        capture.model = ParseTransformsJson(ReadFile(json.string()), json.string(),
+                                            [&](const std::string& image) { return ImageSize(source + "/" + image); },
+                                            &names);
+        break;
+      }
+      case ImportFormat::kLlff: {
+        const int downscale = static_cast<int>(params.Int("llff_downscale"));
+        capture.image_dir = (fs::path(source) / (downscale > 1 ? "images_" + std::to_string(downscale) : "images")).string();
+        if (!fs::is_directory(capture.image_dir)) {
+          throw InputError(capture.image_dir + ": no such folder (import.llff_downscale " + std::to_string(downscale) +
+                           " reads images_<N>/; 1 reads images/)");
+        }
+        const std::string npy = (fs::path(source) / "poses_bounds.npy").string();
+        std::vector<std::pair<double, double>> bounds;
+        capture.model = ParsePosesBounds(ReadFile(npy), npy, ListImages(capture.image_dir), downscale, &bounds);
+        for (const auto& [id, image] : capture.model.images) {
+          const auto [width, height] = ImageSize(capture.image_dir + "/" + image.name);
+          const Camera& camera = capture.model.CameraOf(image);
+          if (width != camera.width || height != camera.height) {
+            throw InputError(capture.image_dir + "/" + image.name + ": is " + std::to_string(width) + "x" +
+                             std::to_string(height) + " but poses_bounds.npy says " + std::to_string(camera.width) + "x" +
+                             std::to_string(camera.height) + " at downscale " + std::to_string(downscale));
+          }
+        }
+        break;
+      }
       case ImportFormat::kColmap:
         capture.image_dir = params.String("images").empty() ? (fs::path(source).parent_path() / "images").string()
                                                             : params.String("images");
@@ -329,6 +366,7 @@ class ImportStage : public Stage {
     for (const std::string& name : capture.names) {
       const fs::path from = fs::path(capture.image_dir) / name;
       if (!fs::exists(from)) throw InputError(from.string() + ": image named in the camera file is missing");
+      fs::create_directories((target / name).parent_path());  // transforms.json paths may hold folders
       const auto resize = capture.resize_to.find(name);
       if (resize == capture.resize_to.end()) {
         PlaceImage(from, target / name);
@@ -341,15 +379,46 @@ class ImportStage : public Stage {
     // Images of an earlier import that are not part of this one would confuse later stages.
     for (const auto& entry : fs::directory_iterator(target)) {
       const std::string name = entry.path().filename().string();
-      if (std::find(capture.names.begin(), capture.names.end(), name) == capture.names.end()) {
-        fs::remove_all(entry.path());
-      }
+      const bool used = std::any_of(capture.names.begin(), capture.names.end(), [&](const std::string& n) {
+        return n == name || n.rfind(name + "/", 0) == 0;  // a file, or the folder of some
+      });
+      if (!used) fs::remove_all(entry.path());
     }
   }
 };
 
 }  // namespace
 
-void RegisterStage_import(StageRegistry* registry) { registry->Add(std::make_unique<ImportStage>()); }
+namespace {
+
+// `ibmr export-transforms WORKSPACE [OUT]`: the workspace's sparse/ model as a nerfstudio
+// transforms.json (frames "images/<name>", OpenGL camera axes), written to OUT (default
+// WORKSPACE/transforms.json) so nerfstudio and instant-ngp read the workspace as it is.
+int ExportTransformsCommand(const std::vector<std::string>& args) {
+  if (args.empty() || args.size() > 2 || args[0] == "--help") {
+    std::cout << "usage: ibmr export-transforms WORKSPACE [OUT.json]   (default OUT: WORKSPACE/transforms.json)\n";
+    return !args.empty() && args[0] == "--help" ? 0 : 2;
+  }
+  try {
+    const Workspace workspace(args[0]);
+    const SparseModel model = ReadSparseModelText(workspace.SparseDir());
+    if (model.images.empty()) throw InputError(workspace.SparseDir() + ": no posed image to export");
+    const std::string out = args.size() == 2 ? args[1] : workspace.Path("transforms.json");
+    WriteFileAtomic(out, WriteTransformsJson(model, "images/"));
+    std::cout << "wrote " << out << " (" << model.images.size() << " frames)\n";
+    return 0;
+  } catch (const std::exception& e) {
+    std::cerr << e.what() << "\n";
+    return 1;
+  }
+}
+
+}  // namespace
+
+void RegisterStage_import(StageRegistry* registry) {
+  registry->Add(std::make_unique<ImportStage>());
+  registry->AddCommand({"export-transforms", "Write sparse/ as a nerfstudio / instant-ngp transforms.json",
+                        ExportTransformsCommand});
+}
 
 }  // namespace ibmr

@@ -9,6 +9,8 @@
 #include "pipeline/core/colmap_text_io.h"
 #include "pipeline/core/errors.h"
 #include "pipeline/core/image_io.h"
+#include "pipeline/core/nerf_formats.h"
+#include "pipeline/core/atomic_file.h"
 #include "pipeline/core/stage_api.h"
 
 namespace fs = std::filesystem;
@@ -40,6 +42,7 @@ SparseModel RunImport(const std::string& source, const std::string& workspace, i
   context.params.Set("focal_prior", 1.2);
   context.params.Set("folder_camera_model", std::string("SIMPLE_RADIAL"));
   context.params.Set("max_image_size", max_image_size);
+  context.params.Set("llff_downscale", int64_t{1});
   NullProgress progress;
   context.progress = &progress;
   EXPECT_FALSE(stage->CheckParams(context.params).has_value());
@@ -203,6 +206,42 @@ TEST(ImportStrecha, MaxImageSizeResamplesPhotosAndScalesCameras) {
   EXPECT_NEAR(p_small.y(), p_full.y() / 4, 1e-6);
   fs::remove_all(full_dir);
   fs::remove_all(small_dir);
+}
+
+// An LLFF folder (images/ and poses_bounds.npy, detected automatically): the poses and the
+// centred pinhole cameras come back as written.
+TEST(ImportLlff, PosesBoundsFolder) {
+  const std::string source = TempDir("llff_source");
+  fs::create_directories(source + "/images");
+  SparseModel model;
+  std::vector<std::string> names;
+  std::vector<std::pair<double, double>> bounds;
+  for (int i = 0; i < 3; ++i) {
+    Camera camera = Camera::Pinhole(40, 30, 50, 50, 20, 15);
+    camera.camera_id = i + 1;
+    model.cameras[i + 1] = camera;
+    Image image;
+    image.image_id = image.camera_id = i + 1;
+    image.name = "img" + std::to_string(i) + ".png";
+    image.cam_from_world = LookAt(Eigen::Vector3d(i, -2, 0.5), Eigen::Vector3d(0, 0, 0), Eigen::Vector3d(0, 0, 1));
+    model.images[i + 1] = image;
+    names.push_back(image.name);
+    bounds.emplace_back(1.0, 5.0);
+    WriteImage(source + "/images/" + image.name, cv::Mat(30, 40, CV_8UC3, cv::Scalar(10 * i, 50, 90)));
+  }
+  WriteFileAtomic(source + "/poses_bounds.npy", WritePosesBounds(model, names, bounds));
+  const std::string workspace = TempDir("llff_ws");
+  const SparseModel imported = RunImport(source, workspace);
+  ASSERT_EQ(imported.images.size(), 3u);
+  for (const auto& [id, image] : model.images) {
+    const Image* other = imported.FindImage(image.name);
+    ASSERT_NE(other, nullptr);
+    EXPECT_LT((image.Center() - other->Center()).norm(), 1e-9);
+    EXPECT_LT((image.cam_from_world.R() - other->cam_from_world.R()).norm(), 1e-9);
+    EXPECT_NEAR(imported.CameraOf(*other).FocalX(), 50, 1e-9);
+  }
+  fs::remove_all(source);
+  fs::remove_all(workspace);
 }
 
 TEST(ImportFolder, MissingSourceIsAClearError) {
