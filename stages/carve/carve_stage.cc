@@ -117,7 +117,7 @@ class CarveStage : public Stage {
   std::string Summary() const override {
     return "octree visual hull from silhouettes (O(1) distance-map test), smoothed hull mesh, depth bounds";
   }
-  std::string Version() const override { return "2"; }
+  std::string Version() const override { return "3"; }  // 3: mesh IoU in the record, timings out of levels.json
   HoldoutRole Role() const override { return HoldoutRole::kTrainingOnly; }
 
   std::vector<ParamSpec> Parameters() const override {

@@ -101,7 +101,7 @@ class ImportStage : public Stage {
   std::string Summary() const override {
     return "Image folder (EXIF focal), Middlebury _par.txt, Strecha .camera or COLMAP model into sparse/ and images/";
   }
-  std::string Version() const override { return "1"; }
+  std::string Version() const override { return "2"; }  // 2: photos screened, max_image_size, transforms/llff
   HoldoutRole Role() const override { return HoldoutRole::kAllViews; }
 
   std::vector<ParamSpec> Parameters() const override {
