@@ -6,6 +6,7 @@
 # build-fuzz/crashes/<harness>/ and make the script fail; the corpora grow run after run.
 # Usage: scripts/fuzz.sh [SECONDS] [HARNESS...]
 set -euo pipefail
+trap 'echo "$(basename "$0"): failed at line $LINENO: $BASH_COMMAND" >&2' ERR
 cd "$(dirname "$0")/.."
 SECONDS_EACH="${1:-60}"
 shift || true
@@ -19,6 +20,7 @@ cmake --build "$OUT" --target fuzz_all -j "$(nproc)" | grep -vE '^\[[0-9]+/[0-9]
 SEEDS="$OUT/seeds"
 DATA="$ROOT/../shared/datasets"
 if [ ! -d "$SEEDS" ]; then
+  set +o pipefail  # `find | head` ends find with SIGPIPE: not a failure here
   mkdir -p "$SEEDS"/{ply,colmap_text,colmap_array,pfm,image,middlebury_par,strecha_camera,octree,record,config}
   cp "$ROOT"/configs/*.yaml "$SEEDS/config/"
   if [ -d "$DATA" ]; then
@@ -41,6 +43,7 @@ if [ ! -d "$SEEDS" ]; then
         head -c 2000 "$WS/sparse/points3D.txt"; } > "$SEEDS/colmap_text/demo_model"
     fi
   fi
+  set -o pipefail
 fi
 
 mkdir -p "$SEEDS"/{transforms,poses_bounds}  # harnesses added later seed from scratch or from a demo

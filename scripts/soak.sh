@@ -5,6 +5,7 @@
 # byte-identical to an uninterrupted run's.
 # Usage: scripts/soak.sh N [CONFIG]   (default config: configs/demo.yaml; needs build/ibmr)
 set -euo pipefail
+trap 'echo "$(basename "$0"): failed at line $LINENO: $BASH_COMMAND" >&2' ERR
 cd "$(dirname "$0")/.."
 N="${1:?usage: scripts/soak.sh N [CONFIG]}"
 CONFIG="${2:-configs/demo.yaml}"
@@ -51,7 +52,7 @@ for i in $(seq 1 "$N"); do
     exit 1
   fi
   resumes=$((resumes + 1))
-  leftovers=$(find "$WS" -regextype posix-extended -regex '.*\.tmp\.?[0-9]+(\.[^./]+)?$' | head -5)
+  leftovers=$(find "$WS" -regextype posix-extended -regex '.*\.tmp\.?[0-9]+(\.[^./]+)?$' | head -5 || true)
   if [ -n "$leftovers" ]; then
     echo "soak: round $i (run from $stage killed after ${delay} s): temporaries left: $leftovers" >&2
     exit 1
