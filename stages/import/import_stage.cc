@@ -53,7 +53,7 @@ std::pair<int, int> ImageSize(const std::string& path) {
 
 // Why a photo of a plain folder cannot be used ("" when it can), and what was converted (added to
 // `notes`): every photo is decoded as the stages will decode it.
-std::string ScreenPhoto(const std::string& path, std::string* notes) {
+std::string ScreenPhoto(const std::string& path, std::string* notes, std::pair<int, int>* size) {
   std::error_code ec;
   const auto bytes = fs::file_size(path, ec);
   if (ec) return "cannot read the file (" + ec.message() + ")";
@@ -69,10 +69,14 @@ std::string ScreenPhoto(const std::string& path, std::string* notes) {
   if (ext == ".jpg" || ext == ".jpeg") {
     // libjpeg decodes a truncated file with a warning and grey rows at the bottom: refuse it when
     // the end-of-image marker (FF D9) is missing from the last bytes.
-    const std::string data = ReadFile(path);
-    const size_t tail = std::min<size_t>(data.size(), 64);
-    if (data.substr(data.size() - tail).find("\xFF\xD9") == std::string::npos) return "truncated JPEG (no end-of-image marker)";
+    std::ifstream file(path, std::ios::binary);
+    const std::streamoff tail = std::min<std::streamoff>(static_cast<std::streamoff>(bytes), 64);
+    file.seekg(-tail, std::ios::end);
+    std::string end(static_cast<size_t>(tail), '\0');
+    file.read(end.data(), tail);
+    if (end.find("\xFF\xD9") == std::string::npos) return "truncated JPEG (no end-of-image marker)";
   }
+  *size = {raw.cols, raw.rows};  // as ReadImageColor decodes it: orientation is not applied
   std::vector<std::string> converted;
   if (raw.channels() == 4) converted.push_back("alpha channel ignored");
   if (raw.channels() == 1) converted.push_back("greyscale read as colour");
@@ -289,10 +293,12 @@ class ImportStage : public Stage {
     SparseModel model;
     std::vector<std::string> names;
     std::map<std::string, std::string> first_with_hash;
+    std::map<std::string, std::pair<int, int>> sizes;  // decoded once, while screening
     for (const std::string& name : *names_in_out) {
       const std::string path = source + "/" + name;
       std::string notes;
-      std::string reason = ScreenPhoto(path, &notes);
+      std::pair<int, int> size;
+      std::string reason = ScreenPhoto(path, &notes, &size);
       if (reason.empty()) {
         const std::string hash = HashPath(path);
         const auto [it, fresh] = first_with_hash.emplace(hash, name);
@@ -308,6 +314,7 @@ class ImportStage : public Stage {
         (*converted)[name] = notes;
       }
       names.push_back(name);
+      sizes[name] = size;
     }
     *names_in_out = names;
     if (names.empty()) {
@@ -316,7 +323,7 @@ class ImportStage : public Stage {
     }
     for (const std::string& name : names) {
       const std::string path = source + "/" + name;
-      const auto [width, height] = ImageSize(path);
+      const auto [width, height] = sizes.at(name);
       Camera camera = FolderCamera(width, height, ExifFocalPixels(path, width, height), options);
       camera.camera_id = static_cast<int>(model.cameras.size()) + 1;
       model.cameras[camera.camera_id] = camera;
