@@ -16,9 +16,10 @@ namespace ibmr {
 namespace {
 
 constexpr int kBandRows = 16;  // rows of one band; a band's buffers stay in cache
-// Smallest radius drawn, in desired pixels: a disc this wide always contains a pixel centre, so a
-// minified sample is never lost between pixel centres.
-constexpr float kMinRadius = 0.71f;
+// Smallest axis of a footprint, in desired pixels. Small, so that an edge-on footprint stays thin
+// (0.71, a disc that always holds a pixel centre, drew a ring outside silhouettes); a minified
+// sample may then fall between pixel centres, where its neighbours cover.
+constexpr float kMinRadius = 0.35f;
 // A depth sample's disc: the smallest that covers its pixel's square, half the pixel's diagonal.
 constexpr float kHalfDiagonal = 0.70710678f;
 // Rim samples: the relative depth jump to a 4-neighbour that makes a silhouette, and their weight.
@@ -28,7 +29,9 @@ constexpr float kRimWeight = 0.05f;
 // One sample as the desired camera sees it.
 struct Projected {
   float u, v, z;     // pixel coordinates (COLMAP convention: pixel centres at +0.5) and depth
-  float radius;      // pixels
+  float radius;      // half the bounding box's height in pixels (negative: not drawn)
+  float half_width;  // half the bounding box's width in pixels
+  float q00, q01, q11;  // the footprint ellipse's conic: d2 = q00 dx^2 + 2 q01 dx dy + q11 dy^2 < 1
   float confidence;
   float angle;       // radians between the source ray and the desired ray at the sample (0: a surfel)
   int source;        // the sample's source view (-1: a surfel)
@@ -73,6 +76,37 @@ struct Nearest {
   }
 };
 
+// A camera-frame normal for a sample whose normal map has none (NormalsFromDepth leaves the rim of
+// a surface at 0): the cross product of one-sided differences to continuous 4-neighbours, towards
+// the camera; 0 when a direction has no such neighbour. Without it a rim sample would be a disc
+// facing the viewer, which spills past the silhouette of a surface the desired view sees edge-on.
+Eigen::Vector3f OneSidedNormal(const DepthImage& image, const std::vector<Eigen::Vector3f>& rays, int x, int y) {
+  const int width = image.width();
+  const auto point = [&](int px, int py) { return rays[static_cast<size_t>(py) * width + px] * image.depth.At(px, py); };
+  const float z = image.depth.At(x, y);
+  const auto continuous = [&](int px, int py) {
+    if (px < 0 || py < 0 || px >= width || py >= image.height()) return false;
+    const float n = image.depth.At(px, py);
+    return IsValidDepth(n) && std::abs(n - z) <= kRimStep * z;
+  };
+  const auto step = [&](int dx, int dy, Eigen::Vector3f* out) {
+    if (continuous(x + dx, y + dy)) {
+      *out = point(x + dx, y + dy) - point(x, y);
+    } else if (continuous(x - dx, y - dy)) {
+      *out = point(x, y) - point(x - dx, y - dy);
+    } else {
+      return false;
+    }
+    return true;
+  };
+  Eigen::Vector3f along_x, along_y;
+  if (!step(1, 0, &along_x) || !step(0, 1, &along_y)) return Eigen::Vector3f::Zero();
+  Eigen::Vector3f n = along_x.cross(along_y);
+  if (!(n.squaredNorm() > 0)) return Eigen::Vector3f::Zero();
+  n.normalize();
+  return n.dot(point(x, y)) > 0 ? -n : n;
+}
+
 bool Fail(std::string* error, const std::string& key, const std::string& what) {
   *error = key + ": " + what;
   return false;
@@ -83,6 +117,7 @@ bool Fail(std::string* error, const std::string& key, const std::string& what) {
 bool SplatOptions::Check(std::string* error) const {
   if (!(radius_scale > 0 && radius_scale <= 8)) return Fail(error, "radius_scale", "must be in (0, 8]");
   if (!(max_radius_px >= 0.5 && max_radius_px <= 256)) return Fail(error, "max_radius_px", "must be in [0.5, 256]");
+  if (!(max_stretch >= 1 && max_stretch <= 16)) return Fail(error, "max_stretch", "must be in [1, 16]");
   if (!(depth_tolerance > 0 && depth_tolerance < 1)) return Fail(error, "depth_tolerance", "must be in (0, 1)");
   if (k < 0 || k > 8) return Fail(error, "k", "must be in [0, 8]");
   if (!(angle_epsilon_deg > 0 && angle_epsilon_deg <= 90)) {
@@ -98,6 +133,7 @@ SplatCloud CloudFromDepthImages(const std::vector<DepthImage>& images) {
     const Eigen::Matrix3f world_from_cam = image.cam_from_world.R().transpose().cast<float>();
     const Eigen::Vector3f center = image.cam_from_world.Inverse().translation.cast<float>();
     cloud.source_centers.push_back(center);
+    cloud.source_axes.push_back(world_from_cam);
     const std::vector<Eigen::Vector3f> rays = PixelRays(image.camera, image.width(), image.height());
     const float focal = static_cast<float>(std::sqrt(image.camera.FocalX() * image.camera.FocalY()));
     for (int y = 0; y < image.height(); ++y) {
@@ -112,6 +148,7 @@ SplatCloud CloudFromDepthImages(const std::vector<DepthImage>& images) {
           const Eigen::Vector3f n(image.normals.At(x, y, 0), image.normals.At(x, y, 1), image.normals.At(x, y, 2));
           if (n.squaredNorm() > 0.25f) normal = world_from_cam * n.normalized();
         }
+        if (normal.squaredNorm() == 0) normal = world_from_cam * OneSidedNormal(image, rays, x, y);
         cloud.normals.push_back(normal);
         cloud.colors.push_back(image.image.at<cv::Vec3b>(y, x));
         // A sample on the rim of its image's surface (a 4-neighbour without depth or across a depth
@@ -154,6 +191,69 @@ SplatCloud CloudFromSurfels(const PointCloud& surfels, float default_radius) {
   return cloud;
 }
 
+namespace {
+
+// The world axes (a, b) of sample i's footprint {X + s a + t b : s^2 + t^2 < 1}, or false when it
+// has no orientation (no normal) and stays a disc facing the viewer.
+//
+// A depth sample is the source pixel's disc (radius `footprint` facing the source, in world units)
+// laid on the tangent plane of its normal n: moving the pixel centre one step along the source's
+// image axis e moves the ray r = X_cam / z by e / f and the point on the plane by
+//     dX = (z / f) (e - r (n . e) / (n . r)),
+// the differential the LDI paper uses for the "proper size" of a splat [S 5.3], kept as a vector
+// so that the footprint is the image of the source pixel under the warp, an ellipse: thin where the
+// desired view sees the surface edge-on (a silhouette), long where the source does.
+// A surfel is its own disc: radius `footprint` in the plane normal to n.
+bool FootprintAxes(const SplatCloud& cloud, size_t i, float max_stretch, Eigen::Vector3f* a, Eigen::Vector3f* b) {
+  const Eigen::Vector3f& n = cloud.normals[i];
+  if (n.squaredNorm() < 0.25f) return false;
+  const float footprint = cloud.footprint[i];
+  const int source = cloud.source[i];
+  if (source < 0 || static_cast<size_t>(source) >= cloud.source_axes.size()) {
+    const Eigen::Vector3f t = n.unitOrthogonal();
+    *a = footprint * t;
+    *b = footprint * n.cross(t).normalized();
+    return true;
+  }
+  const Eigen::Matrix3f& axes = cloud.source_axes[source];  // columns: image x, image y, optical axis
+  const Eigen::Vector3f d = cloud.positions[i] - cloud.source_centers[source];
+  const float z = axes.col(2).dot(d);
+  if (!(z > 0)) return false;
+  const Eigen::Vector3f r = d / z;
+  // n . r bounded away from 0 (grazing), keeping its sign: stretch at most about max_stretch.
+  float nr = n.dot(r);
+  const float min_nr = r.norm() / max_stretch;
+  if (std::abs(nr) < min_nr) nr = nr < 0 ? -min_nr : min_nr;
+  *a = footprint * (axes.col(0) - r * (n.dot(axes.col(0)) / nr));
+  *b = footprint * (axes.col(1) - r * (n.dot(axes.col(1)) / nr));
+  return true;
+}
+
+// Sets s's conic and bounding box from the ellipse's covariance V (pixels^2): points c + J w with
+// |w| < 1 have V = J J^T. Its axes are bounded to [min_radius, max_radius]: a minified or edge-on
+// footprint still holds a pixel centre, a magnified one does not scallop silhouettes [N 228].
+void SetEllipse(float v00, float v01, float v11, float min_radius, float max_radius, Projected* s) {
+  const float mean = 0.5f * (v00 + v11), half_diff = 0.5f * (v00 - v11);
+  const float spread = std::sqrt(half_diff * half_diff + v01 * v01);
+  const float lo = min_radius * min_radius, hi = max_radius * max_radius;
+  const float l1 = std::clamp(mean + spread, lo, hi), l2 = std::clamp(mean - spread, lo, hi);
+  // Unit eigenvector of the larger eigenvalue (any direction when the ellipse is a disc).
+  float ex = 1.f, ey = 0.f;
+  if (spread > 1e-12f * std::max(mean, 1e-30f)) {
+    const float angle = 0.5f * std::atan2(2.f * v01, v00 - v11);
+    ex = std::cos(angle);
+    ey = std::sin(angle);
+  }
+  const float i1 = 1.f / l1, i2 = 1.f / l2;
+  s->q00 = i1 * ex * ex + i2 * ey * ey;
+  s->q01 = (i1 - i2) * ex * ey;
+  s->q11 = i1 * ey * ey + i2 * ex * ex;
+  s->half_width = std::sqrt(l1 * ex * ex + l2 * ey * ey);
+  s->radius = std::sqrt(l1 * ey * ey + l2 * ex * ex);
+}
+
+}  // namespace
+
 SplatImage RenderSplats(const SplatCloud& cloud, const Camera& camera, const Rigid3d& cam_from_world,
                         const SplatOptions& options) {
   const int width = camera.width, height = camera.height;
@@ -171,6 +271,7 @@ SplatImage RenderSplats(const SplatCloud& cloud, const Camera& camera, const Rig
   const float focal = std::sqrt(fx * fy);
   const float radius_scale = static_cast<float>(options.radius_scale);
   const float max_radius = std::max(static_cast<float>(options.max_radius_px), kMinRadius);
+  const float max_stretch = static_cast<float>(options.max_stretch);
   const double epsilon = options.angle_epsilon_deg * M_PI / 180.0;
   const float epsilon2 = static_cast<float>(epsilon * epsilon);
   const float epsilon_angle = static_cast<float>(epsilon);
@@ -194,8 +295,19 @@ SplatImage RenderSplats(const SplatCloud& cloud, const Camera& camera, const Rig
       s.u = fx * x.x() / x.z() + cx;
       s.v = fy * x.y() / x.z() + cy;
       s.z = x.z();
-      s.radius = std::clamp(radius_scale * focal * cloud.footprint[i] / x.z(), kMinRadius, max_radius);
-      if (s.u + s.radius < 0 || s.v + s.radius < 0 || s.u - s.radius > width || s.v - s.radius > height ||
+      Eigen::Vector3f a, b;
+      if (FootprintAxes(cloud, i, max_stretch, &a, &b)) {
+        // J = d(u, v)/dX at x times the rotated axes: the ellipse's columns in pixels.
+        const float iz = 1.f / x.z();
+        const Eigen::Vector3f ra = rotation * a * radius_scale, rb = rotation * b * radius_scale;
+        const float ja0 = fx * iz * (ra.x() - x.x() * iz * ra.z()), ja1 = fy * iz * (ra.y() - x.y() * iz * ra.z());
+        const float jb0 = fx * iz * (rb.x() - x.x() * iz * rb.z()), jb1 = fy * iz * (rb.y() - x.y() * iz * rb.z());
+        SetEllipse(ja0 * ja0 + jb0 * jb0, ja0 * ja1 + jb0 * jb1, ja1 * ja1 + jb1 * jb1, kMinRadius, max_radius, &s);
+      } else {
+        const float r = radius_scale * focal * cloud.footprint[i] / x.z();
+        SetEllipse(r * r, 0.f, r * r, kMinRadius, max_radius, &s);
+      }
+      if (s.u + s.half_width < 0 || s.v + s.radius < 0 || s.u - s.half_width > width || s.v - s.radius > height ||
           !std::isfinite(s.u) || !std::isfinite(s.v)) {
         s.radius = -1;
         continue;
@@ -253,14 +365,14 @@ SplatImage RenderSplats(const SplatCloud& cloud, const Camera& camera, const Rig
     const auto for_pixels = [&](const Projected& s, auto&& visit) {
       const int y0 = std::max(row0, static_cast<int>(std::ceil(s.v - s.radius - 0.5f)));
       const int y1 = std::min(row1 - 1, static_cast<int>(std::floor(s.v + s.radius - 0.5f)));
-      const int x0 = std::max(0, static_cast<int>(std::ceil(s.u - s.radius - 0.5f)));
-      const int x1 = std::min(width - 1, static_cast<int>(std::floor(s.u + s.radius - 0.5f)));
-      const float inverse_r2 = 1.f / (s.radius * s.radius);
+      const int x0 = std::max(0, static_cast<int>(std::ceil(s.u - s.half_width - 0.5f)));
+      const int x1 = std::min(width - 1, static_cast<int>(std::floor(s.u + s.half_width - 0.5f)));
       for (int y = y0; y <= y1; ++y) {
         const float dy = y + 0.5f - s.v;
+        const float row_term = s.q11 * dy * dy, cross = 2.f * s.q01 * dy;
         for (int x = x0; x <= x1; ++x) {
           const float dx = x + 0.5f - s.u;
-          const float d2 = (dx * dx + dy * dy) * inverse_r2;
+          const float d2 = (s.q00 * dx + cross) * dx + row_term;
           if (d2 < 1.f) visit(static_cast<size_t>(y - row0) * width + x, d2);
         }
       }

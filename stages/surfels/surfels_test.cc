@@ -234,6 +234,34 @@ TEST(Surfels, NoisyPlaneConvergesToThePlane) {
   EXPECT_LT(std::sqrt(sum / result.surfels.size()), 0.3 * sigma);
   EXPECT_LT(tilt / result.surfels.size() * 180 / M_PI, 3.0);
   EXPECT_LT(result.stats.spacing_spread, 0.25);  // the plane's edges included
+
+  // The discs (position, normal, radius) cover the surface: a fine grid of the plane's interior
+  // (two spacings from its edges) lies within some disc, so a splat renderer leaves no pinholes.
+  ASSERT_EQ(result.surfels.radius.size(), result.surfels.size());
+  std::vector<std::vector<size_t>> cells(40 * 40);
+  const auto cell_of = [](float v) { return std::clamp(static_cast<int>((v + 1.f) * 20.f), 0, 39); };
+  for (size_t i = 0; i < result.surfels.size(); ++i) {
+    cells[cell_of(result.surfels.positions[i].y()) * 40 + cell_of(result.surfels.positions[i].x())].push_back(i);
+  }
+  int missed = 0, probes = 0;
+  for (double y = -0.9; y <= 0.9; y += 0.01) {
+    for (double x = -0.9; x <= 0.9; x += 0.01, ++probes) {
+      const Eigen::Vector3f q(static_cast<float>(x), static_cast<float>(y), 0.f);
+      bool inside = false;
+      for (int cy = std::max(0, cell_of(q.y()) - 1); cy <= std::min(39, cell_of(q.y()) + 1) && !inside; ++cy) {
+        for (int cx = std::max(0, cell_of(q.x()) - 1); cx <= std::min(39, cell_of(q.x()) + 1) && !inside; ++cx) {
+          for (size_t i : cells[cy * 40 + cx]) {
+            const Eigen::Vector3f d = q - result.surfels.positions[i];
+            const Eigen::Vector3f n = result.surfels.normals[i];
+            const float along = d.dot(n);
+            if ((d - along * n).norm() <= result.surfels.radius[i]) inside = true;
+          }
+        }
+      }
+      missed += inside ? 0 : 1;
+    }
+  }
+  EXPECT_EQ(missed, 0) << "of " << probes << " probes";
 }
 
 TEST(SurfelMesh, SampledSphereIsAClosedManifold) {
