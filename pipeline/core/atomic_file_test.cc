@@ -9,18 +9,14 @@
 #include <fstream>
 
 #include "pipeline/core/errors.h"
+#include "tests/scratch_dir.h"
 
 namespace ibmr {
 namespace {
 
 namespace fs = std::filesystem;
 
-fs::path MakeTestDir(const std::string& name) {
-  const fs::path dir = fs::temp_directory_path() / ("ibmr_atomic_file_" + name + "_" + std::to_string(::getpid()));
-  fs::remove_all(dir);
-  fs::create_directories(dir);
-  return dir;
-}
+fs::path MakeTestDir(const std::string& name) { return ibmr_testing::ScratchDir("ibmr_atomic_file_" + name); }
 
 int CountFiles(const fs::path& dir) {
   int n = 0;
@@ -106,8 +102,7 @@ namespace ibmr {
 namespace {
 
 TEST(AtomicFile, StaleTemporariesOfDeadWritersAreRemoved) {
-  const fs::path dir = fs::temp_directory_path() / ("ibmr_stale_tmp_" + std::to_string(::getpid()));
-  fs::remove_all(dir);
+  const fs::path dir = ibmr_testing::ScratchDir("ibmr_stale_tmp");
   fs::create_directories(dir / "maps" / "sub");
   // A pid no process can have (above Linux's pid_max limit of 2^22).
   const std::string dead = "999999999", alive = std::to_string(::getpid());

@@ -10,18 +10,14 @@
 
 #include "pipeline/core/atomic_file.h"
 #include "pipeline/core/errors.h"
+#include "tests/scratch_dir.h"
 
 namespace ibmr {
 namespace {
 
 namespace fs = std::filesystem;
 
-fs::path MakeTestDir(const std::string& name) {
-  const fs::path dir = fs::temp_directory_path() / ("ibmr_colmap_array_" + name + "_" + std::to_string(::getpid()));
-  fs::remove_all(dir);
-  fs::create_directories(dir);
-  return dir;
-}
+fs::path MakeTestDir(const std::string& name) { return ibmr_testing::ScratchDir("ibmr_colmap_array_" + name); }
 
 FloatMap Ramp(int w, int h, int c) {
   FloatMap map(w, h, c);

@@ -8,18 +8,14 @@
 #include <filesystem>
 
 #include "pipeline/core/atomic_file.h"
+#include "tests/scratch_dir.h"
 
 namespace ibmr {
 namespace {
 
 namespace fs = std::filesystem;
 
-fs::path MakeTestDir(const std::string& name) {
-  const fs::path dir = fs::temp_directory_path() / ("ibmr_content_hash_" + name + "_" + std::to_string(::getpid()));
-  fs::remove_all(dir);
-  fs::create_directories(dir);
-  return dir;
-}
+fs::path MakeTestDir(const std::string& name) { return ibmr_testing::ScratchDir("ibmr_content_hash_" + name); }
 
 TEST(ContentHash, BytesAreHex16AndDiscriminate) {
   const std::string a = HashBytes("hello");

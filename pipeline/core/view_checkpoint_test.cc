@@ -8,18 +8,14 @@
 #include <filesystem>
 
 #include "pipeline/core/atomic_file.h"
+#include "tests/scratch_dir.h"
 
 namespace ibmr {
 namespace {
 
 namespace fs = std::filesystem;
 
-fs::path MakeTestDir(const std::string& name) {
-  const fs::path dir = fs::temp_directory_path() / ("ibmr_view_checkpoint_" + name + "_" + std::to_string(::getpid()));
-  fs::remove_all(dir);
-  fs::create_directories(dir);
-  return dir;
-}
+fs::path MakeTestDir(const std::string& name) { return ibmr_testing::ScratchDir("ibmr_view_checkpoint_" + name); }
 
 TEST(ViewCheckpoint, MarksCountOnlyWithTheSameKey) {
   const std::string folder = (MakeTestDir("key") / "records" / "plane_sweep.views").string();
