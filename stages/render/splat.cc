@@ -236,20 +236,31 @@ void SetEllipse(float v00, float v01, float v11, float min_radius, float max_rad
   const float mean = 0.5f * (v00 + v11), half_diff = 0.5f * (v00 - v11);
   const float spread = std::sqrt(half_diff * half_diff + v01 * v01);
   const float lo = min_radius * min_radius, hi = max_radius * max_radius;
-  const float l1 = std::clamp(mean + spread, lo, hi), l2 = std::clamp(mean - spread, lo, hi);
-  // Unit eigenvector of the larger eigenvalue (any direction when the ellipse is a disc).
-  float ex = 1.f, ey = 0.f;
-  if (spread > 1e-12f * std::max(mean, 1e-30f)) {
-    const float angle = 0.5f * std::atan2(2.f * v01, v00 - v11);
-    ex = std::cos(angle);
-    ey = std::sin(angle);
+  const float l1 = mean + spread, l2 = mean - spread;
+  if (!(l2 >= lo && l1 <= hi)) {
+    // Rebuild V from clamped eigenvalues along the same axes (any axes when it is a disc).
+    const float c1 = std::clamp(l1, lo, hi), c2 = std::clamp(l2, lo, hi);
+    float ex = 1.f, ey = 0.f;  // unit eigenvector of l1
+    if (spread > 1e-6f * mean) {
+      // (v01, l1 - v00) and (l1 - v11, v01) both solve (V - l1) e = 0; the longer is the stabler.
+      const float ax = v01, ay = l1 - v00, bx = l1 - v11, by = v01;
+      const bool first = ax * ax + ay * ay >= bx * bx + by * by;
+      ex = first ? ax : bx;
+      ey = first ? ay : by;
+      const float norm = std::sqrt(ex * ex + ey * ey);
+      ex /= norm;
+      ey /= norm;
+    }
+    v00 = c1 * ex * ex + c2 * ey * ey;
+    v01 = (c1 - c2) * ex * ey;
+    v11 = c1 * ey * ey + c2 * ex * ex;
   }
-  const float i1 = 1.f / l1, i2 = 1.f / l2;
-  s->q00 = i1 * ex * ex + i2 * ey * ey;
-  s->q01 = (i1 - i2) * ex * ey;
-  s->q11 = i1 * ey * ey + i2 * ex * ex;
-  s->half_width = std::sqrt(l1 * ex * ex + l2 * ey * ey);
-  s->radius = std::sqrt(l1 * ey * ey + l2 * ex * ex);
+  const float inverse_det = 1.f / (v00 * v11 - v01 * v01);
+  s->q00 = v11 * inverse_det;
+  s->q01 = -v01 * inverse_det;
+  s->q11 = v00 * inverse_det;
+  s->half_width = std::sqrt(v00);
+  s->radius = std::sqrt(v11);
 }
 
 }  // namespace
