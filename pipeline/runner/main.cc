@@ -14,6 +14,7 @@
 #include "pipeline/runner/config.h"
 #include "pipeline/runner/runner.h"
 #include "pipeline/runner/stage_listing.h"
+#include "pipeline/runner/sweep.h"
 
 namespace {
 
@@ -72,6 +73,17 @@ int main(int argc, char** argv) {
 
   auto* stages = app.add_subcommand("stages", "List every stage: inputs, outputs, parameters with defaults");
 
+  ibmr::SweepOptions sweep_options;
+  auto* sweep = app.add_subcommand("sweep", "Run a config's variants (parameter overrides) sharing upstream outputs; "
+                                            "collect time, memory, model size and held-out scores into sweep.json");
+  sweep->add_option("config", sweep_options.config_path, "YAML config")->required()->check(CLI::ExistingFile);
+  sweep->add_option("--vary", sweep_options.vary, "stage.key=v1,v2,... (repeatable; the lists are crossed)");
+  sweep->add_option("--variant", sweep_options.listed,
+                    "\"stage.key=v stage.key=v\": one listed combination (repeatable)");
+  sweep->add_option("--out", sweep_options.out, "Sweep folder (default: the config's workspace + .sweep)");
+  sweep->add_option("--metric", sweep_options.metric, "Held-out mean charted against time (default psnr)");
+  sweep->add_option("--jobs", sweep_options.jobs, "Worker threads (default: all cores)")->check(CLI::PositiveNumber);
+
   ibmr::StageRegistry registry;
   ibmr::RegisterBuiltinStages(&registry);
   std::vector<std::pair<CLI::App*, const ibmr::StageCommand*>> commands;
@@ -96,6 +108,21 @@ int main(int argc, char** argv) {
   if (stages->parsed()) {
     std::cout << ibmr::DescribeStages(registry);
     return 0;
+  }
+  if (sweep->parsed()) {
+    try {
+      ibmr::Config base = ibmr::LoadConfig(sweep_options.config_path, registry);
+      const std::string out = sweep_options.out.empty() ? base.workspace + ".sweep" : sweep_options.out;
+      SetUpLogging(out);
+      sweep_options.interactive = isatty(STDERR_FILENO);
+      return ibmr::RunSweep(sweep_options, registry);
+    } catch (const ibmr::ConfigError& e) {
+      std::cerr << "error: " << e.what() << "\n";
+      return 2;
+    } catch (const std::exception& e) {
+      spdlog::error("{}", e.what());
+      return 1;
+    }
   }
 
   ibmr::Config config;

@@ -8,11 +8,13 @@
 namespace ibmr {
 
 nlohmann::json StageRecord::ToJson() const {
-  return {{"stage", stage},       {"version", version},     {"status", status},
+  nlohmann::json json = {{"stage", stage},       {"version", version},     {"status", status},
           {"key", key},           {"params", params},       {"inputs", inputs},
           {"outputs", outputs},   {"heldout", heldout},     {"metrics", metrics},
           {"error", error},       {"started", started},     {"wall_seconds", wall_seconds},
           {"cpu_seconds", cpu_seconds}, {"peak_memory_mb", peak_memory_mb}};
+  if (!reused_from.empty()) json["reused_from"] = reused_from;
+  return json;
 }
 
 StageRecord StageRecord::FromJson(const nlohmann::json& j) {
@@ -31,6 +33,7 @@ StageRecord StageRecord::FromJson(const nlohmann::json& j) {
   r.wall_seconds = j.value("wall_seconds", 0.0);
   r.cpu_seconds = j.value("cpu_seconds", 0.0);
   r.peak_memory_mb = j.value("peak_memory_mb", 0.0);
+  r.reused_from = j.value("reused_from", "");
   return r;
 }
 

@@ -25,6 +25,8 @@ struct StageRecord {
   double wall_seconds = 0;
   double cpu_seconds = 0;
   double peak_memory_mb = 0;
+  std::string reused_from;  // another workspace whose outputs of the same key were linked in (ibmr sweep);
+                            // the costs above are those of the run that computed them
 
   nlohmann::json ToJson() const;
   static StageRecord FromJson(const nlohmann::json& json);

@@ -213,6 +213,49 @@ bool Runner::Execute(const Stage& stage, StageContext& context, const std::strin
   return false;
 }
 
+namespace {
+
+// Hard links keep a sweep's variants cheap: every write in a workspace is a temporary file renamed
+// over the old name, so a linked file is replaced, never changed in place, and the workspace it
+// came from keeps its own. Copies where links cannot be made (another file system).
+void LinkOrCopy(const fs::path& from, const fs::path& to) {
+  std::error_code ec;
+  fs::remove_all(to, ec);
+  fs::create_directories(to.parent_path());
+  fs::copy(from, to, fs::copy_options::recursive | fs::copy_options::create_hard_links, ec);
+  if (!ec) return;
+  fs::remove_all(to, ec);
+  fs::copy(from, to, fs::copy_options::recursive | fs::copy_options::overwrite_existing);
+}
+
+}  // namespace
+
+bool Runner::Reuse(const Stage& stage, const StageContext& context, const std::string& key,
+                   const std::vector<std::string>& from) const {
+  const std::vector<std::string> outputs = stage.Outputs(context);
+  for (const std::string& output : outputs) {
+    if (fs::path(output).is_absolute()) return false;  // not the workspace's to share
+  }
+  for (const std::string& other : from) {
+    const Workspace source(other);
+    std::error_code ec;
+    if (fs::equivalent(source.root(), context.workspace.root(), ec)) continue;
+    const auto record = ReadRecord(source.RecordsDir() + "/" + stage.Name() + ".json");
+    if (!record || record->status != "ok" || record->key != key) continue;
+    bool complete = true;
+    for (const std::string& output : outputs) complete = complete && fs::exists(Resolve(source, output));
+    if (!complete) continue;
+    for (const std::string& output : outputs) LinkOrCopy(Resolve(source, output), Resolve(context.workspace, output));
+    StageRecord reused = *record;
+    if (reused.reused_from.empty()) reused.reused_from = source.root();
+    WriteRecord(RecordPath(stage.Name()), reused);
+    spdlog::info("[{}] reused from {} (same cache key; it took {:.2f}s there)", stage.Name(), reused.reused_from,
+                 reused.wall_seconds);
+    return true;
+  }
+  return false;
+}
+
 int Runner::Run(const RunOptions& options) {
   const auto start = std::chrono::steady_clock::now();
   auto index_of = [&](const std::string& name) -> int {
@@ -269,6 +312,7 @@ int Runner::Run(const RunOptions& options) {
       spdlog::info("[{}] would run: {}", stage.Name(), reason);
       continue;
     }
+    if (!options.force && !options.reuse_from.empty() && Reuse(stage, context, key, options.reuse_from)) continue;
     spdlog::info("[{}] runs: {}", stage.Name(), reason);
     ++ran;
     if (!Execute(stage, context, key, inputs, options.interactive)) return 1;

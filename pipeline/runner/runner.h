@@ -20,6 +20,9 @@ struct RunOptions {
   bool dry_run = false;
   int jobs = -1;      // TBB threads; -1: all cores
   bool interactive = false;  // draw progress bars (stderr is a terminal)
+  // Other workspaces (a sweep's earlier variants): a stale stage whose cache key matches an ok
+  // record there gets that workspace's outputs hard-linked (or copied) in instead of running.
+  std::vector<std::string> reuse_from;
 };
 
 struct StageStatus {
@@ -47,6 +50,10 @@ class Runner {
   std::string RecordPath(const std::string& stage) const;
   bool Execute(const Stage& stage, StageContext& context, const std::string& key, const nlohmann::json& inputs,
                bool interactive);
+  // Links in the outputs of `stage` from the first workspace of `from` whose record has `key`;
+  // false when none has.
+  bool Reuse(const Stage& stage, const StageContext& context, const std::string& key,
+             const std::vector<std::string>& from) const;
 
   Config config_;
   const StageRegistry& registry_;
