@@ -73,6 +73,10 @@ TEST(Sweep, ADownstreamVariantReusesUpstreamOutputsAndLeavesTheFirstIntact) {
   const auto reused = ReadRecord((dir / "sweep/v01/records/produce.json").string());
   ASSERT_TRUE(reused.has_value());
   EXPECT_EQ(fs::path(reused->reused_from).filename(), "v00");
+  // The reused file is a link; a stage rewriting it in v01 (temporary, then rename) leaves v00's.
+  WriteFileAtomic((dir / "sweep/v01/a.txt").string(), "rewritten");
+  EXPECT_EQ(ReadFile((dir / "sweep/v00/a.txt").string()), "hello1");
+  WriteFileAtomic((dir / "sweep/v01/a.txt").string(), "hello1");
 
   const nlohmann::json sweep = nlohmann::json::parse(ReadFile((dir / "sweep/sweep.json").string()));
   ASSERT_EQ(sweep["variants"].size(), 3u);
