@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <numeric>
 
 #include "pipeline/core/depth_normals.h"
@@ -288,6 +289,66 @@ size_t MergeTiles(std::vector<DepthImage>* images, const DepthImageOptions& opti
     culled += std::accumulate(row_culled.begin(), row_culled.end(), size_t{0});
   }
   return culled;
+}
+
+DepthImage DownsampleDepthImage(const DepthImage& image, int factor) {
+  if (factor <= 1) return image;
+  const int width = image.width() / factor, height = image.height() / factor;
+  DepthImage out;
+  out.name = image.name;
+  out.cam_from_world = image.cam_from_world;
+  // The blocks tile the image cropped to a multiple of factor (a crop keeps the intrinsics), so
+  // the scale is exactly 1 / factor: block centres land on the new pixel centres.
+  Camera cropped = image.camera;
+  cropped.width = width * factor;
+  cropped.height = height * factor;
+  out.camera = cropped.Scaled(1.0 / factor);
+  out.depth = DepthMap(width, height, 1, 0.f);
+  out.image = cv::Mat(height, width, CV_8UC3, cv::Scalar::all(0));
+  if (!image.confidence.Empty()) out.confidence = FloatMap(width, height, 1, 0.f);
+  if (!image.normals.Empty()) out.normals = FloatMap(width, height, 3, 0.f);
+  std::vector<float> depths;
+  for (int y = 0; y < height; ++y) {
+    for (int x = 0; x < width; ++x) {
+      depths.clear();
+      for (int j = 0; j < factor; ++j) {
+        for (int i = 0; i < factor; ++i) {
+          const float z = image.depth.At(x * factor + i, y * factor + j);
+          if (IsValidDepth(z)) depths.push_back(z);
+        }
+      }
+      if (2 * depths.size() < static_cast<size_t>(factor * factor)) continue;
+      std::nth_element(depths.begin(), depths.begin() + depths.size() / 2, depths.end());
+      const float median = depths[depths.size() / 2];
+      double bgr[3] = {0, 0, 0}, confidence = 0;
+      int count = 0, nearest_x = 0, nearest_y = 0;
+      float nearest = std::numeric_limits<float>::infinity();
+      for (int j = 0; j < factor; ++j) {
+        for (int i = 0; i < factor; ++i) {
+          const int sx = x * factor + i, sy = y * factor + j;
+          const float z = image.depth.At(sx, sy);
+          if (!IsValidDepth(z)) continue;
+          confidence += image.Confidence(sx, sy);
+          if (std::abs(z - median) > 0.05f * median) continue;
+          const cv::Vec3b& c = image.image.at<cv::Vec3b>(sy, sx);
+          for (int k = 0; k < 3; ++k) bgr[k] += c[k];
+          ++count;
+          if (std::abs(z - median) < nearest) {
+            nearest = std::abs(z - median);
+            nearest_x = sx;
+            nearest_y = sy;
+          }
+        }
+      }
+      out.depth.At(x, y) = median;
+      for (int k = 0; k < 3; ++k) out.image.at<cv::Vec3b>(y, x)[k] = cv::saturate_cast<uint8_t>(bgr[k] / count);
+      if (!out.confidence.Empty()) out.confidence.At(x, y) = static_cast<float>(confidence / depths.size());
+      if (!out.normals.Empty()) {
+        for (int k = 0; k < 3; ++k) out.normals.At(x, y, k) = image.normals.At(nearest_x, nearest_y, k);
+      }
+    }
+  }
+  return out;
 }
 
 }  // namespace ibmr

@@ -107,4 +107,11 @@ size_t MergeTiles(std::vector<DepthImage>* images, const DepthImageOptions& opti
 // Per-sample quality (sampling density): confidence * |cos(normal, ray)| / z^2; 0 where not drawable.
 float SampleQuality(const DepthImage& image, int x, int y);
 
+// A sparser depth image for model selection ("splats at several densities"): one sample per
+// factor x factor block, its depth the median of the block's depths (none when fewer than half have
+// one), its colour the mean of the block's pixels on that surface (within 5% of the median depth),
+// normal from the pixel nearest the median, confidence the block's mean; the camera scaled to the
+// new size. Flags are not carried: FlagSamples again. factor 1 returns the image as it is.
+DepthImage DownsampleDepthImage(const DepthImage& image, int factor);
+
 }  // namespace ibmr

@@ -40,6 +40,7 @@
 #include "pipeline/core/ply_io.h"
 #include "pipeline/core/stage_api.h"
 #include "stages/render/depth_image_io.h"
+#include "stages/render/mesh_decimation.h"
 #include "stages/render/render.h"
 #include "stages/render/splat.h"
 
@@ -57,14 +58,17 @@ struct ProxySpec {
   std::string path;                    // empty for the plane and the depth-image splats; absolute otherwise
   std::string depth_type;              // splat_depth[:TYPE]: the depth maps drawn (empty: splat_depth_type)
   std::vector<std::string> fallbacks;  // absolute paths of meshes that fill where `path` misses
+  int detail = 0;                      // "@N": a mesh decimated to N faces; depth images at 1/N resolution
 };
 
 std::string Absolute(const std::string& path, const Workspace& workspace) {
   return fs::path(path).is_absolute() ? path : workspace.Path(path);
 }
 
-// "plane" | "path" | "name=path". A default name: the file stem, prefixed by its folder when the
-// stem alone says little ("ground_truth/mesh.ply" -> ground_truth_mesh; "hull/hull.ply" -> hull).
+// "plane" | "path" | "name=path", each with an optional "@N" (smaller models for selection: a mesh
+// decimated to N faces, splat_depth from every N x N block). A default name: the file stem,
+// prefixed by its folder when the stem alone says little ("ground_truth/mesh.ply" ->
+// ground_truth_mesh; "hull/hull.ply" -> hull), and "_N" for a detail.
 ProxySpec ParseProxy(const std::string& entry, const Workspace& workspace) {
   ProxySpec spec;
   std::string path = entry;
@@ -73,23 +77,34 @@ ProxySpec ParseProxy(const std::string& entry, const Workspace& workspace) {
     spec.name = entry.substr(0, eq);
     path = entry.substr(eq + 1);
   }
+  const size_t at = path.find('@');
+  std::string detail_suffix;
+  if (at != std::string::npos) {
+    const size_t end = std::min(path.find('|', at), path.size());
+    detail_suffix = path.substr(at + 1, end - at - 1);
+    spec.detail = std::atoi(detail_suffix.c_str());
+    path.erase(at, end - at);
+  }
+  const auto name_or = [&](const std::string& fallback) {
+    if (spec.name.empty()) spec.name = fallback + (spec.detail > 0 ? "_" + detail_suffix : "");
+  };
   for (const std::string splat : {"splat_depth:", "splat_depth_merged:"}) {
     if (path.rfind(splat, 0) == 0) {
       spec.depth_type = path.substr(splat.size());
       path = splat.substr(0, splat.size() - 1);
-      if (spec.name.empty()) spec.name = path + "_" + spec.depth_type;
+      name_or(path + "_" + spec.depth_type);
     }
   }
   if (path == "plane" || path == "splat_depth" || path == "splat_depth_merged") {
     spec.kind = path == "plane"         ? ModelKind::kPlane
                 : path == "splat_depth" ? ModelKind::kSplatDepth
                                         : ModelKind::kSplatDepthMerged;
-    if (spec.name.empty()) spec.name = path;
+    name_or(path);
     return spec;
   }
   if (path == "splat_surfels") {
     spec.kind = ModelKind::kSplatSurfels;
-    if (spec.name.empty()) spec.name = path;
+    name_or(path);
     spec.path = workspace.Path("surfels/surfels.ply");
     return spec;
   }
@@ -99,10 +114,10 @@ ProxySpec ParseProxy(const std::string& entry, const Workspace& workspace) {
   }
   const fs::path p(path);
   spec.path = Absolute(path, workspace);
-  if (spec.name.empty()) {
+  {
     const std::string stem = p.stem().string();
     const std::string folder = p.parent_path().filename().string();
-    spec.name = folder.empty() || folder == stem ? stem : folder + "_" + stem;
+    name_or(folder.empty() || folder == stem ? stem : folder + "_" + stem);
   }
   return spec;
 }
@@ -125,7 +140,7 @@ class RenderStage : public Stage {
   std::string Summary() const override {
     return "Unstructured lumigraph rendering of held-out views from the training views (plane / mesh proxies)";
   }
-  std::string Version() const override { return "3"; }  // 2: splat models, background fill; 3: elliptical splat footprints
+  std::string Version() const override { return "4"; }  // 2: splat models, background fill; 3: elliptical splat footprints; 4: model sizes
   HoldoutRole Role() const override { return HoldoutRole::kScoring; }
 
   std::vector<ParamSpec> Parameters() const override {
@@ -226,6 +241,13 @@ class RenderStage : public Stage {
       const ProxySpec spec = ParseProxy(entry, Workspace("."));
       if (!spec.depth_type.empty() && bad_type(spec.depth_type)) {
         return ParamError{"proxies", "\"" + entry + "\": depth type must be geometric, photometric or truth"};
+      }
+      if (entry.find('@') != std::string::npos && spec.detail <= 0) {
+        return ParamError{"proxies", "\"" + entry + "\": @N needs a positive number (faces of a mesh, block size of splat_depth)"};
+      }
+      if (spec.detail > 0 && spec.kind != ModelKind::kMesh && spec.kind != ModelKind::kSplatDepth &&
+          spec.kind != ModelKind::kSplatDepthMerged) {
+        return ParamError{"proxies", "\"" + entry + "\": @N applies to meshes and splat_depth only"};
       }
     }
     return std::nullopt;
@@ -389,6 +411,13 @@ class RenderStage : public Stage {
           skip(spec.path + " has no usable faces" + (invalid.empty() ? "" : " (" + invalid + ")"));
           continue;
         }
+        if (spec.detail > 0) {
+          const size_t before = mesh.faces.size();
+          size_t refused = 0;
+          mesh = DecimateMesh(mesh, static_cast<size_t>(spec.detail), &refused);
+          spdlog::info("[render] proxy {}: {} faces decimated to {}{}", spec.name, before, mesh.faces.size(),
+                       refused ? " (" + std::to_string(refused) + " non-manifold faces dropped)" : std::string());
+        }
       }
       std::vector<TriangleMesh> fallbacks;
       for (const std::string& path : spec.fallbacks) {
@@ -429,7 +458,7 @@ class RenderStage : public Stage {
         try {
           stats = BuildDepthSplats(context, model, training,
                                    spec.depth_type.empty() ? context.params.String("splat_depth_type") : spec.depth_type,
-                                   spec.kind == ModelKind::kSplatDepthMerged, &cloud);
+                                   spec.kind == ModelKind::kSplatDepthMerged, std::max(1, spec.detail), &cloud);
         } catch (const InputError& e) {  // no depth maps (yet): like a missing mesh, not fatal
           skip(e.what());
           continue;
@@ -442,6 +471,11 @@ class RenderStage : public Stage {
         context.metrics["prepare_seconds_" + spec.name] = stats.seconds;
         context.metrics["samples_" + spec.name] = cloud.size();
       }
+      pj["model"] = ModelSize(spec, layers, cloud);
+      // A model drawn from ground truth is a reference, not a reconstruction: select skips it.
+      const bool from_truth = spec.depth_type == "truth" ||
+                              context.workspace.Relative(spec.path).rfind("ground_truth/", 0) == 0;
+      if (from_truth) pj["model"]["from_truth"] = true;
       const bool is_primary = primary.empty();
       if (is_primary) primary = spec.name;
       std::vector<SourceView> proxy_sources = sources;  // shares pixels; depth maps per proxy
@@ -550,12 +584,15 @@ class RenderStage : public Stage {
   // The splat_depth model: the training views' depth images, flagged, skins found, merged [N 4.3-4.6].
   static SplatModelStats BuildDepthSplats(StageContext& context, const SparseModel& model,
                                           const std::vector<std::string>& training, const std::string& depth_type,
-                                          bool merge, SplatCloud* cloud) {
+                                          bool merge, int block, SplatCloud* cloud) {
     const auto start = std::chrono::steady_clock::now();
     DepthImageOptions options = ToDepthImageOptions(context.params);
     options.merge = merge;
     std::vector<DepthImage> images =
         LoadDepthImages(context.workspace, model, training, depth_type);
+    if (block > 1) {
+      for (DepthImage& image : images) image = DownsampleDepthImage(image, block);
+    }
     SplatModelStats stats;
     for (DepthImage& image : images) {
       FlagSamples(&image, options.min_confidence);
@@ -570,6 +607,37 @@ class RenderStage : public Stage {
                  merge ? "_merged" : "", depth_type, images.size(), stats.drawable, stats.skins, stats.outliers, stats.merged,
                  cloud->size(), stats.seconds);
     return stats;
+  }
+
+  // How much model a proxy is, for selection by held-out error against size: its kind, its
+  // elements (triangles or samples) and bytes (meshes as binary PLY, surfels as their file, depth
+  // samples as an RGBD image stores them, 3 colour and 4 depth bytes each; a plane is 4 numbers).
+  static nlohmann::json ModelSize(const ProxySpec& spec, const std::vector<const TriangleMesh*>& layers,
+                                  const SplatCloud& cloud) {
+    const auto file_bytes = [](const std::string& path) {
+      std::error_code ec;
+      const auto size = fs::file_size(path, ec);
+      return ec ? uintmax_t{0} : size;
+    };
+    switch (spec.kind) {
+      case ModelKind::kPlane:
+        return {{"kind", "plane"}, {"elements", 1}, {"bytes", 4 * sizeof(double)}};
+      case ModelKind::kMesh: {
+        // As a binary PLY stores the meshes drawn (decimated ones are not written): positions,
+        // normals and colours per vertex, a count and three indices per face.
+        size_t triangles = 0, bytes = 0;
+        for (const TriangleMesh* layer : layers) {
+          triangles += layer->faces.size();
+          const size_t per_vertex = 12 + (layer->normals.empty() ? 0 : 12) + (layer->colors.empty() ? 0 : 3);
+          bytes += layer->vertices.size() * per_vertex + layer->faces.size() * 13;
+        }
+        return {{"kind", "mesh"}, {"elements", triangles}, {"triangles", triangles}, {"bytes", bytes}};
+      }
+      case ModelKind::kSplatSurfels:
+        return {{"kind", "surfels"}, {"elements", cloud.size()}, {"bytes", file_bytes(spec.path)}};
+      default:
+        return {{"kind", "depth_samples"}, {"elements", cloud.size()}, {"bytes", cloud.size() * 7}};
+    }
   }
 
   static SplatOptions ToSplatOptions(const Params& params) {

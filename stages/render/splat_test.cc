@@ -116,6 +116,30 @@ TEST(Splat, FrontoParallelPlaneHasNoHolesAndBoundedOverlap) {
   EXPECT_GT(static_cast<double>(out.pixel_hits) / out.covered_pixels, 2.0);
 }
 
+// Sparser depth images for model selection: a 2x2-block version of the plane has a quarter of the
+// samples, a camera scaled by exactly 1/2 and, splatted at the full resolution, still no holes.
+TEST(Splat, BlockDownsampledDepthImagesCoverThePlaneWithAQuarterOfTheSamples) {
+  const DepthImage full = View(Eigen::Vector3d::Zero(), false, "a");
+  std::vector<DepthImage> half = {DownsampleDepthImage(full, 2)};
+  ASSERT_EQ(half[0].width(), kWidth / 2);
+  EXPECT_DOUBLE_EQ(half[0].camera.FocalX(), kFocal / 2);
+  EXPECT_DOUBLE_EQ(half[0].camera.PrincipalX(), kWidth / 4.0);
+  EXPECT_FLOAT_EQ(half[0].depth.At(10, 10), 4.f);
+  // The block colour is the mean of its four pixels.
+  const cv::Vec3b a = full.image.at<cv::Vec3b>(20, 20), b = full.image.at<cv::Vec3b>(20, 21),
+                  c = full.image.at<cv::Vec3b>(21, 20), d = full.image.at<cv::Vec3b>(21, 21);
+  EXPECT_NEAR(half[0].image.at<cv::Vec3b>(10, 10)[1], (a[1] + b[1] + c[1] + d[1]) / 4.0, 1.0);
+  FlagSamples(&half[0], 0.0);
+  const SplatCloud cloud = CloudFromDepthImages(half);
+  EXPECT_EQ(cloud.size(), static_cast<size_t>(kWidth * kHeight / 4));
+  const SplatImage out = RenderSplats(cloud, TestCamera(), At(Eigen::Vector3d::Zero()), SplatOptions());
+  size_t holes = 0;
+  for (int y = 2; y < kHeight - 2; ++y) {
+    for (int x = 2; x < kWidth - 2; ++x) holes += out.coverage.at<uint8_t>(y, x) == 0;
+  }
+  EXPECT_EQ(holes, 0u);
+}
+
 // A sphere's depth image (radius 1 at distance 4, normals from the depth as the renderer gets
 // them) seen from 20 degrees around it: near the desired view's silhouette the surface is
 // edge-on, and the footprints, the source pixels laid on the tangent planes [S 5.3], are thin

@@ -1,0 +1,138 @@
+// Adapter of the select stage (see select.h): reads the held-out scores (scores/heldout.json) and
+// the model sizes the render stage reports (renders/renders.json), writes scores/selection.json:
+// every scored model by size with its held-out error, the size-error envelope, the best, and the
+// chosen one (smallest within tolerance_db of the best) with its gap.
+#include <spdlog/spdlog.h>
+
+#include <filesystem>
+
+#include "pipeline/core/atomic_file.h"
+#include "pipeline/core/errors.h"
+#include "pipeline/core/stage_api.h"
+#include "stages/select/select.h"
+
+namespace fs = std::filesystem;
+
+namespace ibmr {
+
+namespace {
+
+nlohmann::json ReadJson(const std::string& path, const std::string& producer) {
+  if (!fs::exists(path)) throw InputError(path + " does not exist; run the " + producer + " stage before select");
+  try {
+    return nlohmann::json::parse(ReadFile(path));
+  } catch (const nlohmann::json::exception& e) {
+    throw IoError(path + ": not valid JSON (" + e.what() + "); re-run the " + producer + " stage");
+  }
+}
+
+nlohmann::json ToJson(const ModelCandidate& m) {
+  return {{"name", m.name},         {"kind", m.kind},   {"bytes", m.bytes},
+          {"elements", m.elements}, {"psnr", m.psnr},   {"coverage", m.coverage}};
+}
+
+class SelectStage : public Stage {
+ public:
+  std::string Name() const override { return "select"; }
+  std::string Summary() const override {
+    return "Model selection: the smallest rendered model within a tolerance of the best held-out PSNR";
+  }
+  std::string Version() const override { return "1"; }
+  HoldoutRole Role() const override { return HoldoutRole::kScoring; }
+  std::vector<ParamSpec> Parameters() const override {
+    return {
+        {"metric", ParamType::kString, "photo_psnr",
+         "held-out mean compared (photo_psnr counts holes as black; psnr: covered pixels only; filled_photo_psnr, "
+         "mask_psnr)",
+         {}},
+        {"tolerance_db", ParamType::kDouble, "0.5", "the chosen model is within this of the best, in [0, 20]", {}},
+    };
+  }
+  std::optional<ParamError> CheckParams(const Params& params) const override {
+    std::string error;
+    if (!ToOptions(params).Check(&error)) return ParamError::FromCheck(error);
+    return std::nullopt;
+  }
+  std::vector<std::string> Inputs(const StageContext&) const override {
+    return {"scores/heldout.json", "renders/renders.json"};
+  }
+  std::vector<std::string> Outputs(const StageContext&) const override { return {"scores/selection.json"}; }
+
+  void Run(StageContext& context) const override {
+    const SelectionOptions options = ToOptions(context.params);
+    const nlohmann::json scores = ReadJson(context.workspace.Path("scores/heldout.json"), "score");
+    const nlohmann::json renders = ReadJson(context.workspace.Path("renders/renders.json"), "render");
+    std::map<std::string, nlohmann::json> sizes;
+    for (const auto& proxy : renders.value("proxies", nlohmann::json::array())) {
+      if (proxy.contains("name") && proxy.contains("model")) sizes[proxy["name"].get<std::string>()] = proxy["model"];
+    }
+    std::vector<ModelCandidate> candidates;
+    nlohmann::json unranked = nlohmann::json::array();
+    const nlohmann::json proxies = scores.value("proxies", nlohmann::json::object());
+    for (const auto& [name, proxy] : proxies.items()) {
+      const nlohmann::json mean = proxy.value("mean", nlohmann::json::object());
+      const auto size = sizes.find(name);
+      if (size != sizes.end() && size->second.value("from_truth", false)) {
+        unranked.push_back({{"name", name}, {"reason", "drawn from ground truth: a reference, not a model"}});
+        continue;
+      }
+      if (!mean.contains(options.metric) || !mean[options.metric].is_number() || size == sizes.end()) {
+        unranked.push_back({{"name", name},
+                            {"reason", size == sizes.end() ? "renders/renders.json gives no size (re-run render)"
+                                                           : "no held-out " + options.metric}});
+        continue;
+      }
+      ModelCandidate m;
+      m.name = name;
+      m.kind = size->second.value("kind", "");
+      m.bytes = size->second.value("bytes", 0.0);
+      m.elements = size->second.value("elements", 0.0);
+      m.psnr = mean[options.metric].get<double>();
+      m.coverage = mean.value("coverage", 0.0);
+      candidates.push_back(m);
+    }
+    if (candidates.empty()) {
+      throw InputError("select: no model in scores/heldout.json has a held-out " + options.metric +
+                       " and a size in renders/renders.json; re-run render and score, or set select.metric");
+    }
+    const Selection selection = SelectModel(candidates, options);
+    nlohmann::json models = nlohmann::json::array();
+    for (const ModelCandidate& m : selection.by_size) models.push_back(ToJson(m));
+    nlohmann::json envelope = nlohmann::json::array();
+    for (size_t i : selection.envelope) envelope.push_back(selection.by_size[i].name);
+    const ModelCandidate& chosen = selection.by_size[selection.chosen];
+    const ModelCandidate& best = selection.by_size[selection.best];
+    const nlohmann::json out = {{"metric", options.metric},
+                                {"tolerance_db", options.tolerance_db},
+                                {"chosen", ToJson(chosen)},
+                                {"best", ToJson(best)},
+                                {"gap_db", selection.gap_db},
+                                {"size_ratio", best.bytes > 0 ? chosen.bytes / best.bytes : 0.0},
+                                {"models", models},
+                                {"envelope", envelope},
+                                {"unranked", unranked}};
+    WriteFileAtomic(context.workspace.Path("scores/selection.json"), out.dump(2) + "\n");
+    context.metrics["chosen"] = chosen.name;
+    context.metrics["chosen_bytes"] = chosen.bytes;
+    context.metrics["best"] = best.name;
+    context.metrics["gap_db"] = selection.gap_db;
+    spdlog::info("[select] {} of {} models: chosen {} ({:.0f} bytes, {} {:.2f} dB), best {} ({:.0f} bytes, {:.2f} dB), "
+                 "gap {:.2f} dB",
+                 options.metric, candidates.size(), chosen.name, chosen.bytes, options.metric, chosen.psnr, best.name,
+                 best.bytes, best.psnr, selection.gap_db);
+  }
+
+ private:
+  static SelectionOptions ToOptions(const Params& params) {
+    SelectionOptions options;
+    options.metric = params.String("metric");
+    options.tolerance_db = params.Double("tolerance_db");
+    return options;
+  }
+};
+
+}  // namespace
+
+void RegisterStage_select(StageRegistry* registry) { registry->Add(std::make_unique<SelectStage>()); }
+
+}  // namespace ibmr
