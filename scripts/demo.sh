@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Set-up, then the main job on the embedded default: a synthetic scene the project renders
-# itself (configs/demo.yaml). A second run does no work.
+# itself (configs/demo.yaml), then its report page (charts, scores, renders; opens from disk).
+# A second run does no work.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/setup.sh
-build/ibmr run configs/demo.yaml "$@"
+build/ibmr run configs/demo.yaml --report "$@"

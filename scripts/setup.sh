@@ -10,7 +10,7 @@ PACKAGES=(
   libopencv-dev libeigen3-dev libtbb-dev libyaml-cpp-dev nlohmann-json3-dev libspdlog-dev
   libcli11-dev libgtest-dev libxxhash-dev libexif-dev libopenmesh-dev libceres-dev
   libcgal-dev libgmp-dev libmpfr-dev libnanoflann-dev
-  colmap
+  colmap libjs-chart.js
 )
 
 scripts/install_packages.sh "${PACKAGES[@]}"

@@ -1,10 +1,12 @@
 #!/usr/bin/env bash
 # Set-up, then the whole test suite with ctest (real-data tests read ../shared/datasets and
 # skip with a message where it is absent), then the reliability checks: three kill-anywhere soak
-# rounds and a short fuzzing pass of every harness (test-only packages: clang-14, libclang-rt-14-dev).
+# rounds and a short fuzzing pass of every harness (test-only packages: chromium, clang-14,
+# libclang-rt-14-dev).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/setup.sh
+scripts/install_packages.sh chromium   # test-only: headless checks of the report pages
 ctest --test-dir build --output-on-failure -j "$(nproc)" --timeout 600 "$@"
 scripts/soak.sh 3
 scripts/fuzz.sh "${IBMR_FUZZ_SECONDS:-10}"

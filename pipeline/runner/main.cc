@@ -13,6 +13,7 @@
 #include "pipeline/runner/builtin_stages.h"
 #include "pipeline/runner/config.h"
 #include "pipeline/runner/runner.h"
+#include "pipeline/runner/report.h"
 #include "pipeline/runner/stage_listing.h"
 #include "pipeline/runner/sweep.h"
 
@@ -65,6 +66,8 @@ int main(int argc, char** argv) {
   run->add_option("--set", overrides, "Override a parameter: stage.key=value (repeatable)");
   run->add_flag("--dry-run", options.dry_run, "List what would run and why; change nothing");
   run->add_option("--jobs", options.jobs, "Worker threads (default: all cores)")->check(CLI::PositiveNumber);
+  bool write_report = false;
+  run->add_flag("--report", write_report, "Then write the workspace's report page and print its path");
 
   auto* status = app.add_subcommand("status", "Show which stages are up to date and why the others are stale");
   status->add_option("config", config_path, "YAML config")->required()->check(CLI::ExistingFile);
@@ -81,8 +84,14 @@ int main(int argc, char** argv) {
   sweep->add_option("--variant", sweep_options.listed,
                     "\"stage.key=v stage.key=v\": one listed combination (repeatable)");
   sweep->add_option("--out", sweep_options.out, "Sweep folder (default: the config's workspace + .sweep)");
-  sweep->add_option("--metric", sweep_options.metric, "Held-out mean charted against time (default psnr)");
+  sweep->add_option("--metric", sweep_options.metric, "Held-out mean charted against time (default photo_psnr: holes count as black)");
   sweep->add_option("--jobs", sweep_options.jobs, "Worker threads (default: all cores)")->check(CLI::PositiveNumber);
+
+  ibmr::ReportOptions report_options;
+  auto* report = app.add_subcommand("report", "Write report/index.html for a workspace or a sweep folder: charts "
+                                              "(Chart.js, inlined), tables, held-out renders; opens from disk");
+  report->add_option("path", report_options.path, "Workspace or sweep folder")->required()->check(CLI::ExistingDirectory);
+  report->add_option("--out", report_options.out, "Page to write (default: PATH/report/index.html)");
 
   ibmr::StageRegistry registry;
   ibmr::RegisterBuiltinStages(&registry);
@@ -108,6 +117,16 @@ int main(int argc, char** argv) {
   if (stages->parsed()) {
     std::cout << ibmr::DescribeStages(registry);
     return 0;
+  }
+  if (report->parsed()) {
+    SetUpLogging("");
+    try {
+      std::cout << ibmr::WriteReport(report_options) << "\n";
+      return 0;
+    } catch (const std::exception& e) {
+      spdlog::error("{}", e.what());
+      return 1;
+    }
   }
   if (sweep->parsed()) {
     try {
@@ -144,7 +163,13 @@ int main(int argc, char** argv) {
       return 0;
     }
     options.interactive = isatty(STDERR_FILENO);
-    return runner.Run(options);
+    const int code = runner.Run(options);
+    if (code == 0 && write_report && !options.dry_run) {
+      ibmr::ReportOptions page;
+      page.path = config.workspace;
+      std::cout << "report: " << ibmr::WriteReport(page) << "\n";
+    }
+    return code;
   } catch (const std::exception& e) {
     spdlog::error("{}", e.what());
     return 1;

@@ -43,7 +43,7 @@ struct SweepOptions {
   std::vector<std::string> vary;
   std::vector<std::string> listed;
   std::string out;      // the sweep folder; default: the config's workspace + ".sweep"
-  std::string metric = "psnr";  // the held-out mean charted against time (psnr, photo_psnr, mask_psnr, ...)
+  std::string metric = "photo_psnr";  // held-out mean charted against time (photo_psnr counts holes; psnr, mask_psnr, ...)
   int jobs = -1;
   bool interactive = false;
 };

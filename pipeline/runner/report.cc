@@ -1,0 +1,336 @@
+// The self-contained report page (see report.h). The page is a template with two holes, the
+// inlined Chart.js and the report's data as JSON; all drawing happens in the page's script.
+#include "pipeline/runner/report.h"
+
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include <filesystem>
+
+#include "pipeline/core/atomic_file.h"
+#include "pipeline/core/errors.h"
+#include "pipeline/core/workspace.h"
+#include "pipeline/runner/record.h"
+
+namespace fs = std::filesystem;
+
+namespace ibmr {
+
+namespace {
+
+nlohmann::json ReadJsonOr(const std::string& path, nlohmann::json fallback) {
+  if (!fs::exists(path)) return fallback;
+  try {
+    return nlohmann::json::parse(ReadFile(path));
+  } catch (const std::exception&) {
+    return fallback;
+  }
+}
+
+std::string Base64(const std::vector<uchar>& bytes) {
+  static const char* const kAlphabet = "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+  std::string out;
+  out.reserve((bytes.size() + 2) / 3 * 4);
+  for (size_t i = 0; i < bytes.size(); i += 3) {
+    const uint32_t chunk = (static_cast<uint32_t>(bytes[i]) << 16) |
+                           (i + 1 < bytes.size() ? static_cast<uint32_t>(bytes[i + 1]) << 8 : 0u) |
+                           (i + 2 < bytes.size() ? static_cast<uint32_t>(bytes[i + 2]) : 0u);
+    out += kAlphabet[(chunk >> 18) & 63];
+    out += kAlphabet[(chunk >> 12) & 63];
+    out += i + 1 < bytes.size() ? kAlphabet[(chunk >> 6) & 63] : '=';
+    out += i + 2 < bytes.size() ? kAlphabet[chunk & 63] : '=';
+  }
+  return out;
+}
+
+// A PNG as a JPEG data URI no wider than `width`; "" when it cannot be read.
+std::string ImageDataUri(const std::string& path, int width) {
+  cv::Mat image = cv::imread(path, cv::IMREAD_COLOR);
+  if (image.empty()) return "";
+  if (image.cols > width) {
+    cv::resize(image, image, cv::Size(width, std::max(1, image.rows * width / image.cols)), 0, 0, cv::INTER_AREA);
+  }
+  std::vector<uchar> jpeg;
+  cv::imencode(".jpg", image, jpeg, {cv::IMWRITE_JPEG_QUALITY, 82});
+  return "data:image/jpeg;base64," + Base64(jpeg);
+}
+
+// The stage records of a workspace, in the order the runner wrote them (by start time).
+nlohmann::json StageCosts(const Workspace& workspace) {
+  std::vector<StageRecord> records;
+  if (fs::is_directory(workspace.RecordsDir())) {
+    for (const auto& entry : fs::directory_iterator(workspace.RecordsDir())) {
+      if (entry.path().extension() != ".json") continue;
+      if (auto record = ReadRecord(entry.path().string())) records.push_back(*record);
+    }
+  }
+  std::stable_sort(records.begin(), records.end(),
+                   [](const StageRecord& a, const StageRecord& b) { return a.started < b.started; });
+  nlohmann::json stages = nlohmann::json::array();
+  for (const StageRecord& r : records) {
+    stages.push_back({{"stage", r.stage},
+                      {"status", r.status},
+                      {"wall_seconds", r.wall_seconds},
+                      {"cpu_seconds", r.cpu_seconds},
+                      {"peak_memory_mb", r.peak_memory_mb},
+                      {"reused", !r.reused_from.empty()},
+                      {"error", r.error}});
+  }
+  return stages;
+}
+
+// The page: styles, the containers the script fills, the inlined library and the script.
+constexpr const char* kPageHead = R"HTML(<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8"><title>ibmr report</title>
+<style>
+body{font-family:sans-serif;margin:24px;color:#222;max-width:1500px}
+h1{font-size:22px}h2{font-size:18px;margin-top:32px;border-bottom:1px solid #ccc}
+table{border-collapse:collapse;font-size:13px;margin:8px 0}td,th{border:1px solid #ccc;padding:3px 8px;text-align:right}
+th{background:#f0f0f0}td:first-child,th:first-child{text-align:left}tr.chosen td{background:#e6f4e6}
+tr.failed td{background:#fbe3e3}.note{color:#555;font-size:13px}.charts{display:flex;flex-wrap:wrap;gap:24px}
+figure{margin:8px 0}figcaption{font-size:13px;color:#444}img{max-width:100%}
+#selfcheck{color:#888;font-size:11px}
+</style></head><body>
+<h1 id="title">ibmr report</h1><p class="note" id="subtitle"></p>
+<div id="content"></div>
+<pre id="selfcheck">scripts did not run</pre>
+<script>
+)HTML";
+
+constexpr const char* kPageScript = R"JS(
+</script>
+<script>
+const errors = [];
+window.addEventListener('error', e => errors.push(String(e.message)));
+const palette = ['#1f77b4','#d62728','#2ca02c','#ff7f0e','#9467bd','#8c564b','#e377c2','#7f7f7f','#bcbd22','#17becf',
+                 '#393b79','#637939','#8c6d31','#843c39','#7b4173','#3182bd'];
+const content = document.getElementById('content');
+function el(tag, attrs, parent, text) {
+  const e = document.createElement(tag);
+  for (const k in (attrs || {})) e.setAttribute(k, attrs[k]);
+  if (text !== undefined) e.textContent = text;
+  (parent || content).appendChild(e);
+  return e;
+}
+function fmt(v, d) { return (typeof v === 'number' && isFinite(v)) ? v.toFixed(d === undefined ? 2 : d) : (v === undefined || v === null ? '' : String(v)); }
+function table(parent, header, rows, rowClass) {
+  const t = el('table', {}, parent);
+  const h = el('tr', {}, t);
+  for (const c of header) el('th', {}, h, c);
+  rows.forEach((r, i) => {
+    const tr = el('tr', rowClass ? {class: rowClass(i) || ''} : {}, t);
+    for (const c of r) el('td', {}, tr, c);
+  });
+  return t;
+}
+function chart(parent, width, height, config) {
+  const canvas = el('canvas', {width: width, height: height}, parent);
+  config.options = Object.assign({animation: false, responsive: false}, config.options || {});
+  try { new Chart(canvas.getContext('2d'), config); } catch (e) { errors.push('chart: ' + e.message); }
+  return canvas;
+}
+function axis(title, extra) { return Object.assign({title: {display: true, text: title}}, extra || {}); }
+
+function workspaceReport(R) {
+  document.getElementById('title').textContent = 'ibmr report: ' + R.title;
+  document.getElementById('subtitle').textContent = R.stages.length + ' stage records; held-out metric ' + R.metric;
+  el('h2', {}, content, 'Stages: time and memory');
+  const stages = R.stages;
+  table(content, ['stage', 'status', 'wall s', 'CPU s', 'peak MB', 'reused'],
+        stages.map(s => [s.stage, s.status, fmt(s.wall_seconds), fmt(s.cpu_seconds), fmt(s.peak_memory_mb, 0), s.reused ? 'yes' : '']),
+        i => stages[i].status === 'ok' ? '' : 'failed');
+  const charts = el('div', {class: 'charts'});
+  chart(charts, 640, 320, {type: 'bar', data: {labels: stages.map(s => s.stage), datasets: [
+      {label: 'wall s', data: stages.map(s => s.wall_seconds), backgroundColor: palette[0]},
+      {label: 'CPU s', data: stages.map(s => s.cpu_seconds), backgroundColor: palette[1]}]},
+    options: {scales: {y: axis('seconds')}}});
+  chart(charts, 640, 320, {type: 'bar', data: {labels: stages.map(s => s.stage), datasets: [
+      {label: 'peak memory MB', data: stages.map(s => s.peak_memory_mb), backgroundColor: palette[2]}]},
+    options: {scales: {y: axis('MB')}}});
+
+  if (R.models.length) {
+    el('h2', {}, content, 'Held-out views: scores per model');
+    table(content, ['model', 'PSNR (covered)', 'SSIM', 'coverage', 'photo PSNR (holes black)', 'filled photo PSNR', 'mask PSNR'],
+          R.models.map(m => [m.name, fmt(m.psnr), fmt(m.ssim, 3), fmt(m.coverage, 3), fmt(m.photo_psnr), fmt(m.filled_photo_psnr), fmt(m.mask_psnr)]));
+    const c = el('div', {class: 'charts'});
+    chart(c, 1000, 340, {type: 'bar', data: {labels: R.models.map(m => m.name), datasets: [
+        {label: R.metric, data: R.models.map(m => m[R.metric]), backgroundColor: palette[0]},
+        {label: 'psnr (covered pixels)', data: R.models.map(m => m.psnr), backgroundColor: palette[3]}]},
+      options: {scales: {y: axis('dB')}}});
+  }
+
+  if (R.selection) {
+    const S = R.selection;
+    el('h2', {}, content, 'Model selection: how much model is enough');
+    el('p', {class: 'note'}, content, 'Chosen: ' + S.chosen.name + ' (' + fmt(S.chosen.bytes, 0) + ' bytes, ' + fmt(S.chosen.psnr) +
+       ' dB), the smallest within ' + fmt(S.tolerance_db) + ' dB of the best, ' + S.best.name + ' (' + fmt(S.best.bytes, 0) +
+       ' bytes, ' + fmt(S.best.psnr) + ' dB): gap ' + fmt(S.gap_db) + ' dB, ' + S.metric + '.');
+    table(content, ['model', 'kind', 'bytes', 'elements', S.metric, 'coverage'],
+          S.models.map(m => [m.name, m.kind, fmt(m.bytes, 0), fmt(m.elements, 0), fmt(m.psnr), fmt(m.coverage, 3)]),
+          i => S.models[i].name === S.chosen.name ? 'chosen' : '');
+    const env = S.models.filter(m => S.envelope.includes(m.name));
+    const c = el('div', {class: 'charts'});
+    chart(c, 900, 400, {type: 'scatter', data: {datasets: [
+        {label: 'models', data: S.models.map(m => ({x: Math.max(m.bytes, 1), y: m.psnr, name: m.name})), backgroundColor: palette[0], pointRadius: 5},
+        {label: 'envelope (better than every smaller model)', data: env.map(m => ({x: Math.max(m.bytes, 1), y: m.psnr, name: m.name})),
+         borderColor: palette[2], showLine: true, pointRadius: 0},
+        {label: 'chosen', data: [{x: Math.max(S.chosen.bytes, 1), y: S.chosen.psnr, name: S.chosen.name}], backgroundColor: palette[1], pointRadius: 9}]},
+      options: {scales: {x: axis('model size (bytes)', {type: 'logarithmic'}), y: axis(S.metric + ' (dB)')},
+                plugins: {tooltip: {callbacks: {label: ctx => ctx.raw.name + ': ' + fmt(ctx.raw.y) + ' dB'}}}}});
+  }
+
+  if (R.views.length) {
+    el('h2', {}, content, 'Held-out views: photo | render | error, per model');
+    for (const v of R.views) {
+      el('h3', {}, content, v.view);
+      for (const im of v.images) {
+        const f = el('figure');
+        el('figcaption', {}, f, im.model);
+        el('img', {src: im.src, alt: im.model + ' ' + v.view}, f);
+      }
+    }
+  }
+}
+
+function sweepReport(R) {
+  document.getElementById('title').textContent = 'ibmr sweep: ' + R.title;
+  document.getElementById('subtitle').textContent = R.variants.length + ' variants of ' + R.config + '; varied: ' +
+      R.varied.join(', ') + '; held-out metric ' + R.metric;
+  el('h2', {}, content, 'Speed against accuracy');
+  el('p', {class: 'note'}, content, 'Each point is one model of one variant: the time to build it from scratch (the sum of its stages) ' +
+     'against its held-out ' + R.metric + '. The line joins the Pareto front: nothing is both faster and better.');
+  const models = [...new Set(R.points.map(p => p.model))];
+  const datasets = models.map((m, i) => ({label: m, data: R.points.filter(p => p.model === m).map(p => ({x: p.seconds, y: p.psnr, v: p.variant})),
+                                          backgroundColor: palette[i % palette.length], pointRadius: 5}));
+  datasets.push({label: 'Pareto front', data: R.pareto.map(p => ({x: p.seconds, y: p.psnr, v: p.variant + ' ' + p.model})),
+                 borderColor: '#000', showLine: true, pointRadius: 0, borderWidth: 1});
+  const c = el('div', {class: 'charts'});
+  chart(c, 1000, 460, {type: 'scatter', data: {datasets: datasets},
+    options: {scales: {x: axis('seconds (all stages)'), y: axis(R.metric + ' (dB)')},
+              plugins: {tooltip: {callbacks: {label: ctx => ctx.raw.v + ': ' + fmt(ctx.raw.x, 1) + ' s, ' + fmt(ctx.raw.y) + ' dB'}}}}});
+  table(content, ['variant', 'model', 'seconds', R.metric], R.pareto.map(p => [p.variant, p.model, fmt(p.seconds, 1), fmt(p.psnr)]));
+
+  el('h2', {}, content, 'Time per stage per variant');
+  const stageNames = [...new Set(R.variants.flatMap(v => v.stages.map(s => s.stage)))];
+  chart(content, 1000, 380, {type: 'bar', data: {labels: R.variants.map(v => v.name), datasets: stageNames.map((s, i) => ({
+      label: s, backgroundColor: palette[i % palette.length],
+      data: R.variants.map(v => { const st = v.stages.find(x => x.stage === s); return st ? st.wall_seconds || 0 : 0; })}))},
+    options: {scales: {x: {stacked: true}, y: axis('seconds', {stacked: true})}}});
+
+  el('h2', {}, content, 'Variants');
+  const allModels = [...new Set(R.variants.flatMap(v => Object.keys(v.models)))];
+  table(content, ['variant', 'parameters', 'status', 'seconds', 'computed here', 'peak MB'].concat(allModels.map(m => m + ' ' + R.metric)),
+        R.variants.map(v => [v.name, v.label, v.status, fmt(v.wall_seconds, 1), fmt(v.computed_wall_seconds, 1), fmt(v.peak_memory_mb, 0)]
+                             .concat(allModels.map(m => v.models[m] ? fmt(v.models[m][R.metric]) : ''))),
+        i => R.variants[i].status === 'ok' ? '' : 'failed');
+
+  if (R.stability && R.stability.length) {
+    el('h2', {}, content, 'Stability: error against the strength of each degradation');
+    const s = el('div', {class: 'charts'});
+    for (const curve of R.stability) {
+      chart(s, 480, 300, {type: 'line', data: {labels: curve.strengths.map(x => String(x)), datasets: curve.series.map((d, i) => ({
+          label: d.label, data: d.values, borderColor: palette[i % palette.length], backgroundColor: palette[i % palette.length]}))},
+        options: {plugins: {title: {display: true, text: curve.title}}, scales: {x: axis(curve.axis), y: axis(curve.value)}}});
+    }
+  }
+}
+
+try {
+  if (REPORT.kind === 'sweep') sweepReport(REPORT); else workspaceReport(REPORT);
+} catch (e) { errors.push(e.message); }
+
+setTimeout(() => {
+  const canvases = [...document.querySelectorAll('canvas')];
+  let drawn = 0;
+  for (const c of canvases) {
+    const data = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
+    let painted = 0;
+    for (let i = 3; i < data.length && painted <= 100; i += 4) if (data[i] !== 0) ++painted;
+    if (painted > 100) ++drawn;
+  }
+  document.getElementById('selfcheck').textContent = 'charts=' + canvases.length + ' drawn=' + drawn + ' errors=' + errors.length +
+      (errors.length ? ' ' + errors.join(' | ') : '');
+}, 0);
+</script></body></html>
+)JS";
+
+// Text safe inside a <script> element: "</" cannot close it early.
+std::string ScriptSafe(std::string text) {
+  for (size_t at = text.find("</"); at != std::string::npos; at = text.find("</", at + 3)) text.replace(at, 2, "<\\/");
+  return text;
+}
+
+}  // namespace
+
+nlohmann::json GatherWorkspaceReport(const std::string& root, int image_width) {
+  const Workspace workspace(root);
+  nlohmann::json report = {{"kind", "workspace"}, {"title", root}, {"stages", StageCosts(workspace)}};
+  const nlohmann::json selection = ReadJsonOr(workspace.Path("scores/selection.json"), nullptr);
+  report["selection"] = selection;
+  report["metric"] = selection.is_object() ? selection.value("metric", "photo_psnr") : "photo_psnr";
+  nlohmann::json models = nlohmann::json::array();
+  nlohmann::json views = nlohmann::json::array();
+  const nlohmann::json scores = ReadJsonOr(workspace.Path("scores/heldout.json"), nlohmann::json::object());
+  const nlohmann::json proxies = scores.value("proxies", nlohmann::json::object());
+  std::map<std::string, nlohmann::json> images_by_view;
+  for (const auto& [name, proxy] : proxies.items()) {
+    if (!proxy.contains("mean")) continue;
+    nlohmann::json model = proxy["mean"];
+    model["name"] = name;
+    models.push_back(model);
+    const nlohmann::json per_view = proxy.value("views", nlohmann::json::object());
+    for (const auto& [view, entry] : per_view.items()) {
+      const std::string side_by_side = workspace.Path("scores/" + name + "/" + fs::path(view).stem().string() + ".png");
+      const std::string uri = ImageDataUri(side_by_side, image_width);
+      if (uri.empty()) continue;
+      images_by_view[view].push_back({{"model", name}, {"src", uri}});
+    }
+  }
+  for (const auto& [view, images] : images_by_view) views.push_back({{"view", view}, {"images", images}});
+  report["models"] = models;
+  report["views"] = views;
+  return report;
+}
+
+nlohmann::json GatherSweepReport(const std::string& folder) {
+  const nlohmann::json sweep = ReadJsonOr(folder + "/sweep.json", nlohmann::json::object());
+  nlohmann::json report = {{"kind", "sweep"},
+                           {"title", folder},
+                           {"config", sweep.value("config", "")},
+                           {"metric", sweep.value("metric", "psnr")},
+                           {"varied", sweep.value("varied", nlohmann::json::array())},
+                           {"points", sweep.value("points", nlohmann::json::array())},
+                           {"pareto", sweep.value("pareto", nlohmann::json::array())},
+                           {"variants", sweep.value("variants", nlohmann::json::array())},
+                           {"stability", sweep.value("stability", nlohmann::json::array())}};
+  // The page needs only the costs and scores, not every stage's metrics.
+  for (auto& variant : report["variants"]) {
+    for (auto& stage : variant["stages"]) stage.erase("metrics");
+  }
+  return report;
+}
+
+std::string WriteReport(const ReportOptions& options) {
+  const bool is_sweep = fs::exists(options.path + "/sweep.json");
+  if (!is_sweep && !fs::is_directory(options.path + "/records")) {
+    throw InputError(options.path + " holds neither sweep.json (an ibmr sweep folder) nor records/ (a workspace); "
+                     "give a workspace or a sweep folder");
+  }
+  if (!fs::exists(options.chart_js)) {
+    throw InputError(options.chart_js + " is missing: the report inlines Chart.js from Debian's libjs-chart.js "
+                     "(apt-get install libjs-chart.js, or scripts/setup.sh)");
+  }
+  const nlohmann::json data = is_sweep ? GatherSweepReport(options.path)
+                                       : GatherWorkspaceReport(options.path, options.image_width);
+  std::string page = kPageHead;
+  page += ScriptSafe(ReadFile(options.chart_js));
+  page += "\n</script>\n<script>\nconst REPORT = ";
+  page += ScriptSafe(data.dump());
+  page += ";";
+  page += kPageScript;
+  const std::string out = options.out.empty() ? options.path + "/report/index.html" : options.out;
+  WriteFileAtomic(out, page);
+  return out;
+}
+
+}  // namespace ibmr

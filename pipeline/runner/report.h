@@ -1,0 +1,39 @@
+// ibmr report: one self-contained HTML page (report/index.html; opens from disk, no network) for a
+// workspace or a sweep folder. Charts are drawn by Chart.js from Debian's libjs-chart.js, inlined
+// into the page with the data as JSON; images are embedded as JPEG data URIs.
+//
+// A workspace: per-stage wall time, CPU time and peak memory; the held-out scores of every model;
+// the selection (scores/selection.json) as a size-error chart with its envelope; per held-out view
+// the photo, each model's render and its error (score's side-by-side images).
+// A sweep (sweep.json): time against held-out PSNR for every model of every variant with the
+// Pareto front; per-stage time per variant; the variants' table; stability curves when the sweep
+// varied a degradation's strength.
+//
+// The page checks itself: when its scripts have run it writes, into <pre id="selfcheck">, how many
+// charts it drew, how many have pixels, and any script error, for headless tests.
+#pragma once
+
+#include <nlohmann/json.hpp>
+#include <string>
+
+namespace ibmr {
+
+// Where Debian's libjs-chart.js puts the UMD build the page inlines.
+inline constexpr const char* kChartJsPath = "/usr/share/javascript/chart.js/chart.min.js";
+
+struct ReportOptions {
+  std::string path;           // a workspace, or a sweep folder (holding sweep.json)
+  std::string out;            // default: <path>/report/index.html
+  std::string chart_js = kChartJsPath;
+  int image_width = 720;      // embedded side-by-side images are scaled down to this width
+};
+
+// The data the page charts, gathered from the folder (exposed for tests).
+nlohmann::json GatherWorkspaceReport(const std::string& workspace, int image_width);
+nlohmann::json GatherSweepReport(const std::string& sweep_folder);
+
+// Writes the page; returns its path. Throws InputError naming what is missing (the folder holds
+// neither records/ nor sweep.json; Chart.js is not installed).
+std::string WriteReport(const ReportOptions& options);
+
+}  // namespace ibmr
