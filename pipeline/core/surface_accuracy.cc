@@ -10,6 +10,8 @@
 
 #include "pipeline/core/surface_accuracy.h"
 
+#include "pipeline/core/rank_correlation.h"
+
 namespace ibmr {
 
 namespace {
@@ -149,6 +151,10 @@ PointSetAccuracy EvaluatePointSet(const PointCloud& cloud, const TriangleMesh& m
     const double cap = 10 * threshold;  // farther points count as this far (bounds the grid search)
     std::vector<double> d(cloud.size());
     tbb::parallel_for(size_t(0), cloud.size(), [&](size_t i) { d[i] = distance.Distance(cloud.positions[i].cast<double>(), cap); });
+    if (cloud.confidence.size() == cloud.size()) {
+      const std::vector<double> confidence(cloud.confidence.begin(), cloud.confidence.end());
+      result.confidence_error_spearman = SpearmanCorrelation(confidence, d);
+    }
     std::sort(d.begin(), d.end());
     result.accuracy_90 = d[std::min(d.size() - 1, static_cast<size_t>(0.9 * d.size()))];
     result.accuracy_median = d[d.size() / 2];

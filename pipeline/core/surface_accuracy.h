@@ -6,6 +6,8 @@
 // Used by fuse (fused points) and surfels (particles and their mesh), and by benchmarks.
 #pragma once
 
+#include <limits>
+
 #include <Eigen/Core>
 #include <memory>
 #include <opencv2/core.hpp>
@@ -46,6 +48,9 @@ struct PointSetAccuracy {
   double completeness_visible = -1;  // the same among samples some view sees (-1: not computed)
   double threshold = 0;
   size_t points = 0;
+  // Spearman's rho between the points' confidence and their distance to the mesh (NaN without
+  // confidences): a confidence that means something is negative.
+  double confidence_error_spearman = std::numeric_limits<double>::quiet_NaN();
 };
 
 // `visible` (optional, one flag per sample) restricts completeness_visible to seen samples.

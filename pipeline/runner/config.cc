@@ -283,6 +283,65 @@ const StageConfig* Config::FindStage(const std::string& name) const {
   return nullptr;
 }
 
+// The optional sweep: block (see SweepPlan). Every malformed entry names its line and key.
+static void ParseSweep(const YAML::Node& node, Config* config) {
+  const std::string& path = config->path;
+  if (!node.IsMap()) throw ConfigError(Where(path, LineOf(node), "sweep", "expected a map (vary, variants, metric, stability)"));
+  const std::vector<std::string> valid = {"vary", "variants", "metric", "stability"};
+  const auto scalar_list = [&](const YAML::Node& list, const std::string& key) {
+    std::string joined;
+    if (!list.IsSequence() || list.size() == 0) {
+      throw ConfigError(Where(path, LineOf(list), key, "expected a non-empty list of values"));
+    }
+    for (const auto& value : list) {
+      if (!value.IsScalar()) throw ConfigError(Where(path, LineOf(value), key, "expected plain values"));
+      joined += (joined.empty() ? "" : ",") + value.Scalar();
+    }
+    return joined;
+  };
+  for (const auto& kv : node) {
+    const std::string key = kv.first.as<std::string>();
+    if (std::find(valid.begin(), valid.end(), key) == valid.end()) {
+      throw ConfigError(Where(path, LineOf(kv.first), "sweep." + key, "unknown key; " + Suggest(key, valid)));
+    }
+  }
+  if (const YAML::Node vary = node["vary"]) {
+    if (!vary.IsMap()) throw ConfigError(Where(path, LineOf(vary), "sweep.vary", "expected a map of stage.key: [values]"));
+    for (const auto& kv : vary) {
+      const std::string key = kv.first.as<std::string>();
+      config->sweep.vary.push_back(key + "=" + scalar_list(kv.second, "sweep.vary." + key));
+    }
+  }
+  if (const YAML::Node variants = node["variants"]) {
+    if (!variants.IsSequence()) throw ConfigError(Where(path, LineOf(variants), "sweep.variants", "expected a list of \"stage.key=value ...\""));
+    for (const auto& v : variants) config->sweep.variants.push_back(v.as<std::string>());
+  }
+  if (const YAML::Node metric = node["metric"]) config->sweep.metric = metric.as<std::string>();
+  const YAML::Node stability = node["stability"];
+  if (!stability) return;
+  const auto required = [&](const YAML::Node& map, const char* key, const std::string& where) {
+    if (!map[key] || !map[key].IsScalar()) {
+      throw ConfigError(Where(path, LineOf(map), where + "." + key, "missing: give a value"));
+    }
+    return map[key].Scalar();
+  };
+  config->sweep.degradation_key = required(stability, "degradation", "sweep.stability");
+  config->sweep.strength_key = required(stability, "strength", "sweep.stability");
+  const YAML::Node methods = stability["methods"];
+  if (!methods || !methods.IsSequence() || methods.size() == 0) {
+    throw ConfigError(Where(path, LineOf(stability), "sweep.stability.methods", "expected a non-empty list of {name, metric, ...}"));
+  }
+  for (const auto& m : methods) {
+    if (!m.IsMap()) throw ConfigError(Where(path, LineOf(m), "sweep.stability.methods", "expected {name, metric, ...}"));
+    StabilityMethod method;
+    method.name = required(m, "name", "sweep.stability.methods");
+    method.metric = required(m, "metric", "sweep.stability.methods");
+    if (m["confidence"]) method.confidence = m["confidence"].as<std::string>();
+    if (m["higher_is_better"]) method.higher_is_better = m["higher_is_better"].as<bool>();
+    config->sweep.methods.push_back(method);
+  }
+}
+
 Config LoadConfig(const std::string& path, const StageRegistry& registry) {
   Config config;
   config.path = path;
@@ -299,7 +358,7 @@ Config LoadConfig(const std::string& path, const StageRegistry& registry) {
     throw ConfigError(Where(path, e.mark.line + 1, "", "YAML syntax error: " + e.msg));
   }
   if (!root.IsMap()) throw ConfigError(Where(path, 1, "", "expected a map with keys workspace, inputs, holdout, stages"));
-  const std::vector<std::string> valid = {"workspace", "inputs", "holdout", "stages"};
+  const std::vector<std::string> valid = {"workspace", "inputs", "holdout", "stages", "sweep"};
   for (const auto& kv : root) {
     const std::string key = kv.first.as<std::string>();
     if (std::find(valid.begin(), valid.end(), key) == valid.end()) {
@@ -317,6 +376,7 @@ Config LoadConfig(const std::string& path, const StageRegistry& registry) {
     }
   }
   if (const YAML::Node holdout = root["holdout"]) ParseHoldout(holdout, &config);
+  if (const YAML::Node sweep = root["sweep"]) ParseSweep(sweep, &config);
   const YAML::Node stages = root["stages"];
   if (!stages || !stages.IsSequence() || stages.size() == 0) {
     throw ConfigError(Where(path, stages ? LineOf(stages) : 0, "stages", "expected a non-empty list of stages"));

@@ -50,6 +50,37 @@ struct StageConfig {
   std::map<std::string, int> key_lines;  // 1-based line of each key given in the file
 };
 
+// What `ibmr sweep` runs when the config says (its optional `sweep:` block; `ibmr run` ignores it):
+//   sweep:
+//     vary: {synth.strength: [0.25, 0.5], synth.degradation: [specular, exposure]}   # crossed
+//     variants: ["synth.degradation=none"]                                         # listed
+//     metric: photo_psnr
+//     stability:                       # a stability matrix over (degradation, strength)
+//       degradation: synth.degradation # the varied key naming the degradation
+//       strength: synth.strength       # the varied key giving its strength
+//       methods:                       # what each method's error and confidence are
+//         - {name: stereo, metric: multi_depth.geometric_within_1pct_of_textured, higher_is_better: true,
+//            confidence: multi_depth.geometric_confidence_error_spearman}
+//         - {name: surfel mesh held out, metric: models.surfels.photo_psnr, higher_is_better: true}
+// A metric is "stage.key" (a number in records/<stage>.json's metrics) or "models.NAME.key" (a
+// held-out mean of scores/heldout.json).
+struct StabilityMethod {
+  std::string name;
+  std::string metric;
+  std::string confidence;  // optional: Spearman's rho of the method's confidence and error
+  bool higher_is_better = false;
+};
+
+struct SweepPlan {
+  std::vector<std::string> vary;      // "stage.key=v1,v2,..."
+  std::vector<std::string> variants;  // "stage.key=v stage.key=v"
+  std::string metric;                 // empty: the sweep's default
+  std::string degradation_key, strength_key;
+  std::vector<StabilityMethod> methods;
+
+  bool HasStability() const { return !methods.empty(); }
+};
+
 struct Config {
   std::string path;       // the config file
   std::string dir;        // its folder (absolute)
@@ -57,6 +88,7 @@ struct Config {
   std::map<std::string, std::string> inputs;  // absolute paths
   HoldoutPolicy holdout;
   std::vector<StageConfig> stages;
+  SweepPlan sweep;  // empty unless the config has a sweep: block
 
   const StageConfig* FindStage(const std::string& name) const;
 };

@@ -9,6 +9,7 @@
 
 #include "pipeline/core/atomic_file.h"
 #include "pipeline/core/errors.h"
+#include "pipeline/core/heldout_scores.h"
 #include "pipeline/core/workspace.h"
 #include "pipeline/runner/record.h"
 
@@ -232,6 +233,12 @@ function sweepReport(R) {
           label: d.label, data: d.values, borderColor: palette[i % palette.length], backgroundColor: palette[i % palette.length]}))},
         options: {plugins: {title: {display: true, text: curve.title}}, scales: {x: axis(curve.axis), y: axis(curve.value)}}});
     }
+    el('h3', {}, content, 'Where each method breaks (quality below 0.8 of the clean scene) and its confidence there');
+    table(content, ['degradation', 'method', 'breaks at strength', 'confidence-error rho there'],
+          R.stability_breaks.map(b => [b.degradation, b.method, b.breaks_at === null ? 'holds' : fmt(b.breaks_at), fmt(b.confidence_rho_at_break)]));
+    el('h3', {}, content, 'Every cell: value, relative quality, confidence-error rank correlation (negative: confidence falls where error rises)');
+    table(content, ['degradation', 'strength', 'method', 'value', 'relative', 'rho'],
+          R.stability_cells.map(c => [c.degradation, fmt(c.strength), c.method, fmt(c.value, 4), fmt(c.relative, 3), fmt(c.confidence_rho, 3)]));
   }
 }
 
@@ -274,8 +281,8 @@ nlohmann::json GatherWorkspaceReport(const std::string& root, int image_width) {
   const nlohmann::json proxies = scores.value("proxies", nlohmann::json::object());
   std::map<std::string, nlohmann::json> images_by_view;
   for (const auto& [name, proxy] : proxies.items()) {
-    if (!proxy.contains("mean")) continue;
-    nlohmann::json model = proxy["mean"];
+    nlohmann::json model = HeldoutMeans(proxy);
+    if (model.empty()) continue;
     model["name"] = name;
     models.push_back(model);
     const nlohmann::json per_view = proxy.value("views", nlohmann::json::object());
@@ -302,7 +309,14 @@ nlohmann::json GatherSweepReport(const std::string& folder) {
                            {"points", sweep.value("points", nlohmann::json::array())},
                            {"pareto", sweep.value("pareto", nlohmann::json::array())},
                            {"variants", sweep.value("variants", nlohmann::json::array())},
-                           {"stability", sweep.value("stability", nlohmann::json::array())}};
+                           {"stability", nlohmann::json::array()},
+                           {"stability_breaks", nlohmann::json::array()},
+                           {"stability_cells", nlohmann::json::array()}};
+  if (sweep.contains("stability") && sweep["stability"].is_object()) {
+    report["stability"] = sweep["stability"].value("curves", nlohmann::json::array());
+    report["stability_breaks"] = sweep["stability"].value("breaks", nlohmann::json::array());
+    report["stability_cells"] = sweep["stability"].value("cells", nlohmann::json::array());
+  }
   // The page needs only the costs and scores, not every stage's metrics.
   for (auto& variant : report["variants"]) {
     for (auto& stage : variant["stages"]) stage.erase("metrics");

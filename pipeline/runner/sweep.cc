@@ -8,9 +8,11 @@
 #include <filesystem>
 
 #include "pipeline/core/atomic_file.h"
+#include "pipeline/core/heldout_scores.h"
 #include "pipeline/core/workspace.h"
 #include "pipeline/runner/record.h"
 #include "pipeline/runner/runner.h"
+#include "pipeline/runner/stability.h"
 
 namespace ibmr {
 
@@ -146,8 +148,8 @@ nlohmann::json CollectVariant(const Config& config) {
   const nlohmann::json scores = ReadJsonOr(workspace.Path("scores/heldout.json"), nlohmann::json::object());
   const nlohmann::json proxies = scores.value("proxies", nlohmann::json::object());
   for (const auto& [name, proxy] : proxies.items()) {
-    if (!proxy.contains("mean")) continue;
-    nlohmann::json model = proxy["mean"];
+    nlohmann::json model = HeldoutMeans(proxy);
+    if (model.empty()) continue;
     if (sizes.contains(name)) model["size"] = sizes[name];
     models[name] = model;
   }
@@ -160,9 +162,14 @@ nlohmann::json CollectVariant(const Config& config) {
           {"models", models}};
 }
 
-int RunSweep(const SweepOptions& options, const StageRegistry& registry) {
+int RunSweep(const SweepOptions& given, const StageRegistry& registry) {
+  const Config base = LoadConfig(given.config_path, registry);
+  // The config's sweep: block first, then the command line's.
+  SweepOptions options = given;
+  options.vary.insert(options.vary.begin(), base.sweep.vary.begin(), base.sweep.vary.end());
+  options.listed.insert(options.listed.begin(), base.sweep.variants.begin(), base.sweep.variants.end());
+  if (!base.sweep.metric.empty() && given.metric == SweepOptions().metric) options.metric = base.sweep.metric;
   const std::vector<Assignments> variants = ExpandVariants(options.vary, options.listed);
-  const Config base = LoadConfig(options.config_path, registry);
   const std::string out =
       fs::absolute(options.out.empty() ? base.workspace + ".sweep" : options.out).lexically_normal().string();
   fs::create_directories(out);
@@ -233,6 +240,7 @@ int RunSweep(const SweepOptions& options, const StageRegistry& registry) {
     }
     sweep["points"] = points;
     sweep["pareto"] = ParetoFront(points);
+    if (base.sweep.HasStability()) sweep["stability"] = StabilityMatrix(sweep["variants"], base.sweep);
     WriteFileAtomic(out + "/sweep.json", sweep.dump(2) + "\n");
   }
   spdlog::info("sweep: {} of {} variant(s) ran; {}", configs.size() - failed, configs.size(), out + "/sweep.json");

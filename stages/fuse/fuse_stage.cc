@@ -150,6 +150,7 @@ class FuseStage : public Stage {
     if (have_visibility) m["completeness_visible"] = a.completeness_visible;
     m["eval_threshold"] = threshold;
     m["accuracy_90_over_threshold"] = a.accuracy_90 / threshold;
+    m["confidence_error_spearman"] = a.confidence_error_spearman;  // rank correlation, points' confidence vs distance
     spdlog::info("[fuse] accuracy (90%) {:.4g}, completeness {:.1f}% ({:.1f}% of the seen surface) within {:.4g}", a.accuracy_90,
                  100 * a.completeness, 100 * std::max(0.0, a.completeness_visible), threshold);
   }

@@ -12,6 +12,7 @@
 #include "pipeline/core/colmap_array_io.h"
 #include "pipeline/core/errors.h"
 #include "pipeline/core/per_view.h"
+#include "pipeline/core/rank_correlation.h"
 #include "pipeline/core/stage_api.h"
 #include "stages/multi_depth/multi_depth.h"
 
@@ -125,6 +126,7 @@ class MultiDepthStage : public Stage {
     std::mutex mutex;
     MultiDepthStats totals;
     DepthAccuracy before, after;
+    std::vector<double> pairs[4];  // over views: as view_pairs below
     size_t views_without_neighbors = 0;
     ForEachView(context, "consistent depth maps", names, [&](const std::string& name) {
       const Image& key_image = *model.FindImage(name);
@@ -147,7 +149,14 @@ class MultiDepthStage : public Stage {
         view_before = CompareDepth(key.depth, truth, 0.01);
         view_after = CompareDepth(result.depth, truth, 0.01);
       }
+      std::vector<double> view_pairs[4];  // photometric confidence, its error; geometric confidence, its error
+      if (has_truth && fs::exists(truth_path)) {
+        CollectConfidenceAndError(key.depth, key.confidence, ReadColmapArray(truth_path), &view_pairs[0], &view_pairs[1]);
+        CollectConfidenceAndError(result.depth, result.confidence, ReadColmapArray(truth_path), &view_pairs[2],
+                                  &view_pairs[3]);
+      }
       std::lock_guard<std::mutex> lock(mutex);
+      for (int k = 0; k < 4; ++k) pairs[k].insert(pairs[k].end(), view_pairs[k].begin(), view_pairs[k].end());
       if (neighbors.empty()) ++views_without_neighbors;
       Accumulate(result.stats, &totals);
       Accumulate(view_before, &before);
@@ -172,6 +181,9 @@ class MultiDepthStage : public Stage {
       m["geometric_within_1pct_of_textured"] = after.FractionOfTruth();
       m["geometric_within_1pct_of_kept"] = after.FractionOfEstimated();
       m["geometric_kept_of_textured"] = double(after.estimated) / after.truth_pixels;
+      // Does the confidence fall where the error rises? (Spearman's rho; negative is good.)
+      m["photometric_confidence_error_spearman"] = SpearmanCorrelation(pairs[0], pairs[1]);
+      m["geometric_confidence_error_spearman"] = SpearmanCorrelation(pairs[2], pairs[3]);
     }
     spdlog::info("[multi_depth] {} views: kept {} of {} samples ({:.1f}%; {} low confidence, {} unconfirmed, {} seen through), {} filled",
                  names.size(), totals.kept, totals.input_samples, 100.0 * m["kept_fraction"].get<double>(),
@@ -183,6 +195,21 @@ class MultiDepthStage : public Stage {
   }
 
  private:
+  // (confidence, relative depth error) of every third pixel in each direction where both the map
+  // and the truth have depth; confidence 1 where the map has none.
+  static void CollectConfidenceAndError(const DepthMap& depth, const FloatMap& confidence, const DepthMap& truth,
+                                        std::vector<double>* confidences, std::vector<double>* errors) {
+    if (truth.width != depth.width || truth.height != depth.height) return;
+    const bool sized = confidence.width == depth.width && confidence.height == depth.height && !confidence.Empty();
+    for (int y = 1; y < depth.height; y += 3) {
+      for (int x = 1; x < depth.width; x += 3) {
+        const float z = depth.At(x, y), t = truth.At(x, y);
+        if (!(z > 0) || !(t > 0)) continue;
+        confidences->push_back(sized ? confidence.At(x, y) : 1.0);
+        errors->push_back(std::abs(z - t) / t);
+      }
+    }
+  }
   static void Accumulate(const MultiDepthStats& s, MultiDepthStats* total) {
     total->input_samples += s.input_samples;
     total->low_confidence += s.low_confidence;

@@ -8,6 +8,7 @@
 
 #include "pipeline/core/atomic_file.h"
 #include "pipeline/core/errors.h"
+#include "pipeline/core/heldout_scores.h"
 #include "pipeline/core/stage_api.h"
 #include "stages/select/select.h"
 
@@ -37,7 +38,7 @@ class SelectStage : public Stage {
   std::string Summary() const override {
     return "Model selection: the smallest rendered model within a tolerance of the best held-out PSNR";
   }
-  std::string Version() const override { return "1"; }
+  std::string Version() const override { return "2"; }  // 2: means over views not near a training camera
   HoldoutRole Role() const override { return HoldoutRole::kScoring; }
   std::vector<ParamSpec> Parameters() const override {
     return {
@@ -70,7 +71,7 @@ class SelectStage : public Stage {
     nlohmann::json unranked = nlohmann::json::array();
     const nlohmann::json proxies = scores.value("proxies", nlohmann::json::object());
     for (const auto& [name, proxy] : proxies.items()) {
-      const nlohmann::json mean = proxy.value("mean", nlohmann::json::object());
+      const nlohmann::json mean = HeldoutMeans(proxy);
       const auto size = sizes.find(name);
       if (size != sizes.end() && size->second.value("from_truth", false)) {
         unranked.push_back({{"name", name}, {"reason", "drawn from ground truth: a reference, not a model"}});

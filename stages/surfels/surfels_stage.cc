@@ -198,17 +198,21 @@ class SurfelsStage : public Stage {
                  "removed; {} grown) -> mesh of {} faces; {:.1f} s pruning, {:.1f} s relaxing, {:.1f} s triangulating",
                  s.input_points, s.particles, s.spacing, s.removed_free_space, s.removed_outside_hull,
                  s.removed_unsupported, s.grown, s.faces, s.prune_seconds, s.relax_seconds, s.triangulate_seconds);
-    if (fs::exists(workspace.GroundTruthMeshPath())) Evaluate(context, result.mesh);
+    if (fs::exists(workspace.GroundTruthMeshPath())) Evaluate(context, result.mesh, result.surfels);
   }
 
  private:
-  static void Evaluate(StageContext& context, const TriangleMesh& mesh) {
+  static void Evaluate(StageContext& context, const TriangleMesh& mesh, const PointCloud& particles) {
     const TriangleMesh truth = ReadMeshPly(context.workspace.GroundTruthMeshPath());
     const PointSetAccuracy a = EvaluateMesh(mesh, truth, static_cast<size_t>(context.params.Int("eval_samples")));
     if (a.points == 0) return;
     context.metrics["mesh_accuracy_90"] = a.accuracy_90;
     context.metrics["mesh_completeness"] = a.completeness;
     context.metrics["eval_threshold"] = a.threshold;
+    // The particles themselves: their distance to the truth against their confidence.
+    const PointSetAccuracy p = EvaluatePointSet(particles, truth, {}, a.threshold);
+    context.metrics["particle_accuracy_90"] = p.accuracy_90;
+    context.metrics["confidence_error_spearman"] = p.confidence_error_spearman;
     spdlog::info("[surfels] mesh accuracy (90%) {:.4g}, completeness {:.1f}% within {:.4g}", a.accuracy_90,
                  100 * a.completeness, a.threshold);
   }

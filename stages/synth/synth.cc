@@ -141,7 +141,8 @@ bool SynthOptions::Check(std::string* error) const {
          Require(sparse_points >= 0 && sparse_points <= 1000000, "sparse_points", "in [0, 1000000]",
                  sparse_points, error) &&
          Require(texture_frequency > 0 && texture_frequency <= 64, "texture_frequency", "in (0, 64]",
-                 texture_frequency, error);
+                 texture_frequency, error) &&
+         Require(strength >= 0 && strength <= 1, "strength", "in [0, 1]", strength, error);
 }
 
 double StarShape::Radius(const Eigen::Vector3d& u) const {
@@ -162,14 +163,20 @@ Eigen::Vector3d SurfaceRadiance(const SynthScene& scene, int part, const Eigen::
                                 const Eigen::Vector3d& normal) {
   const SynthPart& p = scene.parts[part];
   const Eigen::Vector3d variation =
-      p.textured ? SolidTexture(point, scene.texture_seed, scene.texture_frequency) : Eigen::Vector3d::Constant(0.7);
+      p.textured ? scene.degradation.Variation(SolidTexture(point, scene.texture_seed, scene.texture_frequency), point,
+                                               scene.texture_frequency)
+                 : Eigen::Vector3d::Constant(0.7);
   const Eigen::Vector3d albedo = p.tint.cwiseProduct(Eigen::Vector3d::Constant(0.3) + 0.7 * variation);
   const double shade = scene.ambient + (1.0 - scene.ambient) * std::max(0.0, normal.dot(scene.light_direction));
   return albedo * shade;
 }
 
-SynthScene BuildSynthScene(const SynthOptions& options) {
+SynthScene BuildSynthScene(const SynthOptions& requested) {
   SynthScene scene;
+  scene.degradation = Degradation{requested.degradation, requested.strength,
+                                  Mix64(static_cast<uint64_t>(requested.seed) ^ 0xDE6EADull)};
+  SynthOptions options = requested;
+  options.views = scene.degradation.Views(requested.views);
   scene.kind = options.scene;
   if (options.scene == SynthSceneKind::kObjectRing) {
     synth_internal::BuildObjectRingGeometry(options, &scene);
@@ -217,6 +224,7 @@ SynthView RenderSynthView(const SynthScene& scene, int view_index, const SynthOp
                                       camera.FocalY() * s, camera.PrincipalX() * s, camera.PrincipalY() * s);
   const RasterResult raster = Rasterize(scene.mesh, fine, view.cam_from_world);
   const std::vector<Eigen::Vector3d> face_normals = FaceNormals(scene.mesh);
+  const Eigen::Vector3d eye = view.Center();
 
   const int width = camera.width, height = camera.height;
   std::vector<Eigen::Vector3d> sum(static_cast<size_t>(width) * height, Eigen::Vector3d::Zero());
@@ -239,6 +247,8 @@ SynthView RenderSynthView(const SynthScene& scene, int view_index, const SynthOp
       const int part = scene.face_part[face];
       if (!scene.parts[part].smooth || !(normal.norm() > 1e-12)) normal = face_normals[face];
       sum[pixel] += SurfaceRadiance(scene, part, point, normal.normalized());
+      const double highlight = scene.degradation.Highlight(normal.normalized(), scene.light_direction, eye - point);
+      if (highlight > 0) sum[pixel] += Eigen::Vector3d::Constant(highlight);
       if (scene.parts[part].foreground) ++foreground_samples[pixel];
     }
   }
@@ -248,14 +258,16 @@ SynthView RenderSynthView(const SynthScene& scene, int view_index, const SynthOp
   result.mask.create(height, width, CV_8UC1);
   GaussianSource gaussian(Mix64(static_cast<uint64_t>(options.seed) * 0x9E3779B1ull + view_index + 1));
   const double samples = static_cast<double>(s) * s;
+  const double gain = scene.degradation.Gain(view_index);
+  const double sigma = options.noise + scene.degradation.NoiseSigma();
   size_t foreground_pixels = 0;
   for (int y = 0; y < height; ++y) {
     for (int x = 0; x < width; ++x) {
       const size_t pixel = static_cast<size_t>(y) * width + x;
-      const Eigen::Vector3d rgb = sum[pixel] * (255.0 / samples);
+      const Eigen::Vector3d rgb = sum[pixel] * (255.0 * gain / samples);
       cv::Vec3b& bgr = result.image.at<cv::Vec3b>(y, x);
       for (int c = 0; c < 3; ++c) {
-        const double noise = options.noise > 0 ? options.noise * gaussian.Next() : 0.0;
+        const double noise = sigma > 0 ? sigma * gaussian.Next() : 0.0;
         bgr[2 - c] = ToByte(rgb[c] + noise);
       }
       const bool foreground = 2 * foreground_samples[pixel] >= s * s;
@@ -282,7 +294,8 @@ nlohmann::json SynthSceneJson(const SynthScene& scene, const SynthOptions& optio
                   {"elevation_deg", options.elevation_deg}, {"ring_radius", options.ring_radius},
                   {"baseline", options.baseline}, {"textureless_wall", options.textureless_wall},
                   {"subdivision", options.subdivision}, {"sparse_points", options.sparse_points},
-                  {"texture_frequency", options.texture_frequency}};
+                  {"texture_frequency", options.texture_frequency},
+                  {"degradation", SynthDegradationName(options.degradation)}, {"strength", options.strength}};
   j["world_up"] = vec(Eigen::Vector3d::UnitZ());
   j["camera"] = {{"model", "PINHOLE"}, {"width", scene.camera.width}, {"height", scene.camera.height},
                  {"params", scene.camera.params}};

@@ -35,6 +35,7 @@
 #include "pipeline/core/mesh.h"
 #include "pipeline/core/progress.h"
 #include "pipeline/core/sparse_model.h"
+#include "stages/synth/synth_degradations.h"
 
 namespace ibmr {
 
@@ -63,6 +64,8 @@ struct SynthOptions {
                                // in [1, 7]
   int sparse_points = 1000;    // sparse points sampled on the visible surface, in [0, 1000000]
   double texture_frequency = 3.0;  // cycles per scene unit of the coarsest noise octave, in (0, 64]
+  SynthDegradation degradation = SynthDegradation::kNone;  // for the stability matrix (synth_degradations.h)
+  double strength = 0.0;       // of the degradation, in [0, 1]
 
   // Returns false and sets `error` (starting with the YAML key) when a value is out of range.
   bool Check(std::string* error) const;
@@ -112,6 +115,7 @@ struct SynthScene {
   Eigen::AlignedBox3d scene_bounds;       // of the whole mesh
   uint64_t texture_seed = 0;
   double texture_frequency = 3.0;
+  Degradation degradation;        // none unless the options ask for one
 };
 
 // Builds geometry, cameras and per-vertex radiance for the options' scene. Deterministic.

@@ -58,6 +58,11 @@ std::optional<ParamError> OptionsFromParams(const Params& params, SynthOptions* 
     if (params.Has(key)) *field = params.Double(key);
   }
   if (params.Has("seed")) options->seed = params.Int("seed");
+  if (params.Has("strength")) options->strength = params.Double("strength");
+  if (params.Has("degradation") && !SynthDegradationFromName(params.String("degradation"), &options->degradation)) {
+    return ParamError{"degradation", "must be one of " + SynthDegradationNames() + ", got \"" +
+                                         params.String("degradation") + "\""};
+  }
   if (params.Has("textureless_wall")) options->textureless_wall = params.Bool("textureless_wall");
   std::string error;
   if (options->Check(&error)) return std::nullopt;
@@ -121,6 +126,11 @@ class SynthStage : public Stage {
         {"sparse_points", ParamType::kInt, "1000", "sparse points sampled on the visible surface, in [0, 1000000]", {}},
         {"texture_frequency", ParamType::kDouble, "3",
          "cycles per scene unit of the coarsest texture octave, in (0, 64]", {}},
+        {"degradation", ParamType::kString, "none",
+         "for the stability matrix: none, textureless, specular, repetitive, few_views, camera_noise, image_noise or "
+         "exposure (stages/synth/synth_degradations.h)",
+         {}},
+        {"strength", ParamType::kDouble, "0", "of the degradation: 0 clean, 1 a hard case, in [0, 1]", {}},
     };
   }
 
@@ -171,7 +181,8 @@ class SynthStage : public Stage {
                  summary.resumed);
 
     start = std::chrono::steady_clock::now();
-    const SparseModel model = BuildSynthSparseModel(scene, options, context.progress);
+    SparseModel model = BuildSynthSparseModel(scene, options, context.progress);
+    scene.degradation.PerturbCameras(&model);  // camera_noise: the images keep the true cameras
     WriteSparseModelText(workspace.SparseDir(), model);
     const double sparse_seconds = SecondsSince(start);
     size_t observations = 0;

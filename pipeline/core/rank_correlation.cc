@@ -1,0 +1,45 @@
+// Spearman's rank correlation with mean ranks for ties (see rank_correlation.h).
+#include "pipeline/core/rank_correlation.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <numeric>
+
+namespace ibmr {
+
+namespace {
+
+std::vector<double> Ranks(const std::vector<double>& values) {
+  std::vector<size_t> order(values.size());
+  std::iota(order.begin(), order.end(), 0);
+  std::sort(order.begin(), order.end(), [&](size_t i, size_t j) { return values[i] < values[j]; });
+  std::vector<double> ranks(values.size());
+  for (size_t start = 0; start < order.size();) {
+    size_t end = start + 1;
+    while (end < order.size() && values[order[end]] == values[order[start]]) ++end;
+    const double mean_rank = 0.5 * static_cast<double>(start + end - 1);
+    for (size_t k = start; k < end; ++k) ranks[order[k]] = mean_rank;
+    start = end;
+  }
+  return ranks;
+}
+
+}  // namespace
+
+double SpearmanCorrelation(const std::vector<double>& a, const std::vector<double>& b) {
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  if (a.size() != b.size() || a.size() < 3) return nan;
+  const std::vector<double> ra = Ranks(a), rb = Ranks(b);
+  const double mean = 0.5 * static_cast<double>(a.size() - 1);
+  double cov = 0, va = 0, vb = 0;
+  for (size_t i = 0; i < a.size(); ++i) {
+    cov += (ra[i] - mean) * (rb[i] - mean);
+    va += (ra[i] - mean) * (ra[i] - mean);
+    vb += (rb[i] - mean) * (rb[i] - mean);
+  }
+  if (va == 0 || vb == 0) return nan;
+  return cov / std::sqrt(va * vb);
+}
+
+}  // namespace ibmr

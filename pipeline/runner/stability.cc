@@ -1,0 +1,103 @@
+// The stability matrix of a sweep (see stability.h).
+#include "pipeline/runner/stability.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <map>
+#include <set>
+
+namespace ibmr {
+
+namespace {
+
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+
+nlohmann::json Number(double v) { return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(nullptr); }
+
+}  // namespace
+
+double VariantMetric(const nlohmann::json& variant, const std::string& path) {
+  if (path.rfind("models.", 0) == 0) {
+    const std::string rest = path.substr(7);
+    const size_t dot = rest.rfind('.');
+    if (dot == std::string::npos) return kNaN;
+    const std::string model = rest.substr(0, dot), key = rest.substr(dot + 1);
+    const nlohmann::json& models = variant.contains("models") ? variant["models"] : nlohmann::json::object();
+    if (!models.contains(model) || !models[model].contains(key) || !models[model][key].is_number()) return kNaN;
+    return models[model][key].get<double>();
+  }
+  const size_t dot = path.find('.');
+  if (dot == std::string::npos || !variant.contains("stages")) return kNaN;
+  const std::string stage = path.substr(0, dot), key = path.substr(dot + 1);
+  for (const auto& s : variant["stages"]) {
+    if (s.value("stage", "") != stage || !s.contains("metrics")) continue;
+    const auto& metrics = s["metrics"];
+    return metrics.contains(key) && metrics[key].is_number() ? metrics[key].get<double>() : kNaN;
+  }
+  return kNaN;
+}
+
+nlohmann::json StabilityMatrix(const nlohmann::json& variants, const SweepPlan& plan) {
+  const auto param = [](const nlohmann::json& v, const std::string& key) -> std::string {
+    return v.contains("params") && v["params"].contains(key) ? v["params"][key].get<std::string>() : "";
+  };
+  const auto strength_of = [&](const nlohmann::json& v) {
+    const std::string s = param(v, plan.strength_key);
+    return s.empty() ? 0.0 : std::atof(s.c_str());
+  };
+  // The clean scene.
+  std::map<std::string, double> clean;
+  for (const auto& v : variants) {
+    const std::string d = param(v, plan.degradation_key);
+    if (v.value("status", "") != "ok" || !(d.empty() || d == "none" || strength_of(v) == 0)) continue;
+    for (const auto& m : plan.methods) clean[m.name] = VariantMetric(v, m.metric);
+    break;
+  }
+  nlohmann::json out = {{"clean", nlohmann::json::object()}, {"cells", nlohmann::json::array()},
+                        {"breaks", nlohmann::json::array()}, {"curves", nlohmann::json::array()}};
+  for (const auto& [name, value] : clean) out["clean"][name] = Number(value);
+  const auto relative = [&](const StabilityMethod& m, double value) {
+    const auto it = clean.find(m.name);
+    if (it == clean.end() || !std::isfinite(it->second) || !std::isfinite(value) || it->second == 0 || value == 0) return kNaN;
+    return m.higher_is_better ? value / it->second : it->second / value;
+  };
+  // Cells, grouped by degradation and strength.
+  std::map<std::string, std::map<double, const nlohmann::json*>> grid;
+  for (const auto& v : variants) {
+    const std::string d = param(v, plan.degradation_key);
+    if (d.empty() || d == "none" || v.value("status", "") != "ok") continue;
+    grid[d][strength_of(v)] = &v;
+  }
+  for (const auto& [degradation, by_strength] : grid) {
+    nlohmann::json curve = {{"title", degradation},
+                            {"axis", "strength"},
+                            {"value", "quality relative to the clean scene"},
+                            {"strengths", nlohmann::json::array({0.0})},
+                            {"series", nlohmann::json::array()}};
+    for (const auto& [strength, variant] : by_strength) curve["strengths"].push_back(strength);
+    for (const StabilityMethod& m : plan.methods) {
+      nlohmann::json values = nlohmann::json::array({clean.count(m.name) && std::isfinite(clean[m.name]) ? 1.0 : kNaN});
+      nlohmann::json broken = nullptr, rho_at_break = nullptr;
+      for (const auto& [strength, variant] : by_strength) {
+        const double value = VariantMetric(*variant, m.metric);
+        const double rel = relative(m, value);
+        const double rho = m.confidence.empty() ? kNaN : VariantMetric(*variant, m.confidence);
+        out["cells"].push_back({{"degradation", degradation}, {"strength", strength}, {"method", m.name},
+                                {"value", Number(value)}, {"relative", Number(rel)}, {"confidence_rho", Number(rho)}});
+        values.push_back(Number(rel));
+        if (broken.is_null() && std::isfinite(rel) && rel < kBrokenBelow) {
+          broken = strength;
+          rho_at_break = Number(rho);
+        }
+      }
+      out["breaks"].push_back({{"degradation", degradation}, {"method", m.name}, {"breaks_at", broken},
+                               {"confidence_rho_at_break", rho_at_break}});
+      curve["series"].push_back({{"label", m.name}, {"values", values}});
+    }
+    out["curves"].push_back(curve);
+  }
+  return out;
+}
+
+}  // namespace ibmr

@@ -1,0 +1,30 @@
+// The stability matrix of a sweep over (degradation, strength): for every method the config names
+// (SweepPlan::methods), its error in each cell, its quality relative to the clean scene, where it
+// breaks, and whether its confidence saw it coming (Spearman's rho of confidence and error, as the
+// stage measured it). Generic: methods are named by the metrics their stages record.
+#pragma once
+
+#include <nlohmann/json.hpp>
+#include <string>
+
+#include "pipeline/runner/config.h"
+
+namespace ibmr {
+
+// A metric of one collected variant (CollectVariant): "stage.key" from the stage's record metrics,
+// or "models.NAME.key" from the held-out means; NaN when absent or not a number.
+double VariantMetric(const nlohmann::json& variant, const std::string& path);
+
+// Quality relative to the clean scene below which a method counts as broken.
+inline constexpr double kBrokenBelow = 0.8;
+
+// From the sweep's collected variants (each with "params" holding the varied values as strings):
+//   {"clean": {method: value}, "cells": [{degradation, strength, method, value, relative, confidence_rho}],
+//    "breaks": [{degradation, method, breaks_at (strength or null), confidence_rho_at_break}],
+//    "curves": [{title, axis, value, strengths, series: [{label, values}]}]}   (for the report)
+// relative = value / clean (higher is better) or clean / value (lower is better): 1 is as good as
+// the clean scene. The clean value comes from a variant whose degradation is "none" or whose
+// strength is 0.
+nlohmann::json StabilityMatrix(const nlohmann::json& variants, const SweepPlan& plan);
+
+}  // namespace ibmr

@@ -1,0 +1,54 @@
+// Degradations of the synthetic scenes, each with a strength in [0, 1], for the stability matrix:
+// how each method behaves where it fails, and whether its confidence sees it coming. Test-data
+// generation (no seed section); strength 0 is the clean scene, 1 a hard case.
+//
+//   textureless   patches of uniform albedo cover a growing share of the surface (up to all of it)
+//   specular      a white Phong highlight (exponent 20) that moves with the viewpoint, up to
+//                 as bright as the diffuse light: photo-consistency breaks where it shines
+//   repetitive    the texture blends into stripes of one period (a few pixels): false matches
+//   few_views     the ring keeps 1 - 0.75 * strength of its views (at least 4)
+//   camera_noise  the written cameras (sparse/) are off the ones that rendered the images: rotation
+//                 up to 1 degree, position up to 1% of the ring radius, focal up to 2% (sigmas)
+//   image_noise   Gaussian noise up to sigma 24 levels, added to `noise`
+//   exposure      each view's gain up to +-50% (uniform per view), as an auto-exposing camera
+//
+// The truth (ground_truth/: mesh, depth, masks) stays the clean scene's; the true mesh's vertex
+// colours carry the albedo changes (textureless, repetitive) but no highlight.
+#pragma once
+
+#include <Eigen/Core>
+#include <cstdint>
+#include <string>
+
+#include "pipeline/core/sparse_model.h"
+
+namespace ibmr {
+
+enum class SynthDegradation { kNone, kTextureless, kSpecular, kRepetitive, kFewViews, kCameraNoise, kImageNoise, kExposure };
+
+// "none", "textureless", ... -> the enum; false for an unknown name.
+bool SynthDegradationFromName(const std::string& name, SynthDegradation* degradation);
+std::string SynthDegradationName(SynthDegradation degradation);
+// Every name, for messages: "none, textureless, ...".
+std::string SynthDegradationNames();
+
+struct Degradation {
+  SynthDegradation kind = SynthDegradation::kNone;
+  double strength = 0.0;  // in [0, 1]
+  uint64_t seed = 0;
+
+  bool Active(SynthDegradation k) const { return kind == k && strength > 0; }
+  // The number of views the ring keeps.
+  int Views(int views) const;
+  // Albedo variation in [0, 1] per channel after the texture degradations, from the clean one.
+  Eigen::Vector3d Variation(const Eigen::Vector3d& clean, const Eigen::Vector3d& point, double frequency) const;
+  // Radiance added by the moving highlight (0 unless specular).
+  double Highlight(const Eigen::Vector3d& normal, const Eigen::Vector3d& light, const Eigen::Vector3d& to_eye) const;
+  // Image gain of view `index`, and the added noise sigma (8-bit levels).
+  double Gain(int index) const;
+  double NoiseSigma() const;
+  // Moves the cameras of `model` (camera_noise; deterministic).
+  void PerturbCameras(SparseModel* model) const;
+};
+
+}  // namespace ibmr

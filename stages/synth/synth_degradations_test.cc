@@ -1,0 +1,135 @@
+// The stability matrix's degradations: strength 0 renders the clean scene exactly; each one at
+// strength 1 does what it says (texture gone from the patches, a highlight that moves with the
+// view, fewer views, cameras off by the stated amount, noise of the stated sigma, per-view gains)
+// while the truth (depth, masks, the true mesh's shape) stays the clean scene's.
+#include "stages/synth/synth.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <opencv2/imgproc.hpp>
+
+#include "stages/synth/synth_degradations.h"
+
+namespace ibmr {
+namespace {
+
+SynthOptions Small(SynthDegradation degradation, double strength) {
+  SynthOptions options;
+  options.views = 8;
+  options.width = 96;
+  options.height = 72;
+  options.subdivision = 3;
+  options.sparse_points = 150;
+  options.degradation = degradation;
+  options.strength = strength;
+  return options;
+}
+
+SynthView Render(const SynthOptions& options, int view) { return RenderSynthView(BuildSynthScene(options), view, options); }
+
+// Mean absolute horizontal gradient inside the mask: how much texture a stereo window sees.
+double TextureEnergy(const SynthView& view) {
+  cv::Mat grey, gradient;
+  cv::cvtColor(view.image, grey, cv::COLOR_BGR2GRAY);
+  cv::Sobel(grey, gradient, CV_32F, 1, 0);
+  cv::Mat inner;
+  cv::erode(view.mask, inner, cv::Mat::ones(5, 5, CV_8U));
+  return cv::mean(cv::abs(gradient), inner)[0];
+}
+
+TEST(SynthDegradations, NamesRoundTripAndStrengthIsChecked) {
+  for (const std::string name : {"none", "textureless", "specular", "repetitive", "few_views", "camera_noise",
+                                 "image_noise", "exposure"}) {
+    SynthDegradation d;
+    ASSERT_TRUE(SynthDegradationFromName(name, &d)) << name;
+    EXPECT_EQ(SynthDegradationName(d), name);
+  }
+  SynthDegradation d;
+  EXPECT_FALSE(SynthDegradationFromName("blur", &d));
+  std::string error;
+  SynthOptions o = Small(SynthDegradation::kSpecular, 1.5);
+  EXPECT_FALSE(o.Check(&error));
+  EXPECT_EQ(error.rfind("strength", 0), 0u) << error;
+}
+
+TEST(SynthDegradations, StrengthZeroIsTheCleanScene) {
+  const SynthView clean = Render(Small(SynthDegradation::kNone, 0), 2);
+  for (SynthDegradation d : {SynthDegradation::kTextureless, SynthDegradation::kSpecular, SynthDegradation::kRepetitive,
+                             SynthDegradation::kImageNoise, SynthDegradation::kExposure}) {
+    const SynthView view = Render(Small(d, 0), 2);
+    EXPECT_EQ(cv::norm(view.image, clean.image, cv::NORM_INF), 0) << SynthDegradationName(d);
+  }
+}
+
+TEST(SynthDegradations, EachChangesTheImagesAndKeepsTheTruth) {
+  const SynthOptions clean_options = Small(SynthDegradation::kNone, 0);
+  const SynthView clean = Render(clean_options, 2);
+  const double clean_texture = TextureEnergy(clean);
+
+  const SynthView flat = Render(Small(SynthDegradation::kTextureless, 1), 2);
+  EXPECT_LT(TextureEnergy(flat), 0.35 * clean_texture) << "shading edges remain, texture goes";
+  EXPECT_EQ(cv::norm(flat.mask, clean.mask, cv::NORM_L1), 0);
+  EXPECT_EQ(flat.depth.data, clean.depth.data);
+  const SynthView half = Render(Small(SynthDegradation::kTextureless, 0.5), 2);
+  EXPECT_LT(TextureEnergy(half), 0.95 * clean_texture);
+  EXPECT_GT(TextureEnergy(half), TextureEnergy(flat));
+
+  // The highlight brightens some surface pixels, and a point's colour then depends on the view.
+  const SynthView shiny = Render(Small(SynthDegradation::kSpecular, 1), 2);
+  cv::Mat brighter;
+  cv::compare(shiny.image, clean.image, brighter, cv::CMP_GT);
+  EXPECT_GT(cv::countNonZero(brighter.reshape(1)), 30);
+  EXPECT_EQ(shiny.depth.data, clean.depth.data);
+
+  const SynthView stripes = Render(Small(SynthDegradation::kRepetitive, 1), 2);
+  EXPECT_GT(cv::norm(stripes.image, clean.image, cv::NORM_L1) / clean.image.total(), 10.0);
+
+  const SynthView noisy = Render(Small(SynthDegradation::kImageNoise, 0.5), 2);
+  cv::Mat difference;
+  cv::subtract(noisy.image, clean.image, difference, cv::noArray(), CV_32F);
+  cv::Scalar mean, sigma;
+  cv::meanStdDev(difference.reshape(1), mean, sigma);
+  EXPECT_NEAR(sigma[0], 12.0, 1.5) << "sigma 24 * 0.5, a little less where bytes clip";
+
+  // Gains differ from view to view, within +-50%.
+  double low = 10, high = 0;
+  for (int view = 0; view < 8; ++view) {
+    const double ratio = cv::mean(Render(Small(SynthDegradation::kExposure, 1), view).image)[1] /
+                         cv::mean(Render(clean_options, view).image)[1];
+    low = std::min(low, ratio);
+    high = std::max(high, ratio);
+  }
+  EXPECT_GT(high - low, 0.2);
+  EXPECT_GT(low, 0.45);
+  EXPECT_LT(high, 1.55);
+}
+
+TEST(SynthDegradations, FewViewsAndCameraNoise) {
+  EXPECT_EQ(BuildSynthScene(Small(SynthDegradation::kFewViews, 1)).views.size(), 4u);   // 8 * 0.25 = 2, at least 4
+  EXPECT_EQ(BuildSynthScene(Small(SynthDegradation::kFewViews, 0.5)).views.size(), 5u);  // 8 * 0.625
+  SynthOptions big = Small(SynthDegradation::kFewViews, 1);
+  big.views = 24;
+  EXPECT_EQ(BuildSynthScene(big).views.size(), 6u);
+
+  const SynthOptions options = Small(SynthDegradation::kCameraNoise, 1);
+  const SynthScene scene = BuildSynthScene(options);
+  SparseModel model = BuildSynthSparseModel(scene, options, nullptr);
+  const SparseModel truth = model;
+  scene.degradation.PerturbCameras(&model);
+  double angle = 0, shift = 0;
+  for (const auto& [id, image] : model.images) {
+    const Image& t = truth.images.at(id);
+    angle += t.cam_from_world.rotation.angularDistance(image.cam_from_world.rotation) * 180 / M_PI / model.images.size();
+    shift += (t.Center() - image.Center()).norm() / model.images.size();
+  }
+  // Mean of |N(0, sigma I3)| is 1.6 sigma: rotation sigma 1 degree, position sigma 1% of the ring (4).
+  EXPECT_GT(angle, 0.7);
+  EXPECT_LT(angle, 2.8);
+  EXPECT_GT(shift, 0.02);
+  EXPECT_LT(shift, 0.13);
+  EXPECT_NE(model.cameras.begin()->second.params[0], truth.cameras.begin()->second.params[0]);
+}
+
+}  // namespace
+}  // namespace ibmr
