@@ -1,0 +1,100 @@
+// The stability matrix from collected variants: metrics are found by "stage.key" and
+// "models.NAME.key"; quality is relative to the clean variant in the right direction; a method
+// breaks at the first strength below 0.8 of clean, with the confidence rho recorded there; a
+// config's sweep: block parses, and a malformed one names its key.
+#include "pipeline/runner/stability.h"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <fstream>
+
+#include "pipeline/runner/fake_stages_for_test.h"
+#include "tests/scratch_dir.h"
+
+namespace ibmr {
+namespace {
+
+nlohmann::json Variant(const std::string& degradation, const std::string& strength, double within, double rho,
+                       double psnr) {
+  nlohmann::json params = {{"synth.degradation", degradation}};
+  if (!strength.empty()) params["synth.strength"] = strength;
+  return {{"status", "ok"},
+          {"params", params},
+          {"stages", {{{"stage", "multi_depth"}, {"metrics", {{"within", within}, {"rho", rho}}}}}},
+          {"models", {{"surfels", {{"photo_psnr", psnr}}}}}};
+}
+
+SweepPlan Plan() {
+  SweepPlan plan;
+  plan.degradation_key = "synth.degradation";
+  plan.strength_key = "synth.strength";
+  plan.methods = {{"stereo", "multi_depth.within", "multi_depth.rho", true}, {"held out", "models.surfels.photo_psnr", "", true}};
+  return plan;
+}
+
+TEST(Stability, MetricsAreFoundByStageOrModel) {
+  const nlohmann::json v = Variant("specular", "0.5", 0.9, -0.4, 30);
+  EXPECT_DOUBLE_EQ(VariantMetric(v, "multi_depth.within"), 0.9);
+  EXPECT_DOUBLE_EQ(VariantMetric(v, "models.surfels.photo_psnr"), 30);
+  EXPECT_TRUE(std::isnan(VariantMetric(v, "multi_depth.missing")));
+  EXPECT_TRUE(std::isnan(VariantMetric(v, "fuse.within")));
+  EXPECT_TRUE(std::isnan(VariantMetric(v, "models.plane.photo_psnr")));
+}
+
+TEST(Stability, RelativeQualityAndWhereEachMethodBreaks) {
+  nlohmann::json variants = nlohmann::json::array();
+  variants.push_back(Variant("none", "", 0.9, -0.5, 30));
+  variants.push_back(Variant("specular", "0.25", 0.85, -0.45, 29.5));
+  variants.push_back(Variant("specular", "0.5", 0.6, -0.2, 29));
+  variants.push_back(Variant("specular", "1", 0.3, 0.1, 20));
+  const nlohmann::json m = StabilityMatrix(variants, Plan());
+  EXPECT_DOUBLE_EQ(m["clean"]["stereo"].get<double>(), 0.9);
+  ASSERT_EQ(m["cells"].size(), 6u);
+  EXPECT_NEAR(m["cells"][1]["relative"].get<double>(), 0.6 / 0.9, 1e-12);
+  EXPECT_DOUBLE_EQ(m["cells"][1]["confidence_rho"].get<double>(), -0.2);
+  ASSERT_EQ(m["breaks"].size(), 2u);
+  EXPECT_DOUBLE_EQ(m["breaks"][0]["breaks_at"].get<double>(), 0.5);  // 0.6 / 0.9 < 0.8
+  EXPECT_DOUBLE_EQ(m["breaks"][0]["confidence_rho_at_break"].get<double>(), -0.2);
+  EXPECT_DOUBLE_EQ(m["breaks"][1]["breaks_at"].get<double>(), 1.0);  // 20 / 30
+  ASSERT_EQ(m["curves"].size(), 1u);
+  EXPECT_EQ(m["curves"][0]["strengths"], nlohmann::json({0.0, 0.25, 0.5, 1.0}));
+  EXPECT_DOUBLE_EQ(m["curves"][0]["series"][0]["values"][0].get<double>(), 1.0);
+}
+
+TEST(Stability, LowerIsBetterMetricsInvert) {
+  SweepPlan plan = Plan();
+  plan.methods = {{"accuracy", "multi_depth.within", "", false}};  // a distance: lower is better
+  nlohmann::json variants = nlohmann::json::array();
+  variants.push_back(Variant("none", "", 0.01, 0, 0));
+  variants.push_back(Variant("exposure", "1", 0.02, 0, 0));
+  const nlohmann::json m = StabilityMatrix(variants, plan);
+  EXPECT_DOUBLE_EQ(m["cells"][0]["relative"].get<double>(), 0.5);
+}
+
+TEST(Stability, TheConfigSweepBlockParsesAndNamesBadKeys) {
+  const auto dir = ibmr_testing::ScratchDir("ibmr_stability_config");
+  StageRegistry registry;
+  testing_stages::Register(&registry);
+  std::ofstream(dir / "source.txt") << "x";
+  std::ofstream(dir / "c.yaml") << "workspace: ws\nstages:\n  - produce\n  - consume\n"
+                                   "sweep:\n  vary:\n    produce.value: [1, 2]\n  variants: [\"consume.suffix=z\"]\n"
+                                   "  stability:\n    degradation: consume.suffix\n    strength: produce.value\n"
+                                   "    methods:\n      - {name: m, metric: produce.bytes, higher_is_better: true}\n";
+  const Config config = LoadConfig((dir / "c.yaml").string(), registry);
+  EXPECT_EQ(config.sweep.vary, std::vector<std::string>{"produce.value=1,2"});
+  EXPECT_EQ(config.sweep.variants, std::vector<std::string>{"consume.suffix=z"});
+  ASSERT_EQ(config.sweep.methods.size(), 1u);
+  EXPECT_TRUE(config.sweep.methods[0].higher_is_better);
+  std::ofstream(dir / "bad.yaml") << "workspace: ws\nstages:\n  - produce\nsweep:\n  vari: {produce.value: [1]}\n";
+  try {
+    LoadConfig((dir / "bad.yaml").string(), registry);
+    ADD_FAILURE() << "accepted";
+  } catch (const ConfigError& e) {
+    EXPECT_NE(std::string(e.what()).find("bad.yaml:5"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("did you mean"), std::string::npos) << e.what();
+  }
+}
+
+}  // namespace
+}  // namespace ibmr
