@@ -19,15 +19,6 @@ namespace ibmr {
 
 namespace {
 
-nlohmann::json ReadJsonOr(const std::string& path, nlohmann::json fallback) {
-  if (!fs::exists(path)) return fallback;
-  try {
-    return nlohmann::json::parse(ReadFile(path));
-  } catch (const std::exception&) {
-    return fallback;
-  }
-}
-
 std::string Base64(const std::vector<uchar>& bytes) {
   static const char* const kAlphabet = "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
   std::string out;

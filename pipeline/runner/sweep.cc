@@ -41,15 +41,6 @@ std::vector<std::string> Split(const std::string& text, char separator) {
   return parts;
 }
 
-nlohmann::json ReadJsonOr(const std::string& path, nlohmann::json fallback) {
-  if (!fs::exists(path)) return fallback;
-  try {
-    return nlohmann::json::parse(ReadFile(path));
-  } catch (const std::exception&) {
-    return fallback;
-  }
-}
-
 std::string VariantName(size_t index) {
   char name[16];
   std::snprintf(name, sizeof(name), "v%02zu", index);

@@ -19,6 +19,16 @@ namespace fs = std::filesystem;
 namespace ibmr {
 namespace {
 
+// The fake produce -> consume config in `dir`, its stages registered; options name it.
+SweepOptions TwoStageConfig(const fs::path& dir, StageRegistry* registry) {
+  testing_stages::Register(registry);
+  std::ofstream(dir / "source.txt") << "hello";
+  std::ofstream(dir / "c.yaml") << "workspace: ws\nstages:\n  - produce\n  - consume\n";
+  SweepOptions options;
+  options.config_path = (dir / "c.yaml").string();
+  return options;
+}
+
 TEST(Sweep, VariantsAreTheProductOfTheListsThenTheListedOnes) {
   const auto variants = ExpandVariants({"a.x=1,2", "b.y=p,q,r"}, {"a.x=7 b.y=s"});
   ASSERT_EQ(variants.size(), 7u);
@@ -54,11 +64,7 @@ TEST(Sweep, ParetoFrontKeepsTheUndominatedPoints) {
 TEST(Sweep, ADownstreamVariantReusesUpstreamOutputsAndLeavesTheFirstIntact) {
   const fs::path dir = ibmr_testing::ScratchDir("ibmr_sweep_test");
   StageRegistry registry;
-  testing_stages::Register(&registry);
-  std::ofstream(dir / "source.txt") << "hello";
-  std::ofstream(dir / "c.yaml") << "workspace: ws\nstages:\n  - produce\n  - consume\n";
-  SweepOptions options;
-  options.config_path = (dir / "c.yaml").string();
+  SweepOptions options = TwoStageConfig(dir, &registry);
   options.vary = {"consume.suffix=x,y"};
   options.listed = {"produce.value=5 consume.suffix=x"};
   options.out = (dir / "sweep").string();
@@ -97,11 +103,7 @@ TEST(Sweep, ADownstreamVariantReusesUpstreamOutputsAndLeavesTheFirstIntact) {
 TEST(Sweep, AnUnknownParameterFailsBeforeAnythingRuns) {
   const fs::path dir = ibmr_testing::ScratchDir("ibmr_sweep_bad");
   StageRegistry registry;
-  testing_stages::Register(&registry);
-  std::ofstream(dir / "source.txt") << "hello";
-  std::ofstream(dir / "c.yaml") << "workspace: ws\nstages:\n  - produce\n  - consume\n";
-  SweepOptions options;
-  options.config_path = (dir / "c.yaml").string();
+  SweepOptions options = TwoStageConfig(dir, &registry);
   options.vary = {"consume.suffix=x,y", "consume.sufix=z"};
   options.out = (dir / "sweep").string();
   const int before = testing_stages::produce_runs;
