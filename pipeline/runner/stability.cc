@@ -66,7 +66,7 @@ nlohmann::json StabilityMatrix(const nlohmann::json& variants, const SweepPlan& 
   std::map<std::string, std::map<double, const nlohmann::json*>> grid;
   for (const auto& v : variants) {
     const std::string d = param(v, plan.degradation_key);
-    if (d.empty() || d == "none" || v.value("status", "") != "ok") continue;
+    if (d.empty() || d == "none") continue;
     grid[d][strength_of(v)] = &v;
   }
   for (const auto& [degradation, by_strength] : grid) {
@@ -81,10 +81,13 @@ nlohmann::json StabilityMatrix(const nlohmann::json& variants, const SweepPlan& 
       nlohmann::json broken = nullptr, rho_at_break = nullptr;
       for (const auto& [strength, variant] : by_strength) {
         const double value = VariantMetric(*variant, m.metric);
-        const double rel = relative(m, value);
+        // A variant that failed before this method's stage ran: the method produced nothing, quality 0.
+        const bool failed = variant->value("status", "") != "ok" && !std::isfinite(value);
+        const double rel = failed ? 0.0 : relative(m, value);
         const double rho = m.confidence.empty() ? kNaN : VariantMetric(*variant, m.confidence);
         out["cells"].push_back({{"degradation", degradation}, {"strength", strength}, {"method", m.name},
-                                {"value", Number(value)}, {"relative", Number(rel)}, {"confidence_rho", Number(rho)}});
+                                {"value", Number(value)}, {"relative", Number(rel)}, {"confidence_rho", Number(rho)},
+                                {"failed", failed}});
         values.push_back(Number(rel));
         if (broken.is_null() && std::isfinite(rel) && rel < kBrokenBelow) {
           broken = strength;

@@ -24,7 +24,7 @@ inline constexpr double kBrokenBelow = 0.8;
 //    "curves": [{title, axis, value, strengths, series: [{label, values}]}]}   (for the report)
 // relative = value / clean (higher is better) or clean / value (lower is better): 1 is as good as
 // the clean scene. The clean value comes from a variant whose degradation is "none" or whose
-// strength is 0.
+// strength is 0. In a variant that failed, a method without its metric has quality 0 (failed).
 nlohmann::json StabilityMatrix(const nlohmann::json& variants, const SweepPlan& plan);
 
 }  // namespace ibmr

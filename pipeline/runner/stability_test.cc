@@ -62,6 +62,22 @@ TEST(Stability, RelativeQualityAndWhereEachMethodBreaks) {
   EXPECT_DOUBLE_EQ(m["curves"][0]["series"][0]["values"][0].get<double>(), 1.0);
 }
 
+TEST(Stability, AFailedVariantBreaksTheMethodsThatProducedNothing) {
+  nlohmann::json variants = nlohmann::json::array();
+  variants.push_back(Variant("none", "", 0.9, -0.5, 30));
+  nlohmann::json failed = Variant("few_views", "1", 0.5, -0.1, 0);
+  failed["status"] = "failed";
+  failed["models"] = nlohmann::json::object();  // render never ran
+  variants.push_back(failed);
+  const nlohmann::json m = StabilityMatrix(variants, Plan());
+  ASSERT_EQ(m["cells"].size(), 2u);
+  EXPECT_NEAR(m["cells"][0]["relative"].get<double>(), 0.5 / 0.9, 1e-12);  // its stage ran
+  EXPECT_EQ(m["cells"][0]["failed"], false);
+  EXPECT_DOUBLE_EQ(m["cells"][1]["relative"].get<double>(), 0.0);
+  EXPECT_EQ(m["cells"][1]["failed"], true);
+  EXPECT_DOUBLE_EQ(m["breaks"][1]["breaks_at"].get<double>(), 1.0);
+}
+
 TEST(Stability, LowerIsBetterMetricsInvert) {
   SweepPlan plan = Plan();
   plan.methods = {{"accuracy", "multi_depth.within", "", false}};  // a distance: lower is better
