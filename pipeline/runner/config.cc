@@ -325,8 +325,21 @@ static void ParseSweep(const YAML::Node& node, Config* config) {
     }
     return map[key].Scalar();
   };
-  config->sweep.degradation_key = required(stability, "degradation", "sweep.stability");
-  config->sweep.strength_key = required(stability, "strength", "sweep.stability");
+  const auto keys = [&](const char* key) {
+    const YAML::Node node = stability[key];
+    std::vector<std::string> out;
+    if (node && node.IsScalar()) out.push_back(node.Scalar());
+    if (node && node.IsSequence()) {
+      for (const auto& k : node) out.push_back(k.as<std::string>());
+    }
+    if (out.empty()) throw ConfigError(Where(path, LineOf(stability), std::string("sweep.stability.") + key, "missing: give a stage.key (or a list)"));
+    return out;
+  };
+  config->sweep.degradation_keys = keys("degradation");
+  config->sweep.strength_keys = keys("strength");
+  if (config->sweep.degradation_keys.size() != config->sweep.strength_keys.size()) {
+    throw ConfigError(Where(path, LineOf(stability), "sweep.stability.strength", "give one strength key per degradation key"));
+  }
   const YAML::Node methods = stability["methods"];
   if (!methods || !methods.IsSequence() || methods.size() == 0) {
     throw ConfigError(Where(path, LineOf(stability), "sweep.stability.methods", "expected a non-empty list of {name, metric, ...}"));

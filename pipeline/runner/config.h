@@ -56,8 +56,8 @@ struct StageConfig {
 //     variants: ["synth.degradation=none"]                                         # listed
 //     metric: photo_psnr
 //     stability:                       # a stability matrix over (degradation, strength)
-//       degradation: synth.degradation # the varied key naming the degradation
-//       strength: synth.strength       # the varied key giving its strength
+//       degradation: synth.degradation # the varied key naming the degradation (or a list of keys)
+//       strength: synth.strength       # the varied key giving its strength (a list: one per key)
 //       methods:                       # what each method's error and confidence are
 //         - {name: stereo, metric: multi_depth.geometric_within_1pct_of_textured, higher_is_better: true,
 //            confidence: multi_depth.geometric_confidence_error_spearman}
@@ -75,7 +75,9 @@ struct SweepPlan {
   std::vector<std::string> vary;      // "stage.key=v1,v2,..."
   std::vector<std::string> variants;  // "stage.key=v stage.key=v"
   std::string metric;                 // empty: the sweep's default
-  std::string degradation_key, strength_key;
+  // Varied keys naming a variant's degradation and giving its strength, in pairs: the first
+  // degradation key a variant sets to something other than "none" names its cell.
+  std::vector<std::string> degradation_keys, strength_keys;
   std::vector<StabilityMethod> methods;
 
   bool HasStability() const { return !methods.empty(); }

@@ -42,14 +42,28 @@ nlohmann::json StabilityMatrix(const nlohmann::json& variants, const SweepPlan& 
   const auto param = [](const nlohmann::json& v, const std::string& key) -> std::string {
     return v.contains("params") && v["params"].contains(key) ? v["params"][key].get<std::string>() : "";
   };
+  // The variant's degradation: the first degradation key it sets to something but "none".
+  const auto degradation_of = [&](const nlohmann::json& v, size_t* index) -> std::string {
+    for (size_t i = 0; i < plan.degradation_keys.size(); ++i) {
+      const std::string d = param(v, plan.degradation_keys[i]);
+      if (!d.empty() && d != "none") {
+        *index = i;
+        return d;
+      }
+    }
+    return "";
+  };
   const auto strength_of = [&](const nlohmann::json& v) {
-    const std::string s = param(v, plan.strength_key);
+    size_t index = 0;
+    if (degradation_of(v, &index).empty()) return 0.0;
+    const std::string s = param(v, plan.strength_keys[index]);
     return s.empty() ? 0.0 : std::atof(s.c_str());
   };
   // The clean scene.
   std::map<std::string, double> clean;
   for (const auto& v : variants) {
-    const std::string d = param(v, plan.degradation_key);
+    size_t index = 0;
+    const std::string d = degradation_of(v, &index);
     if (v.value("status", "") != "ok" || !(d.empty() || d == "none" || strength_of(v) == 0)) continue;
     for (const auto& m : plan.methods) clean[m.name] = VariantMetric(v, m.metric);
     break;
@@ -59,14 +73,16 @@ nlohmann::json StabilityMatrix(const nlohmann::json& variants, const SweepPlan& 
   for (const auto& [name, value] : clean) out["clean"][name] = Number(value);
   const auto relative = [&](const StabilityMethod& m, double value) {
     const auto it = clean.find(m.name);
-    if (it == clean.end() || !std::isfinite(it->second) || !std::isfinite(value) || it->second == 0 || value == 0) return kNaN;
-    return m.higher_is_better ? value / it->second : it->second / value;
+    if (it == clean.end() || !std::isfinite(it->second) || !std::isfinite(value) || it->second == 0) return kNaN;
+    if (m.higher_is_better) return value / it->second;
+    return value > 0 ? it->second / value : kNaN;
   };
   // Cells, grouped by degradation and strength.
   std::map<std::string, std::map<double, const nlohmann::json*>> grid;
   for (const auto& v : variants) {
-    const std::string d = param(v, plan.degradation_key);
-    if (d.empty() || d == "none") continue;
+    size_t index = 0;
+    const std::string d = degradation_of(v, &index);
+    if (d.empty()) continue;
     grid[d][strength_of(v)] = &v;
   }
   for (const auto& [degradation, by_strength] : grid) {

@@ -27,8 +27,8 @@ nlohmann::json Variant(const std::string& degradation, const std::string& streng
 
 SweepPlan Plan() {
   SweepPlan plan;
-  plan.degradation_key = "synth.degradation";
-  plan.strength_key = "synth.strength";
+  plan.degradation_keys = {"synth.degradation"};
+  plan.strength_keys = {"synth.strength"};
   plan.methods = {{"stereo", "multi_depth.within", "multi_depth.rho", true}, {"held out", "models.surfels.photo_psnr", "", true}};
   return plan;
 }
@@ -78,6 +78,27 @@ TEST(Stability, AFailedVariantBreaksTheMethodsThatProducedNothing) {
   EXPECT_DOUBLE_EQ(m["breaks"][1]["breaks_at"].get<double>(), 1.0);
 }
 
+TEST(Stability, SeveralDegradationKeysEachNameTheirCells) {
+  SweepPlan plan = Plan();
+  plan.degradation_keys.push_back("silhouettes.corrupt");
+  plan.strength_keys.push_back("silhouettes.corrupt_strength");
+  nlohmann::json variants = nlohmann::json::array();
+  variants.push_back(Variant("none", "", 0.9, -0.5, 30));
+  nlohmann::json eroded = Variant("none", "", 0.45, -0.3, 25);
+  eroded["params"]["silhouettes.corrupt"] = "erode";
+  eroded["params"]["silhouettes.corrupt_strength"] = "0.75";
+  variants.push_back(eroded);
+  const nlohmann::json m = StabilityMatrix(variants, plan);
+  ASSERT_EQ(m["cells"].size(), 2u);
+  EXPECT_EQ(m["cells"][0]["degradation"], "erode");
+  EXPECT_DOUBLE_EQ(m["cells"][0]["strength"].get<double>(), 0.75);
+  EXPECT_DOUBLE_EQ(m["cells"][0]["relative"].get<double>(), 0.5);
+  // A higher-is-better score of 0 (nothing within tolerance) is quality 0, not undefined.
+  variants.push_back(Variant("exposure", "0.5", 0.0, 0, 0));
+  const nlohmann::json higher = StabilityMatrix(variants, Plan());
+  EXPECT_DOUBLE_EQ(higher["cells"][0]["relative"].get<double>(), 0.0);
+}
+
 TEST(Stability, LowerIsBetterMetricsInvert) {
   SweepPlan plan = Plan();
   plan.methods = {{"accuracy", "multi_depth.within", "", false}};  // a distance: lower is better
@@ -86,6 +107,10 @@ TEST(Stability, LowerIsBetterMetricsInvert) {
   variants.push_back(Variant("exposure", "1", 0.02, 0, 0));
   const nlohmann::json m = StabilityMatrix(variants, plan);
   EXPECT_DOUBLE_EQ(m["cells"][0]["relative"].get<double>(), 0.5);
+  // A higher-is-better score of 0 (nothing within tolerance) is quality 0, not undefined.
+  variants.push_back(Variant("exposure", "0.5", 0.0, 0, 0));
+  const nlohmann::json higher = StabilityMatrix(variants, Plan());
+  EXPECT_DOUBLE_EQ(higher["cells"][0]["relative"].get<double>(), 0.0);
 }
 
 TEST(Stability, TheConfigSweepBlockParsesAndNamesBadKeys) {

@@ -330,7 +330,12 @@ class CarveStage : public Stage {
     }
     metrics["nodes_per_level"] = nodes;
     metrics["node_ratios"] = ratios;
-    if (validated) metrics["heldout_iou_mean_per_level"] = heldout;
+    if (validated) {
+      metrics["heldout_iou_mean_per_level"] = heldout;
+      // The hull against the held-out views' own silhouettes, which reconstruction never saw: its
+      // error where the training masks are wrong (the stability matrix).
+      metrics["heldout_iou_chosen"] = heldout_mean[chosen];
+    }
     metrics["hull_cells_finest"] = finest_cells.size();
     metrics["mesh_vertices"] = mesh.vertices.size();
     metrics["mesh_faces"] = mesh.faces.size();

@@ -15,6 +15,7 @@
 #include "pipeline/core/image_io.h"
 #include "pipeline/core/per_view.h"
 #include "pipeline/core/stage_api.h"
+#include "stages/silhouettes/silhouette_corruption.h"
 #include "stages/silhouettes/silhouettes.h"
 
 namespace fs = std::filesystem;
@@ -61,6 +62,9 @@ class SilhouettesStage : public Stage {
          kModeNames},
         {"threshold", ParamType::kDouble, "0.19", "intensity or difference threshold, fraction of full scale, in [0, 1)"},
         {"dilate_px", ParamType::kInt, "10", "dilation disc radius in pixels, in [0, 200]"},
+        {"corrupt", ParamType::kString, "none",
+         "wrong silhouettes on purpose (stability matrix): none, erode, dilate or holes, on the training masks only"},
+        {"corrupt_strength", ParamType::kDouble, "0", "of the corruption, in [0, 1] (silhouette_corruption.h)"},
         {"erode_px", ParamType::kInt, "7", "erosion disc radius in pixels (after dilation), in [0, 200]"},
         {"max_components", ParamType::kInt, "1", "largest 8-connected components kept, >= 0 (0: all)"},
         {"min_component_px", ParamType::kInt, "0", "components smaller than this many pixels are dropped, >= 0"},
@@ -81,6 +85,13 @@ class SilhouettesStage : public Stage {
     }
     if (mode == "user" && params.String("mask_folder").empty()) {
       return ParamError{"mask_folder", "mode user needs a folder of masks"};
+    }
+    SilhouetteCorruption corruption;
+    if (!SilhouetteCorruptionFromName(params.String("corrupt"), &corruption)) {
+      return ParamError{"corrupt", "must be none, erode, dilate or holes, got \"" + params.String("corrupt") + "\""};
+    }
+    if (!(params.Double("corrupt_strength") >= 0 && params.Double("corrupt_strength") <= 1)) {
+      return ParamError{"corrupt_strength", "must be in [0, 1]"};
     }
     return std::nullopt;
   }
@@ -117,6 +128,8 @@ class SilhouettesStage : public Stage {
     RemoveOtherMasks(context.workspace.MasksDir(), training);
     RemoveOtherMasks(context.workspace.Path(kHeldoutMasksDir), heldout);
 
+    SilhouetteCorruption corruption = SilhouetteCorruption::kNone;
+    SilhouetteCorruptionFromName(context.params.String("corrupt"), &corruption);
     std::mutex mutex;
     std::map<std::string, SilhouetteReport> reports;
     ForEachView(context, "silhouettes", names, [&](const std::string& name) {
@@ -144,6 +157,7 @@ class SilhouettesStage : public Stage {
         throw InputError("view " + name + " (" + input_path + "): " + e.what());
       }
       const bool held_out = heldout.count(name) > 0;
+      if (!held_out) CorruptSilhouette(corruption, context.params.Double("corrupt_strength"), name, &result.mask);
       WriteImage(held_out ? HeldoutMaskPath(context, name) : context.workspace.MaskPath(name), result.mask);
       std::lock_guard<std::mutex> lock(mutex);
       reports[name] = result.report;
