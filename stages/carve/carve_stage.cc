@@ -17,7 +17,8 @@
 // "ibmr conservative_hull 1"), hull/levels.json (per level: nodes, empty/full/partial,
 // held-out IoU; at the finest level the partial leaves kept and dropped by the centre test, see
 // `leaf_test` in carve.h; chosen level), hull/depth_bounds.json ({"<image>": {"near": z, "far": z}} per
-// training view, z along the optical axis, from the finest hull).
+// training view, z along the optical axis, from the finest hull); with level_meshes N, also
+// hull/hull_level<L>.ply for the N levels below the meshed one (smaller models for select).
 #include <spdlog/spdlog.h>
 #include <tbb/parallel_for.h>
 
@@ -139,6 +140,10 @@ class CarveStage : public Stage {
         {"smooth_mu", ParamType::kDouble, "-0.53", "Taubin mu, in (-1, 0), |mu| > lambda"},
         {"max_displacement", ParamType::kDouble, "0.5", "largest vertex move while smoothing, cells, in [0, 1)"},
         {"max_mesh_level", ParamType::kInt, "8", "the mesh is built at min(chosen level, this), in [1, 9]"},
+        {"level_meshes", ParamType::kInt, "0",
+         "also write hull/hull_level<L>.ply for this many levels coarser than the meshed one (smaller models for "
+         "select), in [0, 6]",
+         {}},
         {"mesh_dilation", ParamType::kInt, "1",
          "cells the hull is dilated by before meshing: 1 encloses the hull, 0 fits the silhouettes closer, in [0, 2]"},
         {"mesh_at_finest", ParamType::kBool, "false", "mesh the finest level instead of the chosen one"},
@@ -157,6 +162,7 @@ class CarveStage : public Stage {
     if (params.String("volume") == "bbox" && box.empty()) return ParamError{"bbox", "volume: bbox needs a bbox"};
     const double margin = params.Double("volume_margin");
     if (!(margin >= 0 && margin <= 2)) return ParamError{"volume_margin", "must be in [0, 2]"};
+    if (params.Int("level_meshes") < 0 || params.Int("level_meshes") > 6) return ParamError{"level_meshes", "must be in [0, 6]"};
     return std::nullopt;
   }
 
@@ -308,6 +314,14 @@ class CarveStage : public Stage {
     };
     WriteFileAtomic(context.workspace.Path("hull/octree.bin"), SerializeOctree(octree));
     WriteMeshPly(context.workspace.Path("hull/hull.ply"), mesh);
+    // Coarser hulls, for model selection (how much hull the held-out views need).
+    for (int k = 1; k <= context.params.Int("level_meshes") && meshed_level - k >= 1; ++k) {
+      const int level = meshed_level - k;
+      const TriangleMesh coarse = HullMesh(octree, level, options, nullptr);
+      if (!coarse.faces.empty()) {
+        WriteMeshPly(context.workspace.Path("hull/hull_level" + std::to_string(level) + ".ply"), coarse);
+      }
+    }
     WriteFileAtomic(context.workspace.Path("hull/levels.json"), summary.dump(2));
     WriteFileAtomic(context.workspace.Path("hull/depth_bounds.json"), bounds.dump(2));
 
