@@ -162,7 +162,9 @@ class CarveStage : public Stage {
     if (params.String("volume") == "bbox" && box.empty()) return ParamError{"bbox", "volume: bbox needs a bbox"};
     const double margin = params.Double("volume_margin");
     if (!(margin >= 0 && margin <= 2)) return ParamError{"volume_margin", "must be in [0, 2]"};
-    if (params.Int("level_meshes") < 0 || params.Int("level_meshes") > 6) return ParamError{"level_meshes", "must be in [0, 6]"};
+    if (params.Has("level_meshes") && (params.Int("level_meshes") < 0 || params.Int("level_meshes") > 6)) {
+      return ParamError{"level_meshes", "must be in [0, 6]"};
+    }
     return std::nullopt;
   }
 
@@ -315,7 +317,8 @@ class CarveStage : public Stage {
     WriteFileAtomic(context.workspace.Path("hull/octree.bin"), SerializeOctree(octree));
     WriteMeshPly(context.workspace.Path("hull/hull.ply"), mesh);
     // Coarser hulls, for model selection (how much hull the held-out views need).
-    for (int k = 1; k <= context.params.Int("level_meshes") && meshed_level - k >= 1; ++k) {
+    const int level_meshes = context.params.Has("level_meshes") ? static_cast<int>(context.params.Int("level_meshes")) : 0;
+    for (int k = 1; k <= level_meshes && meshed_level - k >= 1; ++k) {
       const int level = meshed_level - k;
       const TriangleMesh coarse = HullMesh(octree, level, options, nullptr);
       if (!coarse.faces.empty()) {
