@@ -144,9 +144,13 @@ class FuseStage : public Stage {
     }
     const PointSetAccuracy a = EvaluatePointSet(cloud, mesh, samples, threshold, have_visibility ? &visible : nullptr);
     nlohmann::json& m = context.metrics;
+    m["completeness"] = a.completeness;
+    if (cloud.size() == 0) {  // no point has a distance: no accuracy (0 would read as perfect)
+      spdlog::warn("[fuse] no fused point: accuracy undefined, completeness 0");
+      return;
+    }
     m["accuracy_90"] = a.accuracy_90;
     m["accuracy_median"] = a.accuracy_median;
-    m["completeness"] = a.completeness;
     if (have_visibility) m["completeness_visible"] = a.completeness_visible;
     m["eval_threshold"] = threshold;
     m["accuracy_90_over_threshold"] = a.accuracy_90 / threshold;
