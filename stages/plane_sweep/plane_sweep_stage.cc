@@ -75,7 +75,7 @@ class PlaneSweepStage : public Stage {
   std::string Summary() const override {
     return "CPU plane-sweep stereo (census, best-k, semi-global) to COLMAP depth/normal/confidence maps";
   }
-  std::string Version() const override { return "1"; }
+  std::string Version() const override { return "2"; }  // 2: hull bounds that reach the camera are not used
   HoldoutRole Role() const override { return HoldoutRole::kTrainingOnly; }
 
   std::vector<ParamSpec> Parameters() const override {
@@ -249,6 +249,9 @@ class PlaneSweepStage : public Stage {
     }
   }
 
+  // Hull bounds with near <= this fraction of far are degenerate (the hull reaches the camera).
+  static constexpr double kMinHullNearFraction = 1e-3;
+
   // Sets near/far and returns where they came from.
   static std::string DepthBounds(const nlohmann::json& hull, const SparseModel& model, const Image& image,
                                  const SweepView& view, const Params& params, const PlaneSweepOptions& o,
@@ -259,9 +262,19 @@ class PlaneSweepStage : public Stage {
           !(b["near"].get<double>() > 0) || !(b["far"].get<double>() > b["near"].get<double>())) {
         throw InputError("hull/depth_bounds.json: entry of " + image.name + " needs numbers 0 < near < far");
       }
-      *near = b["near"].get<double>();
-      *far = b["far"].get<double>();
-      return "hull";
+      // A hull that reaches the camera (silhouettes that fill the image: noise above the threshold,
+      // a wrong background) bounds nothing: its near depth is ~0, and planes spaced in inverse depth
+      // from there all crowd at the camera but the last, which then wins every pixel with high
+      // confidence (found by the stability matrix at image noise sigma 12). Such a view falls back
+      // to the sparse points, a box or the config's range.
+      if (b["near"].get<double>() > kMinHullNearFraction * b["far"].get<double>()) {
+        *near = b["near"].get<double>();
+        *far = b["far"].get<double>();
+        return "hull";
+      }
+      spdlog::warn("[plane_sweep] view {}: the hull reaches the camera (near {:.3g}, far {:.3g}); its depth bounds "
+                   "are not used (check the silhouettes)",
+                   image.name, b["near"].get<double>(), b["far"].get<double>());
     }
     if (DepthBoundsFromPoints(model, image, o.depth_margin, near, far)) return "sparse_points";
     const std::vector<double> box = params.DoubleList("bounding_box");

@@ -5,6 +5,7 @@
 
 #include <chrono>
 #include <filesystem>
+#include <fstream>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 #include <random>
@@ -258,4 +259,44 @@ TEST_F(PlaneSweepStageTest, SynthObjectRingDepthMatchesGroundTruth) {
 }
 
 }  // namespace
+// A hull that reaches the camera (silhouettes that filled the image) has near ~ 0: its bounds are
+// not used, the sparse points give the range, and the depth is still found. With them, every plane
+// but the last crowded at the camera and the last plane won every pixel.
+TEST_F(PlaneSweepStageTest, HullBoundsThatReachTheCameraAreNotUsed) {
+  Params synth = Defaults(*registry_.Find("synth"));
+  synth.Set("views", int64_t{12});
+  synth.Set("width", int64_t{160});
+  synth.Set("height", int64_t{120});
+  synth.Set("subdivision", int64_t{4});
+  synth.Set("sparse_points", int64_t{400});
+  Run("synth", synth);
+  const Workspace ws(dir_.string());
+  nlohmann::json bounds = nlohmann::json::object();
+  for (int v = 0; v < 12; ++v) {
+    char name[32];
+    std::snprintf(name, sizeof(name), "view_%03d.png", v);
+    bounds[name] = {{"near", 1.7e-10}, {"far", 12.0}};
+  }
+  fs::create_directories(ws.Path("hull"));
+  std::ofstream(ws.Path("hull/depth_bounds.json")) << bounds.dump();
+  Params params = Defaults(*registry_.Find("plane_sweep"));
+  params.Set("num_planes", int64_t{64});
+  const nlohmann::json metrics = Run("plane_sweep", params);
+  EXPECT_FALSE(metrics["bounds_from"].contains("hull")) << metrics["bounds_from"].dump();
+  EXPECT_EQ(metrics["bounds_from"].value("sparse_points", 0), 12) << metrics["bounds_from"].dump();
+  size_t truth = 0, within = 0;
+  for (int v = 0; v < 12; ++v) {
+    char name[32];
+    std::snprintf(name, sizeof(name), "view_%03d.png", v);
+    const DepthMap gt = ReadColmapArray(ws.GroundTruthDepthPath(name));
+    const DepthMap depth = ReadColmapArray(ws.DepthMapPath(name, "photometric"));
+    for (size_t i = 0; i < gt.data.size(); ++i) {
+      if (!IsValidDepth(gt.data[i])) continue;
+      ++truth;
+      within += IsValidDepth(depth.data[i]) && std::fabs(depth.data[i] - gt.data[i]) < 0.01 * gt.data[i];
+    }
+  }
+  EXPECT_GT(static_cast<double>(within) / truth, 0.3);
+}
+
 }  // namespace ibmr
