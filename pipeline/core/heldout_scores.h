@@ -1,4 +1,4 @@
-// Reading scores/heldout.json (written by the score stage) for the stages and tools that rank
+// Reading scores/heldout.json (written by the score stage) and renders/renders.json (render) for the stages and tools that rank
 // models by it (select, ibmr sweep, ibmr report).
 #pragma once
 
@@ -15,6 +15,19 @@ inline nlohmann::json HeldoutMeans(const nlohmann::json& proxy) {
     return proxy["mean_excluding_near"];
   }
   return proxy.value("mean", nlohmann::json::object());
+}
+
+// Each rendered model's size as renders/renders.json reports it ({"<name>": {"kind", "elements",
+// "bytes", ...}}); models without one are left out.
+inline nlohmann::json ModelSizes(const nlohmann::json& renders) {
+  nlohmann::json sizes = nlohmann::json::object();
+  if (!renders.is_object() || !renders.contains("proxies") || !renders["proxies"].is_array()) return sizes;
+  for (const auto& proxy : renders["proxies"]) {
+    if (proxy.is_object() && proxy.contains("name") && proxy["name"].is_string() && proxy.contains("model")) {
+      sizes[proxy["name"].get<std::string>()] = proxy["model"];
+    }
+  }
+  return sizes;
 }
 
 }  // namespace ibmr

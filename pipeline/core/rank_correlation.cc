@@ -27,9 +27,19 @@ std::vector<double> Ranks(const std::vector<double>& values) {
 
 }  // namespace
 
-double SpearmanCorrelation(const std::vector<double>& a, const std::vector<double>& b) {
+double SpearmanCorrelation(const std::vector<double>& all_a, const std::vector<double>& all_b) {
   const double nan = std::numeric_limits<double>::quiet_NaN();
-  if (a.size() != b.size() || a.size() < 3) return nan;
+  if (all_a.size() != all_b.size()) return nan;
+  // Pairs with a non-finite side are left out (a NaN would break the sort's ordering).
+  std::vector<double> a, b;
+  a.reserve(all_a.size());
+  b.reserve(all_b.size());
+  for (size_t i = 0; i < all_a.size(); ++i) {
+    if (!std::isfinite(all_a[i]) || !std::isfinite(all_b[i])) continue;
+    a.push_back(all_a[i]);
+    b.push_back(all_b[i]);
+  }
+  if (a.size() < 3) return nan;
   const std::vector<double> ra = Ranks(a), rb = Ranks(b);
   const double mean = 0.5 * static_cast<double>(a.size() - 1);
   double cov = 0, va = 0, vb = 0;

@@ -9,7 +9,8 @@
 namespace ibmr {
 
 // Spearman's rho of (a[i], b[i]): the Pearson correlation of their ranks, tied values getting the
-// mean of their ranks. NaN when there are fewer than 3 pairs or either side is constant.
+// mean of their ranks; pairs with a non-finite value are left out. NaN when fewer than 3 pairs
+// remain or either side is constant.
 double SpearmanCorrelation(const std::vector<double>& a, const std::vector<double>& b);
 
 }  // namespace ibmr

@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <limits>
 #include <random>
 
 namespace ibmr {
@@ -38,6 +39,8 @@ TEST(SpearmanCorrelation, UndefinedCasesAreNaN) {
   EXPECT_TRUE(std::isnan(SpearmanCorrelation({1, 2}, {1, 2})));
   EXPECT_TRUE(std::isnan(SpearmanCorrelation({1, 1, 1}, {1, 2, 3})));
   EXPECT_TRUE(std::isnan(SpearmanCorrelation({1, 2, 3}, {1, 2})));
+  const double inf = std::numeric_limits<double>::infinity(), nan = std::nan("");
+  EXPECT_NEAR(SpearmanCorrelation({1, nan, 2, 3, inf}, {1, 5, 2, 3, 4}), 1.0, 1e-12);  // non-finite pairs left out
 }
 
 }  // namespace

@@ -286,53 +286,57 @@ const StageConfig* Config::FindStage(const std::string& name) const {
 // The optional sweep: block (see SweepPlan). Every malformed entry names its line and key.
 static void ParseSweep(const YAML::Node& node, Config* config) {
   const std::string& path = config->path;
-  if (!node.IsMap()) throw ConfigError(Where(path, LineOf(node), "sweep", "expected a map (vary, variants, metric, stability)"));
-  const std::vector<std::string> valid = {"vary", "variants", "metric", "stability"};
-  const auto scalar_list = [&](const YAML::Node& list, const std::string& key) {
-    std::string joined;
-    if (!list.IsSequence() || list.size() == 0) {
-      throw ConfigError(Where(path, LineOf(list), key, "expected a non-empty list of values"));
+  // Unknown keys are named with a suggestion; a value of the wrong type names its key.
+  const auto check_keys = [&](const YAML::Node& map, const std::vector<std::string>& valid, const std::string& where) {
+    for (const auto& kv : map) {
+      const std::string key = kv.first.as<std::string>();
+      if (std::find(valid.begin(), valid.end(), key) == valid.end()) {
+        throw ConfigError(Where(path, LineOf(kv.first), where + key, "unknown key; " + Suggest(key, valid)));
+      }
     }
-    for (const auto& value : list) {
-      if (!value.IsScalar()) throw ConfigError(Where(path, LineOf(value), key, "expected plain values"));
-      joined += (joined.empty() ? "" : ",") + value.Scalar();
-    }
-    return joined;
   };
-  for (const auto& kv : node) {
-    const std::string key = kv.first.as<std::string>();
-    if (std::find(valid.begin(), valid.end(), key) == valid.end()) {
-      throw ConfigError(Where(path, LineOf(kv.first), "sweep." + key, "unknown key; " + Suggest(key, valid)));
-    }
-  }
+  const auto text = [&](const YAML::Node& value, const std::string& key) {
+    if (!value.IsScalar()) throw ConfigError(Where(path, LineOf(value), key, "expected a plain value"));
+    return value.Scalar();
+  };
+  if (!node.IsMap()) throw ConfigError(Where(path, LineOf(node), "sweep", "expected a map (vary, variants, metric, stability)"));
+  check_keys(node, {"vary", "variants", "metric", "stability"}, "sweep.");
   if (const YAML::Node vary = node["vary"]) {
     if (!vary.IsMap()) throw ConfigError(Where(path, LineOf(vary), "sweep.vary", "expected a map of stage.key: [values]"));
     for (const auto& kv : vary) {
-      const std::string key = kv.first.as<std::string>();
-      config->sweep.vary.push_back(key + "=" + scalar_list(kv.second, "sweep.vary." + key));
+      const std::string key = "sweep.vary." + kv.first.as<std::string>();
+      if (!kv.second.IsSequence() || kv.second.size() == 0) {
+        throw ConfigError(Where(path, LineOf(kv.second), key, "expected a non-empty list of values"));
+      }
+      std::string joined;
+      for (const auto& value : kv.second) {
+        const std::string v = text(value, key);
+        if (v.find(',') != std::string::npos) {
+          throw ConfigError(Where(path, LineOf(value), key, "a value with a comma cannot be varied; list it in sweep.variants"));
+        }
+        joined += (joined.empty() ? "" : ",") + v;
+      }
+      config->sweep.vary.push_back(kv.first.as<std::string>() + "=" + joined);
     }
   }
   if (const YAML::Node variants = node["variants"]) {
     if (!variants.IsSequence()) throw ConfigError(Where(path, LineOf(variants), "sweep.variants", "expected a list of \"stage.key=value ...\""));
-    for (const auto& v : variants) config->sweep.variants.push_back(v.as<std::string>());
+    for (const auto& v : variants) config->sweep.variants.push_back(text(v, "sweep.variants"));
   }
-  if (const YAML::Node metric = node["metric"]) config->sweep.metric = metric.as<std::string>();
+  if (const YAML::Node metric = node["metric"]) config->sweep.metric = text(metric, "sweep.metric");
   const YAML::Node stability = node["stability"];
   if (!stability) return;
-  const auto required = [&](const YAML::Node& map, const char* key, const std::string& where) {
-    if (!map[key] || !map[key].IsScalar()) {
-      throw ConfigError(Where(path, LineOf(map), where + "." + key, "missing: give a value"));
-    }
-    return map[key].Scalar();
-  };
+  if (!stability.IsMap()) throw ConfigError(Where(path, LineOf(stability), "sweep.stability", "expected a map (degradation, strength, methods)"));
+  check_keys(stability, {"degradation", "strength", "methods"}, "sweep.stability.");
   const auto keys = [&](const char* key) {
-    const YAML::Node node = stability[key];
+    const YAML::Node list = stability[key];
+    const std::string where = std::string("sweep.stability.") + key;
     std::vector<std::string> out;
-    if (node && node.IsScalar()) out.push_back(node.Scalar());
-    if (node && node.IsSequence()) {
-      for (const auto& k : node) out.push_back(k.as<std::string>());
+    if (list && list.IsScalar()) out.push_back(list.Scalar());
+    if (list && list.IsSequence()) {
+      for (const auto& k : list) out.push_back(text(k, where));
     }
-    if (out.empty()) throw ConfigError(Where(path, LineOf(stability), std::string("sweep.stability.") + key, "missing: give a stage.key (or a list)"));
+    if (out.empty()) throw ConfigError(Where(path, LineOf(stability), where, "missing: give a stage.key (or a list)"));
     return out;
   };
   config->sweep.degradation_keys = keys("degradation");
@@ -345,12 +349,23 @@ static void ParseSweep(const YAML::Node& node, Config* config) {
     throw ConfigError(Where(path, LineOf(stability), "sweep.stability.methods", "expected a non-empty list of {name, metric, ...}"));
   }
   for (const auto& m : methods) {
-    if (!m.IsMap()) throw ConfigError(Where(path, LineOf(m), "sweep.stability.methods", "expected {name, metric, ...}"));
+    const std::string where = "sweep.stability.methods";
+    if (!m.IsMap()) throw ConfigError(Where(path, LineOf(m), where, "expected {name, metric, confidence, higher_is_better}"));
+    check_keys(m, {"name", "metric", "confidence", "higher_is_better"}, where + ".");
     StabilityMethod method;
-    method.name = required(m, "name", "sweep.stability.methods");
-    method.metric = required(m, "metric", "sweep.stability.methods");
-    if (m["confidence"]) method.confidence = m["confidence"].as<std::string>();
-    if (m["higher_is_better"]) method.higher_is_better = m["higher_is_better"].as<bool>();
+    for (const char* required : {"name", "metric"}) {
+      if (!m[required]) throw ConfigError(Where(path, LineOf(m), where + "." + required, "missing: give a value"));
+    }
+    method.name = text(m["name"], where + ".name");
+    method.metric = text(m["metric"], where + ".metric");
+    if (m["confidence"]) method.confidence = text(m["confidence"], where + ".confidence");
+    if (m["higher_is_better"]) {
+      const std::string b = text(m["higher_is_better"], where + ".higher_is_better");
+      if (b != "true" && b != "false") {
+        throw ConfigError(Where(path, LineOf(m["higher_is_better"]), where + ".higher_is_better", "expected true or false"));
+      }
+      method.higher_is_better = b == "true";
+    }
     config->sweep.methods.push_back(method);
   }
 }

@@ -167,7 +167,11 @@ int main(int argc, char** argv) {
     if (code == 0 && write_report && !options.dry_run) {
       ibmr::ReportOptions page;
       page.path = config.workspace;
-      std::cout << "report: " << ibmr::WriteReport(page) << "\n";
+      try {
+        std::cout << "report: " << ibmr::WriteReport(page) << "\n";
+      } catch (const std::exception& e) {  // the run succeeded; only the page is missing
+        spdlog::warn("the run is complete, but its report was not written: {}", e.what());
+      }
     }
     return code;
   } catch (const std::exception& e) {

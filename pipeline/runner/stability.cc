@@ -77,25 +77,32 @@ nlohmann::json StabilityMatrix(const nlohmann::json& variants, const SweepPlan& 
     if (m.higher_is_better) return value / it->second;
     return value > 0 ? it->second / value : kNaN;
   };
-  // Cells, grouped by degradation and strength.
+  // Cells, grouped by degradation and strength; a sweep that also varies another key has several
+  // variants per cell: the first one counts, and the others are counted in "duplicate_cells".
   std::map<std::string, std::map<double, const nlohmann::json*>> grid;
+  int out_duplicates = 0;
   for (const auto& v : variants) {
     size_t index = 0;
     const std::string d = degradation_of(v, &index);
     if (d.empty()) continue;
-    grid[d][strength_of(v)] = &v;
+    if (!grid[d].emplace(strength_of(v), &v).second) ++out_duplicates;
   }
+  out["duplicate_cells"] = out_duplicates;
   for (const auto& [degradation, by_strength] : grid) {
     nlohmann::json curve = {{"title", degradation},
                             {"axis", "strength"},
                             {"value", "quality relative to the clean scene"},
                             {"strengths", nlohmann::json::array({0.0})},
                             {"series", nlohmann::json::array()}};
-    for (const auto& [strength, variant] : by_strength) curve["strengths"].push_back(strength);
+    for (const auto& [strength, variant] : by_strength) {
+      if (strength > 0) curve["strengths"].push_back(strength);
+    }
     for (const StabilityMethod& m : plan.methods) {
       nlohmann::json values = nlohmann::json::array({clean.count(m.name) && std::isfinite(clean[m.name]) ? 1.0 : kNaN});
       nlohmann::json broken = nullptr, rho_at_break = nullptr;
+      bool unknown = !clean.count(m.name) || !std::isfinite(clean[m.name]);
       for (const auto& [strength, variant] : by_strength) {
+        if (strength <= 0) continue;  // the clean scene's point, already at 0
         const double value = VariantMetric(*variant, m.metric);
         // A variant that failed before this method's stage ran: the method produced nothing, quality 0.
         const bool failed = variant->value("status", "") != "ok" && !std::isfinite(value);
@@ -105,11 +112,15 @@ nlohmann::json StabilityMatrix(const nlohmann::json& variants, const SweepPlan& 
                                 {"value", Number(value)}, {"relative", Number(rel)}, {"confidence_rho", Number(rho)},
                                 {"failed", failed}});
         values.push_back(Number(rel));
+        if (!std::isfinite(rel)) unknown = true;
         if (broken.is_null() && std::isfinite(rel) && rel < kBrokenBelow) {
           broken = strength;
           rho_at_break = Number(rho);
         }
       }
+      // "unknown" rather than holding when the clean value or a cell could not be measured (a
+      // metric path that names nothing, a clean run that failed).
+      if (broken.is_null() && unknown) broken = "unknown";
       out["breaks"].push_back({{"degradation", degradation}, {"method", m.name}, {"breaks_at", broken},
                                {"confidence_rho_at_break", rho_at_break}});
       curve["series"].push_back({{"label", m.name}, {"values", values}});

@@ -20,7 +20,8 @@ inline constexpr double kBrokenBelow = 0.8;
 
 // From the sweep's collected variants (each with "params" holding the varied values as strings):
 //   {"clean": {method: value}, "cells": [{degradation, strength, method, value, relative, confidence_rho}],
-//    "breaks": [{degradation, method, breaks_at (strength or null), confidence_rho_at_break}],
+//    "breaks": [{degradation, method, breaks_at (strength, null: holds, "unknown": not measurable),
+//                confidence_rho_at_break}], "duplicate_cells": variants beyond the first per cell,
 //    "curves": [{title, axis, value, strengths, series: [{label, values}]}]}   (for the report)
 // relative = value / clean (higher is better) or clean / value (lower is better): 1 is as good as
 // the clean scene. The clean value comes from a variant whose degradation is "none" or whose

@@ -93,10 +93,6 @@ TEST(Stability, SeveralDegradationKeysEachNameTheirCells) {
   EXPECT_EQ(m["cells"][0]["degradation"], "erode");
   EXPECT_DOUBLE_EQ(m["cells"][0]["strength"].get<double>(), 0.75);
   EXPECT_DOUBLE_EQ(m["cells"][0]["relative"].get<double>(), 0.5);
-  // A higher-is-better score of 0 (nothing within tolerance) is quality 0, not undefined.
-  variants.push_back(Variant("exposure", "0.5", 0.0, 0, 0));
-  const nlohmann::json higher = StabilityMatrix(variants, Plan());
-  EXPECT_DOUBLE_EQ(higher["cells"][0]["relative"].get<double>(), 0.0);
 }
 
 TEST(Stability, LowerIsBetterMetricsInvert) {
@@ -107,10 +103,19 @@ TEST(Stability, LowerIsBetterMetricsInvert) {
   variants.push_back(Variant("exposure", "1", 0.02, 0, 0));
   const nlohmann::json m = StabilityMatrix(variants, plan);
   EXPECT_DOUBLE_EQ(m["cells"][0]["relative"].get<double>(), 0.5);
-  // A higher-is-better score of 0 (nothing within tolerance) is quality 0, not undefined.
-  variants.push_back(Variant("exposure", "0.5", 0.0, 0, 0));
-  const nlohmann::json higher = StabilityMatrix(variants, Plan());
-  EXPECT_DOUBLE_EQ(higher["cells"][0]["relative"].get<double>(), 0.0);
+}
+
+TEST(Stability, AZeroScoreIsBrokenAndAnUnmeasurableMethodIsUnknown) {
+  nlohmann::json variants = nlohmann::json::array();
+  variants.push_back(Variant("none", "", 0.9, -0.5, 30));
+  variants.push_back(Variant("exposure", "0.5", 0.0, 0, 30));  // nothing within tolerance
+  SweepPlan plan = Plan();
+  plan.methods.push_back({"typo", "multi_depth.withn", "", true});
+  const nlohmann::json m = StabilityMatrix(variants, plan);
+  EXPECT_DOUBLE_EQ(m["cells"][0]["relative"].get<double>(), 0.0);
+  EXPECT_DOUBLE_EQ(m["breaks"][0]["breaks_at"].get<double>(), 0.5);
+  EXPECT_TRUE(m["breaks"][1]["breaks_at"].is_null());  // held out: holds
+  EXPECT_EQ(m["breaks"][2]["breaks_at"], "unknown");
 }
 
 TEST(Stability, TheConfigSweepBlockParsesAndNamesBadKeys) {
@@ -134,6 +139,17 @@ TEST(Stability, TheConfigSweepBlockParsesAndNamesBadKeys) {
   } catch (const ConfigError& e) {
     EXPECT_NE(std::string(e.what()).find("bad.yaml:5"), std::string::npos) << e.what();
     EXPECT_NE(std::string(e.what()).find("did you mean"), std::string::npos) << e.what();
+  }
+  // A misspelt method key would silently invert the quality: it is refused, by name.
+  std::ofstream(dir / "typo.yaml") << "workspace: ws\nstages:\n  - produce\nsweep:\n  stability:\n"
+                                      "    degradation: produce.value\n    strength: produce.value\n"
+                                      "    methods:\n      - {name: m, metric: produce.bytes, higher_is_beter: true}\n";
+  try {
+    LoadConfig((dir / "typo.yaml").string(), registry);
+    ADD_FAILURE() << "accepted";
+  } catch (const ConfigError& e) {
+    EXPECT_NE(std::string(e.what()).find("higher_is_beter"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("did you mean 'higher_is_better'"), std::string::npos) << e.what();
   }
 }
 

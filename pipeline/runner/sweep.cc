@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <cstdio>
 #include <filesystem>
+#include <map>
 
 #include "pipeline/core/atomic_file.h"
 #include "pipeline/core/heldout_scores.h"
@@ -101,16 +102,20 @@ nlohmann::json ParetoFront(const nlohmann::json& points) {
   return front;
 }
 
-nlohmann::json CollectVariant(const Config& config) {
+nlohmann::json CollectVariant(const Config& config, const StageRegistry& registry) {
   const Workspace workspace(config.workspace);
+  // A record that is not up to date (a stage after one that failed, left from an earlier run of
+  // this folder) describes other inputs: it is reported as stale, without its costs or metrics.
+  std::map<std::string, bool> current;
+  for (const StageStatus& s : Runner(config, registry).Status()) current[s.name] = s.up_to_date;
   nlohmann::json stages = nlohmann::json::array();
   double wall = 0, cpu = 0, peak = 0, computed = 0;
   std::string status = "ok";
   for (const StageConfig& stage : config.stages) {
     const auto record = ReadRecord(workspace.RecordsDir() + "/" + stage.name + ".json");
     nlohmann::json entry = {{"stage", stage.name}};
-    if (!record) {
-      entry["status"] = "not run";
+    if (!record || (record->status == "ok" && !current[stage.name])) {
+      entry["status"] = record ? "stale" : "not run";
       if (status == "ok") status = "incomplete";
       stages.push_back(entry);
       continue;
@@ -129,14 +134,11 @@ nlohmann::json CollectVariant(const Config& config) {
     if (record->reused_from.empty()) computed += record->wall_seconds;
     stages.push_back(entry);
   }
-  // Model sizes as render describes them, by model name.
-  nlohmann::json sizes = nlohmann::json::object();
-  const nlohmann::json renders = ReadJsonOr(workspace.Path("renders/renders.json"), nlohmann::json::object());
-  for (const auto& proxy : renders.value("proxies", nlohmann::json::array())) {
-    if (proxy.contains("name") && proxy.contains("model")) sizes[proxy["name"].get<std::string>()] = proxy["model"];
-  }
+  // Held-out scores only when every stage is current: otherwise they are an earlier run's.
+  const nlohmann::json sizes = ModelSizes(ReadJsonOr(workspace.Path("renders/renders.json"), nlohmann::json::object()));
   nlohmann::json models = nlohmann::json::object();
-  const nlohmann::json scores = ReadJsonOr(workspace.Path("scores/heldout.json"), nlohmann::json::object());
+  const nlohmann::json scores = status == "ok" ? ReadJsonOr(workspace.Path("scores/heldout.json"), nlohmann::json::object())
+                                               : nlohmann::json::object();
   const nlohmann::json proxies = scores.value("proxies", nlohmann::json::object());
   for (const auto& [name, proxy] : proxies.items()) {
     nlohmann::json model = HeldoutMeans(proxy);
@@ -207,7 +209,7 @@ int RunSweep(const SweepOptions& given, const StageRegistry& registry) {
       error = e.what();
       spdlog::error("sweep variant {}: {}", VariantName(i), error);
     }
-    nlohmann::json variant = CollectVariant(configs[i]);
+    nlohmann::json variant = CollectVariant(configs[i], registry);
     variant["name"] = VariantName(i);
     variant["workspace"] = VariantName(i);
     variant["params"] = params;

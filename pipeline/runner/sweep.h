@@ -36,7 +36,9 @@ nlohmann::json ParetoFront(const nlohmann::json& points);
 // What one variant's workspace holds: per stage (in `config` order) its status, wall/CPU seconds,
 // peak memory, whether it was reused, and its metrics; the totals; per scored model its held-out
 // means and its size. Reads records/, scores/heldout.json and renders/renders.json.
-nlohmann::json CollectVariant(const Config& config);
+// Stages whose record is not current (after a failure) are reported as stale, and the held-out
+// scores only when every stage is current.
+nlohmann::json CollectVariant(const Config& config, const StageRegistry& registry);
 
 struct SweepOptions {
   std::string config_path;

@@ -318,8 +318,12 @@ class CarveStage : public Stage {
     WriteMeshPly(context.workspace.Path("hull/hull.ply"), mesh);
     // Coarser hulls, for model selection (how much hull the held-out views need).
     const int level_meshes = context.params.Has("level_meshes") ? static_cast<int>(context.params.Int("level_meshes")) : 0;
-    for (int k = 1; k <= level_meshes && meshed_level - k >= 1; ++k) {
-      const int level = meshed_level - k;
+    for (const auto& entry : fs::directory_iterator(context.workspace.Path("hull"))) {
+      if (entry.path().filename().string().rfind("hull_level", 0) == 0) fs::remove(entry.path());
+    }
+    const int built_level = std::min({meshed_level, finest, options.max_mesh_level});  // HullMesh's own cap
+    for (int k = 1; k <= level_meshes && built_level - k >= 1; ++k) {
+      const int level = built_level - k;
       const TriangleMesh coarse = HullMesh(octree, level, options, nullptr);
       if (!coarse.faces.empty()) {
         WriteMeshPly(context.workspace.Path("hull/hull_level" + std::to_string(level) + ".ply"), coarse);

@@ -26,7 +26,7 @@ class FuseStage : public Stage {
   std::string Summary() const override {
     return "Uncertainty-weighted merge of depth samples into points with normals, colour, confidence (dense/fused.ply)";
   }
-  std::string Version() const override { return "2"; }  // 2: normals from depth in float (core)
+  std::string Version() const override { return "3"; }  // 2: normals from depth in float (core); 3: no accuracy without points; confidence-error rank correlation
   HoldoutRole Role() const override { return HoldoutRole::kTrainingOnly; }
 
   std::vector<ParamSpec> Parameters() const override {

@@ -62,7 +62,7 @@ class MultiDepthStage : public Stage {
   std::string Summary() const override {
     return "Depth maps made consistent across views: visibility, depth compatibility, rejection (.geometric.bin)";
   }
-  std::string Version() const override { return "2"; }
+  std::string Version() const override { return "3"; }  // 3: confidence-error rank correlation
   HoldoutRole Role() const override { return HoldoutRole::kTrainingOnly; }
 
   std::vector<ParamSpec> Parameters() const override {

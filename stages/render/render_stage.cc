@@ -30,6 +30,7 @@
 #include <chrono>
 #include <map>
 #include <set>
+#include <charconv>
 #include <filesystem>
 #include <mutex>
 
@@ -82,7 +83,9 @@ ProxySpec ParseProxy(const std::string& entry, const Workspace& workspace) {
   if (at != std::string::npos) {
     const size_t end = std::min(path.find('|', at), path.size());
     detail_suffix = path.substr(at + 1, end - at - 1);
-    spec.detail = std::atoi(detail_suffix.c_str());
+    int value = 0;
+    const auto [last, error] = std::from_chars(detail_suffix.data(), detail_suffix.data() + detail_suffix.size(), value);
+    spec.detail = error == std::errc() && last == detail_suffix.data() + detail_suffix.size() ? value : -1;
     path.erase(at, end - at);
   }
   const auto name_or = [&](const std::string& fallback) {
@@ -243,7 +246,13 @@ class RenderStage : public Stage {
         return ParamError{"proxies", "\"" + entry + "\": depth type must be geometric, photometric or truth"};
       }
       if (entry.find('@') != std::string::npos && spec.detail <= 0) {
-        return ParamError{"proxies", "\"" + entry + "\": @N needs a positive number (faces of a mesh, block size of splat_depth)"};
+        return ParamError{"proxies", "\"" + entry + "\": @N needs a positive whole number (faces of a mesh, block size of splat_depth)"};
+      }
+      if (spec.kind == ModelKind::kMesh && spec.detail > 0 && spec.detail < 4) {
+        return ParamError{"proxies", "\"" + entry + "\": a mesh needs at least 4 faces"};
+      }
+      if ((spec.kind == ModelKind::kSplatDepth || spec.kind == ModelKind::kSplatDepthMerged) && spec.detail > 16) {
+        return ParamError{"proxies", "\"" + entry + "\": splat_depth blocks are at most 16 pixels wide"};
       }
       if (spec.detail > 0 && spec.kind != ModelKind::kMesh && spec.kind != ModelKind::kSplatDepth &&
           spec.kind != ModelKind::kSplatDepthMerged) {
@@ -473,7 +482,9 @@ class RenderStage : public Stage {
       }
       pj["model"] = ModelSize(spec, layers, cloud);
       // A model drawn from ground truth is a reference, not a reconstruction: select skips it.
-      const bool from_truth = spec.depth_type == "truth" ||
+      const bool splat_depth = spec.kind == ModelKind::kSplatDepth || spec.kind == ModelKind::kSplatDepthMerged;
+      const std::string depth_type = spec.depth_type.empty() ? context.params.String("splat_depth_type") : spec.depth_type;
+      const bool from_truth = (splat_depth && depth_type == "truth") ||
                               context.workspace.Relative(spec.path).rfind("ground_truth/", 0) == 0;
       if (from_truth) pj["model"]["from_truth"] = true;
       const bool is_primary = primary.empty();

@@ -63,17 +63,14 @@ class SelectStage : public Stage {
     const SelectionOptions options = ToOptions(context.params);
     const nlohmann::json scores = ReadJson(context.workspace.Path("scores/heldout.json"), "score");
     const nlohmann::json renders = ReadJson(context.workspace.Path("renders/renders.json"), "render");
-    std::map<std::string, nlohmann::json> sizes;
-    for (const auto& proxy : renders.value("proxies", nlohmann::json::array())) {
-      if (proxy.contains("name") && proxy.contains("model")) sizes[proxy["name"].get<std::string>()] = proxy["model"];
-    }
+    const nlohmann::json sizes = ModelSizes(renders);
     std::vector<ModelCandidate> candidates;
     nlohmann::json unranked = nlohmann::json::array();
     const nlohmann::json proxies = scores.value("proxies", nlohmann::json::object());
     for (const auto& [name, proxy] : proxies.items()) {
       const nlohmann::json mean = HeldoutMeans(proxy);
       const auto size = sizes.find(name);
-      if (size != sizes.end() && size->second.value("from_truth", false)) {
+      if (size != sizes.end() && size->is_object() && size->value("from_truth", false)) {
         unranked.push_back({{"name", name}, {"reason", "drawn from ground truth: a reference, not a model"}});
         continue;
       }
@@ -85,9 +82,9 @@ class SelectStage : public Stage {
       }
       ModelCandidate m;
       m.name = name;
-      m.kind = size->second.value("kind", "");
-      m.bytes = size->second.value("bytes", 0.0);
-      m.elements = size->second.value("elements", 0.0);
+      m.kind = size->value("kind", "");
+      m.bytes = size->value("bytes", 0.0);
+      m.elements = size->value("elements", 0.0);
       m.psnr = mean[options.metric].get<double>();
       m.coverage = mean.value("coverage", 0.0);
       candidates.push_back(m);
