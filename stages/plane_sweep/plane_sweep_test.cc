@@ -173,6 +173,18 @@ class PlaneSweepStageTest : public ::testing::Test {
     return context.metrics;
   }
 
+  // The synthetic object ring (400 sparse points) written into the workspace.
+  void SynthRing(int views, int width, int height) {
+    Params synth = Defaults(*registry_.Find("synth"));
+    synth.Set("scene", std::string("object_ring"));
+    synth.Set("views", int64_t{views});
+    synth.Set("width", int64_t{width});
+    synth.Set("height", int64_t{height});
+    synth.Set("subdivision", int64_t{4});
+    synth.Set("sparse_points", int64_t{400});
+    Run("synth", synth);
+  }
+
   StageRegistry registry_;
   fs::path dir_;
   NullProgress progress_;
@@ -218,14 +230,7 @@ TEST_F(PlaneSweepStageTest, StereoPairCommandWritesPfm) {
 
 // Small object ring (24 views, 240x180): most object pixels within 1% of the true depth.
 TEST_F(PlaneSweepStageTest, SynthObjectRingDepthMatchesGroundTruth) {
-  Params synth = Defaults(*registry_.Find("synth"));
-  synth.Set("scene", std::string("object_ring"));
-  synth.Set("views", int64_t{24});
-  synth.Set("width", int64_t{240});
-  synth.Set("height", int64_t{180});
-  synth.Set("subdivision", int64_t{4});
-  synth.Set("sparse_points", int64_t{400});
-  Run("synth", synth);
+  SynthRing(24, 240, 180);
   Params params = Defaults(*registry_.Find("plane_sweep"));
   const nlohmann::json metrics = Run("plane_sweep", params);
   EXPECT_EQ(metrics["views"].get<int>(), 24);
@@ -263,13 +268,7 @@ TEST_F(PlaneSweepStageTest, SynthObjectRingDepthMatchesGroundTruth) {
 // not used, the sparse points give the range, and the depth is still found. With them, every plane
 // but the last crowded at the camera and the last plane won every pixel.
 TEST_F(PlaneSweepStageTest, HullBoundsThatReachTheCameraAreNotUsed) {
-  Params synth = Defaults(*registry_.Find("synth"));
-  synth.Set("views", int64_t{12});
-  synth.Set("width", int64_t{160});
-  synth.Set("height", int64_t{120});
-  synth.Set("subdivision", int64_t{4});
-  synth.Set("sparse_points", int64_t{400});
-  Run("synth", synth);
+  SynthRing(12, 160, 120);
   const Workspace ws(dir_.string());
   nlohmann::json bounds = nlohmann::json::object();
   for (int v = 0; v < 12; ++v) {
