@@ -196,7 +196,17 @@ class SilhouettesStage : public Stage {
     context.metrics["median_foreground_fraction"] = fractions[fractions.size() / 2];
     spdlog::info("[silhouettes] {} masks ({} held out), median foreground {:.3f}, {} touch the border, {} empty",
                  names.size(), heldout.size(), fractions[fractions.size() / 2], border, empty);
+    // Masks that fill their images bound nothing: the hull then reaches the cameras (noise above the
+    // threshold, a background that is not dark). Said once, with what to try.
+    if (fractions[fractions.size() / 2] > kFilledFraction) {
+      spdlog::warn("[silhouettes] the median mask covers {:.0f}% of its image: these silhouettes will not bound the "
+                   "object (raise silhouettes.threshold, use mode background, or supply masks)",
+                   100 * fractions[fractions.size() / 2]);
+    }
   }
+
+  // A median foreground fraction above this means the masks fill their images.
+  static constexpr double kFilledFraction = 0.9;
 
  private:
   static SilhouetteOptions ToOptions(const Params& params) {
