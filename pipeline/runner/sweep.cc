@@ -4,6 +4,7 @@
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
+#include <chrono>
 #include <cstdio>
 #include <filesystem>
 #include <map>
@@ -188,6 +189,7 @@ int RunSweep(const SweepOptions& given, const StageRegistry& registry) {
   sweep["varied"] = varied;
   int failed = 0;
   std::vector<std::string> done;
+  const auto sweep_start = std::chrono::steady_clock::now();
   for (size_t i = 0; i < configs.size(); ++i) {
     nlohmann::json params = nlohmann::json::object();
     std::string label;
@@ -195,8 +197,14 @@ int RunSweep(const SweepOptions& given, const StageRegistry& registry) {
       params[key] = value;
       label += (label.empty() ? "" : " ") + key + "=" + value;
     }
-    spdlog::info("sweep variant {} of {}: {} ({})", i + 1, configs.size(), VariantName(i),
-                 label.empty() ? "the config as it is" : label);
+    // Progress: the variants so far set the pace for the rest (reused stages make later ones quicker,
+    // so the estimate errs long).
+    const double elapsed = std::chrono::duration<double>(std::chrono::steady_clock::now() - sweep_start).count();
+    const std::string eta = i == 0 ? std::string("")
+                                   : fmt::format(", {:.0f} s so far, about {:.0f} s to go", elapsed,
+                                                 elapsed / static_cast<double>(i) * static_cast<double>(configs.size() - i));
+    spdlog::info("sweep variant {} of {}: {} ({}){}", i + 1, configs.size(), VariantName(i),
+                 label.empty() ? "the config as it is" : label, eta);
     RunOptions run;
     run.jobs = options.jobs;
     run.interactive = options.interactive;
