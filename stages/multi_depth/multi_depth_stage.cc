@@ -143,17 +143,14 @@ class MultiDepthStage : public Stage {
       WriteColmapArray(ConfidencePath(workspace, name, "geometric"), result.confidence);
 
       DepthAccuracy view_before, view_after;
+      std::vector<double> view_pairs[4];  // photometric confidence, its error; geometric confidence, its error
       const std::string truth_path = workspace.GroundTruthDepthPath(name);
       if (has_truth && fs::exists(truth_path)) {
-        const DepthMap truth = ReadColmapArray(truth_path);
+        const DepthMap truth = ReadColmapArray(truth_path);  // read once for all four measures
         view_before = CompareDepth(key.depth, truth, 0.01);
         view_after = CompareDepth(result.depth, truth, 0.01);
-      }
-      std::vector<double> view_pairs[4];  // photometric confidence, its error; geometric confidence, its error
-      if (has_truth && fs::exists(truth_path)) {
-        CollectConfidenceAndError(key.depth, key.confidence, ReadColmapArray(truth_path), &view_pairs[0], &view_pairs[1]);
-        CollectConfidenceAndError(result.depth, result.confidence, ReadColmapArray(truth_path), &view_pairs[2],
-                                  &view_pairs[3]);
+        CollectConfidenceAndError(key.depth, key.confidence, truth, &view_pairs[0], &view_pairs[1]);
+        CollectConfidenceAndError(result.depth, result.confidence, truth, &view_pairs[2], &view_pairs[3]);
       }
       std::lock_guard<std::mutex> lock(mutex);
       for (int k = 0; k < 4; ++k) pairs[k].insert(pairs[k].end(), view_pairs[k].begin(), view_pairs[k].end());
