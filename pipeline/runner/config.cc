@@ -283,24 +283,27 @@ const StageConfig* Config::FindStage(const std::string& name) const {
   return nullptr;
 }
 
+// Throws for the first key of `map` not in `valid`, naming it (after `prefix`) with a suggestion.
+static void RejectUnknownKeys(const std::string& path, const YAML::Node& map, const std::vector<std::string>& valid,
+                              const std::string& prefix) {
+  for (const auto& kv : map) {
+    const std::string key = kv.first.as<std::string>();
+    if (std::find(valid.begin(), valid.end(), key) == valid.end()) {
+      throw ConfigError(Where(path, LineOf(kv.first), prefix + key, "unknown key; " + Suggest(key, valid)));
+    }
+  }
+}
+
 // The optional sweep: block (see SweepPlan). Every malformed entry names its line and key.
 static void ParseSweep(const YAML::Node& node, Config* config) {
   const std::string& path = config->path;
-  // Unknown keys are named with a suggestion; a value of the wrong type names its key.
-  const auto check_keys = [&](const YAML::Node& map, const std::vector<std::string>& valid, const std::string& where) {
-    for (const auto& kv : map) {
-      const std::string key = kv.first.as<std::string>();
-      if (std::find(valid.begin(), valid.end(), key) == valid.end()) {
-        throw ConfigError(Where(path, LineOf(kv.first), where + key, "unknown key; " + Suggest(key, valid)));
-      }
-    }
-  };
+  // A value of the wrong type names its key.
   const auto text = [&](const YAML::Node& value, const std::string& key) {
     if (!value.IsScalar()) throw ConfigError(Where(path, LineOf(value), key, "expected a plain value"));
     return value.Scalar();
   };
   if (!node.IsMap()) throw ConfigError(Where(path, LineOf(node), "sweep", "expected a map (vary, variants, metric, stability)"));
-  check_keys(node, {"vary", "variants", "metric", "stability"}, "sweep.");
+  RejectUnknownKeys(path, node, {"vary", "variants", "metric", "stability"}, "sweep.");
   if (const YAML::Node vary = node["vary"]) {
     if (!vary.IsMap()) throw ConfigError(Where(path, LineOf(vary), "sweep.vary", "expected a map of stage.key: [values]"));
     for (const auto& kv : vary) {
@@ -327,7 +330,7 @@ static void ParseSweep(const YAML::Node& node, Config* config) {
   const YAML::Node stability = node["stability"];
   if (!stability) return;
   if (!stability.IsMap()) throw ConfigError(Where(path, LineOf(stability), "sweep.stability", "expected a map (degradation, strength, methods)"));
-  check_keys(stability, {"degradation", "strength", "methods"}, "sweep.stability.");
+  RejectUnknownKeys(path, stability, {"degradation", "strength", "methods"}, "sweep.stability.");
   const auto keys = [&](const char* key) {
     const YAML::Node list = stability[key];
     const std::string where = std::string("sweep.stability.") + key;
@@ -351,7 +354,7 @@ static void ParseSweep(const YAML::Node& node, Config* config) {
   for (const auto& m : methods) {
     const std::string where = "sweep.stability.methods";
     if (!m.IsMap()) throw ConfigError(Where(path, LineOf(m), where, "expected {name, metric, confidence, higher_is_better}"));
-    check_keys(m, {"name", "metric", "confidence", "higher_is_better"}, where + ".");
+    RejectUnknownKeys(path, m, {"name", "metric", "confidence", "higher_is_better"}, where + ".");
     StabilityMethod method;
     for (const char* required : {"name", "metric"}) {
       if (!m[required]) throw ConfigError(Where(path, LineOf(m), where + "." + required, "missing: give a value"));
@@ -386,13 +389,7 @@ Config LoadConfig(const std::string& path, const StageRegistry& registry) {
     throw ConfigError(Where(path, e.mark.line + 1, "", "YAML syntax error: " + e.msg));
   }
   if (!root.IsMap()) throw ConfigError(Where(path, 1, "", "expected a map with keys workspace, inputs, holdout, stages"));
-  const std::vector<std::string> valid = {"workspace", "inputs", "holdout", "stages", "sweep"};
-  for (const auto& kv : root) {
-    const std::string key = kv.first.as<std::string>();
-    if (std::find(valid.begin(), valid.end(), key) == valid.end()) {
-      throw ConfigError(Where(path, LineOf(kv.first), key, "unknown key; " + Suggest(key, valid)));
-    }
-  }
+  RejectUnknownKeys(path, root, {"workspace", "inputs", "holdout", "stages", "sweep"}, "");
   if (!root["workspace"] || !root["workspace"].IsScalar()) {
     throw ConfigError(Where(path, 0, "workspace", "missing: give the folder where results go, e.g. 'workspace: ../workspaces/demo'"));
   }
