@@ -246,8 +246,9 @@ SynthView RenderSynthView(const SynthScene& scene, int view_index, const SynthOp
       }
       const int part = scene.face_part[face];
       if (!scene.parts[part].smooth || !(normal.norm() > 1e-12)) normal = face_normals[face];
-      sum[pixel] += SurfaceRadiance(scene, part, point, normal.normalized());
-      const double highlight = scene.degradation.Highlight(normal.normalized(), scene.light_direction, eye - point);
+      normal.normalize();
+      sum[pixel] += SurfaceRadiance(scene, part, point, normal);
+      const double highlight = scene.degradation.Highlight(normal, scene.light_direction, eye - point);
       if (highlight > 0) sum[pixel] += Eigen::Vector3d::Constant(highlight);
       if (scene.parts[part].foreground) ++foreground_samples[pixel];
     }
