@@ -130,9 +130,7 @@ int main(int argc, char** argv) {
   }
   if (sweep->parsed()) {
     try {
-      ibmr::Config base = ibmr::LoadConfig(sweep_options.config_path, registry);
-      const std::string out = sweep_options.out.empty() ? base.workspace + ".sweep" : sweep_options.out;
-      SetUpLogging(out);
+      SetUpLogging(ibmr::SweepFolder(sweep_options, ibmr::LoadConfig(sweep_options.config_path, registry)));
       sweep_options.interactive = isatty(STDERR_FILENO);
       return ibmr::RunSweep(sweep_options, registry);
     } catch (const ibmr::ConfigError& e) {

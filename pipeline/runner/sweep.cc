@@ -156,6 +156,10 @@ nlohmann::json CollectVariant(const Config& config, const StageRegistry& registr
           {"models", models}};
 }
 
+std::string SweepFolder(const SweepOptions& options, const Config& base) {
+  return fs::absolute(options.out.empty() ? base.workspace + ".sweep" : options.out).lexically_normal().string();
+}
+
 int RunSweep(const SweepOptions& given, const StageRegistry& registry) {
   const Config base = LoadConfig(given.config_path, registry);
   // The config's sweep: block first, then the command line's.
@@ -164,8 +168,7 @@ int RunSweep(const SweepOptions& given, const StageRegistry& registry) {
   options.listed.insert(options.listed.begin(), base.sweep.variants.begin(), base.sweep.variants.end());
   if (!base.sweep.metric.empty() && given.metric == SweepOptions().metric) options.metric = base.sweep.metric;
   const std::vector<Assignments> variants = ExpandVariants(options.vary, options.listed);
-  const std::string out =
-      fs::absolute(options.out.empty() ? base.workspace + ".sweep" : options.out).lexically_normal().string();
+  const std::string out = SweepFolder(options, base);
   fs::create_directories(out);
   // Every override is checked before anything runs: a typo in the last variant fails now.
   std::vector<Config> configs;

@@ -50,6 +50,9 @@ struct SweepOptions {
   bool interactive = false;
 };
 
+// The sweep folder: options.out, or the config's workspace + ".sweep"; absolute.
+std::string SweepFolder(const SweepOptions& options, const Config& base);
+
 // Runs every variant and writes <out>/sweep.json (after each variant, atomically). Returns 0 when
 // every variant ran, 1 when some failed, 2 on a usage error (reported by ConfigError).
 int RunSweep(const SweepOptions& options, const StageRegistry& registry);
