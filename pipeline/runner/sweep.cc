@@ -103,12 +103,16 @@ nlohmann::json ParetoFront(const nlohmann::json& points) {
   return front;
 }
 
-nlohmann::json CollectVariant(const Config& config, const StageRegistry& registry) {
+nlohmann::json CollectVariant(const Config& config, const StageRegistry& registry, bool ran_clean) {
   const Workspace workspace(config.workspace);
   // A record that is not up to date (a stage after one that failed, left from an earlier run of
   // this folder) describes other inputs: it is reported as stale, without its costs or metrics.
+  // After a clean run every record is current, and the inputs need not be hashed again.
   std::map<std::string, bool> current;
-  for (const StageStatus& s : Runner(config, registry).Status()) current[s.name] = s.up_to_date;
+  for (const StageConfig& stage : config.stages) current[stage.name] = true;
+  if (!ran_clean) {
+    for (const StageStatus& s : Runner(config, registry).Status()) current[s.name] = s.up_to_date;
+  }
   nlohmann::json stages = nlohmann::json::array();
   double wall = 0, cpu = 0, peak = 0, computed = 0;
   std::string status = "ok";
@@ -220,7 +224,7 @@ int RunSweep(const SweepOptions& given, const StageRegistry& registry) {
       error = e.what();
       spdlog::error("sweep variant {}: {}", VariantName(i), error);
     }
-    nlohmann::json variant = CollectVariant(configs[i], registry);
+    nlohmann::json variant = CollectVariant(configs[i], registry, code == 0);
     variant["name"] = VariantName(i);
     variant["workspace"] = VariantName(i);
     variant["params"] = params;

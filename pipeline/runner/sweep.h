@@ -37,8 +37,8 @@ nlohmann::json ParetoFront(const nlohmann::json& points);
 // peak memory, whether it was reused, and its metrics; the totals; per scored model its held-out
 // means and its size. Reads records/, scores/heldout.json and renders/renders.json.
 // Stages whose record is not current (after a failure) are reported as stale, and the held-out
-// scores only when every stage is current.
-nlohmann::json CollectVariant(const Config& config, const StageRegistry& registry);
+// scores only when every stage is current; `ran_clean` (the run just succeeded) says they all are.
+nlohmann::json CollectVariant(const Config& config, const StageRegistry& registry, bool ran_clean);
 
 struct SweepOptions {
   std::string config_path;
