@@ -42,29 +42,25 @@ nlohmann::json StabilityMatrix(const nlohmann::json& variants, const SweepPlan& 
   const auto param = [](const nlohmann::json& v, const std::string& key) -> std::string {
     return v.contains("params") && v["params"].contains(key) ? v["params"][key].get<std::string>() : "";
   };
-  // The variant's degradation: the first degradation key it sets to something but "none".
-  const auto degradation_of = [&](const nlohmann::json& v, size_t* index) -> std::string {
+  // A variant's cell: the first degradation key it sets to something but "none", with that
+  // degradation's strength; ("", 0) for the clean scene.
+  struct Cell {
+    std::string degradation;
+    double strength = 0;
+  };
+  const auto cell_of = [&](const nlohmann::json& v) {
     for (size_t i = 0; i < plan.degradation_keys.size(); ++i) {
       const std::string d = param(v, plan.degradation_keys[i]);
-      if (!d.empty() && d != "none") {
-        *index = i;
-        return d;
-      }
+      if (d.empty() || d == "none") continue;
+      const std::string s = param(v, plan.strength_keys[i]);
+      return Cell{d, s.empty() ? 0.0 : std::atof(s.c_str())};
     }
-    return "";
-  };
-  const auto strength_of = [&](const nlohmann::json& v) {
-    size_t index = 0;
-    if (degradation_of(v, &index).empty()) return 0.0;
-    const std::string s = param(v, plan.strength_keys[index]);
-    return s.empty() ? 0.0 : std::atof(s.c_str());
+    return Cell{};
   };
   // The clean scene.
   std::map<std::string, double> clean;
   for (const auto& v : variants) {
-    size_t index = 0;
-    const std::string d = degradation_of(v, &index);
-    if (v.value("status", "") != "ok" || !(d.empty() || d == "none" || strength_of(v) == 0)) continue;
+    if (v.value("status", "") != "ok" || cell_of(v).strength != 0) continue;
     for (const auto& m : plan.methods) clean[m.name] = VariantMetric(v, m.metric);
     break;
   }
@@ -82,10 +78,9 @@ nlohmann::json StabilityMatrix(const nlohmann::json& variants, const SweepPlan& 
   std::map<std::string, std::map<double, const nlohmann::json*>> grid;
   int out_duplicates = 0;
   for (const auto& v : variants) {
-    size_t index = 0;
-    const std::string d = degradation_of(v, &index);
-    if (d.empty()) continue;
-    if (!grid[d].emplace(strength_of(v), &v).second) ++out_duplicates;
+    const Cell cell = cell_of(v);
+    if (cell.degradation.empty()) continue;
+    if (!grid[cell.degradation].emplace(cell.strength, &v).second) ++out_duplicates;
   }
   out["duplicate_cells"] = out_duplicates;
   for (const auto& [degradation, by_strength] : grid) {
