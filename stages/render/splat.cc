@@ -76,6 +76,14 @@ struct Nearest {
   }
 };
 
+// Whether pixel (px, py) continues the surface of pixel (x, y): inside the image, with a depth
+// within kRimStep of it (else (x, y) is on the rim of its image's surface there).
+bool Continuous(const DepthImage& image, int x, int y, int px, int py) {
+  if (px < 0 || py < 0 || px >= image.width() || py >= image.height()) return false;
+  const float z = image.depth.At(x, y), n = image.depth.At(px, py);
+  return IsValidDepth(n) && std::abs(n - z) <= kRimStep * z;
+}
+
 // A camera-frame normal for a sample whose normal map has none (NormalsFromDepth leaves the rim of
 // a surface at 0): the cross product of one-sided differences to continuous 4-neighbours, towards
 // the camera; 0 when a direction has no such neighbour. Without it a rim sample would be a disc
@@ -83,16 +91,10 @@ struct Nearest {
 Eigen::Vector3f OneSidedNormal(const DepthImage& image, const std::vector<Eigen::Vector3f>& rays, int x, int y) {
   const int width = image.width();
   const auto point = [&](int px, int py) { return rays[static_cast<size_t>(py) * width + px] * image.depth.At(px, py); };
-  const float z = image.depth.At(x, y);
-  const auto continuous = [&](int px, int py) {
-    if (px < 0 || py < 0 || px >= width || py >= image.height()) return false;
-    const float n = image.depth.At(px, py);
-    return IsValidDepth(n) && std::abs(n - z) <= kRimStep * z;
-  };
   const auto step = [&](int dx, int dy, Eigen::Vector3f* out) {
-    if (continuous(x + dx, y + dy)) {
+    if (Continuous(image, x, y, x + dx, y + dy)) {
       *out = point(x + dx, y + dy) - point(x, y);
-    } else if (continuous(x - dx, y - dy)) {
+    } else if (Continuous(image, x, y, x - dx, y - dy)) {
       *out = point(x, y) - point(x - dx, y - dy);
     } else {
       return false;
@@ -155,11 +157,9 @@ SplatCloud CloudFromDepthImages(const std::vector<DepthImage>& images) {
         // step) has a pixel that straddles the silhouette: its colour is mixed with what lies
         // behind. Seen from another view the rim is inside the object, so it is kept (it fills
         // what nothing else covers) but weighs little against interior samples of other views.
-        bool rim = x == 0 || y == 0 || x + 1 == image.width() || y + 1 == image.height();
+        bool rim = false;
         for (const auto& [dx, dy] : {std::pair{1, 0}, {-1, 0}, {0, 1}, {0, -1}}) {
-          if (rim) break;
-          const float n = image.depth.At(x + dx, y + dy);
-          rim = !IsValidDepth(n) || std::abs(n - z) > kRimStep * z;
+          rim = rim || !Continuous(image, x, y, x + dx, y + dy);
         }
         cloud.confidence.push_back(std::max(image.Confidence(x, y), 1e-3f) * (rim ? kRimWeight : 1.f));
         cloud.footprint.push_back(kHalfDiagonal * z / focal);
