@@ -17,6 +17,7 @@
 #include "pipeline/core/colmap_text_io.h"
 #include "pipeline/core/errors.h"
 #include "pipeline/core/image_io.h"
+#include "pipeline/core/json_file.h"
 #include "pipeline/core/stage_api.h"
 #include "stages/score/score.h"
 
@@ -89,16 +90,7 @@ class ScoreStage : public Stage {
   void Run(StageContext& context) const override {
     const ScoreOptions options = ToOptions(context.params);
     const Workspace& ws = context.workspace;
-    const std::string summary_path = ws.Path("renders/renders.json");
-    if (!fs::exists(summary_path)) {
-      throw InputError(summary_path + " does not exist; run the render stage before score");
-    }
-    nlohmann::json renders;
-    try {
-      renders = nlohmann::json::parse(ReadFile(summary_path));
-    } catch (const nlohmann::json::exception& e) {
-      throw IoError(summary_path + ": not valid JSON (" + e.what() + "); re-run the render stage");
-    }
+    const nlohmann::json renders = ReadStageJson(ws.Path("renders/renders.json"), "render", "score");
     const SparseModel model = ReadSparseModelText(ws.SparseDir());
 
     // Geometry for the nearest-training-camera angle.

@@ -9,6 +9,7 @@
 #include "pipeline/core/atomic_file.h"
 #include "pipeline/core/errors.h"
 #include "pipeline/core/heldout_scores.h"
+#include "pipeline/core/json_file.h"
 #include "pipeline/core/stage_api.h"
 #include "stages/select/select.h"
 
@@ -17,15 +18,6 @@ namespace fs = std::filesystem;
 namespace ibmr {
 
 namespace {
-
-nlohmann::json ReadJson(const std::string& path, const std::string& producer) {
-  if (!fs::exists(path)) throw InputError(path + " does not exist; run the " + producer + " stage before select");
-  try {
-    return nlohmann::json::parse(ReadFile(path));
-  } catch (const nlohmann::json::exception& e) {
-    throw IoError(path + ": not valid JSON (" + e.what() + "); re-run the " + producer + " stage");
-  }
-}
 
 nlohmann::json ToJson(const ModelCandidate& m) {
   return {{"name", m.name},         {"kind", m.kind},   {"bytes", m.bytes},
@@ -61,8 +53,8 @@ class SelectStage : public Stage {
 
   void Run(StageContext& context) const override {
     const SelectionOptions options = ToOptions(context.params);
-    const nlohmann::json scores = ReadJson(context.workspace.Path("scores/heldout.json"), "score");
-    const nlohmann::json renders = ReadJson(context.workspace.Path("renders/renders.json"), "render");
+    const nlohmann::json scores = ReadStageJson(context.workspace.Path("scores/heldout.json"), "score", "select");
+    const nlohmann::json renders = ReadStageJson(context.workspace.Path("renders/renders.json"), "render", "select");
     const nlohmann::json sizes = ModelSizes(renders);
     std::vector<ModelCandidate> candidates;
     nlohmann::json unranked = nlohmann::json::array();
