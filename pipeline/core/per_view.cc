@@ -1,34 +1,67 @@
-// Parallel per-view loop with resumption (see per_view.h).
+// Parallel per-view loop with resumption and shards (see per_view.h).
 #include "pipeline/core/per_view.h"
 
 #include <tbb/parallel_for_each.h>
 
-#include <atomic>
+#include <algorithm>
+#include <mutex>
+
+#include "pipeline/core/errors.h"
 
 namespace ibmr {
 
 PerViewSummary ForEachView(StageContext& context, const std::string& phase, const std::vector<std::string>& views,
-                           const std::function<void(const std::string& view)>& work) {
+                           const std::function<nlohmann::json(const std::string& view)>& work) {
+  const bool shard = !context.shard_views.empty();
+  if (shard) {
+    std::string unknown;
+    for (const std::string& view : context.shard_views) {
+      if (std::find(views.begin(), views.end(), view) == views.end()) unknown += (unknown.empty() ? "" : ", ") + view;
+    }
+    if (!unknown.empty()) {
+      throw InputError("--views: not among this stage's " + std::to_string(views.size()) + " views: " + unknown +
+                       " (`ibmr views CONFIG STAGE` lists them)");
+    }
+  }
   std::vector<std::string> todo;
   PerViewSummary summary;
   for (const std::string& view : views) {
-    if (context.checkpoint.Done(view)) {
+    if (shard && !context.shard_views.count(view)) continue;
+    if (std::optional<nlohmann::json> piece = context.checkpoint.Piece(view)) {
       ++summary.resumed;
+      summary.pieces[view] = std::move(*piece);
     } else {
       todo.push_back(view);
     }
   }
   NullProgress null_progress;
   ProgressReporter* progress = context.progress ? context.progress : &null_progress;
-  progress->Begin(phase, views.size());
+  progress->Begin(phase, summary.resumed + todo.size());
   if (summary.resumed > 0) progress->Advance(summary.resumed, "(done by an earlier run)");
+  std::mutex mutex;
   tbb::parallel_for_each(todo.begin(), todo.end(), [&](const std::string& view) {
-    work(view);
-    context.checkpoint.MarkDone(view);
+    // A failure names its view (for a cluster job, the line the user reads first).
+    auto named = [&](const std::exception& e) {
+      const std::string message = e.what();
+      return message.find(view) == std::string::npos ? message + " [view " + view + "]" : message;
+    };
+    nlohmann::json piece;
+    try {
+      piece = work(view);
+    } catch (const InputError& e) {
+      throw InputError(named(e));
+    } catch (const IoError& e) {
+      throw IoError(named(e));
+    }
+    context.checkpoint.MarkDone(view, piece);
     progress->Advance(1, view);
+    std::lock_guard<std::mutex> lock(mutex);
+    summary.pieces[view] = std::move(piece);
   });
   progress->End();
   summary.computed = todo.size();
+  context.views_resumed += summary.resumed;
+  if (shard) throw ShardFinished{summary.computed, summary.resumed};
   return summary;
 }
 

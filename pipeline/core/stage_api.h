@@ -40,6 +40,11 @@ struct StageContext {
   ViewCheckpoint checkpoint;               // per-view resumption for this run's cache key
   nlohmann::json metrics = nlohmann::json::object();  // the stage's own metrics, kept in the record
   int num_threads = -1;                    // -1: all cores
+  // A shard run (`ibmr run CONFIG --only STAGE --views NAMES`): the stage's per-view loop computes
+  // just these views, marks them done with their pieces, and ends the stage there (ShardFinished);
+  // the merge, a run without a shard, aggregates. Empty: the whole stage.
+  std::set<std::string> shard_views;
+  size_t views_resumed = 0;                // views the per-view loops found already done (for the record)
 
   bool IsHeldOut(const std::string& image_name) const { return heldout_images.count(image_name) > 0; }
   // Reads workspace sparse/. For kTrainingOnly stages the held-out images are removed (and their
@@ -70,6 +75,10 @@ class Stage {
   virtual std::vector<std::string> Outputs(const StageContext& context) const = 0;
   // Does the work. Throws IoError / InputError with a message for the user on failure.
   virtual void Run(StageContext& context) const = 0;
+  // True when the stage's work is one ForEachView over its training views (TrainingImageNames)
+  // and nothing before that loop writes a file: then shards of its views may run as separate
+  // processes or cluster jobs (`--views`, `ibmr export snakemake`, `--executor slurm`).
+  virtual bool Shardable() const { return false; }
 };
 
 // A command a stage offers beside `ibmr run` (e.g. `ibmr stereo-pair LEFT RIGHT ...`). It gets

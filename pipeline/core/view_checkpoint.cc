@@ -1,6 +1,7 @@
-// Per-view resumption marks: <folder>/<view>.done holds the cache key of the run that finished
-// the view. A mark only counts when its key equals the current one, so changed inputs or
-// parameters redo every view without anyone having to delete stale marks first.
+// Per-view marks: <folder>/<view>.done holds, in CBOR (binary JSON: a piece may carry thousands of
+// numbers, which CBOR keeps exact and compact), {"key": cache key, "piece": the view's metrics}.
+// A mark only counts when its key equals the current one, so changed inputs or parameters redo
+// every view without anyone having to delete stale marks first.
 #include "pipeline/core/view_checkpoint.h"
 
 #include <filesystem>
@@ -18,21 +19,25 @@ std::string MarkPath(const std::string& folder, const std::string& view) {
 
 }  // namespace
 
-bool ViewCheckpoint::Done(const std::string& view) const {
-  if (folder_.empty()) return false;
+std::optional<nlohmann::json> ViewCheckpoint::Piece(const std::string& view) const {
+  if (folder_.empty()) return std::nullopt;
   const std::string path = MarkPath(folder_, view);
   std::error_code ec;
-  if (!std::filesystem::is_regular_file(path, ec)) return false;
+  if (!std::filesystem::is_regular_file(path, ec)) return std::nullopt;
   try {
-    return ReadFile(path) == key_;
-  } catch (const IoError&) {
-    return false;  // an unreadable mark only means the view is done again
+    const std::string bytes = ReadFile(path);
+    const nlohmann::json mark = nlohmann::json::from_cbor(bytes, /*strict=*/true, /*allow_exceptions=*/false);
+    if (!mark.is_object() || mark.value("key", std::string()) != key_ || !mark.contains("piece")) return std::nullopt;
+    return mark["piece"];
+  } catch (const std::exception&) {
+    return std::nullopt;  // unreadable or not a mark of ours
   }
 }
 
-void ViewCheckpoint::MarkDone(const std::string& view) const {
+void ViewCheckpoint::MarkDone(const std::string& view, const nlohmann::json& piece) const {
   if (folder_.empty()) return;
-  WriteFileAtomic(MarkPath(folder_, view), key_);
+  const std::vector<std::uint8_t> bytes = nlohmann::json::to_cbor(nlohmann::json{{"key", key_}, {"piece", piece}});
+  WriteFileAtomic(MarkPath(folder_, view), std::string(bytes.begin(), bytes.end()));
 }
 
 void ViewCheckpoint::Clear() const {

@@ -68,6 +68,17 @@ int main(int argc, char** argv) {
   run->add_option("--jobs", options.jobs, "Worker threads (default: all cores)")->check(CLI::PositiveNumber);
   bool write_report = false;
   run->add_flag("--report", write_report, "Then write the workspace's report page and print its path");
+  run->add_option("--views", options.views,
+                  "With --only STAGE (a per-view stage): compute just these views, comma-separated (a shard); "
+                  "a run without --views then merges")
+      ->delimiter(',');
+
+  std::string views_stage;
+  auto* views = app.add_subcommand("views", "Print a per-view stage's views, one per line (what --views takes)");
+  views->add_option("config", config_path, "YAML config")->required()->check(CLI::ExistingFile);
+  views->add_option("stage", views_stage, "A per-view stage of the config")->required();
+  views->add_option("--workspace", workspace, "Workspace folder (overrides the config's)");
+  views->add_option("--set", overrides, "Override a parameter: stage.key=value (repeatable)");
 
   auto* status = app.add_subcommand("status", "Show which stages are up to date and why the others are stale");
   status->add_option("config", config_path, "YAML config")->required()->check(CLI::ExistingFile);
@@ -151,8 +162,24 @@ int main(int argc, char** argv) {
     std::cerr << "error: " << e.what() << "\n";
     return 2;
   }
-  SetUpLogging(config.workspace);
   ibmr::Runner runner(config, registry);
+  if (views->parsed()) {
+    SetUpLogging("");
+    const ibmr::Stage* stage = registry.Find(views_stage);
+    if (stage == nullptr || !stage->Shardable()) {
+      spdlog::error("'{}' is not a per-view stage (per-view stages: {})", views_stage, [&] {
+        std::string list;
+        for (const std::string& name : registry.Names()) {
+          if (registry.Find(name)->Shardable()) list += (list.empty() ? "" : ", ") + name;
+        }
+        return list;
+      }());
+      return 2;
+    }
+    for (const std::string& name : runner.ShardViews(views_stage)) std::cout << name << "\n";
+    return 0;
+  }
+  SetUpLogging(config.workspace);
   try {
     if (status->parsed()) {
       for (const auto& s : runner.Status()) {

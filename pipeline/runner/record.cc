@@ -13,6 +13,7 @@ nlohmann::json StageRecord::ToJson() const {
           {"outputs", outputs},   {"heldout", heldout},     {"metrics", metrics},
           {"error", error},       {"started", started},     {"wall_seconds", wall_seconds},
           {"cpu_seconds", cpu_seconds}, {"peak_memory_mb", peak_memory_mb}};
+  if (views_resumed > 0) json["views_resumed"] = views_resumed;
   if (!reused_from.empty()) json["reused_from"] = reused_from;
   return json;
 }
@@ -33,6 +34,7 @@ StageRecord StageRecord::FromJson(const nlohmann::json& j) {
   r.wall_seconds = j.value("wall_seconds", 0.0);
   r.cpu_seconds = j.value("cpu_seconds", 0.0);
   r.peak_memory_mb = j.value("peak_memory_mb", 0.0);
+  r.views_resumed = j.value("views_resumed", size_t{0});
   r.reused_from = j.value("reused_from", "");
   return r;
 }

@@ -25,6 +25,8 @@ struct StageRecord {
   double wall_seconds = 0;
   double cpu_seconds = 0;
   double peak_memory_mb = 0;
+  size_t views_resumed = 0;  // per-view work found done by an interrupted run or by shards (how it ran,
+                             // not what it made: the metrics count every view either way)
   std::string reused_from;  // another workspace whose outputs of the same key were linked in (ibmr sweep);
                             // the costs above are those of the run that computed them
 

@@ -1,6 +1,7 @@
 // The stage graph, cache decisions and stage execution (see runner.h).
 #include "pipeline/runner/runner.h"
 
+#include <spdlog/fmt/ranges.h>
 #include <spdlog/spdlog.h>
 #include <tbb/global_control.h>
 
@@ -13,6 +14,7 @@
 #include "pipeline/core/atomic_file.h"
 #include "pipeline/core/colmap_text_io.h"
 #include "pipeline/core/content_hash.h"
+#include "pipeline/core/per_view.h"
 #include "pipeline/runner/record.h"
 #include "pipeline/runner/resource_usage.h"
 #include "pipeline/runner/terminal_progress.h"
@@ -192,6 +194,9 @@ bool Runner::Execute(const Stage& stage, StageContext& context, const std::strin
   try {
     stage.Run(context);
     record.status = "ok";
+  } catch (const ShardFinished&) {
+    record.status = "failed";
+    record.error = "internal: a whole-stage run ended as a shard";
   } catch (const std::exception& e) {
     record.status = "failed";
     record.error = e.what();
@@ -200,6 +205,7 @@ bool Runner::Execute(const Stage& stage, StageContext& context, const std::strin
   record.cpu_seconds = CpuSeconds() - cpu_start;
   record.peak_memory_mb = PeakMemoryMb();
   record.metrics = context.metrics;
+  record.views_resumed = context.views_resumed;
   if (record.status == "ok") {
     WriteRecord(RecordPath(stage.Name()), record);
     context.checkpoint.Clear();
@@ -256,7 +262,78 @@ bool Runner::Reuse(const Stage& stage, const StageContext& context, const std::s
   return false;
 }
 
+std::vector<std::string> Runner::ShardViews(const std::string& stage_name) const {
+  for (const StageConfig& stage_config : config_.stages) {
+    if (stage_config.name != stage_name) continue;
+    const Stage& stage = *registry_.Find(stage_name);
+    if (!stage.Shardable()) return {};
+    return MakeContext(stage, stage_config).TrainingImageNamesIfReadable();
+  }
+  return {};
+}
+
+int Runner::RunShard(const RunOptions& options) {
+  const StageConfig* stage_config = nullptr;
+  for (const StageConfig& s : config_.stages) {
+    if (s.name == options.only) stage_config = &s;
+  }
+  if (options.only.empty() || stage_config == nullptr) {
+    spdlog::error("--views needs --only STAGE naming a stage of {}", config_.path);
+    return 2;
+  }
+  const Stage& stage = *registry_.Find(options.only);
+  if (!stage.Shardable()) {
+    spdlog::error("[{}] has no per-view shards; run it without --views (shardable stages: {})", stage.Name(),
+                  [&] {
+                    std::string list;
+                    for (const StageConfig& s : config_.stages) {
+                      if (registry_.Find(s.name)->Shardable()) list += (list.empty() ? "" : ", ") + s.name;
+                    }
+                    return list.empty() ? std::string("none in this config") : list;
+                  }());
+    return 2;
+  }
+  std::unique_ptr<tbb::global_control> threads;
+  if (options.jobs > 0) {
+    threads = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism, options.jobs);
+  }
+  StageContext context = MakeContext(stage, *stage_config);
+  nlohmann::json inputs;
+  const std::string key = CacheKey(stage, context, &inputs);
+  if (!options.force && OwnStaleness(stage, context, key).empty()) {
+    spdlog::info("[{}] up to date: the shard has nothing to do", stage.Name());
+    return 0;
+  }
+  if (options.dry_run) {
+    spdlog::info("[{}] would compute views {}", stage.Name(), fmt::join(options.views, ", "));
+    return 0;
+  }
+  fs::create_directories(context.workspace.RecordsDir());
+  // No record and no clean-up of temporaries here: other shards of the stage may be writing now.
+  // Both belong to the merge.
+  TerminalProgress progress(stage.Name() + " shard", options.interactive);
+  context.progress = &progress;
+  context.checkpoint = ViewCheckpoint(context.workspace.RecordsDir() + "/" + stage.Name() + ".views", key);
+  context.shard_views.insert(options.views.begin(), options.views.end());
+  const auto wall_start = std::chrono::steady_clock::now();
+  try {
+    stage.Run(context);
+    spdlog::error("[{}] ended without reaching its per-view work; the shard did nothing", stage.Name());
+    return 1;
+  } catch (const ShardFinished& done) {
+    const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall_start).count();
+    spdlog::info("[{}] shard: {} view(s) computed, {} already done, in {:.2f}s, peak {:.0f} MB; run the stage "
+                 "without --views to merge",
+                 stage.Name(), done.computed, done.resumed, seconds, PeakMemoryMb());
+    return 0;
+  } catch (const std::exception& e) {
+    spdlog::error("[{}] shard {} failed: {}", stage.Name(), fmt::join(options.views, ","), e.what());
+    return 1;
+  }
+}
+
 int Runner::Run(const RunOptions& options) {
+  if (!options.views.empty()) return RunShard(options);
   const auto start = std::chrono::steady_clock::now();
   auto index_of = [&](const std::string& name) -> int {
     for (size_t i = 0; i < config_.stages.size(); ++i) {

@@ -23,6 +23,9 @@ struct RunOptions {
   // Other workspaces (a sweep's earlier variants): a stale stage whose cache key matches an ok
   // record there gets that workspace's outputs hard-linked (or copied) in instead of running.
   std::vector<std::string> reuse_from;
+  // A shard: with `only` naming a shardable stage, compute just these of its views (their outputs
+  // and per-view marks; no record). A later run of the stage without `views` merges.
+  std::vector<std::string> views;
 };
 
 struct StageStatus {
@@ -34,6 +37,9 @@ struct StageStatus {
 class Runner {
  public:
   Runner(Config config, const StageRegistry& registry) : config_(std::move(config)), registry_(registry) {}
+
+  // The views a shardable stage works on (its training views, once its inputs exist), sorted.
+  std::vector<std::string> ShardViews(const std::string& stage) const;
 
   // What is up to date and what is stale, and why (no work done).
   std::vector<StageStatus> Status() const;
@@ -50,6 +56,8 @@ class Runner {
   std::string RecordPath(const std::string& stage) const;
   bool Execute(const Stage& stage, StageContext& context, const std::string& key, const nlohmann::json& inputs,
                bool interactive);
+  // Runs the shard `options.views` of the stage `options.only` (see RunOptions::views).
+  int RunShard(const RunOptions& options);
   // Links in the outputs of `stage` from the first workspace of `from` whose record has `key`;
   // false when none has.
   bool Reuse(const Stage& stage, const StageContext& context, const std::string& key,

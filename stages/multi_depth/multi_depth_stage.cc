@@ -7,7 +7,6 @@
 #include <spdlog/spdlog.h>
 
 #include <filesystem>
-#include <mutex>
 
 #include "pipeline/core/colmap_array_io.h"
 #include "pipeline/core/errors.h"
@@ -64,6 +63,7 @@ class MultiDepthStage : public Stage {
   }
   std::string Version() const override { return "3"; }  // 3: confidence-error rank correlation
   HoldoutRole Role() const override { return HoldoutRole::kTrainingOnly; }
+  bool Shardable() const override { return true; }
 
   std::vector<ParamSpec> Parameters() const override {
     return {
@@ -123,12 +123,7 @@ class MultiDepthStage : public Stage {
     const Workspace& workspace = context.workspace;
     const bool has_truth = fs::is_directory(workspace.Path("ground_truth/depth"));
 
-    std::mutex mutex;
-    MultiDepthStats totals;
-    DepthAccuracy before, after;
-    std::vector<double> pairs[4];  // over views: as view_pairs below
-    size_t views_without_neighbors = 0;
-    ForEachView(context, "consistent depth maps", names, [&](const std::string& name) {
+    const PerViewSummary summary = ForEachView(context, "consistent depth maps", names, [&](const std::string& name) {
       const Image& key_image = *model.FindImage(name);
       const DepthView key = LoadView(workspace, model, key_image, /*with_normals=*/true);
       std::vector<DepthView> neighbors;
@@ -142,25 +137,46 @@ class MultiDepthStage : public Stage {
       WriteColmapArray(workspace.NormalMapPath(name, "geometric"), result.normals);
       WriteColmapArray(ConfidencePath(workspace, name, "geometric"), result.confidence);
 
-      DepthAccuracy view_before, view_after;
-      std::vector<double> view_pairs[4];  // photometric confidence, its error; geometric confidence, its error
+      const MultiDepthStats& st = result.stats;
+      nlohmann::json piece = {
+          {"stats", {st.input_samples, st.low_confidence, st.unconfirmed, st.violated, st.kept, st.filled}},
+          {"without_neighbors", neighbors.empty()}};
       const std::string truth_path = workspace.GroundTruthDepthPath(name);
       if (has_truth && fs::exists(truth_path)) {
         const DepthMap truth = ReadColmapArray(truth_path);  // read once for all four measures
-        view_before = CompareDepth(key.depth, truth, 0.01);
-        view_after = CompareDepth(result.depth, truth, 0.01);
+        const DepthAccuracy view_before = CompareDepth(key.depth, truth, 0.01);
+        const DepthAccuracy view_after = CompareDepth(result.depth, truth, 0.01);
+        // photometric confidence, its error; geometric confidence, its error
+        std::vector<double> view_pairs[4];
         CollectConfidenceAndError(key.depth, key.confidence, truth, &view_pairs[0], &view_pairs[1]);
         CollectConfidenceAndError(result.depth, result.confidence, truth, &view_pairs[2], &view_pairs[3]);
+        piece["before"] = {view_before.truth_pixels, view_before.estimated, view_before.within_tolerance};
+        piece["after"] = {view_after.truth_pixels, view_after.estimated, view_after.within_tolerance};
+        piece["pairs"] = {view_pairs[0], view_pairs[1], view_pairs[2], view_pairs[3]};
       }
-      std::lock_guard<std::mutex> lock(mutex);
-      for (int k = 0; k < 4; ++k) pairs[k].insert(pairs[k].end(), view_pairs[k].begin(), view_pairs[k].end());
-      if (neighbors.empty()) ++views_without_neighbors;
-      Accumulate(result.stats, &totals);
-      Accumulate(view_before, &before);
-      Accumulate(view_after, &after);
+      return piece;
     });
 
-    // Totals over views computed in this run (a resumed run counts only the views it computed).
+    // Totals over every view (resumed and sharded ones too), in name order.
+    MultiDepthStats totals;
+    DepthAccuracy before, after;
+    std::vector<double> pairs[4];  // over views: as the pieces' pairs
+    size_t views_without_neighbors = 0;
+    for (const auto& [name, piece] : summary.pieces) {
+      const std::vector<size_t> st = piece.at("stats").get<std::vector<size_t>>();
+      Accumulate(MultiDepthStats{st.at(0), st.at(1), st.at(2), st.at(3), st.at(4), st.at(5)}, &totals);
+      if (piece.at("without_neighbors").get<bool>()) ++views_without_neighbors;
+      if (!piece.contains("before")) continue;
+      const std::vector<size_t> b = piece["before"].get<std::vector<size_t>>();
+      const std::vector<size_t> a = piece["after"].get<std::vector<size_t>>();
+      Accumulate(DepthAccuracy{b.at(0), b.at(1), b.at(2)}, &before);
+      Accumulate(DepthAccuracy{a.at(0), a.at(1), a.at(2)}, &after);
+      for (int k = 0; k < 4; ++k) {
+        const std::vector<double> values = piece["pairs"][k].get<std::vector<double>>();
+        pairs[k].insert(pairs[k].end(), values.begin(), values.end());
+      }
+    }
+
     nlohmann::json& m = context.metrics;
     m["views"] = names.size();
     m["input_samples"] = totals.input_samples;

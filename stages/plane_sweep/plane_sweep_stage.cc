@@ -77,6 +77,7 @@ class PlaneSweepStage : public Stage {
   }
   std::string Version() const override { return "2"; }  // 2: hull bounds that reach the camera are not used
   HoldoutRole Role() const override { return HoldoutRole::kTrainingOnly; }
+  bool Shardable() const override { return true; }
 
   std::vector<ParamSpec> Parameters() const override {
     const PlaneSweepOptions d;
@@ -151,11 +152,7 @@ class PlaneSweepStage : public Stage {
     for (const char* dir : {"depth_maps", "normal_maps", "confidence_maps"})
       fs::create_directories(context.workspace.Path(std::string("dense/stereo/") + dir));
 
-    std::mutex mutex;
-    std::atomic<int64_t> evaluations{0};
-    double valid_sum = 0, volume_max = 0;
-    std::map<std::string, int> bound_sources;
-    nlohmann::json per_view = nlohmann::json::object();
+    std::atomic<int64_t> evaluations_here{0};  // this run's own work, for its speed
     const PerViewSummary summary = ForEachView(context, "plane_sweep", names, [&](const std::string& name) {
       const int index = static_cast<int>(std::find(names.begin(), names.end(), name) - names.begin());
       const Image& image = model.images.at(ids[index]);
@@ -181,32 +178,40 @@ class PlaneSweepStage : public Stage {
       WriteColmapArray(context.workspace.DepthMapPath(name, "photometric"), result.depth);
       WriteColmapArray(context.workspace.NormalMapPath(name, "photometric"), result.normals);
       WriteColmapArray(context.workspace.ConfidenceMapPath(name, "photometric"), result.confidence);
-      evaluations += result.evaluations;
-      std::lock_guard<std::mutex> lock(mutex);
-      valid_sum += result.valid_fraction;
-      volume_max = std::max(volume_max, result.volume_bytes / 1048576.0);
-      ++bound_sources[source];
+      evaluations_here += result.evaluations;
       std::vector<std::string> neighbour_names;
       for (int j : chosen) neighbour_names.push_back(names[j]);
-      per_view[name] = {{"near", near}, {"far", far}, {"bounds_from", source}, {"neighbors", neighbour_names},
-                        {"valid_fraction", result.valid_fraction}};
+      return nlohmann::json{{"near", near}, {"far", far}, {"bounds_from", source}, {"neighbors", neighbour_names},
+                            {"valid_fraction", result.valid_fraction}, {"evaluations", result.evaluations},
+                            {"cost_volume_mb", result.volume_bytes / 1048576.0}};
     });
+    // Totals over every view (resumed and sharded ones too), in name order.
+    int64_t evaluations = 0;
+    double valid_sum = 0, volume_max = 0;
+    std::map<std::string, int> bound_sources;
+    nlohmann::json per_view = nlohmann::json::object();
+    for (const auto& [name, piece] : summary.pieces) {
+      evaluations += piece.at("evaluations").get<int64_t>();
+      valid_sum += piece.at("valid_fraction").get<double>();
+      volume_max = std::max(volume_max, piece.at("cost_volume_mb").get<double>());
+      ++bound_sources[piece.at("bounds_from").get<std::string>()];
+      per_view[name] = {{"near", piece["near"]}, {"far", piece["far"]}, {"bounds_from", piece["bounds_from"]},
+                        {"neighbors", piece["neighbors"]}, {"valid_fraction", piece["valid_fraction"]}};
+    }
     const double peak_rss = PeakRssMb();
     sweep::ReleaseBufferPool();
     const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
     context.metrics["views"] = names.size();
-    context.metrics["views_computed"] = summary.computed;
-    context.metrics["views_resumed"] = summary.resumed;
     context.metrics["wall_seconds"] = seconds;
-    context.metrics["evaluations"] = evaluations.load();
-    context.metrics["evaluations_per_second"] = evaluations.load() / seconds;
-    context.metrics["mean_valid_fraction"] = summary.computed ? valid_sum / summary.computed : 0.0;
+    context.metrics["evaluations"] = evaluations;
+    context.metrics["evaluations_per_second"] = evaluations_here.load() / seconds;
+    context.metrics["mean_valid_fraction"] = names.empty() ? 0.0 : valid_sum / names.size();
     context.metrics["cost_volume_mb_per_view"] = volume_max;
     context.metrics["peak_rss_mb"] = peak_rss;
     context.metrics["bounds_from"] = bound_sources;
     context.metrics["per_view"] = per_view;
     spdlog::info("[plane_sweep] {} views in {:.2f} s ({:.0f} M evaluations/s), mean kept fraction {:.3f}", names.size(),
-                 seconds, evaluations.load() / seconds / 1e6, context.metrics["mean_valid_fraction"].get<double>());
+                 seconds, context.metrics["evaluations_per_second"].get<double>() / 1e6, context.metrics["mean_valid_fraction"].get<double>());
   }
 
   static PlaneSweepOptions ToOptions(const Params& p) {

@@ -503,7 +503,7 @@ class RenderStage : public Stage {
       std::vector<std::string> keys;
       for (const Desired& view : desired) keys.push_back(spec.name + "__" + view.stem);
       double splat_seconds = 0, splat_megapixels = 0;
-      ForEachView(context, "render " + spec.name, keys, [&](const std::string& key) {
+      ForEachView(context, "render " + spec.name, keys, [&](const std::string& key) -> nlohmann::json {
         const Desired& view = desired[std::find(keys.begin(), keys.end(), key) - keys.begin()];
         std::string plane_kind;
         size_t used_sources = 0;
@@ -554,6 +554,7 @@ class RenderStage : public Stage {
         // The view's facts beside its images: a resumed run skips views already rendered and
         // gathers every view's facts from these files.
         WriteFileAtomic(folder + "/" + view.stem + ".json", vj.dump(2) + "\n");
+        return {};
       });
       for (const Desired& view : desired) {
         const std::string facts = folder + "/" + view.stem + ".json";

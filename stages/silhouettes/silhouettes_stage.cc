@@ -132,7 +132,7 @@ class SilhouettesStage : public Stage {
     SilhouetteCorruptionFromName(context.params.String("corrupt"), &corruption);
     std::mutex mutex;
     std::map<std::string, SilhouetteReport> reports;
-    ForEachView(context, "silhouettes", names, [&](const std::string& name) {
+    ForEachView(context, "silhouettes", names, [&](const std::string& name) -> nlohmann::json {
       const Image& image = *model.FindImage(name);
       const Camera& camera = model.CameraOf(image);
       cv::Mat input;
@@ -161,6 +161,7 @@ class SilhouettesStage : public Stage {
       WriteImage(held_out ? HeldoutMaskPath(context, name) : context.workspace.MaskPath(name), result.mask);
       std::lock_guard<std::mutex> lock(mutex);
       reports[name] = result.report;
+      return {};
     });
 
     // Views resumed from an interrupted run: describe their written masks.

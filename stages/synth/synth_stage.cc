@@ -170,11 +170,12 @@ class SynthStage : public Stage {
     WriteFileAtomic(workspace.Path("ground_truth/scene.json"), SynthSceneJson(scene, options).dump(2) + "\n");
 
     start = std::chrono::steady_clock::now();
-    const PerViewSummary summary = ForEachView(context, "render", names, [&](const std::string& name) {
+    const PerViewSummary summary = ForEachView(context, "render", names, [&](const std::string& name) -> nlohmann::json {
       const SynthView view = RenderSynthView(scene, index_of.at(name), options);
       WriteImage(workspace.ImagesDir() + "/" + name, view.image);
       WriteImage(workspace.GroundTruthMaskPath(name), view.mask);
       WriteColmapArray(workspace.GroundTruthDepthPath(name), view.depth);
+      return {};
     });
     const double render_seconds = SecondsSince(start);
     spdlog::info("synth: rendered {} views in {:.3f}s ({} resumed)", summary.computed, render_seconds,
@@ -196,7 +197,6 @@ class SynthStage : public Stage {
       foreground += static_cast<double>(cv::countNonZero(mask)) / mask.total();
     }
     context.metrics["views"] = names.size();
-    context.metrics["views_resumed"] = summary.resumed;
     context.metrics["triangles"] = scene.mesh.faces.size();
     context.metrics["sparse_points"] = model.points.size();
     context.metrics["mean_track_length"] = model.points.empty() ? 0.0 : double(observations) / model.points.size();

@@ -46,7 +46,7 @@ class UndistortStage : public Stage {
       by_name[image.name] = &image;
       names.push_back(image.name);
     }
-    ForEachView(context, "undistorting", names, [&](const std::string& name) {
+    ForEachView(context, "undistorting", names, [&](const std::string& name) -> nlohmann::json {
       const Image& image = *by_name.at(name);
       const std::string source = context.workspace.ImagesDir() + "/" + name;
       const std::string target = context.workspace.Path("dense/images/" + name);
@@ -57,6 +57,7 @@ class UndistortStage : public Stage {
       } else {
         WriteImage(target, UndistortImage(ReadImageUnchanged(source), it->second.first, it->second.second));
       }
+      return {};
     });
     WriteSparseModelText(context.workspace.Path("dense/sparse"), UndistortModel(model));
     context.metrics["images"] = names.size();
