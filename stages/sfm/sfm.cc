@@ -12,7 +12,7 @@
 #include "pipeline/core/atomic_file.h"
 #include "pipeline/core/colmap_text_io.h"
 #include "pipeline/core/errors.h"
-#include "stages/sfm/colmap_process.h"
+#include "pipeline/core/child_process.h"
 
 namespace fs = std::filesystem;
 
@@ -101,7 +101,7 @@ class ColmapRunner {
         }
       }
       if (line.find("No good initial image pair found") != std::string::npos) no_initial_pair_ = true;
-    });
+    }, {"QT_QPA_PLATFORM=offscreen"});  // COLMAP 3.8 runs headless
     progress_->End();
     result_->steps.push_back({std::to_string(attempt) + "/" + command, process.wall_seconds, process.peak_memory_mb,
                               process.exit_code});

@@ -15,7 +15,7 @@
 #include "pipeline/core/colmap_text_io.h"
 #include "pipeline/core/errors.h"
 #include "pipeline/core/stage_api.h"
-#include "stages/sfm/colmap_process.h"
+#include "pipeline/core/child_process.h"
 
 namespace fs = std::filesystem;
 

@@ -1,5 +1,5 @@
-// Child-process runner for the COLMAP command line (see colmap_process.h).
-#include "stages/sfm/colmap_process.h"
+// Child-process runner (see child_process.h).
+#include "pipeline/core/child_process.h"
 
 #include <spawn.h>
 #include <sys/resource.h>
@@ -35,7 +35,8 @@ std::string FindExecutable(const std::string& program) {
 }
 
 ProcessResult RunProcess(const std::vector<std::string>& args, const std::string& log_path,
-                         const std::function<void(const std::string& line)>& on_line) {
+                         const std::function<void(const std::string& line)>& on_line,
+                         const std::vector<std::string>& extra_env) {
   ProcessResult result;
   int pipe_fds[2];
   if (::pipe(pipe_fds) != 0) return result;
@@ -46,9 +47,15 @@ ProcessResult RunProcess(const std::vector<std::string>& args, const std::string
   posix_spawn_file_actions_addclose(&actions, pipe_fds[0]);
   std::vector<std::string> env_strings;
   for (char** e = environ; *e; ++e) {
-    if (std::string(*e).rfind("QT_QPA_PLATFORM=", 0) != 0) env_strings.push_back(*e);
+    const std::string variable(*e);
+    bool replaced = false;
+    for (const std::string& extra : extra_env) {
+      const std::string name = extra.substr(0, extra.find('=') + 1);
+      replaced |= variable.rfind(name, 0) == 0;
+    }
+    if (!replaced) env_strings.push_back(variable);
   }
-  env_strings.push_back("QT_QPA_PLATFORM=offscreen");
+  env_strings.insert(env_strings.end(), extra_env.begin(), extra_env.end());
   std::vector<char*> env, argv;
   for (std::string& s : env_strings) env.push_back(s.data());
   env.push_back(nullptr);
@@ -65,7 +72,8 @@ ProcessResult RunProcess(const std::vector<std::string>& args, const std::string
     result.last_lines = "could not start " + args[0];
     return result;
   }
-  std::ofstream log(log_path, std::ios::app);
+  std::ofstream log;
+  if (!log_path.empty()) log.open(log_path, std::ios::app);
   std::deque<std::string> tail;
   FILE* stream = ::fdopen(pipe_fds[0], "r");
   char* buffer = nullptr;
@@ -74,7 +82,7 @@ ProcessResult RunProcess(const std::vector<std::string>& args, const std::string
   while ((length = ::getline(&buffer, &capacity, stream)) >= 0) {
     std::string line(buffer, length);
     while (!line.empty() && (line.back() == '\n' || line.back() == '\r')) line.pop_back();
-    log << line << '\n';
+    if (log.is_open()) log << line << '\n';
     tail.push_back(line);
     if (tail.size() > 12) tail.pop_front();
     on_line(line);

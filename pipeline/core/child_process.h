@@ -1,6 +1,5 @@
-// Runs one external command (COLMAP) with its output piped line by line to a callback and a log
-// file, measuring its wall time and peak memory (wait4 rusage of the child). QT_QPA_PLATFORM is
-// set to offscreen so that COLMAP 3.8 runs headless.
+// Runs one external command (COLMAP, sbatch, squeue) with its output piped line by line to a
+// callback and a log file, measuring its wall time and peak memory (wait4 rusage of the child).
 #pragma once
 
 #include <functional>
@@ -20,8 +19,11 @@ struct ProcessResult {
 // empty when not found.
 std::string FindExecutable(const std::string& program);
 
-// Runs args[0] with args, appends stdout+stderr to `log_path`, calls `on_line` per output line.
+// Runs args[0] (found on PATH) with args in this process's environment plus `extra_env`
+// ("NAME=value", replacing a variable of that name), appends stdout+stderr to `log_path` (none
+// when empty) and calls `on_line` per output line.
 ProcessResult RunProcess(const std::vector<std::string>& args, const std::string& log_path,
-                         const std::function<void(const std::string& line)>& on_line);
+                         const std::function<void(const std::string& line)>& on_line,
+                         const std::vector<std::string>& extra_env = {});
 
 }  // namespace ibmr
