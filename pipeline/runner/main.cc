@@ -8,11 +8,14 @@
 
 #include <filesystem>
 #include <iostream>
+#include <sstream>
 
 #include "pipeline/core/errors.h"
 #include "pipeline/runner/builtin_stages.h"
 #include "pipeline/runner/config.h"
 #include "pipeline/runner/runner.h"
+#include "pipeline/runner/slurm_executor.h"
+#include "pipeline/runner/snakemake_export.h"
 #include "pipeline/runner/report.h"
 #include "pipeline/runner/stage_listing.h"
 #include "pipeline/runner/sweep.h"
@@ -72,6 +75,28 @@ int main(int argc, char** argv) {
                   "With --only STAGE (a per-view stage): compute just these views, comma-separated (a shard); "
                   "a run without --views then merges")
       ->delimiter(',');
+  std::string executor = "local";
+  ibmr::SlurmOptions slurm;
+  std::string sbatch_args;
+  run->add_option("--executor", executor, "local (default) or slurm: per-view stages as job arrays, the others as "
+                                          "jobs, on the cluster SLURM_CONF names")
+      ->check(CLI::IsMember({"local", "slurm"}));
+  run->add_option("--retries", slurm.retries, "slurm: resubmissions of what a killed or failed job left undone (default 1)");
+  run->add_option("--sbatch-args", sbatch_args, "slurm: more sbatch options for every job, e.g. \"--partition=gpu\"");
+  run->add_option("--mem-per-view", slurm.mem_per_view_mb, "slurm: memory of one view's job, MB (default 2000)");
+
+  ibmr::SnakemakeExportOptions export_options;
+  std::string export_format;
+  auto* export_cmd = app.add_subcommand("export", "Print a config as a workflow for another engine: "
+                                                  "`ibmr export snakemake CONFIG > Snakefile`");
+  export_cmd->add_option("format", export_format, "snakemake")->required()->check(CLI::IsMember({"snakemake"}));
+  export_cmd->add_option("config", config_path, "YAML config")->required()->check(CLI::ExistingFile);
+  export_cmd->add_option("--workspace", workspace, "Workspace folder (overrides the config's)");
+  export_cmd->add_option("--set", overrides, "Override a parameter: stage.key=value (repeatable)");
+  export_cmd->add_option("--threads-per-view", export_options.threads_per_view, "Threads of a per-view job (default 1)")
+      ->check(CLI::PositiveNumber);
+  export_cmd->add_option("--mem-per-view", export_options.mem_per_view_mb, "Memory of a per-view job, MB (default 2000)")
+      ->check(CLI::PositiveNumber);
 
   std::string views_stage;
   auto* views = app.add_subcommand("views", "Print a per-view stage's views, one per line (what --views takes)");
@@ -163,6 +188,18 @@ int main(int argc, char** argv) {
     return 2;
   }
   ibmr::Runner runner(config, registry);
+  // What a job or a Snakemake rule passes to `ibmr run` to see this config as this process does.
+  std::vector<std::string> run_args = {std::filesystem::absolute(config_path).lexically_normal().string(),
+                                       "--workspace", config.workspace};
+  for (const std::string& assignment : overrides) run_args.insert(run_args.end(), {"--set", assignment});
+  const std::string self = std::filesystem::read_symlink("/proc/self/exe").string();
+  if (export_cmd->parsed()) {
+    SetUpLogging("");
+    export_options.ibmr = self;
+    export_options.run_args = run_args;
+    std::cout << ibmr::SnakemakeFile(runner, export_options);
+    return 0;
+  }
   if (views->parsed()) {
     SetUpLogging("");
     const ibmr::Stage* stage = registry.Find(views_stage);
@@ -188,7 +225,17 @@ int main(int argc, char** argv) {
       return 0;
     }
     options.interactive = isatty(STDERR_FILENO);
-    const int code = runner.Run(options);
+    int code = 0;
+    if (executor == "slurm") {
+      slurm.ibmr = self;
+      slurm.run_args = run_args;
+      if (options.force) slurm.run_args.push_back("--force");
+      std::istringstream words(sbatch_args);
+      for (std::string word; words >> word;) slurm.sbatch_args.push_back(word);
+      code = ibmr::RunOnSlurm(runner, options, slurm);
+    } else {
+      code = runner.Run(options);
+    }
     if (code == 0 && write_report && !options.dry_run) {
       ibmr::ReportOptions page;
       page.path = config.workspace;

@@ -144,6 +144,16 @@ std::vector<size_t> Runner::Upstream(size_t index) const {
   return upstream;
 }
 
+std::vector<std::string> Runner::DeclaredInputs(size_t index) const {
+  const Stage& stage = *registry_.Find(config_.stages.at(index).name);
+  return stage.Inputs(MakeContext(stage, config_.stages[index]));
+}
+
+std::vector<std::string> Runner::DeclaredOutputs(size_t index) const {
+  const Stage& stage = *registry_.Find(config_.stages.at(index).name);
+  return stage.Outputs(MakeContext(stage, config_.stages[index]));
+}
+
 std::vector<StageStatus> Runner::Status() const {
   std::vector<StageStatus> statuses;
   for (size_t i = 0; i < config_.stages.size(); ++i) {
@@ -272,6 +282,53 @@ std::vector<std::string> Runner::ShardViews(const std::string& stage_name) const
   return {};
 }
 
+bool Runner::SelectStages(const RunOptions& options, std::vector<size_t>* selected) const {
+  auto index_of = [&](const std::string& name) -> int {
+    for (size_t i = 0; i < config_.stages.size(); ++i) {
+      if (config_.stages[i].name == name) return static_cast<int>(i);
+    }
+    return -1;
+  };
+  for (const std::string* name : {&options.only, &options.from, &options.to}) {
+    if (!name->empty() && index_of(*name) < 0) {
+      std::string list;
+      for (const auto& s : config_.stages) list += (list.empty() ? "" : ", ") + s.name;
+      spdlog::error("stage '{}' is not in {} (stages: {})", *name, config_.path, list);
+      return false;
+    }
+  }
+  int first = 0;
+  int last = static_cast<int>(config_.stages.size()) - 1;
+  if (!options.only.empty()) first = last = index_of(options.only);
+  if (!options.from.empty()) first = index_of(options.from);
+  if (!options.to.empty()) last = index_of(options.to);
+
+  selected->clear();
+  for (int i = first; i <= last; ++i) selected->push_back(static_cast<size_t>(i));
+  if (selected->empty()) {
+    spdlog::error("no stage of {} is selected (--from '{}' comes after --to '{}')", config_.path, options.from,
+                  options.to);
+    return false;
+  }
+  return true;
+}
+
+std::vector<std::string> Runner::UnfinishedViews(const std::string& stage_name) const {
+  std::vector<std::string> unfinished;
+  for (const StageConfig& stage_config : config_.stages) {
+    if (stage_config.name != stage_name) continue;
+    const Stage& stage = *registry_.Find(stage_name);
+    const StageContext context = MakeContext(stage, stage_config);
+    nlohmann::json inputs;
+    const ViewCheckpoint checkpoint(context.workspace.RecordsDir() + "/" + stage.Name() + ".views",
+                                    CacheKey(stage, context, &inputs));
+    for (const std::string& view : ShardViews(stage_name)) {
+      if (!checkpoint.Done(view)) unfinished.push_back(view);
+    }
+  }
+  return unfinished;
+}
+
 int Runner::RunShard(const RunOptions& options) {
   const StageConfig* stage_config = nullptr;
   for (const StageConfig& s : config_.stages) {
@@ -335,25 +392,9 @@ int Runner::RunShard(const RunOptions& options) {
 int Runner::Run(const RunOptions& options) {
   if (!options.views.empty()) return RunShard(options);
   const auto start = std::chrono::steady_clock::now();
-  auto index_of = [&](const std::string& name) -> int {
-    for (size_t i = 0; i < config_.stages.size(); ++i) {
-      if (config_.stages[i].name == name) return static_cast<int>(i);
-    }
-    return -1;
-  };
-  for (const std::string* name : {&options.only, &options.from, &options.to}) {
-    if (!name->empty() && index_of(*name) < 0) {
-      std::string list;
-      for (const auto& s : config_.stages) list += (list.empty() ? "" : ", ") + s.name;
-      spdlog::error("stage '{}' is not in {} (stages: {})", *name, config_.path, list);
-      return 2;
-    }
-  }
-  int first = 0;
-  int last = static_cast<int>(config_.stages.size()) - 1;
-  if (!options.only.empty()) first = last = index_of(options.only);
-  if (!options.from.empty()) first = index_of(options.from);
-  if (!options.to.empty()) last = index_of(options.to);
+  std::vector<size_t> selected;
+  if (!SelectStages(options, &selected)) return 2;
+  const int first = static_cast<int>(selected.front()), last = static_cast<int>(selected.back());
 
   std::unique_ptr<tbb::global_control> threads;
   if (options.jobs > 0) {

@@ -40,6 +40,18 @@ class Runner {
 
   // The views a shardable stage works on (its training views, once its inputs exist), sorted.
   std::vector<std::string> ShardViews(const std::string& stage) const;
+  // Of those, the ones not yet marked done under the stage's current cache key.
+  std::vector<std::string> UnfinishedViews(const std::string& stage) const;
+  // The config's stage indices that `options` selects (--only, --from, --to); false, with the
+  // problem logged, when one names a stage the config does not have.
+  bool SelectStages(const RunOptions& options, std::vector<size_t>* selected) const;
+  // Indices of the earlier stages whose outputs a stage reads.
+  std::vector<size_t> Upstream(size_t index) const;
+  // A stage's declared inputs and outputs in this config (see Stage::Inputs / Outputs).
+  std::vector<std::string> DeclaredInputs(size_t index) const;
+  std::vector<std::string> DeclaredOutputs(size_t index) const;
+  const Config& config() const { return config_; }
+  const StageRegistry& registry() const { return registry_; }
 
   // What is up to date and what is stale, and why (no work done).
   std::vector<StageStatus> Status() const;
@@ -51,8 +63,6 @@ class Runner {
   std::string CacheKey(const Stage& stage, const StageContext& context, nlohmann::json* input_hashes) const;
   // Own staleness of one stage, ignoring upstream; "" when up to date.
   std::string OwnStaleness(const Stage& stage, const StageContext& context, const std::string& key) const;
-  // Indices of the earlier stages whose outputs a stage reads.
-  std::vector<size_t> Upstream(size_t index) const;
   std::string RecordPath(const std::string& stage) const;
   bool Execute(const Stage& stage, StageContext& context, const std::string& key, const nlohmann::json& inputs,
                bool interactive);

@@ -262,16 +262,18 @@ class RenderStage : public Stage {
     return std::nullopt;
   }
 
+  // Workspace-relative where the file lies inside the workspace, so that the cache key does not
+  // depend on where the workspace sits (a sweep's variants, a copy, a cluster's mount point).
   std::vector<std::string> Inputs(const StageContext& context) const override {
     std::vector<std::string> inputs = {"images", "sparse"};
     for (const std::string& entry : context.params.StringList("proxies")) {
       const ProxySpec spec = ParseProxy(entry, context.workspace);
       if (spec.kind == ModelKind::kSplatDepth || spec.kind == ModelKind::kSplatDepthMerged) {
         const std::string type = spec.depth_type.empty() ? context.params.String("splat_depth_type") : spec.depth_type;
-        inputs.push_back(context.workspace.Path(type == "truth" ? "ground_truth/depth" : "dense/stereo"));
+        inputs.push_back(type == "truth" ? "ground_truth/depth" : "dense/stereo");
       }
-      if (!spec.path.empty()) inputs.push_back(spec.path);
-      inputs.insert(inputs.end(), spec.fallbacks.begin(), spec.fallbacks.end());
+      if (!spec.path.empty()) inputs.push_back(context.workspace.Relative(spec.path));
+      for (const std::string& fallback : spec.fallbacks) inputs.push_back(context.workspace.Relative(fallback));
     }
     return inputs;
   }
