@@ -384,7 +384,7 @@ int Runner::RunShard(const RunOptions& options) {
                  stage.Name(), done.computed, done.resumed, seconds, PeakMemoryMb());
     return 0;
   } catch (const std::exception& e) {
-    spdlog::error("[{}] shard {} failed: {}", stage.Name(), fmt::join(options.views, ","), e.what());
+    spdlog::error("[{}] shard failed: {}", stage.Name(), e.what());
     return 1;
   }
 }

@@ -47,7 +47,7 @@ std::string Submit(const std::vector<std::string>& sbatch_words) {
 void WaitFor(const std::string& job, const std::string& what, double poll_seconds) {
   const auto start = std::chrono::steady_clock::now();
   size_t last_count = SIZE_MAX;
-  auto last_line = start;
+  auto last_line = start - std::chrono::seconds(60);
   while (true) {
     size_t count = 0;
     const ProcessResult result =
@@ -56,13 +56,23 @@ void WaitFor(const std::string& job, const std::string& what, double poll_second
     // squeue forgets a finished job after a while and then exits non-zero: also finished.
     if (result.exit_code != 0 || count == 0) break;
     const auto now = std::chrono::steady_clock::now();
-    if (count != last_count || now - last_line > std::chrono::seconds(30)) {
+    // A line when the count changed, at most every 5 s (plain lines: this usually goes to a log).
+    if ((count != last_count && now - last_line > std::chrono::seconds(5)) || now - last_line > std::chrono::seconds(60)) {
       spdlog::info("[slurm] {}: job {}, {} task(s) queued or running ({:.0f}s)", what, job, count,
                    std::chrono::duration<double>(now - start).count());
       last_count = count;
       last_line = now;
     }
     std::this_thread::sleep_for(std::chrono::duration<double>(poll_seconds));
+  }
+}
+
+// Slurm's own output files stay empty when the job script redirects everything to its log.
+void RemoveEmptySlurmOutputs(const std::string& folder) {
+  std::error_code ec;
+  for (const auto& entry : fs::directory_iterator(folder, ec)) {
+    const std::string name = entry.path().filename().string();
+    if (name.rfind("slurm-", 0) == 0 && entry.is_regular_file(ec) && entry.file_size(ec) == 0) fs::remove(entry.path(), ec);
   }
 }
 
@@ -105,7 +115,7 @@ class SlurmRun {
                       "VIEW=$(sed -n \"$((SLURM_ARRAY_TASK_ID + 1))p\" \"$1\")\n"
                       "LOG=" + ShellQuote(folder) + "/\"$VIEW\".log\n"
                       "mkdir -p \"$(dirname \"$LOG\")\"\n"
-                      "exec " + CommandLine(command) + " --views \"$VIEW\" > \"$LOG\" 2>&1\n");
+                      "exec " + CommandLine(command) + " --views \"$VIEW\" >> \"$LOG\" 2>&1\n");
       std::vector<std::string> words = {"--job-name=ibmr-" + stage,
                                         "--array=0-" + std::to_string(todo.size() - 1),
                                         "--cpus-per-task=" + std::to_string(options_.threads_per_view),
@@ -117,6 +127,7 @@ class SlurmRun {
       spdlog::info("[slurm] {}: {} view(s) as array job {}{}", stage, todo.size(), *array_job,
                    attempt > 1 ? " (attempt " + std::to_string(attempt) + ")" : "");
       WaitFor(*array_job, stage + " views", options_.poll_seconds);
+      RemoveEmptySlurmOutputs(folder);
       const std::vector<std::string> left = runner_.UnfinishedViews(stage);
       if (!left.empty() && attempt <= options_.retries) {
         spdlog::warn("[slurm] {}: {} view(s) not done after attempt {} (a job killed or failed); submitting them "
@@ -128,6 +139,11 @@ class SlurmRun {
       const std::string log = folder + "/" + view + ".log";
       spdlog::error("[slurm] {}: view {} failed {} time(s); log {}\n{}", stage, view, options_.retries + 1, log,
                     LastLines(log, 4));
+    }
+    if (!todo.empty()) {
+      std::string names;
+      for (const std::string& view : todo) names += (names.empty() ? "" : ", ") + view;
+      spdlog::error("[slurm] {}: {} view(s) failed: {}; logs in {}", stage, todo.size(), names, folder);
     }
     return todo.empty();
   }
@@ -155,6 +171,7 @@ class SlurmRun {
       const std::string job = Submit(words);
       spdlog::info("[slurm] {}: {} as job {}{}", stage, what, job, attempt > 1 ? " (attempt " + std::to_string(attempt) + ")" : "");
       WaitFor(job, stage + " " + what, options_.poll_seconds);
+      RemoveEmptySlurmOutputs(folder);
       if (StageUpToDate(index)) return true;
       if (attempt <= options_.retries) spdlog::warn("[slurm] {}: {} did not finish; submitting it again", stage, what);
     }

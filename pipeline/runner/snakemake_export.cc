@@ -2,6 +2,7 @@
 #include "pipeline/runner/snakemake_export.h"
 
 #include <nlohmann/json.hpp>
+#include <algorithm>
 #include <filesystem>
 #include <sstream>
 
@@ -45,8 +46,9 @@ std::string SnakemakeFile(const Runner& runner, const SnakemakeExportOptions& op
   std::ostringstream out;
   out << "# Snakefile for " << config.path << ", written by `ibmr export snakemake`.\n"
       << "#   snakemake -s Snakefile --cores 2                 # on this machine\n"
-      << "#   snakemake -s Snakefile --slurm --jobs 16         # on Slurm (or --cluster \"sbatch --cpus-per-task={threads} "
-         "--mem={resources.mem_mb}\")\n"
+      << "#   snakemake -s Snakefile --cores 2 --jobs 16 --cluster \"sbatch --parsable --cpus-per-task={threads} "
+         "--mem={resources.mem_mb} --output=.snakemake/slurm-%j.out\" --cluster-cancel scancel   # on Slurm\n"
+      << "#   (--slurm works too where Slurm keeps accounts: Snakemake 7 asks sacct and sacctmgr, which need slurmdbd)\n"
       << "# Each rule runs `ibmr run` for one stage, or for one view of a per-view stage (--views), on the workspace\n"
       << "# below; ibmr's cache decides what is stale, so a rule whose stage is up to date does no work. Snakemake's\n"
       << "# outputs are stamps under records/snakemake/, not the stages' files: Snakemake deletes a job's outputs\n"
@@ -73,7 +75,13 @@ std::string SnakemakeFile(const Runner& runner, const SnakemakeExportOptions& op
     // current), and the files from outside the workspace the stage reads (a user's image folder).
     std::vector<std::string> upstream_stamps = {options.ibmr, std::filesystem::absolute(config.path).string()};
     std::vector<std::string> upstream_names;
-    for (size_t j : runner.Upstream(i)) {
+    // The stages whose declared outputs this one reads, and the stage before it in the config:
+    // some declarations name per-view files that are unknown until sparse/ exists (multi_depth's
+    // .geometric.bin maps), so at export time the declarations alone can miss an edge; the
+    // config's order is always a valid one.
+    std::vector<size_t> upstream = runner.Upstream(i);
+    if (i > 0 && std::find(upstream.begin(), upstream.end(), i - 1) == upstream.end()) upstream.push_back(i - 1);
+    for (size_t j : upstream) {
       upstream_stamps.push_back(Stamp(config.stages[j].name));
       upstream_names.push_back(config.stages[j].name);
     }

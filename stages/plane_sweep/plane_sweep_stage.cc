@@ -137,17 +137,22 @@ class PlaneSweepStage : public Stage {
     std::vector<int> ids;
     for (const std::string& name : names) ids.push_back(model.FindImage(name)->image_id);
 
-    // Views, loaded once (grey, undistorted).
+    // Views, loaded once (grey, undistorted) when first needed: a shard loads its own views and
+    // their neighbours only, and an unreadable image fails just the views that need it.
     std::vector<SweepView> views(names.size());
-    tbb::parallel_for(size_t(0), names.size(), [&](size_t i) {
-      const Image& image = model.images.at(ids[i]);
-      const Camera& camera = model.CameraOf(image);
-      const std::string problem = camera.Validate();
-      if (!problem.empty()) throw InputError("sparse/cameras.txt: camera of " + image.name + ": " + problem);
-      views[i].name = image.name;
-      views[i].cam_from_world = image.cam_from_world;
-      views[i].gray = LoadGray(context.workspace.ImagesDir() + "/" + image.name, camera, &views[i].camera);
-    });
+    std::vector<std::once_flag> loaded(names.size());  // a load that throws is tried again
+    auto view = [&](size_t i) -> const SweepView& {
+      std::call_once(loaded[i], [&] {
+        const Image& image = model.images.at(ids[i]);
+        const Camera& camera = model.CameraOf(image);
+        const std::string problem = camera.Validate();
+        if (!problem.empty()) throw InputError("sparse/cameras.txt: camera of " + image.name + ": " + problem);
+        views[i].name = image.name;
+        views[i].cam_from_world = image.cam_from_world;
+        views[i].gray = LoadGray(context.workspace.ImagesDir() + "/" + image.name, camera, &views[i].camera);
+      });
+      return views[i];
+    };
     const nlohmann::json hull_bounds = ReadHullBounds(context.workspace.Path("hull/depth_bounds.json"));
     for (const char* dir : {"depth_maps", "normal_maps", "confidence_maps"})
       fs::create_directories(context.workspace.Path(std::string("dense/stereo/") + dir));
@@ -157,7 +162,8 @@ class PlaneSweepStage : public Stage {
       const int index = static_cast<int>(std::find(names.begin(), names.end(), name) - names.begin());
       const Image& image = model.images.at(ids[index]);
       double near = 0, far = 0;
-      const std::string source = DepthBounds(hull_bounds, model, image, views[index], context.params, options, &near, &far);
+      const SweepView& key = view(index);
+      const std::string source = DepthBounds(hull_bounds, model, image, key, context.params, options, &near, &far);
       const std::vector<int> chosen = SelectNeighbors(model, ids, index, 0.5 * (near + far), options);
       if (chosen.empty()) {
         spdlog::warn("[plane_sweep] {}: no neighbour view within {}..{} degrees; no depth map", name,
@@ -165,15 +171,15 @@ class PlaneSweepStage : public Stage {
       }
       PlaneSweepResult result;
       if (chosen.empty()) {
-        result.depth = DepthMap(views[index].gray.cols, views[index].gray.rows, 1, 0.f);
+        result.depth = DepthMap(key.gray.cols, key.gray.rows, 1, 0.f);
         result.normals = FloatMap(result.depth.width, result.depth.height, 3, 0.f);
         result.confidence = FloatMap(result.depth.width, result.depth.height, 1, 0.f);
       } else {
         std::vector<SweepView> neighbours;
-        for (int j : chosen) neighbours.push_back(views[j]);
+        for (int j : chosen) neighbours.push_back(view(j));
         PlaneSweepOptions view_options = options;
         view_options.best_k = std::min<int>(options.best_k, static_cast<int>(neighbours.size()));
-        result = PlaneSweep(views[index], neighbours, near, far, view_options);
+        result = PlaneSweep(key, neighbours, near, far, view_options);
       }
       WriteColmapArray(context.workspace.DepthMapPath(name, "photometric"), result.depth);
       WriteColmapArray(context.workspace.NormalMapPath(name, "photometric"), result.normals);
