@@ -143,6 +143,16 @@ TEST_F(WorkflowEngines, SnakemakeLocallyEqualsALocalRunAndThenHasNothingToDo) {
   const CommandResult again = RunCommand("snakemake -s " + snakefile + " --cores 2 --dry-run");
   ASSERT_EQ(again.exit_code, 0) << again.output;
   EXPECT_NE(again.output.find("Nothing to be done"), std::string::npos) << again.output;
+
+  // A stage named like a Python keyword (import) still makes a Snakefile Snakemake reads.
+  const std::string with_import = (dir_ / "import.yaml").string();
+  std::ofstream(with_import) << "workspace: ws\nstages:\n  - import:\n      source: " << reference_.string()
+                             << "\n  - plane_sweep: {}\n";
+  const std::string snakefile2 = (dir_ / "Snakefile.import").string();
+  ASSERT_EQ(RunCommand(Ibmr("export snakemake " + with_import) + " > " + snakefile2).exit_code, 0);
+  const CommandResult listed = RunCommand("snakemake -s " + snakefile2 + " --list");
+  EXPECT_EQ(listed.exit_code, 0) << listed.output;
+  EXPECT_NE(listed.output.find("ibmr_import"), std::string::npos) << listed.output;
 }
 
 // Starts the cluster for one test and stops it, whatever the test's outcome.

@@ -69,6 +69,21 @@ std::vector<std::string> StageContext::TrainingImageNamesIfReadable() const {
   }
 }
 
+double LargestTrainingImagePixels(const StageContext& context) {
+  if (!std::filesystem::exists(context.workspace.Path("sparse/images.txt"))) return 0;
+  try {
+    const SparseModel model = context.LoadModel();
+    double largest = 0;
+    for (const std::string& name : context.TrainingImageNames(model)) {
+      const Camera& camera = model.CameraOf(*model.FindImage(name));
+      largest = std::max(largest, static_cast<double>(camera.width) * camera.height);
+    }
+    return largest;
+  } catch (const std::exception&) {
+    return 0;
+  }
+}
+
 void StageRegistry::Add(std::unique_ptr<Stage> stage) {
   if (Find(stage->Name())) throw std::logic_error("stage '" + stage->Name() + "' registered twice");
   stages_.push_back(std::move(stage));

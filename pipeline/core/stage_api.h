@@ -79,6 +79,10 @@ class Stage {
   // and nothing before that loop writes a file: then shards of its views may run as separate
   // processes or cluster jobs (`--views`, `ibmr export snakemake`, `--executor slurm`).
   virtual bool Shardable() const { return false; }
+  // Peak memory of one view's work, MB, estimated from the inputs (image sizes) and parameters:
+  // what a cluster job for one view asks for (`--executor slurm`, the Snakefile's mem_mb). 0: no
+  // estimate (the inputs are not there yet, or the stage has none).
+  virtual double ViewMemoryMb(const StageContext&) const { return 0; }
 };
 
 // A command a stage offers beside `ibmr run` (e.g. `ibmr stereo-pair LEFT RIGHT ...`). It gets
@@ -88,6 +92,10 @@ struct StageCommand {
   std::string help;
   std::function<int(const std::vector<std::string>& args)> main;
 };
+
+// Width x height of the largest camera among the training views of workspace sparse/; 0 when it is
+// missing or unreadable (for estimates made before the stage runs).
+double LargestTrainingImagePixels(const StageContext& context);
 
 class StageRegistry {
  public:

@@ -6,6 +6,7 @@
 #include <spdlog/spdlog.h>
 #include <unistd.h>
 
+#include <cmath>
 #include <filesystem>
 #include <iostream>
 #include <sstream>
@@ -66,7 +67,7 @@ int main(int argc, char** argv) {
   run->add_option("--from", options.from, "Run from this stage on");
   run->add_option("--to", options.to, "Run up to this stage");
   run->add_flag("--force", options.force, "Run the selected stages even when up to date");
-  run->add_option("--set", overrides, "Override a parameter: stage.key=value (repeatable)");
+  run->add_option("--set", overrides, "Override a parameter: stage.key=value (repeatable)")->allow_extra_args(false);
   run->add_flag("--dry-run", options.dry_run, "List what would run and why; change nothing");
   run->add_option("--jobs", options.jobs, "Worker threads (default: all cores)")->check(CLI::PositiveNumber);
   bool write_report = false;
@@ -83,7 +84,8 @@ int main(int argc, char** argv) {
       ->check(CLI::IsMember({"local", "slurm"}));
   run->add_option("--retries", slurm.retries, "slurm: resubmissions of what a killed or failed job left undone (default 1)");
   run->add_option("--sbatch-args", sbatch_args, "slurm: more sbatch options for every job, e.g. \"--partition=gpu\"");
-  run->add_option("--mem-per-view", slurm.mem_per_view_mb, "slurm: memory of one view's job, MB (default 2000)");
+  run->add_option("--mem-per-view", slurm.mem_per_view_mb,
+                  "slurm: memory of one view's job, MB (default: the stage's estimate from image size and parameters)");
 
   ibmr::SnakemakeExportOptions export_options;
   std::string export_format;
@@ -92,23 +94,27 @@ int main(int argc, char** argv) {
   export_cmd->add_option("format", export_format, "snakemake")->required()->check(CLI::IsMember({"snakemake"}));
   export_cmd->add_option("config", config_path, "YAML config")->required()->check(CLI::ExistingFile);
   export_cmd->add_option("--workspace", workspace, "Workspace folder (overrides the config's)");
-  export_cmd->add_option("--set", overrides, "Override a parameter: stage.key=value (repeatable)");
+  export_cmd->add_option("--set", overrides, "Override a parameter: stage.key=value (repeatable)")->allow_extra_args(false);
   export_cmd->add_option("--threads-per-view", export_options.threads_per_view, "Threads of a per-view job (default 1)")
       ->check(CLI::PositiveNumber);
-  export_cmd->add_option("--mem-per-view", export_options.mem_per_view_mb, "Memory of a per-view job, MB (default 2000)")
-      ->check(CLI::PositiveNumber);
+  export_cmd->add_option("--mem-per-view", export_options.mem_per_view_mb,
+                         "Memory of a per-view job, MB (default: the stage's estimate, `ibmr views --memory-mb`)")
+      ->check(CLI::NonNegativeNumber);
 
   std::string views_stage;
   auto* views = app.add_subcommand("views", "Print a per-view stage's views, one per line (what --views takes)");
   views->add_option("config", config_path, "YAML config")->required()->check(CLI::ExistingFile);
   views->add_option("stage", views_stage, "A per-view stage of the config")->required();
   views->add_option("--workspace", workspace, "Workspace folder (overrides the config's)");
-  views->add_option("--set", overrides, "Override a parameter: stage.key=value (repeatable)");
+  views->add_option("--set", overrides, "Override a parameter: stage.key=value (repeatable)")->allow_extra_args(false);
+  bool memory_mb = false;
+  views->add_flag("--memory-mb", memory_mb, "Print instead the stage's estimate of one view's peak memory, MB "
+                                            "(0: none yet; its inputs are not there)");
 
   auto* status = app.add_subcommand("status", "Show which stages are up to date and why the others are stale");
   status->add_option("config", config_path, "YAML config")->required()->check(CLI::ExistingFile);
   status->add_option("--workspace", workspace, "Workspace folder (overrides the config's)");
-  status->add_option("--set", overrides, "Override a parameter: stage.key=value (repeatable)");
+  status->add_option("--set", overrides, "Override a parameter: stage.key=value (repeatable)")->allow_extra_args(false);
 
   auto* stages = app.add_subcommand("stages", "List every stage: inputs, outputs, parameters with defaults");
 
@@ -212,6 +218,10 @@ int main(int argc, char** argv) {
         return list;
       }());
       return 2;
+    }
+    if (memory_mb) {
+      std::cout << static_cast<long>(std::ceil(runner.ViewMemoryMb(views_stage))) << "\n";
+      return 0;
     }
     for (const std::string& name : runner.ShardViews(views_stage)) std::cout << name << "\n";
     return 0;

@@ -313,6 +313,13 @@ bool Runner::SelectStages(const RunOptions& options, std::vector<size_t>* select
   return true;
 }
 
+double Runner::ViewMemoryMb(const std::string& stage_name) const {
+  const StageConfig* stage_config = config_.FindStage(stage_name);
+  if (stage_config == nullptr) return 0;
+  const Stage& stage = *registry_.Find(stage_name);
+  return stage.ViewMemoryMb(MakeContext(stage, *stage_config));
+}
+
 std::vector<std::string> Runner::UnfinishedViews(const std::string& stage_name) const {
   std::vector<std::string> unfinished;
   for (const StageConfig& stage_config : config_.stages) {

@@ -40,6 +40,8 @@ class Runner {
 
   // The views a shardable stage works on (its training views, once its inputs exist), sorted.
   std::vector<std::string> ShardViews(const std::string& stage) const;
+  // The stage's estimate of one view's peak memory, MB (Stage::ViewMemoryMb); 0: none.
+  double ViewMemoryMb(const std::string& stage) const;
   // Of those, the ones not yet marked done under the stage's current cache key.
   std::vector<std::string> UnfinishedViews(const std::string& stage) const;
   // The config's stage indices that `options` selects (--only, --from, --to); false, with the

@@ -4,6 +4,7 @@
 #include <spdlog/spdlog.h>
 
 #include <chrono>
+#include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <thread>
@@ -20,7 +21,7 @@ bool SlurmOptions::Check(std::string* error) const {
   if (ibmr.empty() || !fs::path(ibmr).is_absolute()) *error = "the ibmr program must be an absolute path";
   else if (retries < 0) *error = "--retries must be >= 0";
   else if (threads_per_view < 1) *error = "threads per view must be >= 1";
-  else if (mem_per_view_mb < 1) *error = "memory per view must be >= 1 MB";
+  else if (mem_per_view_mb < 0) *error = "memory per view must be >= 0 MB (0: the stage's estimate)";
   else if (poll_seconds <= 0) *error = "the poll interval must be > 0";
   else return true;
   return false;
@@ -93,6 +94,14 @@ class SlurmRun {
 
   bool StageUpToDate(size_t index) const { return runner_.Status().at(index).up_to_date; }
 
+  // MB for one view's task: the user's figure, else the stage's estimate with a quarter more
+  // for what it does not count, else 2000.
+  int MemoryPerView(const std::string& stage) const {
+    if (options_.mem_per_view_mb > 0) return options_.mem_per_view_mb;
+    const double estimate = runner_.ViewMemoryMb(stage);
+    return estimate > 0 ? static_cast<int>(std::ceil(1.25 * estimate)) : 2000;
+  }
+
   // The job array for the views of a per-view stage, resubmitting what failed; true when every
   // view is done. `array_job` is the last array's id (the merge depends on it).
   bool RunViews(const std::string& stage, std::string* array_job) {
@@ -119,13 +128,13 @@ class SlurmRun {
       std::vector<std::string> words = {"--job-name=ibmr-" + stage,
                                         "--array=0-" + std::to_string(todo.size() - 1),
                                         "--cpus-per-task=" + std::to_string(options_.threads_per_view),
-                                        "--mem=" + std::to_string(options_.mem_per_view_mb),
+                                        "--mem=" + std::to_string(MemoryPerView(stage)),
                                         "--output=" + folder + "/slurm-%A_%a.out"};
       words.insert(words.end(), options_.sbatch_args.begin(), options_.sbatch_args.end());
       words.insert(words.end(), {script, list});
       *array_job = Submit(words);
-      spdlog::info("[slurm] {}: {} view(s) as array job {}{}", stage, todo.size(), *array_job,
-                   attempt > 1 ? " (attempt " + std::to_string(attempt) + ")" : "");
+      spdlog::info("[slurm] {}: {} view(s) as array job {}, {} MB each{}", stage, todo.size(), *array_job,
+                   MemoryPerView(stage), attempt > 1 ? " (attempt " + std::to_string(attempt) + ")" : "");
       WaitFor(*array_job, stage + " views", options_.poll_seconds);
       RemoveEmptySlurmOutputs(folder);
       const std::vector<std::string> left = runner_.UnfinishedViews(stage);

@@ -24,7 +24,7 @@ struct SlurmOptions {
   int retries = 1;                       // resubmissions of what a job left undone
   int threads_per_view = 1;              // cpus of one array task
   int threads_per_stage = 0;             // cpus of a whole-stage or merge job; 0: the machine's
-  int mem_per_view_mb = 2000;
+  int mem_per_view_mb = 0;               // 0: the stage's estimate (Stage::ViewMemoryMb), else 2000
   double poll_seconds = 0.5;
 
   bool Check(std::string* error) const;

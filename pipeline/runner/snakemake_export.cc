@@ -29,6 +29,9 @@ std::string EscapeBraces(const std::string& text) {
 
 std::string Stamp(const std::string& stage) { return "records/snakemake/" + stage + ".stamp"; }
 
+// A rule's name: stage names may be Python keywords (import), which Snakemake's rule names cannot.
+std::string Rule(const std::string& stage) { return "ibmr_" + stage; }
+
 // "a, b, c and 40 more" for the comments above a rule.
 std::string Listed(const std::vector<std::string>& paths) {
   std::string text;
@@ -59,9 +62,20 @@ std::string SnakemakeFile(const Runner& runner, const SnakemakeExportOptions& op
       << "IBMR = " << Py(options.ibmr) << "\n"
       << "RUN_ARGS = " << PyList(options.run_args) << "\n\n"
       << "workdir: " << Py(config.workspace) << "\n\n"
-      << "def ibmr_views(stage):\n"
-      << "    listed = subprocess.run([IBMR, \"views\", *RUN_ARGS, stage], check=True, capture_output=True, text=True)\n"
-      << "    return [line for line in listed.stdout.splitlines() if line]\n\n";
+      << "def ibmr_views(stage, *flags):\n"
+      << "    listed = subprocess.run([IBMR, \"views\", *RUN_ARGS, stage, *flags], check=True, capture_output=True, "
+         "text=True)\n"
+      << "    return [line for line in listed.stdout.splitlines() if line]\n\n"
+      << "# One view's memory, MB: the stage's estimate from image size and parameters, a quarter more for\n"
+      << "# what it does not count (2000 when it has none).\n"
+      << "IBMR_VIEW_MEMORY = {}\n"
+      << "def ibmr_view_memory(stage):\n"
+      << "    if stage not in IBMR_VIEW_MEMORY:\n"
+      << "        estimate = int(ibmr_views(stage, \"--memory-mb\")[0])\n"
+      << "        if estimate <= 0:\n"
+      << "            return 2000\n"
+      << "        IBMR_VIEW_MEMORY[stage] = int(1.25 * estimate) + 1\n"
+      << "    return IBMR_VIEW_MEMORY[stage]\n\n";
 
   std::vector<std::string> finals;
   for (const StageConfig& stage : config.stages) finals.push_back(Stamp(stage.name));
@@ -83,7 +97,7 @@ std::string SnakemakeFile(const Runner& runner, const SnakemakeExportOptions& op
     if (i > 0 && std::find(upstream.begin(), upstream.end(), i - 1) == upstream.end()) upstream.push_back(i - 1);
     for (size_t j : upstream) {
       upstream_stamps.push_back(Stamp(config.stages[j].name));
-      upstream_names.push_back(config.stages[j].name);
+      upstream_names.push_back(Rule(config.stages[j].name));
     }
     for (const std::string& input : runner.DeclaredInputs(i)) {
       if (std::filesystem::path(input).is_absolute() && std::filesystem::exists(input)) upstream_stamps.push_back(input);
@@ -93,20 +107,23 @@ std::string SnakemakeFile(const Runner& runner, const SnakemakeExportOptions& op
         << "#   writes: " << Listed(runner.DeclaredOutputs(i)) << "\n";
     std::string view_input;
     if (per_view) {
-      out << "rule " << name << "_view:\n"
+      out << "rule " << Rule(name) << "_view:\n"
           << "    input: " << PyList(upstream_stamps) << "\n"
           << "    output: temp(touch(\"records/snakemake/" << name << "/{view}.stamp\"))\n"
           << "    threads: " << options.threads_per_view << "\n"
-          << "    resources: mem_mb=" << options.mem_per_view_mb << "\n"
+          << "    resources: mem_mb="
+          << (options.mem_per_view_mb > 0 ? std::to_string(options.mem_per_view_mb)
+                                          : "lambda wildcards: ibmr_view_memory(" + Py(name) + ")")
+          << "\n"
           << "    shell: " << Py(run + " --only " + name + " --views {wildcards.view:q} --jobs {threads}") << "\n\n"
-          << "def " << name << "_views(wildcards):\n";
+          << "def " << Rule(name) << "_views(wildcards):\n";
       for (const std::string& up : upstream_names) out << "    checkpoints." << up << ".get()\n";
       out << "    return expand(\"records/snakemake/" << name << "/{view}.stamp\", view=ibmr_views(" << Py(name)
           << "))\n\n";
-      view_input = ", views=" + name + "_views";
+      view_input = ", views=" + Rule(name) + "_views";
     }
     // Every stage rule is a checkpoint: cheap, and a later per-view stage may list views from it.
-    out << "checkpoint " << name << ":\n"
+    out << "checkpoint " << Rule(name) << ":\n"
         << "    input: upstream=" << PyList(upstream_stamps) << view_input << "\n"
         << "    output: touch(" << Py(Stamp(name)) << ")\n"
         << "    threads: workflow.cores\n"

@@ -22,7 +22,7 @@ struct SnakemakeExportOptions {
   std::string ibmr;                   // the ibmr program the rules run (absolute path)
   std::vector<std::string> run_args;  // the config (absolute) and overrides, as `ibmr run` takes them
   int threads_per_view = 1;
-  int mem_per_view_mb = 2000;
+  int mem_per_view_mb = 0;  // 0: the stage's estimate once its inputs exist (ibmr views --memory-mb), else 2000
   int mem_per_stage_mb = 4000;
 };
 
