@@ -37,7 +37,7 @@ echo "bench_workflow_engines: snakemake --cores $CORES"
 "$IBMR" export snakemake "$CONFIG" --workspace "$BENCH/snakemake" >"$BENCH/Snakefile.local"
 mkdir -p "$BENCH/snakemake"
 start=$(now)
-snakemake -s "$BENCH/Snakefile.local" --cores "$CORES" >"$BENCH/snakemake.log" 2>&1
+(cd "$BENCH" && snakemake -s "$BENCH/Snakefile.local" --cores "$CORES" >"$BENCH/snakemake.log" 2>&1)
 snakemake_wall=$(elapsed "$start")
 snakemake_jobs=$(grep -c '^Finished job' "$BENCH/snakemake.log" || true)
 
@@ -62,9 +62,10 @@ echo "bench_workflow_engines: snakemake --cluster sbatch"
 "$IBMR" export snakemake "$CONFIG" --workspace "$BENCH/snakemake_slurm" >"$BENCH/Snakefile.slurm"
 mkdir -p "$BENCH/snakemake_slurm"
 start=$(now)
-snakemake -s "$BENCH/Snakefile.slurm" --cores "$CORES" --jobs 32 --latency-wait 5 --cluster-cancel scancel \
+(cd "$BENCH" && snakemake -s "$BENCH/Snakefile.slurm" --cores "$CORES" --jobs 32 --latency-wait 5 \
+  --cluster-cancel scancel \
   --cluster "sbatch --parsable --cpus-per-task={threads} --mem={resources.mem_mb} --output=.snakemake/slurm-%j.out" \
-  >"$BENCH/snakemake_slurm.log" 2>&1
+  >"$BENCH/snakemake_slurm.log" 2>&1)
 snakemake_slurm_wall=$(elapsed "$start")
 snakemake_slurm_jobs=$(grep -c '^Finished job' "$BENCH/snakemake_slurm.log" || true)
 
