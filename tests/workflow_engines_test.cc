@@ -122,7 +122,7 @@ TEST_F(WorkflowEngines, ShardsThenMergeEqualALocalRun) {
 
   const CommandResult not_per_view = RunCommand(Run(ws, "--only fuse --views view_001.png"));
   EXPECT_EQ(not_per_view.exit_code, 2);
-  EXPECT_NE(not_per_view.output.find("shardable stages: plane_sweep, multi_depth"), std::string::npos)
+  EXPECT_NE(not_per_view.output.find("(shardable stages: plane_sweep, multi_depth)"), std::string::npos)
       << not_per_view.output;
   const CommandResult unknown = RunCommand(Run(ws, "--only plane_sweep --views nope.png --force"));
   EXPECT_EQ(unknown.exit_code, 1);

@@ -209,14 +209,8 @@ int main(int argc, char** argv) {
   if (views->parsed()) {
     SetUpLogging("");
     const ibmr::Stage* stage = registry.Find(views_stage);
-    if (stage == nullptr || !stage->Shardable()) {
-      spdlog::error("'{}' is not a per-view stage (per-view stages: {})", views_stage, [&] {
-        std::string list;
-        for (const std::string& name : registry.Names()) {
-          if (registry.Find(name)->Shardable()) list += (list.empty() ? "" : ", ") + name;
-        }
-        return list;
-      }());
+    if (stage == nullptr || !stage->Shardable() || config.FindStage(views_stage) == nullptr) {
+      spdlog::error("'{}' is not a per-view stage of {} ({})", views_stage, config_path, runner.ShardableStagesText());
       return 2;
     }
     if (memory_mb) {

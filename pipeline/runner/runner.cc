@@ -272,6 +272,14 @@ bool Runner::Reuse(const Stage& stage, const StageContext& context, const std::s
   return false;
 }
 
+std::string Runner::ShardableStagesText() const {
+  std::string list;
+  for (const StageConfig& s : config_.stages) {
+    if (registry_.Find(s.name)->Shardable()) list += (list.empty() ? "" : ", ") + s.name;
+  }
+  return list.empty() ? "no stage of this config is per-view" : "shardable stages: " + list;
+}
+
 std::vector<std::string> Runner::ShardViews(const std::string& stage_name) const {
   for (const StageConfig& stage_config : config_.stages) {
     if (stage_config.name != stage_name) continue;
@@ -347,14 +355,7 @@ int Runner::RunShard(const RunOptions& options) {
   }
   const Stage& stage = *registry_.Find(options.only);
   if (!stage.Shardable()) {
-    spdlog::error("[{}] has no per-view shards; run it without --views (shardable stages: {})", stage.Name(),
-                  [&] {
-                    std::string list;
-                    for (const StageConfig& s : config_.stages) {
-                      if (registry_.Find(s.name)->Shardable()) list += (list.empty() ? "" : ", ") + s.name;
-                    }
-                    return list.empty() ? std::string("none in this config") : list;
-                  }());
+    spdlog::error("[{}] has no per-view shards; run it without --views ({})", stage.Name(), ShardableStagesText());
     return 2;
   }
   std::unique_ptr<tbb::global_control> threads;

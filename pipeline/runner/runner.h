@@ -38,6 +38,8 @@ class Runner {
  public:
   Runner(Config config, const StageRegistry& registry) : config_(std::move(config)), registry_(registry) {}
 
+  // "shardable stages: a, b" of this config, for messages.
+  std::string ShardableStagesText() const;
   // The views a shardable stage works on (its training views, once its inputs exist), sorted.
   std::vector<std::string> ShardViews(const std::string& stage) const;
   // The stage's estimate of one view's peak memory, MB (Stage::ViewMemoryMb); 0: none.

@@ -4,6 +4,7 @@
 #include <spdlog/spdlog.h>
 
 #include <chrono>
+#include <csignal>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -44,7 +45,16 @@ std::string Submit(const std::vector<std::string>& sbatch_words) {
   return id;
 }
 
-// Blocks until squeue no longer lists the job (or any task of the array).
+// Set by SIGINT or SIGTERM while ibmr waits for its jobs: it then cancels them and stops.
+volatile std::sig_atomic_t interrupted = 0;
+void OnInterrupt(int) { interrupted = 1; }
+
+struct Interrupted : std::runtime_error {
+  using std::runtime_error::runtime_error;
+};
+
+// Blocks until squeue no longer lists the job (or any task of the array). Interrupted (Ctrl-C,
+// a kill), it cancels the job, so that nothing keeps running on the cluster for a run that ended.
 void WaitFor(const std::string& job, const std::string& what, double poll_seconds) {
   const auto start = std::chrono::steady_clock::now();
   size_t last_count = SIZE_MAX;
@@ -63,6 +73,11 @@ void WaitFor(const std::string& job, const std::string& what, double poll_second
                    std::chrono::duration<double>(now - start).count());
       last_count = count;
       last_line = now;
+    }
+    if (interrupted) {
+      RunProcess({"scancel", job}, "", [](const std::string&) {});
+      throw Interrupted("interrupted: cancelled job " + job + " (" + what + "); what finished is kept, and the next "
+                        "run goes on from there");
     }
     std::this_thread::sleep_for(std::chrono::duration<double>(poll_seconds));
   }
@@ -102,6 +117,13 @@ class SlurmRun {
     return estimate > 0 ? static_cast<int>(std::ceil(1.25 * estimate)) : 2000;
   }
 
+  // A per-view stage as its views' job array and then the merge; any other as one job.
+  bool RunStage(size_t index, const std::string& stage) {
+    if (!runner_.registry().Find(stage)->Shardable()) return RunStageJob(index, stage, "", "stage");
+    std::string array_job;
+    return RunViews(stage, &array_job) && RunStageJob(index, stage, array_job, "merge");
+  }
+
   // The job array for the views of a per-view stage, resubmitting what failed; true when every
   // view is done. `array_job` is the last array's id (the merge depends on it).
   bool RunViews(const std::string& stage, std::string* array_job) {
@@ -113,9 +135,8 @@ class SlurmRun {
       std::string lines;
       for (const std::string& view : todo) lines += view + "\n";
       WriteFileAtomic(list, lines);
-      std::vector<std::string> command = {options_.ibmr, "run"};
-      command.insert(command.end(), options_.run_args.begin(), options_.run_args.end());
-      command.insert(command.end(), {"--only", stage, "--jobs", std::to_string(options_.threads_per_view)});
+      std::vector<std::string> command = RunStage(stage);
+      command.insert(command.end(), {"--jobs", std::to_string(options_.threads_per_view)});
       const std::string script = folder + "/view_job.sh";
       WriteFileAtomic(script,
                       "#!/bin/bash\n"
@@ -163,9 +184,7 @@ class SlurmRun {
     const std::string folder = workspace_ + "/logs/slurm/" + stage;
     fs::create_directories(folder);
     const std::string log = folder + "/" + what + ".log";
-    std::vector<std::string> command = {options_.ibmr, "run"};
-    command.insert(command.end(), options_.run_args.begin(), options_.run_args.end());
-    command.insert(command.end(), {"--only", stage});
+    std::vector<std::string> command = RunStage(stage);
     if (options_.threads_per_stage > 0) command.insert(command.end(), {"--jobs", std::to_string(options_.threads_per_stage)});
     const std::string script = folder + "/" + what + "_job.sh";
     WriteFileAtomic(script, "#!/bin/bash\n# ibmr stage " + stage + " (" + what +
@@ -189,6 +208,14 @@ class SlurmRun {
   }
 
  private:
+  // `ibmr run CONFIG ... --only STAGE` as this process sees the config.
+  std::vector<std::string> RunStage(const std::string& stage) const {
+    std::vector<std::string> command = {options_.ibmr, "run"};
+    command.insert(command.end(), options_.run_args.begin(), options_.run_args.end());
+    command.insert(command.end(), {"--only", stage});
+    return command;
+  }
+
   const Runner& runner_;
   const SlurmOptions& options_;
   std::string workspace_;
@@ -215,21 +242,23 @@ int RunOnSlurm(const Runner& runner, const RunOptions& options, const SlurmOptio
   if (!runner.SelectStages(options, &selected)) return 2;
   const auto start = std::chrono::steady_clock::now();
   SlurmRun run(runner, slurm);
+  interrupted = 0;
+  std::signal(SIGINT, OnInterrupt);
+  std::signal(SIGTERM, OnInterrupt);
   int submitted = 0;
-  for (size_t index : selected) {
-    const std::string& stage = runner.config().stages[index].name;
-    if (!options.force && run.StageUpToDate(index)) {
-      spdlog::info("[{}] up to date", stage);
-      continue;
+  try {
+    for (size_t index : selected) {
+      const std::string& stage = runner.config().stages[index].name;
+      if (!options.force && run.StageUpToDate(index)) {
+        spdlog::info("[{}] up to date", stage);
+        continue;
+      }
+      ++submitted;
+      if (!run.RunStage(index, stage)) return 1;
     }
-    ++submitted;
-    if (runner.registry().Find(stage)->Shardable()) {
-      std::string array_job;
-      if (!run.RunViews(stage, &array_job)) return 1;
-      if (!run.RunStageJob(index, stage, array_job, "merge")) return 1;
-    } else if (!run.RunStageJob(index, stage, "", "stage")) {
-      return 1;
-    }
+  } catch (const Interrupted& e) {
+    spdlog::error("[slurm] {}", e.what());
+    return 130;
   }
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   spdlog::info("{} stage(s) ran on Slurm in {:.1f}s; workspace {}", submitted, seconds, runner.config().workspace);
