@@ -112,6 +112,9 @@ TEST_F(WorkflowEngines, ShardsThenMergeEqualALocalRun) {
                                           Run(ws, "--only " + stage + " --views " + second + " --jobs 1") + "); wait");
     ASSERT_EQ(both.exit_code, 0) << both.output;
     EXPECT_FALSE(fs::exists(ws / "records" / (stage + ".json"))) << "a shard writes no record; the merge does";
+    const CommandResult status =
+        RunCommand(Ibmr("status " + kConfig + " --workspace " + ws.string() + kSmall));
+    EXPECT_NE(status.output.find(stage + ": never ran (14 of 14 views done)"), std::string::npos) << status.output;
     const CommandResult merge = RunCommand(Run(ws, "--only " + stage));
     ASSERT_EQ(merge.exit_code, 0) << merge.output;
     const nlohmann::json record = nlohmann::json::parse(ReadText(ws / "records" / (stage + ".json")));

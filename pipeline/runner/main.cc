@@ -224,7 +224,12 @@ int main(int argc, char** argv) {
   try {
     if (status->parsed()) {
       for (const auto& s : runner.Status()) {
-        std::cout << (s.up_to_date ? "  ok     " : "  stale  ") << s.name << ": " << s.reason << "\n";
+        std::cout << (s.up_to_date ? "  ok     " : "  stale  ") << s.name << ": " << s.reason;
+        // A per-view stage part done (shards, or a run that was killed): how far it got.
+        const size_t views = s.up_to_date ? 0 : runner.ShardViews(s.name).size();
+        const size_t left = views > 0 ? runner.UnfinishedViews(s.name).size() : 0;
+        if (views > 0 && left < views) std::cout << " (" << views - left << " of " << views << " views done)";
+        std::cout << "\n";
       }
       return 0;
     }
