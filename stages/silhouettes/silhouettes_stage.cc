@@ -8,7 +8,6 @@
 
 #include <algorithm>
 #include <filesystem>
-#include <mutex>
 
 #include "pipeline/core/atomic_file.h"
 #include "pipeline/core/errors.h"
@@ -33,6 +32,16 @@ nlohmann::json ReportJson(const SilhouetteReport& report) {
           {"components_kept", report.components_kept},
           {"holes_filled", report.holes_filled},
           {"touches_border", report.touches_border}};
+}
+
+SilhouetteReport ReportFromJson(const nlohmann::json& json) {
+  SilhouetteReport report;
+  report.foreground_fraction = json.at("foreground_fraction").get<double>();
+  report.components_found = json.at("components_found").get<int>();
+  report.components_kept = json.at("components_kept").get<int>();
+  report.holes_filled = json.at("holes_filled").get<int>();
+  report.touches_border = json.at("touches_border").get<bool>();
+  return report;
 }
 
 // Removes <folder>/*.png whose image name is not in `keep` (e.g. a view that became held out).
@@ -130,9 +139,7 @@ class SilhouettesStage : public Stage {
 
     SilhouetteCorruption corruption = SilhouetteCorruption::kNone;
     SilhouetteCorruptionFromName(context.params.String("corrupt"), &corruption);
-    std::mutex mutex;
-    std::map<std::string, SilhouetteReport> reports;
-    ForEachView(context, "silhouettes", names, [&](const std::string& name) -> nlohmann::json {
+    const PerViewSummary summary = ForEachView(context, "silhouettes", names, [&](const std::string& name) -> nlohmann::json {
       const Image& image = *model.FindImage(name);
       const Camera& camera = model.CameraOf(image);
       cv::Mat input;
@@ -159,24 +166,19 @@ class SilhouettesStage : public Stage {
       const bool held_out = heldout.count(name) > 0;
       if (!held_out) CorruptSilhouette(corruption, context.params.Double("corrupt_strength"), name, &result.mask);
       WriteImage(held_out ? HeldoutMaskPath(context, name) : context.workspace.MaskPath(name), result.mask);
-      std::lock_guard<std::mutex> lock(mutex);
-      reports[name] = result.report;
-      return {};
+      return ReportJson(result.report);
     });
 
-    // Views resumed from an interrupted run: describe their written masks.
+    // Every view's report, resumed ones from their pieces.
     nlohmann::json training_report = {{"mode", context.params.String("mode")}, {"views", nlohmann::json::object()}};
     nlohmann::json heldout_report = training_report;
     int empty = 0, border = 0;
     std::vector<double> fractions;
     for (const std::string& name : names) {
       const bool held_out = heldout.count(name) > 0;
-      if (!reports.count(name)) {
-        reports[name] = DescribeMask(ReadImageUnchanged(held_out ? HeldoutMaskPath(context, name)
-                                                                 : context.workspace.MaskPath(name)));
-      }
-      const SilhouetteReport& report = reports[name];
-      (held_out ? heldout_report : training_report)["views"][name] = ReportJson(report);
+      const nlohmann::json& piece = summary.pieces.at(name);
+      const SilhouetteReport report = ReportFromJson(piece);
+      (held_out ? heldout_report : training_report)["views"][name] = piece;
       if (report.foreground_fraction == 0.0) {
         ++empty;
         spdlog::warn("[silhouettes] view {}: the silhouette is empty (no foreground pixel); check the mode and "
