@@ -175,7 +175,7 @@ class SynthStage : public Stage {
       WriteImage(workspace.ImagesDir() + "/" + name, view.image);
       WriteImage(workspace.GroundTruthMaskPath(name), view.mask);
       WriteColmapArray(workspace.GroundTruthDepthPath(name), view.depth);
-      return {};
+      return nlohmann::json{{"foreground", static_cast<double>(cv::countNonZero(view.mask)) / view.mask.total()}};
     });
     const double render_seconds = SecondsSince(start);
     spdlog::info("synth: rendered {} views in {:.3f}s ({} resumed)", summary.computed, render_seconds,
@@ -191,11 +191,8 @@ class SynthStage : public Stage {
     spdlog::info("synth: {} sparse points, {} observations in {:.3f}s", model.points.size(), observations,
                  sparse_seconds);
 
-    double foreground = 0;  // over all views, including ones an earlier run rendered
-    for (const std::string& name : names) {
-      const cv::Mat mask = ReadImageUnchanged(workspace.GroundTruthMaskPath(name));
-      foreground += static_cast<double>(cv::countNonZero(mask)) / mask.total();
-    }
+    double foreground = 0;  // over all views, including ones an earlier run rendered (their pieces)
+    for (const std::string& name : names) foreground += summary.pieces.at(name).at("foreground").get<double>();
     context.metrics["views"] = names.size();
     context.metrics["triangles"] = scene.mesh.faces.size();
     context.metrics["sparse_points"] = model.points.size();
