@@ -32,13 +32,15 @@ std::string Stamp(const std::string& stage) { return "records/snakemake/" + stag
 // A rule's name: stage names may be Python keywords (import), which Snakemake's rule names cannot.
 std::string Rule(const std::string& stage) { return "ibmr_" + stage; }
 
-// "a, b, c and 40 more" for the comments above a rule.
-std::string Listed(const std::vector<std::string>& paths) {
+// "a, b, c and 40 more" for the comments above a rule; a per-view stage may name its files only
+// once its views are known.
+std::string Listed(const std::vector<std::string>& paths, bool per_view) {
   std::string text;
   const size_t shown = std::min<size_t>(paths.size(), 6);
   for (size_t i = 0; i < shown; ++i) text += (i ? ", " : "") + paths[i];
   if (paths.size() > shown) text += " and " + std::to_string(paths.size() - shown) + " more";
-  return text.empty() ? "-" : text;
+  if (text.empty()) return per_view ? "files named per view (listed once sparse/ exists)" : "-";
+  return text;
 }
 
 }  // namespace
@@ -103,8 +105,8 @@ std::string SnakemakeFile(const Runner& runner, const SnakemakeExportOptions& op
       if (std::filesystem::path(input).is_absolute() && std::filesystem::exists(input)) upstream_stamps.push_back(input);
     }
     out << "# " << name << (per_view ? " (per view)" : "") << "\n"
-        << "#   reads:  " << Listed(runner.DeclaredInputs(i)) << "\n"
-        << "#   writes: " << Listed(runner.DeclaredOutputs(i)) << "\n";
+        << "#   reads:  " << Listed(runner.DeclaredInputs(i), per_view) << "\n"
+        << "#   writes: " << Listed(runner.DeclaredOutputs(i), per_view) << "\n";
     std::string view_input;
     if (per_view) {
       out << "rule " << Rule(name) << "_view:\n"
