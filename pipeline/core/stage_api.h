@@ -75,10 +75,16 @@ class Stage {
   virtual std::vector<std::string> Outputs(const StageContext& context) const = 0;
   // Does the work. Throws IoError / InputError with a message for the user on failure.
   virtual void Run(StageContext& context) const = 0;
-  // True when the stage's work is one ForEachView over its training views (TrainingImageNames)
-  // and nothing before that loop writes a file: then shards of its views may run as separate
-  // processes or cluster jobs (`--views`, `ibmr export snakemake`, `--executor slurm`).
+  // True when shards of the stage's views may run as separate processes or cluster jobs (`--views`,
+  // `ibmr export snakemake`, `--executor slurm`): its per-view work runs in ForEachView, and what
+  // it writes outside that work comes after it, in the merge. Typically one ForEachView over the
+  // training views (ShardFinished ends a shard there); a stage with several loops ends its shards
+  // itself (render).
   virtual bool Shardable() const { return false; }
+  // The views a shard names (`--views`), sorted: by default the training views.
+  virtual std::vector<std::string> ShardViews(const StageContext& context) const {
+    return context.TrainingImageNamesIfReadable();
+  }
   // Peak memory of one view's work, MB, estimated from the inputs (image sizes) and parameters:
   // what a cluster job for one view asks for (`--executor slurm`, the Snakefile's mem_mb). 0: no
   // estimate (the inputs are not there yet, or the stage has none).

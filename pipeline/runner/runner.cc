@@ -285,7 +285,7 @@ std::vector<std::string> Runner::ShardViews(const std::string& stage_name) const
     if (stage_config.name != stage_name) continue;
     const Stage& stage = *registry_.Find(stage_name);
     if (!stage.Shardable()) return {};
-    return MakeContext(stage, stage_config).TrainingImageNamesIfReadable();
+    return stage.ShardViews(MakeContext(stage, stage_config));
   }
   return {};
 }

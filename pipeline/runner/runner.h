@@ -40,7 +40,7 @@ class Runner {
 
   // "shardable stages: a, b" of this config, for messages.
   std::string ShardableStagesText() const;
-  // The views a shardable stage works on (its training views, once its inputs exist), sorted.
+  // The views a shardable stage works on (Stage::ShardViews, once its inputs exist), sorted.
   std::vector<std::string> ShardViews(const std::string& stage) const;
   // The stage's estimate of one view's peak memory, MB (Stage::ViewMemoryMb); 0: none.
   double ViewMemoryMb(const std::string& stage) const;

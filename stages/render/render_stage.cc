@@ -145,6 +145,17 @@ class RenderStage : public Stage {
   }
   std::string Version() const override { return "4"; }  // 2: splat models, background fill; 3: elliptical splat footprints; 4: model sizes
   HoldoutRole Role() const override { return HoldoutRole::kScoring; }
+  // Shards are held-out views: each renders every model for its views; the merge gathers them
+  // and writes renders.json.
+  bool Shardable() const override { return true; }
+  std::vector<std::string> ShardViews(const StageContext& context) const override {
+    if (!fs::exists(context.workspace.Path("sparse/images.txt"))) return {};
+    std::vector<std::string> names = context.params.StringList("views");
+    if (names.empty()) names.assign(context.heldout_images.begin(), context.heldout_images.end());
+    if (!context.params.DoubleList("novel_look_at").empty()) names.push_back("novel");
+    std::sort(names.begin(), names.end());
+    return names;
+  }
 
   std::vector<ParamSpec> Parameters() const override {
     return {
@@ -328,6 +339,21 @@ class RenderStage : public Stage {
     if (desired.empty()) {
       spdlog::warn("[render] no view to render: the config holds no view out (holdout) and lists no render.views");
     }
+    // A shard renders its views only; its per-view loops below then run unsharded over them (the
+    // marks are per model and view), and it ends before the files that gather every view.
+    const std::set<std::string> shard = std::move(context.shard_views);
+    context.shard_views.clear();
+    if (!shard.empty()) {
+      std::string unknown;
+      for (const std::string& name : shard) {
+        const bool known = std::any_of(desired.begin(), desired.end(), [&](const Desired& d) { return d.name == name; });
+        if (!known) unknown += (unknown.empty() ? "" : ", ") + name;
+      }
+      if (!unknown.empty()) throw InputError("--views: not among render's views (held out or render.views): " + unknown);
+      desired.erase(std::remove_if(desired.begin(), desired.end(), [&](const Desired& d) { return !shard.count(d.name); }),
+                    desired.end());
+    }
+    ShardFinished shard_done;
 
     // Plane proxy inputs: sparse points seen by a training view, else the point nearest to the axes.
     std::vector<Eigen::Vector3d> sparse_points;
@@ -505,7 +531,7 @@ class RenderStage : public Stage {
       std::vector<std::string> keys;
       for (const Desired& view : desired) keys.push_back(spec.name + "__" + view.stem);
       double splat_seconds = 0, splat_megapixels = 0;
-      ForEachView(context, "render " + spec.name, keys, [&](const std::string& key) -> nlohmann::json {
+      const PerViewSummary rendered = ForEachView(context, "render " + spec.name, keys, [&](const std::string& key) -> nlohmann::json {
         const Desired& view = desired[std::find(keys.begin(), keys.end(), key) - keys.begin()];
         std::string plane_kind;
         size_t used_sources = 0;
@@ -558,6 +584,8 @@ class RenderStage : public Stage {
         WriteFileAtomic(folder + "/" + view.stem + ".json", vj.dump(2) + "\n");
         return {};
       });
+      shard_done.computed += rendered.computed;
+      shard_done.resumed += rendered.resumed;
       for (const Desired& view : desired) {
         const std::string facts = folder + "/" + view.stem + ".json";
         if (fs::exists(facts)) views_json[view.name] = nlohmann::json::parse(ReadFile(facts));
@@ -575,6 +603,9 @@ class RenderStage : public Stage {
       context.metrics["seconds_" + spec.name] = seconds;
       spdlog::info("[render] proxy {}: {} views in {:.2f} s", spec.name, desired.size(), seconds);
     }
+    // Each view rendered by every model: the mark a shard's success is read from (UnfinishedViews).
+    for (const Desired& view : desired) context.checkpoint.MarkDone(view.name);
+    if (!shard.empty()) throw shard_done;
     if (primary.empty() && !desired.empty()) {
       throw InputError("render.proxies: none of the listed proxies exists (see the warnings above); list plane or "
                        "an existing mesh");
