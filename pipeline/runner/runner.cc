@@ -64,6 +64,10 @@ std::vector<std::string> SortedImageNames(const Workspace& workspace) {
 
 }  // namespace
 
+ViewCheckpoint Runner::CheckpointOf(const Stage& stage, const std::string& key) const {
+  return ViewCheckpoint(Workspace(config_.workspace).RecordsDir() + "/" + stage.Name() + ".views", key);
+}
+
 std::string Runner::RecordPath(const std::string& stage) const {
   return Workspace(config_.workspace).RecordsDir() + "/" + stage + ".json";
 }
@@ -177,7 +181,7 @@ bool Runner::Execute(const Stage& stage, StageContext& context, const std::strin
                      bool interactive) {
   TerminalProgress progress(stage.Name(), interactive);
   context.progress = &progress;
-  context.checkpoint = ViewCheckpoint(context.workspace.RecordsDir() + "/" + stage.Name() + ".views", key);
+  context.checkpoint = CheckpointOf(stage, key);
 
   StageRecord record;
   record.stage = stage.Name();
@@ -281,13 +285,11 @@ std::string Runner::ShardableStagesText() const {
 }
 
 std::vector<std::string> Runner::ShardViews(const std::string& stage_name) const {
-  for (const StageConfig& stage_config : config_.stages) {
-    if (stage_config.name != stage_name) continue;
-    const Stage& stage = *registry_.Find(stage_name);
-    if (!stage.Shardable()) return {};
-    return stage.ShardViews(MakeContext(stage, stage_config));
-  }
-  return {};
+  const StageConfig* stage_config = config_.FindStage(stage_name);
+  if (stage_config == nullptr) return {};
+  const Stage& stage = *registry_.Find(stage_name);
+  if (!stage.Shardable()) return {};
+  return stage.ShardViews(MakeContext(stage, *stage_config));
 }
 
 bool Runner::SelectStages(const RunOptions& options, std::vector<size_t>* selected) const {
@@ -329,26 +331,28 @@ double Runner::ViewMemoryMb(const std::string& stage_name) const {
 }
 
 std::vector<std::string> Runner::UnfinishedViews(const std::string& stage_name) const {
+  const StageConfig* stage_config = config_.FindStage(stage_name);
+  if (stage_config == nullptr) return {};
+  const Stage& stage = *registry_.Find(stage_name);
+  const StageContext context = MakeContext(stage, *stage_config);
+  nlohmann::json inputs;
+  const ViewCheckpoint checkpoint = CheckpointOf(stage, CacheKey(stage, context, &inputs));
   std::vector<std::string> unfinished;
-  for (const StageConfig& stage_config : config_.stages) {
-    if (stage_config.name != stage_name) continue;
-    const Stage& stage = *registry_.Find(stage_name);
-    const StageContext context = MakeContext(stage, stage_config);
-    nlohmann::json inputs;
-    const ViewCheckpoint checkpoint(context.workspace.RecordsDir() + "/" + stage.Name() + ".views",
-                                    CacheKey(stage, context, &inputs));
-    for (const std::string& view : ShardViews(stage_name)) {
-      if (!checkpoint.Done(view)) unfinished.push_back(view);
-    }
+  for (const std::string& view : ShardViews(stage_name)) {
+    if (!checkpoint.Done(view)) unfinished.push_back(view);
   }
   return unfinished;
 }
 
+std::string Runner::Staleness(size_t index) const {
+  const Stage& stage = *registry_.Find(config_.stages.at(index).name);
+  const StageContext context = MakeContext(stage, config_.stages[index]);
+  nlohmann::json inputs;
+  return OwnStaleness(stage, context, CacheKey(stage, context, &inputs));
+}
+
 int Runner::RunShard(const RunOptions& options) {
-  const StageConfig* stage_config = nullptr;
-  for (const StageConfig& s : config_.stages) {
-    if (s.name == options.only) stage_config = &s;
-  }
+  const StageConfig* stage_config = config_.FindStage(options.only);
   if (options.only.empty() || stage_config == nullptr) {
     spdlog::error("--views needs --only STAGE naming a stage of {}", config_.path);
     return 2;
@@ -378,7 +382,7 @@ int Runner::RunShard(const RunOptions& options) {
   // Both belong to the merge.
   TerminalProgress progress(stage.Name() + " shard", options.interactive);
   context.progress = &progress;
-  context.checkpoint = ViewCheckpoint(context.workspace.RecordsDir() + "/" + stage.Name() + ".views", key);
+  context.checkpoint = CheckpointOf(stage, key);
   context.shard_views.insert(options.views.begin(), options.views.end());
   const auto wall_start = std::chrono::steady_clock::now();
   try {

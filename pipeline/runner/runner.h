@@ -46,6 +46,8 @@ class Runner {
   double ViewMemoryMb(const std::string& stage) const;
   // Of those, the ones not yet marked done under the stage's current cache key.
   std::vector<std::string> UnfinishedViews(const std::string& stage) const;
+  // Why the config's stage `index` would run (its own staleness, as Run decides); "" when up to date.
+  std::string Staleness(size_t index) const;
   // The config's stage indices that `options` selects (--only, --from, --to); false, with the
   // problem logged, when one names a stage the config does not have.
   bool SelectStages(const RunOptions& options, std::vector<size_t>* selected) const;
@@ -68,6 +70,8 @@ class Runner {
   // Own staleness of one stage, ignoring upstream; "" when up to date.
   std::string OwnStaleness(const Stage& stage, const StageContext& context, const std::string& key) const;
   std::string RecordPath(const std::string& stage) const;
+  // The per-view marks of a stage's run with cache key `key` (records/<stage>.views/).
+  ViewCheckpoint CheckpointOf(const Stage& stage, const std::string& key) const;
   bool Execute(const Stage& stage, StageContext& context, const std::string& key, const nlohmann::json& inputs,
                bool interactive);
   // Runs the shard `options.views` of the stage `options.only` (see RunOptions::views).

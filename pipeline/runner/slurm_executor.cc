@@ -107,7 +107,8 @@ class SlurmRun {
     workspace_ = runner.config().workspace;
   }
 
-  bool StageUpToDate(size_t index) const { return runner_.Status().at(index).up_to_date; }
+  // Decided as `ibmr run` decides (the stage's own cache key), hashing this stage's inputs only.
+  bool StageUpToDate(size_t index) const { return runner_.Staleness(index).empty(); }
 
   // MB for one view's task: the user's figure, else the stage's estimate with a quarter more
   // for what it does not count, else 2000.
@@ -127,8 +128,7 @@ class SlurmRun {
   // The job array for the views of a per-view stage, resubmitting what failed; true when every
   // view is done. `array_job` is the last array's id (the merge depends on it).
   bool RunViews(const std::string& stage, std::string* array_job) {
-    const std::string folder = workspace_ + "/logs/slurm/" + stage;
-    fs::create_directories(folder);
+    const std::string folder = LogFolder(stage);
     std::vector<std::string> todo = runner_.UnfinishedViews(stage);
     for (int attempt = 1; !todo.empty() && attempt <= options_.retries + 1; ++attempt) {
       const std::string list = folder + "/views." + std::to_string(attempt) + ".txt";
@@ -181,8 +181,7 @@ class SlurmRun {
   // One job running the whole stage (or, after its views, the merge); true when the stage ends
   // up to date.
   bool RunStageJob(size_t index, const std::string& stage, const std::string& after, const std::string& what) {
-    const std::string folder = workspace_ + "/logs/slurm/" + stage;
-    fs::create_directories(folder);
+    const std::string folder = LogFolder(stage);
     const std::string log = folder + "/" + what + ".log";
     std::vector<std::string> command = RunStage(stage);
     if (options_.threads_per_stage > 0) command.insert(command.end(), {"--jobs", std::to_string(options_.threads_per_stage)});
@@ -208,6 +207,13 @@ class SlurmRun {
   }
 
  private:
+  // logs/slurm/<stage>/: job scripts, view lists and logs (made on first use).
+  std::string LogFolder(const std::string& stage) const {
+    const std::string folder = workspace_ + "/logs/slurm/" + stage;
+    fs::create_directories(folder);
+    return folder;
+  }
+
   // `ibmr run CONFIG ... --only STAGE` as this process sees the config.
   std::vector<std::string> RunStage(const std::string& stage) const {
     std::vector<std::string> command = {options_.ibmr, "run"};

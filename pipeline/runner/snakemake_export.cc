@@ -86,6 +86,7 @@ std::string SnakemakeFile(const Runner& runner, const SnakemakeExportOptions& op
   for (size_t i = 0; i < config.stages.size(); ++i) {
     const std::string& name = config.stages[i].name;
     const bool per_view = runner.registry().Find(name)->Shardable();
+    const std::vector<std::string> reads = runner.DeclaredInputs(i);
     // What Snakemake compares times with: the upstream stages' stamps, ibmr itself and the config
     // (a rebuilt ibmr or an edited config reruns every rule, and ibmr's cache then skips what is
     // current), and the files from outside the workspace the stage reads (a user's image folder).
@@ -101,11 +102,11 @@ std::string SnakemakeFile(const Runner& runner, const SnakemakeExportOptions& op
       upstream_stamps.push_back(Stamp(config.stages[j].name));
       upstream_names.push_back(Rule(config.stages[j].name));
     }
-    for (const std::string& input : runner.DeclaredInputs(i)) {
+    for (const std::string& input : reads) {
       if (std::filesystem::path(input).is_absolute() && std::filesystem::exists(input)) upstream_stamps.push_back(input);
     }
     out << "# " << name << (per_view ? " (per view)" : "") << "\n"
-        << "#   reads:  " << Listed(runner.DeclaredInputs(i), per_view) << "\n"
+        << "#   reads:  " << Listed(reads, per_view) << "\n"
         << "#   writes: " << Listed(runner.DeclaredOutputs(i), per_view) << "\n";
     std::string view_input;
     if (per_view) {

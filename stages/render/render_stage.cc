@@ -150,10 +150,15 @@ class RenderStage : public Stage {
   bool Shardable() const override { return true; }
   std::vector<std::string> ShardViews(const StageContext& context) const override {
     if (!fs::exists(context.workspace.Path("sparse/images.txt"))) return {};
-    std::vector<std::string> names = context.params.StringList("views");
-    if (names.empty()) names.assign(context.heldout_images.begin(), context.heldout_images.end());
+    std::vector<std::string> names = PhotoViewNames(context);
     if (!context.params.DoubleList("novel_look_at").empty()) names.push_back("novel");
     std::sort(names.begin(), names.end());
+    return names;
+  }
+  // The photographed views to render: render.views, else the held-out ones.
+  static std::vector<std::string> PhotoViewNames(const StageContext& context) {
+    std::vector<std::string> names = context.params.StringList("views");
+    if (names.empty()) names.assign(context.heldout_images.begin(), context.heldout_images.end());
     return names;
   }
 
@@ -323,9 +328,7 @@ class RenderStage : public Stage {
       Rigid3d cam_from_world;
     };
     std::vector<Desired> desired;
-    std::vector<std::string> names = context.params.StringList("views");
-    if (names.empty()) names.assign(context.heldout_images.begin(), context.heldout_images.end());
-    for (const std::string& name : names) {
+    for (const std::string& name : PhotoViewNames(context)) {
       const Image* image = model.FindImage(name);
       if (!image) throw InputError("render.views: no image named \"" + name + "\" in " + context.workspace.SparseDir());
       desired.push_back({name, Stem(name), PinholeOf(model.CameraOf(*image), name), image->cam_from_world});
