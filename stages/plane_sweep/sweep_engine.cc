@@ -1,453 +1,19 @@
-// Cost volume, semi-global aggregation and winner-take-all (see sweep_engine.h for the method
-// and the seed-paper sections it follows).
+// The engine's buffer pool and the run-time choice of its build (see sweep_engine.h; the loops
+// are in sweep_kernels.cc).
 #include "stages/plane_sweep/sweep_engine.h"
 
-#include <tbb/blocked_range.h>
-#include <tbb/enumerable_thread_specific.h>
-#include <tbb/parallel_for.h>
-#include <tbb/parallel_invoke.h>
-
-#include <algorithm>
-#include <cmath>
+#include <atomic>
+#include <cstdlib>
+#include <cstring>
 #include <mutex>
-#include <opencv2/imgproc.hpp>
+
+#include "stages/plane_sweep/sweep_kernels.h"
 
 namespace ibmr {
 namespace sweep {
 
 namespace {
 
-constexpr int16_t kSentinel = 0x3FFF;
-
-int RoundUp16(int n) { return (n + 15) / 16 * 16; }
-
-// Cost of a pixel whose correspondence falls outside the neighbour: neutral, so that best-k
-// prefers neighbours that see the point.
-constexpr uint16_t kOutsideCost = 600;
-
-// Per-worker scratch for one plane.
-struct PlaneScratch {
-  std::vector<std::vector<uint16_t>> slices;  // per neighbour, W*H
-  std::vector<uint32_t> row_sums;
-  std::vector<float> warped, wsum, wsq, wcross;
-};
-
-bool IsIntegerTranslation(const Eigen::Matrix3d& h, int* dx, int* dy) {
-  if (h(2, 0) != 0 || h(2, 1) != 0 || h(2, 2) != 1 || h(0, 0) != 1 || h(1, 1) != 1 || h(0, 1) != 0 ||
-      h(1, 0) != 0) {
-    return false;
-  }
-  if (h(0, 2) != std::round(h(0, 2)) || h(1, 2) != std::round(h(1, 2))) return false;
-  *dx = static_cast<int>(h(0, 2));
-  *dy = static_cast<int>(h(1, 2));
-  return true;
-}
-
-// Raw census cost of one neighbour for one plane (nearest sampling of the neighbour's codes).
-void CensusSlice(const std::vector<uint64_t>& ref, const std::vector<uint64_t>& src, int w, int h, int sw,
-                 int sh, const Eigen::Matrix3d& hom, uint16_t* out) {
-  int dx = 0, dy = 0;
-  if (IsIntegerTranslation(hom, &dx, &dy)) {
-    for (int y = 0; y < h; ++y) {
-      const int ys = y + dy;
-      uint16_t* o = out + static_cast<size_t>(y) * w;
-      if (ys < 0 || ys >= sh) {
-        std::fill(o, o + w, kOutsideCost);
-        continue;
-      }
-      const uint64_t* r = ref.data() + static_cast<size_t>(y) * w;
-      const uint64_t* s = src.data() + static_cast<size_t>(ys) * sw;
-      const int x0 = std::max(0, -dx), x1 = std::min(w, sw - dx);
-      for (int x = 0; x < std::min(x0, w); ++x) o[x] = kOutsideCost;
-      for (int x = x0; x < x1; ++x) o[x] = static_cast<uint16_t>(__builtin_popcountll(r[x] ^ s[x + dx]) << 4);
-      for (int x = std::max(x1, 0); x < w; ++x) o[x] = kOutsideCost;
-    }
-    return;
-  }
-  const float h00 = hom(0, 0), h01 = hom(0, 1), h02 = hom(0, 2), h10 = hom(1, 0), h11 = hom(1, 1),
-              h12 = hom(1, 2), h20 = hom(2, 0), h21 = hom(2, 1), h22 = hom(2, 2);
-  for (int y = 0; y < h; ++y) {
-    const float yc = y + 0.5f;
-    const uint64_t* r = ref.data() + static_cast<size_t>(y) * w;
-    uint16_t* o = out + static_cast<size_t>(y) * w;
-    for (int x = 0; x < w; ++x) {
-      const float xc = x + 0.5f;
-      const float z = h20 * xc + h21 * yc + h22;
-      const float u = (h00 * xc + h01 * yc + h02) / z, v = (h10 * xc + h11 * yc + h12) / z;
-      const int xs = static_cast<int>(std::floor(u)), ys = static_cast<int>(std::floor(v));
-      if (z <= 0 || xs < 0 || ys < 0 || xs >= sw || ys >= sh) {
-        o[x] = kOutsideCost;
-      } else {
-        o[x] = static_cast<uint16_t>(__builtin_popcountll(r[x] ^ src[static_cast<size_t>(ys) * sw + xs]) << 4);
-      }
-    }
-  }
-}
-
-// Bilinear warp of the neighbour's grey image by the plane homography; NaN outside.
-void WarpGray(const cv::Mat& src, int w, int h, const Eigen::Matrix3d& hom, float* out) {
-  const float h00 = hom(0, 0), h01 = hom(0, 1), h02 = hom(0, 2), h10 = hom(1, 0), h11 = hom(1, 1),
-              h12 = hom(1, 2), h20 = hom(2, 0), h21 = hom(2, 1), h22 = hom(2, 2);
-  const int sw = src.cols, sh = src.rows;
-  for (int y = 0; y < h; ++y) {
-    const float yc = y + 0.5f;
-    for (int x = 0; x < w; ++x) {
-      const float xc = x + 0.5f;
-      const float z = h20 * xc + h21 * yc + h22;
-      const float u = (h00 * xc + h01 * yc + h02) / z - 0.5f, v = (h10 * xc + h11 * yc + h12) / z - 0.5f;
-      float value = std::numeric_limits<float>::quiet_NaN();
-      if (z > 0 && u >= 0 && v >= 0 && u <= sw - 1 && v <= sh - 1) {
-        const int x0 = std::min(static_cast<int>(u), sw - 2 < 0 ? 0 : sw - 2);
-        const int y0 = std::min(static_cast<int>(v), sh - 2 < 0 ? 0 : sh - 2);
-        const float fx = u - x0, fy = v - y0;
-        const uint8_t* p0 = src.ptr<uint8_t>(y0) + x0;
-        const uint8_t* p1 = src.ptr<uint8_t>(std::min(y0 + 1, sh - 1)) + x0;
-        const int xo = x0 + 1 < sw ? 1 : 0;
-        value = (1 - fy) * ((1 - fx) * p0[0] + fx * p0[xo]) + fy * ((1 - fx) * p1[0] + fx * p1[xo]);
-      }
-      out[static_cast<size_t>(y) * w + x] = value;
-    }
-  }
-}
-
-// In-place box mean of a uint16 slice with radius r (borders: window clipped to the image).
-void BoxMean(uint16_t* slice, int w, int h, int r, std::vector<uint32_t>* tmp) {
-  if (r <= 0) return;
-  tmp->assign(static_cast<size_t>(w) * h, 0);
-  uint32_t* t = tmp->data();
-  // Vertical sums.
-  std::vector<uint32_t> col(w, 0);
-  for (int y = 0; y < std::min(r, h); ++y)
-    for (int x = 0; x < w; ++x) col[x] += slice[static_cast<size_t>(y) * w + x];
-  for (int y = 0; y < h; ++y) {
-    if (y + r < h)
-      for (int x = 0; x < w; ++x) col[x] += slice[static_cast<size_t>(y + r) * w + x];
-    if (y - r - 1 >= 0)
-      for (int x = 0; x < w; ++x) col[x] -= slice[static_cast<size_t>(y - r - 1) * w + x];
-    std::copy(col.begin(), col.end(), t + static_cast<size_t>(y) * w);
-  }
-  const int ny_full = 2 * r + 1;
-  for (int y = 0; y < h; ++y) {
-    const int ny = std::min(h - 1, y + r) - std::max(0, y - r) + 1;
-    const uint32_t* c = t + static_cast<size_t>(y) * w;
-    uint16_t* o = slice + static_cast<size_t>(y) * w;
-    uint32_t sum = 0;
-    for (int x = 0; x < std::min(r, w); ++x) sum += c[x];
-    for (int x = 0; x < w; ++x) {
-      if (x + r < w) sum += c[x + r];
-      if (x - r - 1 >= 0) sum -= c[x - r - 1];
-      const int nx = std::min(w - 1, x + r) - std::max(0, x - r) + 1;
-      o[x] = static_cast<uint16_t>((sum + (nx * ny) / 2) / (nx * ny));
-    }
-  }
-  (void)ny_full;
-}
-
-// Box sums of a float image (NaN-free input) with clipped borders, as means.
-void BoxMeanFloat(const float* in, float* out, int w, int h, int r) {
-  cv::Mat src(h, w, CV_32F, const_cast<float*>(in)), dst(h, w, CV_32F, out);
-  cv::boxFilter(src, dst, CV_32F, cv::Size(2 * r + 1, 2 * r + 1), cv::Point(-1, -1), true, cv::BORDER_REFLECT);
-}
-
-void SadSlice(const cv::Mat& ref, const cv::Mat& src, const Eigen::Matrix3d& hom, PlaneScratch* s, uint16_t* out) {
-  const int w = ref.cols, h = ref.rows;
-  s->warped.resize(static_cast<size_t>(w) * h);
-  WarpGray(src, w, h, hom, s->warped.data());
-  for (int y = 0; y < h; ++y) {
-    const uint8_t* r = ref.ptr<uint8_t>(y);
-    for (int x = 0; x < w; ++x) {
-      const float v = s->warped[static_cast<size_t>(y) * w + x];
-      out[static_cast<size_t>(y) * w + x] =
-          std::isnan(v) ? kOutsideCost : static_cast<uint16_t>(std::min(1020.f, 4.f * std::fabs(v - r[x])));
-    }
-  }
-}
-
-void ZnccSlice(const cv::Mat& ref, const cv::Mat& ref_mean, const cv::Mat& ref_var, const cv::Mat& src,
-               const Eigen::Matrix3d& hom, int radius, PlaneScratch* s, uint16_t* out) {
-  const int w = ref.cols, h = ref.rows;
-  const size_t n = static_cast<size_t>(w) * h;
-  s->warped.resize(n);
-  s->wsum.resize(n);
-  s->wsq.resize(n);
-  s->wcross.resize(n);
-  WarpGray(src, w, h, hom, s->warped.data());
-  std::vector<uint8_t> outside(n);
-  for (size_t i = 0; i < n; ++i) {
-    outside[i] = std::isnan(s->warped[i]);
-    if (outside[i]) s->warped[i] = 0;
-  }
-  for (int y = 0; y < h; ++y) {
-    const uint8_t* r = ref.ptr<uint8_t>(y);
-    for (int x = 0; x < w; ++x) {
-      const size_t i = static_cast<size_t>(y) * w + x;
-      s->wsq[i] = s->warped[i] * s->warped[i];
-      s->wcross[i] = s->warped[i] * r[x];
-    }
-  }
-  BoxMeanFloat(s->warped.data(), s->wsum.data(), w, h, radius);
-  BoxMeanFloat(s->wsq.data(), s->wsq.data(), w, h, radius);
-  BoxMeanFloat(s->wcross.data(), s->wcross.data(), w, h, radius);
-  for (int y = 0; y < h; ++y) {
-    const float* rm = ref_mean.ptr<float>(y);
-    const float* rv = ref_var.ptr<float>(y);
-    for (int x = 0; x < w; ++x) {
-      const size_t i = static_cast<size_t>(y) * w + x;
-      const float var = s->wsq[i] - s->wsum[i] * s->wsum[i];
-      const float cov = s->wcross[i] - s->wsum[i] * rm[x];
-      const float ncc = cov / std::sqrt(std::max(1e-3f, var * rv[x]) + 4.f);
-      out[i] = outside[i] ? kOutsideCost : static_cast<uint16_t>(std::clamp(500.f * (1.f - ncc), 0.f, 1000.f));
-    }
-  }
-}
-
-// One semi-global path step: L(p,d) = C(p,d) + min(L(p-r,d), L(p-r,d+-1) + P1, min L(p-r) + P2) - min L(p-r).
-// `prev` and `cur` are padded by one sentinel on each side. Returns min over d of L. Signed 16-bit
-// so that min vectorises with SSE2 (all values stay below 2^15).
-template <bool kAssign>
-inline int16_t PathStep(const uint16_t* __restrict c, const int16_t* __restrict prev, int16_t min_prev, int16_t p1,
-                        int16_t p2, int n, int16_t* __restrict cur, uint16_t* __restrict sum) {
-  const int16_t mp2 = static_cast<int16_t>(min_prev + p2);
-  int16_t m = 0x7FFF;
-  for (int d = 0; d < n; ++d) {
-    const int16_t a = prev[d];
-    const int16_t b = static_cast<int16_t>(prev[d - 1] + p1);
-    const int16_t e = static_cast<int16_t>(prev[d + 1] + p1);
-    const int16_t t = std::min(std::min(a, b), std::min(e, mp2));
-    const int16_t l = static_cast<int16_t>(static_cast<int16_t>(c[d]) + t - min_prev);
-    cur[d] = l;
-    sum[d] = kAssign ? static_cast<uint16_t>(l) : static_cast<uint16_t>(sum[d] + l);
-    m = std::min(m, l);
-  }
-  return m;
-}
-
-template <bool kAssign>
-inline int16_t PathStart(const uint16_t* __restrict c, int n, int16_t* __restrict cur, uint16_t* __restrict sum) {
-  int16_t m = 0x7FFF;
-  for (int d = 0; d < n; ++d) {
-    const int16_t v = static_cast<int16_t>(c[d]);
-    cur[d] = v;
-    sum[d] = kAssign ? static_cast<uint16_t>(v) : static_cast<uint16_t>(sum[d] + v);
-    m = std::min(m, v);
-  }
-  return m;
-}
-
-// One pass over the image in scan order `s` (+1: top-left to bottom-right; -1: reverse) along the
-// paths arriving from the previous pixel and, when `diagonals`, the previous row's three pixels
-// (else only the one above).
-void SgmPass(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, int s, std::vector<uint16_t>* out) {
-  const int w = v.width, h = v.height, n = v.stride, ps = n + 2;
-  const bool diagonals = o.paths == 8;
-  out->resize(v.data.size());  // every entry is assigned by the row path first
-  const int ndir = diagonals ? 3 : 1;  // row paths: from (x - s, y - s), (x, y - s), (x + s, y - s)
-  std::vector<int16_t> prev_row(static_cast<size_t>(ndir) * w * ps, kSentinel), cur_row(prev_row.size(), kSentinel);
-  std::vector<int16_t> prev_min(static_cast<size_t>(ndir) * w, 0), cur_min(prev_min.size(), 0);
-  std::vector<int16_t> left(ps, kSentinel), left_cur(ps, kSentinel);
-  const int16_t p1 = static_cast<int16_t>(o.p1);
-  int16_t p2_table[256];
-  for (int g = 0; g < 256; ++g) {
-    const double p2 = o.p2_gamma <= 0 ? o.p2 : o.p2 / (1.0 + g / o.p2_gamma);
-    p2_table[g] = static_cast<int16_t>(std::max<double>(p1 + 1, p2));
-  }
-  auto p2_for = [&](int g0, int g1) -> int16_t { return p2_table[std::abs(g0 - g1)]; };
-  for (int yi = 0; yi < h; ++yi) {
-    const int y = s > 0 ? yi : h - 1 - yi;
-    const uint8_t* g = gray.ptr<uint8_t>(y);
-    const uint8_t* gp = yi > 0 ? gray.ptr<uint8_t>(y - s) : nullptr;
-    int16_t left_min = 0;
-    for (int xi = 0; xi < w; ++xi) {
-      const int x = s > 0 ? xi : w - 1 - xi;
-      const uint16_t* c = v.At(x, y);
-      uint16_t* sum = out->data() + (static_cast<size_t>(y) * w + x) * n;
-      // From the previous pixel on the row.
-      if (xi == 0) {
-        left_min = PathStart<true>(c, n, left_cur.data() + 1, sum);
-      } else {
-        left_min = PathStep<true>(c, left.data() + 1, left_min, p1, p2_for(g[x], g[x - s]), n, left_cur.data() + 1, sum);
-      }
-      std::swap(left, left_cur);
-      // From the previous row.
-      for (int k = 0; k < ndir; ++k) {
-        const int dx = diagonals ? (k - 1) * s : 0;  // source pixel x offset
-        const int xs = x + dx;
-        int16_t* cur = cur_row.data() + (static_cast<size_t>(k) * w + x) * ps + 1;
-        int16_t& cm = cur_min[static_cast<size_t>(k) * w + x];
-        if (yi == 0 || xs < 0 || xs >= w) {
-          cm = PathStart<false>(c, n, cur, sum);
-        } else {
-          const int16_t* pv = prev_row.data() + (static_cast<size_t>(k) * w + xs) * ps + 1;
-          cm = PathStep<false>(c, pv, prev_min[static_cast<size_t>(k) * w + xs], p1, p2_for(g[x], gp[xs]), n, cur, sum);
-        }
-      }
-    }
-    std::swap(prev_row, cur_row);
-    std::swap(prev_min, cur_min);
-  }
-}
-
-// Box mean of the volume over (2r+1)^2 pixels per plane, borders clipped; in place.
-void BoxFilterVolume(CostVolume* v, int r) {
-  if (r <= 0) return;
-  const int w = v->width, h = v->height, n = v->stride;
-  std::vector<uint16_t>& horizontal = v->scratch;
-  horizontal.resize(v->data.size());
-  tbb::parallel_for(0, h, [&](int y) {
-    std::vector<uint16_t> acc(n, 0);
-    const uint16_t* in = v->At(0, y);
-    uint16_t* out = horizontal.data() + static_cast<size_t>(y) * w * n;
-    for (int x = 0; x < std::min(r, w); ++x)
-      for (int d = 0; d < n; ++d) acc[d] += in[static_cast<size_t>(x) * n + d];
-    for (int x = 0; x < w; ++x) {
-      if (x + r < w) {
-        const uint16_t* add = in + static_cast<size_t>(x + r) * n;
-        for (int d = 0; d < n; ++d) acc[d] += add[d];
-      }
-      if (x - r - 1 >= 0) {
-        const uint16_t* sub = in + static_cast<size_t>(x - r - 1) * n;
-        for (int d = 0; d < n; ++d) acc[d] -= sub[d];
-      }
-      std::copy(acc.begin(), acc.end(), out + static_cast<size_t>(x) * n);
-    }
-  });
-  const size_t row = static_cast<size_t>(w) * n;
-  tbb::parallel_for(tbb::blocked_range<int>(0, h, 16), [&](const tbb::blocked_range<int>& rows) {
-    std::vector<uint32_t> acc(row, 0u);
-    const int first = rows.begin();
-    for (int yy = std::max(0, first - r); yy <= std::min(h - 1, first + r - 1); ++yy) {
-      const uint16_t* in = horizontal.data() + yy * row;
-      for (size_t i = 0; i < row; ++i) acc[i] += in[i];
-    }
-    for (int y = first; y < rows.end(); ++y) {
-      if (y + r < h) {
-        const uint16_t* in = horizontal.data() + (y + r) * row;
-        for (size_t i = 0; i < row; ++i) acc[i] += in[i];
-      }
-      if (y - r - 1 >= std::max(0, first - r)) {  // rows before the block's window were never added
-        const uint16_t* in = horizontal.data() + (y - r - 1) * row;
-        for (size_t i = 0; i < row; ++i) acc[i] -= in[i];
-      }
-      const int ny = std::min(h - 1, y + r) - std::max(0, y - r) + 1;
-      uint16_t* out = v->At(0, y);
-      for (int x = 0; x < w; ++x) {
-        const uint32_t area = static_cast<uint32_t>(ny * (std::min(w - 1, x + r) - std::max(0, x - r) + 1));
-        const uint32_t* a = acc.data() + static_cast<size_t>(x) * n;
-        uint16_t* o = out + static_cast<size_t>(x) * n;
-        // Multiply by a fixed-point reciprocal (exact enough for costs below 2^11 * area).
-        const uint32_t inv = (1u << 16) / area + 1;
-        for (int d = 0; d < n; ++d) o[d] = static_cast<uint16_t>((a[d] * inv) >> 16);
-      }
-    }
-  });
-}
-
-// Census costs of all neighbours, pixel by pixel (planes contiguous), combined by best-k.
-void BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector<std::vector<uint64_t>>& src,
-                       const std::vector<Neighbour>& neighbours, int k, CostVolume* v) {
-  const int w = v->width, h = v->height, np = v->planes, n = v->stride;
-  const int nn = static_cast<int>(neighbours.size());
-  // Homographies as planes-contiguous float rows; integer shifts detected for rectified pairs.
-  std::vector<std::vector<float>> hom(nn, std::vector<float>(9 * static_cast<size_t>(np)));
-  std::vector<std::vector<int>> shift(nn);
-  for (int i = 0; i < nn; ++i) {
-    bool all_shifts = true;
-    for (int p = 0; p < np; ++p) {
-      const Eigen::Matrix3d& m = neighbours[i].homographies[p];
-      for (int e = 0; e < 9; ++e) hom[i][static_cast<size_t>(e) * np + p] = static_cast<float>(m(e / 3, e % 3));
-      int dx = 0, dy = 0;
-      all_shifts &= IsIntegerTranslation(m, &dx, &dy) && dy == 0;
-      shift[i].push_back(dx);
-    }
-    if (!all_shifts) shift[i].clear();
-  }
-  tbb::parallel_for(tbb::blocked_range<int>(0, h, 4), [&](const tbb::blocked_range<int>& rows) {
-    std::vector<uint16_t> costs(static_cast<size_t>(nn) * n, kMaxCost);
-    std::vector<uint16_t> best(static_cast<size_t>(k) * n);
-    std::vector<float> u(np), vv(np);
-    for (int y = rows.begin(); y < rows.end(); ++y) {
-      const float yc = y + 0.5f;
-      for (int x = 0; x < w; ++x) {
-        const uint64_t code = ref[static_cast<size_t>(y) * w + x];
-        const float xc = x + 0.5f;
-        for (int i = 0; i < nn; ++i) {
-          uint16_t* c = costs.data() + static_cast<size_t>(i) * n;
-          const std::vector<uint64_t>& s = src[i];
-          const int sw = neighbours[i].gray.cols, sh = neighbours[i].gray.rows;
-          if (!shift[i].empty()) {
-            const uint64_t* row = s.data() + static_cast<size_t>(y) * sw;
-            for (int p = 0; p < np; ++p) {
-              const int xs = x + shift[i][p];
-              c[p] = xs >= 0 && xs < sw && y < sh ? static_cast<uint16_t>(__builtin_popcountll(code ^ row[xs]) << 4)
-                                                   : kOutsideCost;
-            }
-            continue;
-          }
-          const float* hm = hom[i].data();
-          for (int p = 0; p < np; ++p) {
-            const float z = hm[6 * np + p] * xc + hm[7 * np + p] * yc + hm[8 * np + p];
-            const float inv = z > 0 ? 1.f / z : -1.f;
-            u[p] = (hm[0 * np + p] * xc + hm[1 * np + p] * yc + hm[2 * np + p]) * inv;
-            vv[p] = (hm[3 * np + p] * xc + hm[4 * np + p] * yc + hm[5 * np + p]) * inv;
-          }
-          // Hamming distances at the four pixels around the correspondence, bilinearly
-          // interpolated: a cost curve that is smooth in the plane index (sub-pixel accuracy).
-          for (int p = 0; p < np; ++p) {
-            const float fu = u[p] - 0.5f, fv = vv[p] - 0.5f;
-            if (fu >= 0 && fv >= 0 && fu < sw - 1 && fv < sh - 1) {
-              const int x0 = static_cast<int>(fu), y0 = static_cast<int>(fv);
-              const float ax = fu - x0, ay = fv - y0;
-              const uint64_t* r0 = s.data() + static_cast<size_t>(y0) * sw + x0;
-              const uint64_t* r1 = r0 + sw;
-              const float top = (1 - ax) * __builtin_popcountll(code ^ r0[0]) + ax * __builtin_popcountll(code ^ r0[1]);
-              const float bottom = (1 - ax) * __builtin_popcountll(code ^ r1[0]) + ax * __builtin_popcountll(code ^ r1[1]);
-              c[p] = static_cast<uint16_t>(16.f * ((1 - ay) * top + ay * bottom) + 0.5f);
-            } else {
-              c[p] = kOutsideCost;
-            }
-          }
-        }
-        uint16_t* out = v->At(x, y);
-        if (nn == 1) {
-          std::copy(costs.data(), costs.data() + np, out);
-          continue;
-        }
-        if (k == nn) {
-          for (int p = 0; p < np; ++p) {
-            uint32_t sum = 0;
-            for (int i = 0; i < nn; ++i) sum += costs[static_cast<size_t>(i) * n + p];
-            out[p] = static_cast<uint16_t>(sum / nn);
-          }
-          continue;
-        }
-        // k smallest per plane by an insertion network (vectorises over planes).
-        std::fill(best.begin(), best.end(), static_cast<uint16_t>(0x7FFF));
-        for (int i = 0; i < nn; ++i) {
-          const uint16_t* c = costs.data() + static_cast<size_t>(i) * n;
-          std::copy(c, c + np, u.begin());  // reuse as a float scratch of the value being inserted
-          for (int j = 0; j < k; ++j) {
-            uint16_t* b = best.data() + static_cast<size_t>(j) * n;
-            for (int p = 0; p < np; ++p) {
-              const float val = u[p];
-              const float lo = std::min<float>(b[p], val);
-              u[p] = std::max<float>(b[p], val);
-              b[p] = static_cast<uint16_t>(lo);
-            }
-          }
-        }
-        for (int p = 0; p < np; ++p) {
-          uint32_t sum = 0;
-          for (int j = 0; j < k; ++j) sum += best[static_cast<size_t>(j) * n + p];
-          out[p] = static_cast<uint16_t>(sum / k);
-        }
-      }
-    }
-  });
-}
-
-}  // namespace
-
-namespace {
 std::mutex& PoolMutex() {
   static std::mutex mutex;
   return mutex;
@@ -456,7 +22,66 @@ std::vector<std::unique_ptr<Buffers>>& Pool() {
   static std::vector<std::unique_ptr<Buffers>> pool;
   return pool;
 }
+
+// IBMR_ISA=portable in the environment starts the process on the portable build (to compare the
+// two as whole processes).
+std::atomic<Isa>& Active() {
+  static std::atomic<Isa> active{[] {
+    const char* forced = std::getenv("IBMR_ISA");
+    return forced != nullptr && std::strcmp(forced, "portable") == 0 ? Isa::kPortable : BestIsa();
+  }()};
+  return active;
+}
+
 }  // namespace
+
+Isa BestIsa() {
+#if IBMR_SWEEP_HAVE_AVX512
+  static const bool avx512 = __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512bw") &&
+                             __builtin_cpu_supports("avx512dq") && __builtin_cpu_supports("avx512vl") &&
+                             __builtin_cpu_supports("avx512vpopcntdq");
+  if (avx512) return Isa::kAvx512;
+#endif
+  return Isa::kPortable;
+}
+
+Isa ActiveIsa() { return Active().load(); }
+
+bool SetIsa(Isa isa) {
+  if (isa == Isa::kAvx512 && BestIsa() != Isa::kAvx512) return false;
+  Active().store(isa);
+  return true;
+}
+
+const char* IsaName(Isa isa) { return isa == Isa::kAvx512 ? "avx512" : "portable"; }
+
+#if IBMR_SWEEP_HAVE_AVX512
+#define IBMR_SWEEP_DISPATCH(call) return ActiveIsa() == Isa::kAvx512 ? avx512::call : portable::call
+#else
+#define IBMR_SWEEP_DISPATCH(call) return portable::call
+#endif
+
+int64_t BuildCostVolume(const cv::Mat& reference_gray, const std::vector<Neighbour>& neighbours,
+                        const EngineOptions& options, CostVolume* volume) {
+  IBMR_SWEEP_DISPATCH(BuildCostVolume(reference_gray, neighbours, options, volume));
+}
+
+void Aggregate(const CostVolume& volume, const cv::Mat& reference_gray, const EngineOptions& options,
+               Aggregated* out) {
+  IBMR_SWEEP_DISPATCH(Aggregate(volume, reference_gray, options, out));
+}
+
+Winners WinnerTakeAll(const Aggregated& aggregated, const CostVolume* data_cost, double confidence_scale) {
+  IBMR_SWEEP_DISPATCH(WinnerTakeAll(aggregated, data_cost, confidence_scale));
+}
+
+cv::Mat RightWinners(const Aggregated& aggregated) { IBMR_SWEEP_DISPATCH(RightWinners(aggregated)); }
+
+std::vector<uint64_t> CensusTransform(const cv::Mat& gray, int radius_x, int radius_y) {
+  IBMR_SWEEP_DISPATCH(CensusTransform(gray, radius_x, radius_y));
+}
+
+#undef IBMR_SWEEP_DISPATCH
 
 BufferLease::BufferLease() {
   std::lock_guard<std::mutex> lock(PoolMutex());
@@ -476,188 +101,6 @@ BufferLease::~BufferLease() {
 void ReleaseBufferPool() {
   std::lock_guard<std::mutex> lock(PoolMutex());
   Pool().clear();
-}
-
-std::vector<uint64_t> CensusTransform(const cv::Mat& gray, int rx, int ry) {
-  const int w = gray.cols, h = gray.rows;
-  std::vector<uint64_t> codes(static_cast<size_t>(w) * h, 0);
-  tbb::parallel_for(tbb::blocked_range<int>(0, h, 8), [&](const tbb::blocked_range<int>& rows) {
-    std::vector<uint8_t> padded(w + 2 * rx);  // the row with clamped borders
-    for (int y = rows.begin(); y < rows.end(); ++y) {
-      const uint8_t* c = gray.ptr<uint8_t>(y);
-      uint64_t* out = codes.data() + static_cast<size_t>(y) * w;
-      // One window offset at a time over the whole row: the loop over x vectorises.
-      for (int dy = -ry; dy <= ry; ++dy) {
-        const uint8_t* r = gray.ptr<uint8_t>(std::clamp(y + dy, 0, h - 1));
-        for (int i = 0; i < w + 2 * rx; ++i) padded[i] = r[std::clamp(i - rx, 0, w - 1)];
-        for (int dx = -rx; dx <= rx; ++dx) {
-          if (dx == 0 && dy == 0) continue;
-          const uint8_t* q = padded.data() + rx + dx;
-          for (int x = 0; x < w; ++x) out[x] = (out[x] << 1) | static_cast<uint64_t>(q[x] < c[x]);
-        }
-      }
-    }
-  });
-  return codes;
-}
-
-int64_t BuildCostVolume(const cv::Mat& ref, const std::vector<Neighbour>& neighbours, const EngineOptions& o,
-                        CostVolume* volume) {
-  const int w = ref.cols, h = ref.rows;
-  const int planes = static_cast<int>(neighbours.front().homographies.size());
-  const int nn = static_cast<int>(neighbours.size());
-  volume->width = w;
-  volume->height = h;
-  volume->planes = planes;
-  volume->stride = RoundUp16(planes);
-  volume->data.resize(static_cast<size_t>(w) * h * volume->stride);
-  if (volume->stride > planes) {
-    tbb::parallel_for(0, h, [&](int y) {
-      for (int x = 0; x < w; ++x) std::fill(volume->At(x, y) + planes, volume->At(x, y) + volume->stride, kMaxCost);
-    });
-  }
-
-  std::vector<uint64_t> ref_census;
-  std::vector<std::vector<uint64_t>> src_census(nn);
-  cv::Mat ref_mean, ref_var;
-  if (o.cost == Cost::kCensus) {
-    ref_census = CensusTransform(ref, o.census_radius_x, o.census_radius_y);
-    for (int i = 0; i < nn; ++i) src_census[i] = CensusTransform(neighbours[i].gray, o.census_radius_x, o.census_radius_y);
-  } else if (o.cost == Cost::kZncc) {
-    cv::Mat f;
-    ref.convertTo(f, CV_32F);
-    const cv::Size k(2 * o.window_radius + 1, 2 * o.window_radius + 1);
-    cv::boxFilter(f, ref_mean, CV_32F, k, cv::Point(-1, -1), true, cv::BORDER_REFLECT);
-    cv::boxFilter(f.mul(f), ref_var, CV_32F, k, cv::Point(-1, -1), true, cv::BORDER_REFLECT);
-    ref_var -= ref_mean.mul(ref_mean);
-  }
-  const int k = std::min(o.best_k, nn);
-  if (o.cost == Cost::kCensus) {
-    BuildCensusVolume(ref_census, src_census, neighbours, k, volume);
-    BoxFilterVolume(volume, o.window_radius);
-    return static_cast<int64_t>(planes) * w * h * nn;
-  }
-  tbb::enumerable_thread_specific<PlaneScratch> scratch;
-  tbb::parallel_for(tbb::blocked_range<int>(0, planes, 1), [&](const tbb::blocked_range<int>& range) {
-    PlaneScratch& s = scratch.local();
-    s.slices.resize(nn);
-    for (int p = range.begin(); p < range.end(); ++p) {
-      for (int i = 0; i < nn; ++i) {
-        s.slices[i].resize(static_cast<size_t>(w) * h);
-        uint16_t* slice = s.slices[i].data();
-        const Eigen::Matrix3d& hom = neighbours[i].homographies[p];
-        switch (o.cost) {
-          case Cost::kCensus:
-            CensusSlice(ref_census, src_census[i], w, h, neighbours[i].gray.cols, neighbours[i].gray.rows, hom, slice);
-            BoxMean(slice, w, h, o.window_radius, &s.row_sums);
-            break;
-          case Cost::kSad:
-            SadSlice(ref, neighbours[i].gray, hom, &s, slice);
-            BoxMean(slice, w, h, o.window_radius, &s.row_sums);
-            break;
-          case Cost::kZncc:
-            ZnccSlice(ref, ref_mean, ref_var, neighbours[i].gray, hom, o.window_radius, &s, slice);
-            break;
-        }
-      }
-      // Best-k combination over neighbours, written into the volume's plane p.
-      const size_t n = static_cast<size_t>(w) * h;
-      uint16_t* dst = volume->data.data() + p;
-      const int stride = volume->stride;
-      if (nn == 1) {
-        const uint16_t* a = s.slices[0].data();
-        for (size_t i = 0; i < n; ++i) dst[i * stride] = a[i];
-      } else {
-        uint16_t values[64];
-        for (size_t i = 0; i < n; ++i) {
-          for (int j = 0; j < nn; ++j) values[j] = s.slices[j][i];
-          std::partial_sort(values, values + k, values + nn);
-          uint32_t sum = 0;
-          for (int j = 0; j < k; ++j) sum += values[j];
-          dst[i * stride] = static_cast<uint16_t>(sum / k);
-        }
-      }
-    }
-  });
-  return static_cast<int64_t>(planes) * w * h * nn;
-}
-
-void Aggregate(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, Aggregated* out) {
-  Aggregated& result = *out;
-  result.width = v.width;
-  result.height = v.height;
-  result.planes = v.planes;
-  result.stride = v.stride;
-  if (!o.semi_global) {
-    result.a = v.data;
-    result.b.clear();
-    return;
-  }
-  tbb::parallel_invoke([&] { SgmPass(v, gray, o, +1, &result.a); }, [&] { SgmPass(v, gray, o, -1, &result.b); });
-}
-
-Winners WinnerTakeAll(const Aggregated& ag, const CostVolume* data, double confidence_scale) {
-  const int w = ag.width, h = ag.height, np = ag.planes, stride = ag.stride;
-  Winners out;
-  out.plane = cv::Mat(h, w, CV_32F, cv::Scalar(-1));
-  out.confidence = cv::Mat(h, w, CV_32F, cv::Scalar(0));
-  tbb::parallel_for(0, h, [&](int y) {
-    std::vector<uint16_t> s(stride);
-    float* plane = out.plane.ptr<float>(y);
-    float* conf = out.confidence.ptr<float>(y);
-    for (int x = 0; x < w; ++x) {
-      const size_t pixel = static_cast<size_t>(y) * w + x;
-      const uint16_t* a = ag.a.data() + pixel * stride;
-      if (ag.b.empty()) {
-        std::copy(a, a + np, s.begin());
-      } else {
-        const uint16_t* b = ag.b.data() + pixel * stride;
-        for (int d = 0; d < np; ++d) s[d] = static_cast<uint16_t>(a[d] + b[d]);
-      }
-      int best = 0;
-      for (int d = 1; d < np; ++d)
-        if (s[d] < s[best]) best = d;
-      float sub = static_cast<float>(best);
-      if (best > 0 && best < np - 1) {
-        const float l = s[best - 1], c = s[best], r = s[best + 1];
-        const float denom = l - 2 * c + r;
-        if (denom > 0) sub += std::clamp(0.5f * (l - r) / denom, -0.5f, 0.5f);
-      }
-      plane[x] = sub;
-      // Certainty from the data-cost curve: how far the winner's matching cost lies below the
-      // curve's mean (0: the curve is flat, as on untextured surfaces, or the winner matches
-      // no better than a random plane, as where it is occluded in the best neighbours).
-      if (data == nullptr) continue;
-      const uint16_t* c = data->At(x, y);
-      uint32_t total = 0;
-      for (int d = 0; d < np; ++d) total += c[d];
-      const float mean = static_cast<float>(total) / np;
-      const float margin = (mean - c[best]) / std::max(1.f, mean);
-      conf[x] = static_cast<float>(std::clamp(margin * confidence_scale, 0.0, 1.0));
-    }
-  });
-  return out;
-}
-
-cv::Mat RightWinners(const Aggregated& ag) {
-  const int w = ag.width, h = ag.height, np = ag.planes;
-  cv::Mat right(h, w, CV_32S, cv::Scalar(-1));
-  tbb::parallel_for(0, h, [&](int y) {
-    int* r = right.ptr<int>(y);
-    for (int xr = 0; xr < w; ++xr) {
-      int best = -1;
-      uint32_t best_cost = 0xFFFFFFFF;
-      for (int d = 0; d < np && xr + d < w; ++d) {
-        const uint32_t cost = ag.Sum(static_cast<size_t>(y) * w + xr + d, d);
-        if (cost < best_cost) {
-          best_cost = cost;
-          best = d;
-        }
-      }
-      r[xr] = best;
-    }
-  });
-  return right;
 }
 
 }  // namespace sweep

@@ -110,6 +110,16 @@ class BufferLease {
 // Frees the pooled buffers (call when a stage is done).
 void ReleaseBufferPool();
 
+// The engine's loops exist in two builds (sweep_kernels.cc): portable (the baseline instruction
+// set) and AVX-512 (gathers and VPOPCNTQ for the census cost, 32 x 16-bit lanes for aggregation).
+// The best one the CPU runs is chosen at start-up (IBMR_ISA=portable in the environment forces
+// the portable one); both give bit-identical volumes, winners and depth maps.
+enum class Isa { kPortable, kAvx512 };
+Isa BestIsa();     // the fastest build this CPU runs
+Isa ActiveIsa();   // the build in use
+bool SetIsa(Isa isa);  // false (and no change) when the CPU cannot run `isa`
+const char* IsaName(Isa isa);
+
 // Census codes of a grey image (bit set where the neighbour is darker than the centre).
 std::vector<uint64_t> CensusTransform(const cv::Mat& gray, int radius_x, int radius_y);  // row-major
 
