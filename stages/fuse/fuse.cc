@@ -3,6 +3,9 @@
 
 #include "pipeline/core/depth_normals.h"
 
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
 #include <Eigen/Cholesky>
 #include <algorithm>
 #include <cmath>
@@ -75,73 +78,114 @@ void PointFuser::AddView(const FuseView& view) {
 
   // 1. Earlier points re-projected into this view: each is a candidate for the one pixel it falls
   //    in, when near that pixel's centre, depth-compatible in the 1-D uncertainty-weighted sense,
-  //    and of a similar normal; per pixel the best (smallest distance) candidate wins.
+  //    and of a similar normal; per pixel the best (smallest distance) candidate wins. The tests
+  //    run in parallel; the choice per pixel is made in point order, as a serial loop would.
+  std::vector<int32_t> hit_pixel(points.size(), -1);
+  std::vector<double> hit_distance(points.size(), 0.0);
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, points.size(), 4096), [&](const tbb::blocked_range<size_t>& range) {
+    for (size_t i = range.begin(); i < range.end(); ++i) {
+      const FusedPoint& p = points[i];
+      const Eigen::Vector3d in_cam = view.cam_from_world * p.position;
+      if (in_cam.z() <= 0) continue;
+      Eigen::Vector2d pixel = view.camera.ImgFromCam(in_cam);
+      pixel.x() *= sx, pixel.y() *= sy;
+      const int x = static_cast<int>(std::floor(pixel.x())), y = static_cast<int>(std::floor(pixel.y()));
+      if (x < 0 || y < 0 || x >= w || y >= h || !sample_usable(x, y)) continue;
+      if ((pixel - Eigen::Vector2d(x + 0.5, y + 0.5)).norm() > o.merge_pixel_radius) continue;
+      const float depth = view.depth.At(x, y);
+      const Eigen::Vector3d ray = ray_at(x + 0.5, y + 0.5);
+      const Eigen::Vector3d u = (world_from_cam * ray).normalized();
+      const double sample_sigma = depth_sigma(depth, confidence_at(x, y)) * ray.norm();
+      const double point_variance = u.dot(p.information.ldlt().solve(u));
+      const double distance = std::abs(in_cam.z() - depth) * ray.norm() / std::sqrt(sample_sigma * sample_sigma + point_variance);
+      if (distance > o.merge_sigmas) continue;
+      const Eigen::Vector3d n = world_normal(x, y);
+      if (n.squaredNorm() > 0 && p.normal_sum.squaredNorm() > 0 && n.dot(p.normal_sum.cast<double>().normalized()) < cos_normal) continue;
+      hit_pixel[i] = y * w + x;
+      hit_distance[i] = distance;
+    }
+  });
   std::vector<int> candidate(static_cast<size_t>(w) * h, -1);
   std::vector<float> candidate_score(candidate.size(), 0.f);
-  for (int i = 0; i < static_cast<int>(points.size()); ++i) {
-    const FusedPoint& p = points[i];
-    const Eigen::Vector3d in_cam = view.cam_from_world * p.position;
-    if (in_cam.z() <= 0) continue;
-    Eigen::Vector2d pixel = view.camera.ImgFromCam(in_cam);
-    pixel.x() *= sx, pixel.y() *= sy;
-    const int x = static_cast<int>(std::floor(pixel.x())), y = static_cast<int>(std::floor(pixel.y()));
-    if (x < 0 || y < 0 || x >= w || y >= h || !sample_usable(x, y)) continue;
-    if ((pixel - Eigen::Vector2d(x + 0.5, y + 0.5)).norm() > o.merge_pixel_radius) continue;
-    const float depth = view.depth.At(x, y);
-    const Eigen::Vector3d ray = ray_at(x + 0.5, y + 0.5);
-    const Eigen::Vector3d u = (world_from_cam * ray).normalized();
-    const double sample_sigma = depth_sigma(depth, confidence_at(x, y)) * ray.norm();
-    const double point_variance = u.dot(p.information.ldlt().solve(u));
-    const double distance = std::abs(in_cam.z() - depth) * ray.norm() / std::sqrt(sample_sigma * sample_sigma + point_variance);
-    if (distance > o.merge_sigmas) continue;
-    const Eigen::Vector3d n = world_normal(x, y);
-    if (n.squaredNorm() > 0 && p.normal_sum.squaredNorm() > 0 && n.dot(p.normal_sum.cast<double>().normalized()) < cos_normal) continue;
-    const size_t index = static_cast<size_t>(y) * w + x;
-    if (candidate[index] < 0 || distance < candidate_score[index]) {
-      candidate[index] = i;
-      candidate_score[index] = static_cast<float>(distance);
+  for (size_t i = 0; i < points.size(); ++i) {
+    const int32_t index = hit_pixel[i];
+    if (index < 0) continue;
+    if (candidate[index] < 0 || hit_distance[i] < candidate_score[index]) {
+      candidate[index] = static_cast<int>(i);
+      candidate_score[index] = static_cast<float>(hit_distance[i]);
     }
   }
 
-  // 2. Each sample merges into its candidate or starts a new point.
-  for (int y = 0; y < h; ++y) {
-    for (int x = 0; x < w; ++x) {
-      if (!sample_usable(x, y)) continue;
-      const float depth = view.depth.At(x, y), confidence = confidence_at(x, y);
-      const Eigen::Vector3d ray = ray_at(x + 0.5, y + 0.5);
-      const Eigen::Vector3d position = world_from_cam * (ray * depth) + center;
-      const Eigen::Vector3d u = (world_from_cam * ray).normalized();
-      const double along = depth_sigma(depth, confidence) * ray.norm();
-      const double across = o.lateral_sigma_pixels * depth * ray.norm() / focal;
-      // Information matrix of the sample: 1/across^2 across the ray, 1/along^2 along it.
-      const Eigen::Matrix3d information =
-          Eigen::Matrix3d::Identity() / (across * across) + (1 / (along * along) - 1 / (across * across)) * u * u.transpose();
-      Eigen::Vector3f color(0.5f, 0.5f, 0.5f);
-      if (!view.image.empty()) {
-        const int ix = std::min(view.image.cols - 1, static_cast<int>((x + 0.5) * view.image.cols / w));
-        const int iy = std::min(view.image.rows - 1, static_cast<int>((y + 0.5) * view.image.rows / h));
-        const cv::Vec3b bgr = view.image.at<cv::Vec3b>(iy, ix);
-        color = Eigen::Vector3f(bgr[2], bgr[1], bgr[0]) / 255.f;
+  // 2. Each sample merges into its candidate or starts a new point. A sample's measurement is
+  //    computed in parallel, a band of rows at a time; the merge runs in pixel order. A point takes
+  //    at most one sample per view (its candidate pixel), so positions are solved once, after.
+  struct Sample {
+    int pixel;
+    Eigen::Matrix3d information;
+    Eigen::Vector3d position, normal;
+    Eigen::Vector3f color;
+    float confidence;
+  };
+  constexpr int kBand = 32;
+  std::vector<std::vector<Sample>> rows(kBand);
+  std::vector<char> touched(points.size(), 0);
+  for (int y0 = 0; y0 < h; y0 += kBand) {
+    const int y1 = std::min(h, y0 + kBand);
+    tbb::parallel_for(y0, y1, [&](int y) {
+      std::vector<Sample>& row = rows[y - y0];
+      row.clear();
+      for (int x = 0; x < w; ++x) {
+        if (!sample_usable(x, y)) continue;
+        Sample sample;
+        sample.pixel = y * w + x;
+        const float depth = view.depth.At(x, y);
+        sample.confidence = confidence_at(x, y);
+        const Eigen::Vector3d ray = ray_at(x + 0.5, y + 0.5);
+        sample.position = world_from_cam * (ray * depth) + center;
+        const Eigen::Vector3d u = (world_from_cam * ray).normalized();
+        const double along = depth_sigma(depth, sample.confidence) * ray.norm();
+        const double across = o.lateral_sigma_pixels * depth * ray.norm() / focal;
+        // Information matrix of the sample: 1/across^2 across the ray, 1/along^2 along it.
+        sample.information =
+            Eigen::Matrix3d::Identity() / (across * across) + (1 / (along * along) - 1 / (across * across)) * u * u.transpose();
+        sample.color = Eigen::Vector3f(0.5f, 0.5f, 0.5f);
+        if (!view.image.empty()) {
+          const int ix = std::min(view.image.cols - 1, static_cast<int>((x + 0.5) * view.image.cols / w));
+          const int iy = std::min(view.image.rows - 1, static_cast<int>((y + 0.5) * view.image.rows / h));
+          const cv::Vec3b bgr = view.image.at<cv::Vec3b>(iy, ix);
+          sample.color = Eigen::Vector3f(bgr[2], bgr[1], bgr[0]) / 255.f;
+        }
+        sample.normal = world_normal(x, y);
+        if (sample.normal.squaredNorm() == 0) sample.normal = -u;
+        row.push_back(sample);
       }
-      Eigen::Vector3d normal = world_normal(x, y);
-      if (normal.squaredNorm() == 0) normal = -u;
-      const int c = candidate[static_cast<size_t>(y) * w + x];
-      FusedPoint* p = nullptr;
-      if (c >= 0) {
-        p = &points[c];
-      } else {
-        points.emplace_back();
-        p = &points.back();
+    });
+    for (int y = y0; y < y1; ++y) {
+      for (const Sample& sample : rows[y - y0]) {
+        const int c = candidate[sample.pixel];
+        FusedPoint* p = nullptr;
+        if (c >= 0) {
+          p = &points[c];
+          touched[c] = 1;
+        } else {
+          points.emplace_back();
+          p = &points.back();
+        }
+        p->information += sample.information;
+        p->information_x += sample.information * sample.position;
+        p->normal_sum += sample.confidence * sample.normal.cast<float>();
+        p->color_sum += sample.confidence * sample.color;
+        p->confidence_sum += sample.confidence;
+        ++p->views;
       }
-      p->information += information;
-      p->information_x += information * position;
-      p->position = p->information.ldlt().solve(p->information_x);
-      p->normal_sum += confidence * normal.cast<float>();
-      p->color_sum += confidence * color;
-      p->confidence_sum += confidence;
-      ++p->views;
     }
   }
+  touched.resize(points.size(), 1);  // the new points
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, points.size(), 4096), [&](const tbb::blocked_range<size_t>& range) {
+    for (size_t i = range.begin(); i < range.end(); ++i) {
+      if (touched[i]) points[i].position = points[i].information.ldlt().solve(points[i].information_x);
+    }
+  });
 }
 
 PointCloud PointFuser::Finish(FuseStats* stats) const {

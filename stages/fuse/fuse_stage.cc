@@ -4,8 +4,10 @@
 // stereo_fusion output plus a confidence). With ground_truth/mesh.ply in the workspace the record
 // gets accuracy (90th percentile distance to the mesh) and completeness.
 #include <spdlog/spdlog.h>
+#include <tbb/parallel_for.h>
 
 #include <filesystem>
+#include <future>
 
 #include "pipeline/core/colmap_array_io.h"
 #include "pipeline/core/errors.h"
@@ -82,7 +84,8 @@ class FuseStage : public Stage {
     const Workspace& workspace = context.workspace;
     PointFuser fuser(options);
     context.progress->Begin("fusing depth maps", names.size());
-    for (const std::string& name : names) {  // streamed: one view's maps in memory at a time
+    // Streamed: one view's maps in memory while the next view's are read (a thread of its own).
+    auto load = [&](const std::string& name) {
       const Image& image = *model.FindImage(name);
       FuseView view;
       view.camera = model.CameraOf(image);
@@ -101,8 +104,14 @@ class FuseStage : public Stage {
       } else {
         spdlog::warn("[fuse] {}: no photo; points from this view are grey", image_path);
       }
+      return view;
+    };
+    std::future<FuseView> next = std::async(std::launch::async, load, names.front());
+    for (size_t i = 0; i < names.size(); ++i) {
+      const FuseView view = next.get();
+      if (i + 1 < names.size()) next = std::async(std::launch::async, load, names[i + 1]);
       fuser.AddView(view);
-      context.progress->Advance(1, name);
+      context.progress->Advance(1, names[i]);
     }
     context.progress->End();
     FuseStats stats;
@@ -162,24 +171,28 @@ class FuseStage : public Stage {
   // Fraction of the fused points, per training view with a mask, that project onto the silhouette.
   static void CheckSilhouettes(StageContext& context, const SparseModel& model, const std::vector<std::string>& names,
                                const PointCloud& cloud) {
-    std::vector<double> fractions;
-    nlohmann::json per_view = nlohmann::json::object();
-    SilhouetteHits total;
-    for (const std::string& name : names) {
-      const std::string path = context.workspace.MaskPath(name);
-      if (!fs::exists(path)) continue;
-      const Image& image = *model.FindImage(name);
+    // Views in parallel; gathered in name order.
+    std::vector<SilhouetteHits> hits(names.size());
+    tbb::parallel_for(size_t{0}, names.size(), [&](size_t i) {
+      const std::string path = context.workspace.MaskPath(names[i]);
+      if (!fs::exists(path)) return;
+      const Image& image = *model.FindImage(names[i]);
       const cv::Mat mask = ReadImageUnchanged(path);
       if (mask.type() != CV_8UC1) {
         spdlog::warn("[fuse] {}: not an 8-bit one-channel mask; not used for the silhouette check", path);
-        continue;
+        return;
       }
-      const SilhouetteHits hits = ProjectOntoSilhouette(cloud, model.CameraOf(image), image.cam_from_world, mask);
-      if (hits.projected == 0) continue;
-      per_view[name] = hits.Fraction();
-      fractions.push_back(hits.Fraction());
-      total.projected += hits.projected;
-      total.on_silhouette += hits.on_silhouette;
+      hits[i] = ProjectOntoSilhouette(cloud, model.CameraOf(image), image.cam_from_world, mask);
+    });
+    std::vector<double> fractions;
+    nlohmann::json per_view = nlohmann::json::object();
+    SilhouetteHits total;
+    for (size_t i = 0; i < names.size(); ++i) {
+      if (hits[i].projected == 0) continue;
+      per_view[names[i]] = hits[i].Fraction();
+      fractions.push_back(hits[i].Fraction());
+      total.projected += hits[i].projected;
+      total.on_silhouette += hits[i].on_silhouette;
     }
     if (fractions.empty()) return;
     std::sort(fractions.begin(), fractions.end());
