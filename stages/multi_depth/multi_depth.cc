@@ -280,20 +280,25 @@ MultiDepthResult MakeDepthConsistent(const DepthView& key, const std::vector<con
     for (int x = 0; x < w; ++x) {
       if (result.depth.At(x, y) > 0) continue;
       if (IsValidDepth(key.depth.At(x, y)) && ConfidenceAt(key.confidence, x, y) < options.min_confidence) continue;
-      // Accepted own depths around the pixel bound the candidates (a weak smoothness term that
-      // keeps surfaces hidden from the key, warped in from far neighbours, out of it).
-      float lo = 0, hi = 1e30f;
-      if (KeptRange(first_pass, x, y, 2, &lo, &hi)) lo *= 1 - 3 * tolerance, hi *= 1 + 3 * tolerance;
       constexpr int kR = 1;  // candidates from a 3x3 window: forward warping leaves gaps
       candidates.clear();
       for (const DepthMap& z : warped) {
         for (int v = std::max(0, y - kR); v <= std::min(h - 1, y + kR); ++v) {
           for (int u = std::max(0, x - kR); u <= std::min(w - 1, x + kR); ++u) {
             const float c = z.At(u, v);
-            if (c > 0 && c >= lo && c <= hi) candidates.push_back(c);
+            if (c > 0) candidates.push_back(c);
           }
         }
       }
+      if (candidates.empty()) continue;
+      // Accepted own depths around the pixel bound the candidates (a weak smoothness term that
+      // keeps surfaces hidden from the key, warped in from far neighbours, out of it); without
+      // any, nothing is filled.
+      float lo = 0, hi = 0;
+      if (!KeptRange(first_pass, x, y, 2, &lo, &hi)) continue;
+      lo *= 1 - 3 * tolerance, hi *= 1 + 3 * tolerance;
+      candidates.erase(std::remove_if(candidates.begin(), candidates.end(), [&](float c) { return c < lo || c > hi; }),
+                       candidates.end());
       std::sort(candidates.begin(), candidates.end());
       const Eigen::Vector3f& ray = rays[static_cast<size_t>(y) * w + x];
       for (const float candidate : candidates) {
