@@ -10,6 +10,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <map>
+#include <stdexcept>
 #include <opencv2/imgproc.hpp>
 
 #include "stages/plane_sweep/sweep_engine.h"
@@ -143,13 +144,13 @@ StereoPairResult StereoPair(const cv::Mat& left_image, const cv::Mat& right_imag
   lap("cost volume");
   sweep::Aggregate(volume, left, engine, &aggregated);
   lap("aggregation");
-  const sweep::Winners winners = sweep::WinnerTakeAll(aggregated, nullptr, options.confidence_scale);
+  const sweep::Winners winners = sweep::WinnerTakeAll(aggregated, nullptr, options.confidence_scale, options.lr_check);
   lap("winner");
   cv::Mat disparity = winners.plane.clone();
   // Disparity 0 is a valid answer but "<= 0" means none in the output: nudge it.
   disparity.setTo(1e-3f, disparity == 0.f);
   if (options.lr_check) {
-    const cv::Mat right_winners = sweep::RightWinners(aggregated);
+    const cv::Mat& right_winners = winners.right;
     for (int y = 0; y < disparity.rows; ++y) {
       float* d = disparity.ptr<float>(y);
       const int* r = right_winners.ptr<int>(y);
@@ -169,7 +170,7 @@ StereoPairResult StereoPair(const cv::Mat& left_image, const cv::Mat& right_imag
 }
 
 PlaneSweepResult PlaneSweep(const SweepView& reference, const std::vector<SweepView>& neighbours, double near,
-                            double far, const PlaneSweepOptions& options) {
+                            double far, const PlaneSweepOptions& options, const PixelDepthBounds* pixel_bounds) {
   const int w = reference.gray.cols, h = reference.gray.rows, np = options.num_planes;
   const double w_min = 1.0 / far, w_max = 1.0 / near, step = (w_max - w_min) / (np - 1);
   const Eigen::Matrix3d k_ref_inv = reference.camera.K().inverse();
@@ -187,10 +188,36 @@ PlaneSweepResult PlaneSweep(const SweepView& reference, const std::vector<SweepV
     engine_neighbours.push_back(std::move(n));
   }
   const sweep::EngineOptions engine = ToEngine(options);
+  sweep::PlaneRanges ranges;
+  if (pixel_bounds != nullptr) {
+    if (pixel_bounds->near.width != w || pixel_bounds->near.height != h || pixel_bounds->far.width != w ||
+        pixel_bounds->far.height != h) {
+      throw std::invalid_argument("PlaneSweep: pixel bounds must have the reference image's size");
+    }
+    // Planes are uniform in inverse depth: plane p holds 1/z = w_min + p * step.
+    auto plane_of = [&](double z) { return (1.0 / z - w_min) / step; };
+    ranges.first.resize(static_cast<size_t>(w) * h);
+    ranges.last.resize(ranges.first.size());
+    for (size_t i = 0; i < ranges.first.size(); ++i) {
+      const double z_near = pixel_bounds->near.data[i] * (1.0 - options.depth_margin);
+      const double z_far = pixel_bounds->far.data[i] * (1.0 + options.depth_margin);
+      if (!(pixel_bounds->near.data[i] > 0) || !(z_far >= pixel_bounds->near.data[i])) {
+        ranges.first[i] = 0, ranges.last[i] = static_cast<uint16_t>(np - 1);  // unbounded: every plane
+        continue;
+      }
+      const double first = std::floor(plane_of(z_far)) - 1;
+      const double last = z_near > 0 ? std::ceil(plane_of(z_near)) + 1 : np - 1;
+      ranges.first[i] = static_cast<uint16_t>(std::clamp(first, 0.0, np - 1.0));
+      ranges.last[i] = static_cast<uint16_t>(std::clamp(last, 0.0, np - 1.0));
+      if (last < 0 || first > np - 1) ranges.first[i] = 1, ranges.last[i] = 0;  // outside the swept range
+    }
+  }
   sweep::BufferLease buffers;
   sweep::CostVolume& volume = buffers->volume;
   PlaneSweepResult result;
-  result.evaluations = sweep::BuildCostVolume(reference.gray, engine_neighbours, engine, &volume);
+  result.evaluations =
+      sweep::BuildCostVolume(reference.gray, engine_neighbours, engine, &volume, pixel_bounds ? &ranges : nullptr);
+  result.full_evaluations = static_cast<int64_t>(np) * w * h * static_cast<int64_t>(neighbours.size());
   sweep::Aggregated& aggregated = buffers->aggregated;
   sweep::Aggregate(volume, reference.gray, engine, &aggregated);
   result.volume_bytes = (volume.data.size() + volume.scratch.size() + aggregated.a.size() + aggregated.b.size()) * sizeof(uint16_t);
@@ -220,6 +247,10 @@ PlaneSweepResult PlaneSweep(const SweepView& reference, const std::vector<SweepV
       const float confidence = conf[x] * texture.at<float>(y, x);
       result.confidence.At(x, y) = confidence;
       if (plane[x] < 0 || confidence < options.confidence_threshold) continue;
+      if (!ranges.first.empty()) {  // smoothing can carry a winner out of the pixel's bounds: no surface there
+        const size_t i = static_cast<size_t>(y) * w + x;
+        if (plane[x] < ranges.first[i] - 0.5f || plane[x] > ranges.last[i] + 0.5f) continue;
+      }
       // Planes are uniform in inverse depth, so the sub-pixel plane index maps linearly to 1/z.
       result.depth.At(x, y) = static_cast<float>(1.0 / (w_min + plane[x] * step));
       ++valid;

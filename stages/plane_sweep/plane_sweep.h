@@ -86,14 +86,26 @@ struct PlaneSweepResult {
   DepthMap depth;        // z depth, 0: no estimate (confidence below the threshold)
   FloatMap normals;      // 3 channels, camera frame, towards the camera; 0 where no depth
   FloatMap confidence;   // 1 channel in [0, 1]
-  int64_t evaluations = 0;
+  int64_t evaluations = 0;       // plane-pixel-neighbour cost evaluations done
+  int64_t full_evaluations = 0;  // ... that sweeping every plane at every pixel would do
   double valid_fraction = 0;  // fraction of pixels with depth
   size_t volume_bytes = 0;    // bytes of the cost volumes held for this view
 };
 
-// Sweeps `near`..`far` (z in the reference camera, 0 < near < far).
+// Per-pixel depth bounds of the reference view (z), e.g. the nearest and farthest surface of a
+// visual hull along each pixel's ray; near 0 where the pixel is unbounded (the hull does not cover
+// it: background the held-out photos still show).
+struct PixelDepthBounds {
+  DepthMap near, far;
+};
+
+// Sweeps `near`..`far` (z in the reference camera, 0 < near < far). With `pixel_bounds`, each
+// bounded pixel matches only the planes within its bounds widened by options.depth_margin (and one
+// plane), and a winner that smoothing carried outside them is dropped; unbounded pixels sweep every
+// plane.
 PlaneSweepResult PlaneSweep(const SweepView& reference, const std::vector<SweepView>& neighbours, double near,
-                            double far, const PlaneSweepOptions& options);
+                            double far, const PlaneSweepOptions& options,
+                            const PixelDepthBounds* pixel_bounds = nullptr);
 
 // Neighbour choice: indices into `views` (not `reference_index`), best first. With sparse points
 // the score sums, over points seen by both, a weight of the triangulation angle; without, the

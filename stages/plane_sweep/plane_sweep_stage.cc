@@ -1,6 +1,7 @@
 // Adapter of the plane_sweep stage: for every training view, picks neighbours, depth bounds
 // (hull/depth_bounds.json, else the sparse points, else the config's bounding box or depth
-// range), runs the plane sweep (plane_sweep.h) and writes COLMAP maps:
+// range) and, with hull/hull.ply, per-pixel bounds (the hull's nearest and farthest surface along
+// each pixel's ray, rasterized), runs the plane sweep (plane_sweep.h) and writes COLMAP maps:
 //   dense/stereo/depth_maps/<image>.photometric.bin       z depth, 0 = no estimate
 //   dense/stereo/normal_maps/<image>.photometric.bin      3 channels, camera frame
 //   dense/stereo/confidence_maps/<image>.photometric.bin  1 channel in [0, 1]
@@ -24,6 +25,8 @@
 #include "pipeline/core/errors.h"
 #include "pipeline/core/image_io.h"
 #include "pipeline/core/per_view.h"
+#include "pipeline/core/ply_io.h"
+#include "pipeline/core/rasterizer.h"
 #include "pipeline/core/stage_api.h"
 #include "stages/plane_sweep/plane_sweep.h"
 #include "stages/plane_sweep/sweep_engine.h"
@@ -115,7 +118,10 @@ class PlaneSweepStage : public Stage {
         {"max_depth", ParamType::kDouble, "-1", "Fallback far depth, scene units; -1: none"},
         {"bounding_box", ParamType::kDoubleList, "[]",
          "Fallback scene box [xmin, ymin, zmin, xmax, ymax, zmax] (world); depth bounds from its corners"},
-        {"depth_margin", ParamType::kDouble, s(d.depth_margin), "Relative margin around sparse-point or box depths"},
+        {"depth_margin", ParamType::kDouble, s(d.depth_margin), "Relative margin around sparse-point, box or per-pixel hull depths"},
+        {"hull_ranges", ParamType::kBool, "true",
+         "With hull/hull.ply: each pixel the hull covers sweeps only the planes between its nearest and farthest "
+         "surface (+ depth_margin); pixels outside the hull sweep every plane"},
         {"min_angle_deg", ParamType::kDouble, s(d.min_angle_deg), "Smallest neighbour triangulation angle, degrees"},
         {"max_angle_deg", ParamType::kDouble, s(d.max_angle_deg), "Largest neighbour triangulation angle, degrees"},
         {"target_angle_deg", ParamType::kDouble, s(d.target_angle_deg), "Preferred triangulation angle, degrees"},
@@ -133,7 +139,7 @@ class PlaneSweepStage : public Stage {
   }
 
   std::vector<std::string> Inputs(const StageContext&) const override {
-    return {"images", "sparse", "hull/depth_bounds.json"};
+    return {"images", "sparse", "hull/depth_bounds.json", "hull/hull.ply"};
   }
   std::vector<std::string> Outputs(const StageContext&) const override {
     return {"dense/stereo/depth_maps", "dense/stereo/normal_maps", "dense/stereo/confidence_maps"};
@@ -165,6 +171,9 @@ class PlaneSweepStage : public Stage {
       return views[i];
     };
     const nlohmann::json hull_bounds = ReadHullBounds(context.workspace.Path("hull/depth_bounds.json"));
+    const std::string hull_path = context.workspace.Path("hull/hull.ply");
+    const bool hull_ranges = (!context.params.Has("hull_ranges") || context.params.Bool("hull_ranges")) && fs::exists(hull_path);
+    const TriangleMesh hull = hull_ranges ? ReadMeshPly(hull_path) : TriangleMesh();
     for (const char* dir : {"depth_maps", "normal_maps", "confidence_maps"})
       fs::create_directories(context.workspace.Path(std::string("dense/stereo/") + dir));
 
@@ -190,7 +199,16 @@ class PlaneSweepStage : public Stage {
         for (int j : chosen) neighbours.push_back(view(j));
         PlaneSweepOptions view_options = options;
         view_options.best_k = std::min<int>(options.best_k, static_cast<int>(neighbours.size()));
-        result = PlaneSweep(key, neighbours, near, far, view_options);
+        PixelDepthBounds bounds;
+        const bool per_pixel = hull_ranges && source == "hull" && !hull.faces.empty();
+        if (per_pixel) {
+          RasterizeOptions raster;
+          raster.near_z = 0.5 * near;
+          bounds.near = Rasterize(hull, key.camera, key.cam_from_world, raster).depth;
+          raster.farthest = true;
+          bounds.far = Rasterize(hull, key.camera, key.cam_from_world, raster).depth;
+        }
+        result = PlaneSweep(key, neighbours, near, far, view_options, per_pixel ? &bounds : nullptr);
       }
       WriteColmapArray(context.workspace.DepthMapPath(name, "photometric"), result.depth);
       WriteColmapArray(context.workspace.NormalMapPath(name, "photometric"), result.normals);
@@ -200,15 +218,16 @@ class PlaneSweepStage : public Stage {
       for (int j : chosen) neighbour_names.push_back(names[j]);
       return nlohmann::json{{"near", near}, {"far", far}, {"bounds_from", source}, {"neighbors", neighbour_names},
                             {"valid_fraction", result.valid_fraction}, {"evaluations", result.evaluations},
-                            {"cost_volume_mb", result.volume_bytes / 1048576.0}};
+                            {"full_evaluations", result.full_evaluations}, {"cost_volume_mb", result.volume_bytes / 1048576.0}};
     });
     // Totals over every view (resumed and sharded ones too), in name order.
-    int64_t evaluations = 0;
+    int64_t evaluations = 0, full_evaluations = 0;
     double valid_sum = 0, volume_max = 0;
     std::map<std::string, int> bound_sources;
     nlohmann::json per_view = nlohmann::json::object();
     for (const auto& [name, piece] : summary.pieces) {
       evaluations += piece.at("evaluations").get<int64_t>();
+      full_evaluations += piece.value("full_evaluations", piece.at("evaluations").get<int64_t>());
       valid_sum += piece.at("valid_fraction").get<double>();
       volume_max = std::max(volume_max, piece.at("cost_volume_mb").get<double>());
       ++bound_sources[piece.at("bounds_from").get<std::string>()];
@@ -221,6 +240,8 @@ class PlaneSweepStage : public Stage {
     context.metrics["views"] = names.size();
     context.metrics["wall_seconds"] = seconds;
     context.metrics["evaluations"] = evaluations;
+    // Without per-pixel hull bounds every pixel would sweep every plane: the work they saved.
+    context.metrics["evaluations_without_pixel_bounds"] = full_evaluations;
     context.metrics["evaluations_per_second"] = evaluations_here.load() / seconds;
     context.metrics["mean_valid_fraction"] = names.empty() ? 0.0 : valid_sum / names.size();
     context.metrics["cost_volume_mb_per_view"] = volume_max;

@@ -141,6 +141,54 @@ TEST(PlaneSweep, FindsATexturedPlane) {
   for (float c : result.confidence.data) ASSERT_TRUE(c >= 0 && c <= 1);
 }
 
+// Per-pixel depth bounds (a hull's): pixels sweep only their planes, so the work shrinks and the
+// depth is still found; bounds that exclude the true depth keep it out; unbounded pixels (near 0)
+// sweep every plane.
+TEST(PlaneSweep, PixelBoundsLimitThePlanesOfEachPixel) {
+  const int w = 128, h = 96;
+  const Camera camera = Camera::Pinhole(w, h, 100, 100, w / 2.0, h / 2.0);
+  const double depth = 5.0;
+  SweepView ref{"ref", RandomTexture(w, h, 7), camera, Rigid3d()};
+  std::vector<SweepView> neighbours;
+  for (double baseline : {-0.5, 0.5}) {
+    SweepView v{"n", cv::Mat(), camera, Rigid3d(Eigen::Matrix3d::Identity(), Eigen::Vector3d(baseline, 0, 0))};
+    cv::Mat m = (cv::Mat_<double>(2, 3) << 1, 0, 100 * baseline / depth, 0, 1, 0);
+    cv::warpAffine(ref.gray, v.gray, m, ref.gray.size(), cv::INTER_LINEAR, cv::BORDER_REFLECT);
+    neighbours.push_back(v);
+  }
+  PlaneSweepOptions options;
+  options.num_planes = 64;
+  options.confidence_threshold = 0;
+  options.depth_margin = 0.02;
+  PixelDepthBounds bounds{DepthMap(w, h, 1, 4.6f), DepthMap(w, h, 1, 5.4f)};
+  for (int y = 0; y < h; ++y) {
+    for (int x = 0; x < w; ++x) {
+      if (x >= 96) bounds.near.At(x, y) = 0.f;  // unbounded
+      if (y >= 72 && x < 96) bounds.near.At(x, y) = 6.5f, bounds.far.At(x, y) = 8.f;  // excludes the plane
+    }
+  }
+  const PlaneSweepResult full = PlaneSweep(ref, neighbours, 3.0, 10.0, options);
+  const PlaneSweepResult limited = PlaneSweep(ref, neighbours, 3.0, 10.0, options, &bounds);
+  EXPECT_LT(limited.evaluations, 0.7 * full.evaluations);  // planes go in blocks of 16
+  int good = 0, bounded = 0, excluded_good = 0, excluded = 0;
+  for (int y = 4; y < h - 4; ++y) {
+    for (int x = 4; x < w - 4; ++x) {
+      const float z = limited.depth.At(x, y);
+      const bool within = std::fabs(z - depth) < 0.01 * depth;
+      if (y >= 72 && x < 96) {
+        ++excluded;
+        excluded_good += within;
+        if (z > 0) EXPECT_GT(z, 6.0) << x << "," << y;  // the bounds (less margin and a plane), not the plane at 5
+      } else {
+        ++bounded;
+        good += within;
+      }
+    }
+  }
+  EXPECT_GT(good, 0.9 * bounded);
+  EXPECT_EQ(excluded_good, 0) << "of " << excluded;
+}
+
 TEST(PlaneSweep, UntexturedImageHasLowConfidence) {
   const int w = 96, h = 72;
   const Camera camera = Camera::Pinhole(w, h, 80, 80, w / 2.0, h / 2.0);
@@ -177,6 +225,12 @@ TEST(SweepEngine, VectorisedAndPortableBuildsAreBitIdentical) {
   auto run = [&](sweep::Isa isa) {
     EXPECT_TRUE(sweep::SetIsa(isa));
     PlaneSweepResult result = PlaneSweep(ref, neighbours, 1.5, 9.0, options);
+    PixelDepthBounds bounds{DepthMap(w, h, 1, 2.f), DepthMap(w, h, 1, 4.f)};
+    for (int x = 0; x < w / 3; ++x)
+      for (int y = 0; y < h; ++y) bounds.near.At(x, y) = 0.f;  // unbounded columns
+    const PlaneSweepResult limited = PlaneSweep(ref, neighbours, 1.5, 9.0, options, &bounds);
+    result.depth.data.insert(result.depth.data.end(), limited.depth.data.begin(), limited.depth.data.end());
+    result.confidence.data.insert(result.confidence.data.end(), limited.confidence.data.begin(), limited.confidence.data.end());
     std::vector<cv::Mat> pairs;
     for (MatchCost cost : {MatchCost::kCensus, MatchCost::kSad, MatchCost::kZncc}) {
       PlaneSweepOptions pair = options;

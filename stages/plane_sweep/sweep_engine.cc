@@ -62,8 +62,8 @@ const char* IsaName(Isa isa) { return isa == Isa::kAvx512 ? "avx512" : "portable
 #endif
 
 int64_t BuildCostVolume(const cv::Mat& reference_gray, const std::vector<Neighbour>& neighbours,
-                        const EngineOptions& options, CostVolume* volume) {
-  IBMR_SWEEP_DISPATCH(BuildCostVolume(reference_gray, neighbours, options, volume));
+                        const EngineOptions& options, CostVolume* volume, const PlaneRanges* ranges) {
+  IBMR_SWEEP_DISPATCH(BuildCostVolume(reference_gray, neighbours, options, volume, ranges));
 }
 
 void Aggregate(const CostVolume& volume, const cv::Mat& reference_gray, const EngineOptions& options,
@@ -71,11 +71,10 @@ void Aggregate(const CostVolume& volume, const cv::Mat& reference_gray, const En
   IBMR_SWEEP_DISPATCH(Aggregate(volume, reference_gray, options, out));
 }
 
-Winners WinnerTakeAll(const Aggregated& aggregated, const CostVolume* data_cost, double confidence_scale) {
-  IBMR_SWEEP_DISPATCH(WinnerTakeAll(aggregated, data_cost, confidence_scale));
+Winners WinnerTakeAll(const Aggregated& aggregated, const CostVolume* data_cost, double confidence_scale,
+                      bool right_winners) {
+  IBMR_SWEEP_DISPATCH(WinnerTakeAll(aggregated, data_cost, confidence_scale, right_winners));
 }
-
-cv::Mat RightWinners(const Aggregated& aggregated) { IBMR_SWEEP_DISPATCH(RightWinners(aggregated)); }
 
 std::vector<uint64_t> CensusTransform(const cv::Mat& gray, int radius_x, int radius_y) {
   IBMR_SWEEP_DISPATCH(CensusTransform(gray, radius_x, radius_y));

@@ -59,10 +59,21 @@ struct Neighbour {
   std::vector<Eigen::Matrix3d> homographies;
 };
 
-// Fills the matching-cost volume (reusing `volume`'s buffers when large enough) (costs of all neighbours per plane, best-k combined). Parallel
-// over planes. Returns the number of plane-pixel-neighbour evaluations.
+// Per-pixel plane ranges (row-major, one entry per reference pixel): the pixel's surface lies on
+// planes first..last (inclusive), as a hull bounds it; first > last: no surface (the pixel is not
+// matched). Planes outside a pixel's range take the mean of its in-range costs, neutral for the
+// aggregation and for the certainty (the curve's mean is the in-range mean); an unmatched pixel's
+// curve is flat (no certainty). With the census cost only in-range planes (in blocks of 16) are
+// evaluated.
+struct PlaneRanges {
+  std::vector<uint16_t> first, last;
+};
+
+// Fills the matching-cost volume (reusing `volume`'s buffers when large enough): costs of all
+// neighbours per plane, best-k combined; `ranges` (optional) limits the planes per pixel. Returns
+// the number of plane-pixel-neighbour evaluations done.
 int64_t BuildCostVolume(const cv::Mat& reference_gray, const std::vector<Neighbour>& neighbours,
-                        const EngineOptions& options, CostVolume* volume);
+                        const EngineOptions& options, CostVolume* volume, const PlaneRanges* ranges = nullptr);
 
 // Aggregated volume: the sum over paths (or the data cost itself without semi-global).
 struct Aggregated {
@@ -77,18 +88,18 @@ struct Aggregated {
 void Aggregate(const CostVolume& volume, const cv::Mat& reference_gray, const EngineOptions& options, Aggregated* out);
 
 // Per-pixel winner: plane index with sub-pixel offset (-1 where undefined), and certainty in
-// [0, 1] from the data-cost curve (distinctiveness of the minimum: second-best cost outside the
-// winner's +-1 neighbourhood against the winner's cost).
+// [0, 1] from the data-cost curve (how far the winner's matching cost lies below the curve's mean).
+// Two-view only, `right`: the winner of each right-view pixel from the same aggregated volume
+// (plane = disparity: right pixel xr matches left pixel xr + d), integer disparities, -1 where
+// undefined; found in the same pass over the volume.
 struct Winners {
   cv::Mat plane;       // CV_32F, sub-pixel plane index, -1: none
   cv::Mat confidence;  // CV_32F in [0, 1]
+  cv::Mat right;       // CV_32S, with `right_winners` only
 };
 // `data_cost` nullptr: no confidence (left at 0).
-Winners WinnerTakeAll(const Aggregated& aggregated, const CostVolume* data_cost, double confidence_scale);
-
-// Two-view only: winner of the right view from the left view's aggregated volume (plane = disparity),
-// integer disparities, -1 where undefined.
-cv::Mat RightWinners(const Aggregated& aggregated);
+Winners WinnerTakeAll(const Aggregated& aggregated, const CostVolume* data_cost, double confidence_scale,
+                      bool right_winners = false);
 
 // Cost-volume buffers lent from a process-wide pool, so that consecutive views (or pairs) reuse
 // already-faulted pages; at most one set per concurrently running sweep is alive.

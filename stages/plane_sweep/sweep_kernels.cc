@@ -338,10 +338,10 @@ struct Taps {
   }
 };
 
-// Taps of pixel centre (xc, yc) for the `n` planes (a multiple of 16); `hom` holds the nine
+// Taps of pixel centre (xc, yc) for planes p0..p1-1 (multiples of 16); `hom` holds the nine
 // homography entries as rows of `n` planes (padding planes all zero: outside). The float steps are
 // the same elementwise IEEE operations, in the same order, in both builds.
-void ComputeTaps(const float* hom, int n, float xc, float yc, int sw, int sh, Taps* taps) {
+void ComputeTaps(const float* hom, int n, int p0, int p1, float xc, float yc, int sw, int sh, Taps* taps) {
   int32_t* index = taps->index.data();
   int32_t* wx = taps->wx.data();
   int32_t* wy = taps->wy.data();
@@ -351,7 +351,7 @@ void ComputeTaps(const float* hom, int n, float xc, float yc, int sw, int sh, Ta
   const __m512 one = _mm512_set1_ps(static_cast<float>(kWeightOne)), mu = _mm512_set1_ps(max_u), mv = _mm512_set1_ps(max_v);
   const __m512i width = _mm512_set1_epi32(sw), minus_one = _mm512_set1_epi32(-1);
   auto row = [&](int e, int p) { return _mm512_loadu_ps(hom + static_cast<size_t>(e) * n + p); };
-  for (int p = 0; p < n; p += 16) {
+  for (int p = p0; p < p1; p += 16) {
     const __m512 z = _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(row(6, p), x), _mm512_mul_ps(row(7, p), y)), row(8, p));
     const __m512 un = _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(row(0, p), x), _mm512_mul_ps(row(1, p), y)), row(2, p));
     const __m512 vn = _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(row(3, p), x), _mm512_mul_ps(row(4, p), y)), row(5, p));
@@ -368,7 +368,7 @@ void ComputeTaps(const float* hom, int n, float xc, float yc, int sw, int sh, Ta
     _mm512_storeu_si512(index + p, _mm512_mask_blend_epi32(inside, minus_one, at));
   }
 #else
-  for (int p = 0; p < n; ++p) {
+  for (int p = p0; p < p1; ++p) {
     const float z = hom[6 * n + p] * xc + hom[7 * n + p] * yc + hom[8 * n + p];
     const float u = (hom[0 * n + p] * xc + hom[1 * n + p] * yc + hom[2 * n + p]) / z - 0.5f;
     const float v = (hom[3 * n + p] * xc + hom[4 * n + p] * yc + hom[5 * n + p]) / z - 0.5f;
@@ -383,20 +383,28 @@ void ComputeTaps(const float* hom, int n, float xc, float yc, int sw, int sh, Ta
 #endif
 }
 
-// Integer-shift taps (rectified pairs: plane p moves the pixel by shift[p] along its row).
-void ShiftTaps(const int* shift, int np, int x, int y, int sw, int sh, Taps* taps) {
-  for (int p = 0; p < np; ++p) {
+// Census costs of a rectified pair's planes p0..p1-1 (plane p moves the pixel by shift[p] along its
+// row): one Hamming distance each, 16 units per bit.
+void ShiftCensusCosts(uint64_t code, const uint64_t* src, const int* shift, int p0, int p1, int x, int y, int sw, int sh,
+                      uint16_t* out) {
+  if (y >= sh) {
+    std::fill(out + p0, out + p1, kOutsideCost);
+    return;
+  }
+  const uint64_t* row = src + static_cast<size_t>(y) * sw;
+  for (int p = p0; p < p1; ++p) {
     const int xs = x + shift[p];
-    taps->index[p] = xs >= 0 && xs < sw && y < sh ? y * sw + xs : -1;
-    taps->wx[p] = taps->wy[p] = 0;
+    const bool inside = xs >= 0 && xs < sw;
+    const uint16_t cost = static_cast<uint16_t>(__builtin_popcountll(code ^ row[inside ? xs : 0]) << 4);
+    out[p] = inside ? cost : kOutsideCost;
   }
 }
 
 // Census cost of every plane: Hamming distances between the reference code and the four codes
 // around the correspondence, interpolated bilinearly (a cost curve smooth in the plane index, for
 // sub-pixel accuracy), 16 units per bit: ((h00 (1-ax) + h01 ax)(1-ay) + (h10 (1-ax) + h11 ax) ay)
-// in fixed point. `bilinear` false: one tap (integer shifts). `n` is a multiple of 16.
-void CensusCosts(uint64_t code, const uint64_t* src, int sw, const Taps& taps, int n, bool bilinear, uint16_t* out) {
+// in fixed point, for planes p0..p1-1 (multiples of 16).
+void CensusCosts(uint64_t code, const uint64_t* src, int sw, const Taps& taps, int p0, int p1, uint16_t* out) {
 #if IBMR_SWEEP_AVX512
   const __m512i code_v = _mm512_set1_epi64(static_cast<long long>(code));
   const __m512i zero = _mm512_setzero_si512(), one = _mm512_set1_epi32(kWeightOne);
@@ -411,26 +419,20 @@ void CensusCosts(uint64_t code, const uint64_t* src, int sw, const Taps& taps, i
     const __m256i dhi = _mm512_cvtepi64_epi32(_mm512_popcnt_epi64(_mm512_xor_si512(hi, code_v)));
     return _mm512_inserti64x4(_mm512_castsi256_si512(dlo), dhi, 1);
   };
-  for (int p = 0; p < n; p += 16) {
+  for (int p = p0; p < p1; p += 16) {
     const __m512i index = _mm512_loadu_si512(taps.index.data() + p);
     const __mmask16 valid = _mm512_cmpge_epi32_mask(index, zero);
-    __m512i cost;
-    if (!bilinear) {
-      cost = _mm512_slli_epi32(distances(index, valid, 0), 4);
-    } else {
-      const __m512i wx = _mm512_loadu_si512(taps.wx.data() + p), wy = _mm512_loadu_si512(taps.wy.data() + p);
-      const __m512i d00 = distances(index, valid, 0), d01 = distances(index, valid, 1);
-      const __m512i d10 = distances(index, valid, sw), d11 = distances(index, valid, sw + 1);
-      const __m512i top = _mm512_add_epi32(_mm512_slli_epi32(d00, kWeightShift), _mm512_mullo_epi32(_mm512_sub_epi32(d01, d00), wx));
-      const __m512i bottom = _mm512_add_epi32(_mm512_slli_epi32(d10, kWeightShift), _mm512_mullo_epi32(_mm512_sub_epi32(d11, d10), wx));
-      const __m512i sum = _mm512_add_epi32(_mm512_slli_epi32(top, kWeightShift), _mm512_mullo_epi32(_mm512_sub_epi32(bottom, top), wy));
-      cost = _mm512_srai_epi32(_mm512_add_epi32(sum, round), 2 * kWeightShift - 4);
-    }
-    cost = _mm512_mask_blend_epi32(valid, outside, cost);
+    const __m512i wx = _mm512_loadu_si512(taps.wx.data() + p), wy = _mm512_loadu_si512(taps.wy.data() + p);
+    const __m512i d00 = distances(index, valid, 0), d01 = distances(index, valid, 1);
+    const __m512i d10 = distances(index, valid, sw), d11 = distances(index, valid, sw + 1);
+    const __m512i top = _mm512_add_epi32(_mm512_slli_epi32(d00, kWeightShift), _mm512_mullo_epi32(_mm512_sub_epi32(d01, d00), wx));
+    const __m512i bottom = _mm512_add_epi32(_mm512_slli_epi32(d10, kWeightShift), _mm512_mullo_epi32(_mm512_sub_epi32(d11, d10), wx));
+    const __m512i sum = _mm512_add_epi32(_mm512_slli_epi32(top, kWeightShift), _mm512_mullo_epi32(_mm512_sub_epi32(bottom, top), wy));
+    const __m512i cost = _mm512_mask_blend_epi32(valid, outside, _mm512_srai_epi32(_mm512_add_epi32(sum, round), 2 * kWeightShift - 4));
     _mm256_storeu_si256(reinterpret_cast<__m256i*>(out + p), _mm512_cvtepi32_epi16(cost));
   }
 #else
-  for (int p = 0; p < n; ++p) {
+  for (int p = p0; p < p1; ++p) {
     const int32_t index = taps.index[p];
     if (index < 0) {
       out[p] = kOutsideCost;
@@ -438,10 +440,6 @@ void CensusCosts(uint64_t code, const uint64_t* src, int sw, const Taps& taps, i
     }
     const uint64_t* r0 = src + index;
     const int32_t d00 = __builtin_popcountll(code ^ r0[0]);
-    if (!bilinear) {
-      out[p] = static_cast<uint16_t>(d00 << 4);
-      continue;
-    }
     const int32_t d01 = __builtin_popcountll(code ^ r0[1]), d10 = __builtin_popcountll(code ^ r0[sw]),
                   d11 = __builtin_popcountll(code ^ r0[sw + 1]);
     const int32_t top = (d00 << kWeightShift) + (d01 - d00) * taps.wx[p];
@@ -453,9 +451,10 @@ void CensusCosts(uint64_t code, const uint64_t* src, int sw, const Taps& taps, i
 }
 
 // Census costs of all neighbours, pixel by pixel (planes contiguous), combined by best-k: the
-// mean of the k smallest costs per plane.
-void BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector<std::vector<uint64_t>>& src,
-                       const std::vector<Neighbour>& neighbours, int k, CostVolume* v) {
+// mean of the k smallest costs per plane. With `ranges`, only the blocks of 16 planes that meet a
+// pixel's range are evaluated (the rest is left for ApplyRanges). Returns the evaluations done.
+int64_t BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector<std::vector<uint64_t>>& src,
+                          const std::vector<Neighbour>& neighbours, int k, const PlaneRanges* ranges, CostVolume* v) {
   const int w = v->width, h = v->height, np = v->planes, n = v->stride;
   const int nn = static_cast<int>(neighbours.size());
   // Homographies as float rows of n planes (padding planes zero); integer shifts detected for
@@ -474,31 +473,44 @@ void BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector<std::
     if (!all_shifts) shift[i].clear();
   }
   const int k_shift = (k & (k - 1)) == 0 ? __builtin_ctz(k) : -1;  // a power-of-two k divides by a shift
+  tbb::enumerable_thread_specific<int64_t> evaluations(0);
   tbb::parallel_for(tbb::blocked_range<int>(0, h, 4), [&](const tbb::blocked_range<int>& rows) {
     std::vector<uint16_t> costs(static_cast<size_t>(nn) * n, kMaxCost);
     std::vector<uint16_t> best(static_cast<size_t>(k) * n);
     Taps taps;
     taps.Resize(n);
+    int64_t& done = evaluations.local();
     for (int y = rows.begin(); y < rows.end(); ++y) {
       for (int x = 0; x < w; ++x) {
-        const uint64_t code = ref[static_cast<size_t>(y) * w + x];
+        const size_t pixel = static_cast<size_t>(y) * w + x;
+        int p0 = 0, p1 = n;  // blocks of 16 planes evaluated
+        if (ranges != nullptr) {
+          const int first = ranges->first[pixel], last = ranges->last[pixel];
+          if (first > last || first >= np) continue;
+          p0 = first & ~15;
+          p1 = std::min(n, (last + 16) & ~15);
+        }
+        const int p_end = std::min(p1, np);
+        done += static_cast<int64_t>(p_end - p0) * nn;
+        const uint64_t code = ref[pixel];
         for (int i = 0; i < nn; ++i) {
           const int sw = neighbours[i].gray.cols, sh = neighbours[i].gray.rows;
           const bool shifts = !shift[i].empty();
+          uint16_t* c = costs.data() + static_cast<size_t>(i) * n;
           if (shifts) {
-            ShiftTaps(shift[i].data(), np, x, y, sw, sh, &taps);
+            ShiftCensusCosts(code, src[i].data(), shift[i].data(), p0, p_end, x, y, sw, sh, c);
           } else {
-            ComputeTaps(hom[i].data(), n, x + 0.5f, y + 0.5f, sw, sh, &taps);
+            ComputeTaps(hom[i].data(), n, p0, p1, x + 0.5f, y + 0.5f, sw, sh, &taps);
+            CensusCosts(code, src[i].data(), sw, taps, p0, p1, c);
           }
-          CensusCosts(code, src[i].data(), sw, taps, n, !shifts, costs.data() + static_cast<size_t>(i) * n);
         }
         uint16_t* out = v->At(x, y);
         if (nn == 1) {
-          std::copy(costs.data(), costs.data() + np, out);
+          std::copy(costs.data() + p0, costs.data() + p_end, out + p0);
           continue;
         }
         if (k == nn) {
-          for (int p = 0; p < np; ++p) {
+          for (int p = p0; p < p_end; ++p) {
             uint32_t sum = 0;
             for (int i = 0; i < nn; ++i) sum += costs[static_cast<size_t>(i) * n + p];
             out[p] = static_cast<uint16_t>(sum / nn);
@@ -511,19 +523,42 @@ void BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector<std::
           uint16_t* c = costs.data() + static_cast<size_t>(i) * n;  // the value being inserted
           for (int j = 0; j < k; ++j) {
             uint16_t* b = best.data() + static_cast<size_t>(j) * n;
-            for (int p = 0; p < n; ++p) {
+            for (int p = p0; p < p1; ++p) {
               const uint16_t lo = std::min(b[p], c[p]);
               c[p] = std::max(b[p], c[p]);
               b[p] = lo;
             }
           }
         }
-        for (int p = 0; p < np; ++p) {
+        for (int p = p0; p < p_end; ++p) {
           uint32_t sum = 0;
           for (int j = 0; j < k; ++j) sum += best[static_cast<size_t>(j) * n + p];
           out[p] = static_cast<uint16_t>(k_shift >= 0 ? sum >> k_shift : sum / k);
         }
       }
+    }
+  });
+  return evaluations.combine(std::plus<int64_t>());
+}
+
+// Planes outside each pixel's range take the mean of its in-range costs; an unmatched pixel
+// (empty range) gets a flat curve.
+void ApplyRanges(const PlaneRanges& ranges, CostVolume* v) {
+  const int w = v->width, np = v->planes;
+  tbb::parallel_for(0, v->height, [&](int y) {
+    for (int x = 0; x < w; ++x) {
+      const size_t pixel = static_cast<size_t>(y) * w + x;
+      const int first = ranges.first[pixel], last = std::min<int>(ranges.last[pixel], np - 1);
+      uint16_t* c = v->At(x, y);
+      if (first > last) {
+        std::fill(c, c + np, kOutsideCost);
+        continue;
+      }
+      uint32_t sum = 0;
+      for (int p = first; p <= last; ++p) sum += c[p];
+      const uint16_t mean = static_cast<uint16_t>(sum / (last - first + 1));
+      std::fill(c, c + first, mean);
+      std::fill(c + last + 1, c + np, mean);
     }
   });
 }
@@ -554,7 +589,7 @@ std::vector<uint64_t> CensusTransform(const cv::Mat& gray, int rx, int ry) {
 }
 
 int64_t BuildCostVolume(const cv::Mat& ref, const std::vector<Neighbour>& neighbours, const EngineOptions& o,
-                        CostVolume* volume) {
+                        CostVolume* volume, const PlaneRanges* ranges) {
   const int w = ref.cols, h = ref.rows;
   const int planes = static_cast<int>(neighbours.front().homographies.size());
   const int nn = static_cast<int>(neighbours.size());
@@ -585,9 +620,10 @@ int64_t BuildCostVolume(const cv::Mat& ref, const std::vector<Neighbour>& neighb
   }
   const int k = std::min(o.best_k, nn);
   if (o.cost == Cost::kCensus) {
-    BuildCensusVolume(ref_census, src_census, neighbours, k, volume);
+    const int64_t evaluations = BuildCensusVolume(ref_census, src_census, neighbours, k, ranges, volume);
+    if (ranges != nullptr) ApplyRanges(*ranges, volume);
     BoxFilterVolume(volume, o.window_radius);
-    return static_cast<int64_t>(planes) * w * h * nn;
+    return evaluations;
   }
   tbb::enumerable_thread_specific<PlaneScratch> scratch;
   tbb::parallel_for(tbb::blocked_range<int>(0, planes, 1), [&](const tbb::blocked_range<int>& range) {
@@ -624,6 +660,7 @@ int64_t BuildCostVolume(const cv::Mat& ref, const std::vector<Neighbour>& neighb
       }
     }
   });
+  if (ranges != nullptr) ApplyRanges(*ranges, volume);  // evaluated everywhere, then limited
   return static_cast<int64_t>(planes) * w * h * nn;
 }
 
@@ -641,27 +678,41 @@ void Aggregate(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o,
   tbb::parallel_invoke([&] { SgmPass(v, gray, o, +1, &result.a); }, [&] { SgmPass(v, gray, o, -1, &result.b); });
 }
 
-Winners WinnerTakeAll(const Aggregated& ag, const CostVolume* data, double confidence_scale) {
+Winners WinnerTakeAll(const Aggregated& ag, const CostVolume* data, double confidence_scale, bool right_winners) {
   const int w = ag.width, h = ag.height, np = ag.planes, stride = ag.stride;
   Winners out;
   out.plane = cv::Mat(h, w, CV_32F, cv::Scalar(-1));
   out.confidence = cv::Mat(h, w, CV_32F, cv::Scalar(0));
+  if (right_winners) out.right = cv::Mat(h, w, CV_32S, cv::Scalar(-1));
   tbb::parallel_for(0, h, [&](int y) {
     std::vector<uint16_t> s(stride);
+    std::vector<uint32_t> right_cost(right_winners ? w : 0, 0xFFFFFFFFu);
     float* plane = out.plane.ptr<float>(y);
     float* conf = out.confidence.ptr<float>(y);
     for (int x = 0; x < w; ++x) {
       const size_t pixel = static_cast<size_t>(y) * w + x;
       const uint16_t* a = ag.a.data() + pixel * stride;
+      // The sum and its minimum in one vectorised pass, then the first plane at the minimum.
+      uint16_t lowest = 0xFFFF;
       if (ag.b.empty()) {
-        std::copy(a, a + np, s.begin());
+        for (int d = 0; d < np; ++d) lowest = std::min(lowest, s[d] = a[d]);
       } else {
         const uint16_t* b = ag.b.data() + pixel * stride;
-        for (int d = 0; d < np; ++d) s[d] = static_cast<uint16_t>(a[d] + b[d]);
+        for (int d = 0; d < np; ++d) lowest = std::min(lowest, s[d] = static_cast<uint16_t>(a[d] + b[d]));
       }
       int best = 0;
-      for (int d = 1; d < np; ++d)
-        if (s[d] < s[best]) best = d;
+      while (s[best] != lowest) ++best;
+      if (right_winners) {
+        // Left pixel x at disparity d is right pixel x - d. Left pixels come in increasing x, so for
+        // a right pixel the disparities come in increasing order: a strict < keeps the smallest.
+        int* right = out.right.ptr<int>(y);
+        for (int d = 0; d < np && d <= x; ++d) {
+          if (s[d] < right_cost[x - d]) {
+            right_cost[x - d] = s[d];
+            right[x - d] = d;
+          }
+        }
+      }
       float sub = static_cast<float>(best);
       if (best > 0 && best < np - 1) {
         const float l = s[best - 1], c = s[best], r = s[best + 1];
@@ -682,27 +733,6 @@ Winners WinnerTakeAll(const Aggregated& ag, const CostVolume* data, double confi
     }
   });
   return out;
-}
-
-cv::Mat RightWinners(const Aggregated& ag) {
-  const int w = ag.width, h = ag.height, np = ag.planes;
-  cv::Mat right(h, w, CV_32S, cv::Scalar(-1));
-  tbb::parallel_for(0, h, [&](int y) {
-    int* r = right.ptr<int>(y);
-    for (int xr = 0; xr < w; ++xr) {
-      int best = -1;
-      uint32_t best_cost = 0xFFFFFFFF;
-      for (int d = 0; d < np && xr + d < w; ++d) {
-        const uint32_t cost = ag.Sum(static_cast<size_t>(y) * w + xr + d, d);
-        if (cost < best_cost) {
-          best_cost = cost;
-          best = d;
-        }
-      }
-      r[xr] = best;
-    }
-  });
-  return right;
 }
 
 }  // namespace IBMR_SWEEP_ISA

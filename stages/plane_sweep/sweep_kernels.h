@@ -7,11 +7,11 @@
 
 #define IBMR_SWEEP_KERNEL_DECLARATIONS                                                                         \
   int64_t BuildCostVolume(const cv::Mat& reference_gray, const std::vector<Neighbour>& neighbours,              \
-                          const EngineOptions& options, CostVolume* volume);                                   \
+                          const EngineOptions& options, CostVolume* volume, const PlaneRanges* ranges);                                   \
   void Aggregate(const CostVolume& volume, const cv::Mat& reference_gray, const EngineOptions& options,         \
                  Aggregated* out);                                                                            \
-  Winners WinnerTakeAll(const Aggregated& aggregated, const CostVolume* data_cost, double confidence_scale);    \
-  cv::Mat RightWinners(const Aggregated& aggregated);                                                          \
+  Winners WinnerTakeAll(const Aggregated& aggregated, const CostVolume* data_cost, double confidence_scale,     \
+                        bool right_winners);                                                                   \
   std::vector<uint64_t> CensusTransform(const cv::Mat& gray, int radius_x, int radius_y);
 
 namespace ibmr {
