@@ -3,9 +3,11 @@
 //  * synth object_ring (true depth): fraction of textured (object) pixels within 1% of the true
 //    depth, fraction kept, precision of the kept samples, time, evaluations per second;
 //  * Middlebury templeSparseRing at full resolution: plane_sweep wall time (MVE dmrecon: 161.6 s),
-//    evaluations per second, cost volume per view and peak memory;
+//    evaluations per second, cost volume per view and peak memory, with the engine's build in use
+//    and again with the portable build;
 //  * Middlebury dinoSparseRing (untextured): fraction of pixels kept at the confidence threshold,
-//    on the object (grey >= 40) and on the black background.
+//    on the object (grey >= 40) and on the black background;
+//  * the machine's limit for the census cost (MachineLimit: how it is derived).
 // Method: plane_sweep.h (seed 000 lines 3659-3760, 5300-5525, 4352-4453).
 //
 // Usage: bench_plane_sweep [--out FILE.json] [--threads N] [--only synth|temple|dino]
@@ -14,6 +16,7 @@
 
 #include <chrono>
 #include <filesystem>
+#include <fstream>
 #include <iostream>
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
@@ -22,6 +25,7 @@
 #include "pipeline/core/colmap_array_io.h"
 #include "pipeline/core/stage_api.h"
 #include "pipeline/core/workspace.h"
+#include "stages/plane_sweep/sweep_engine.h"
 
 #ifndef IBMR_SHARED_DIR
 #define IBMR_SHARED_DIR "../shared"
@@ -153,6 +157,28 @@ nlohmann::json Middlebury(Runner& runner, const std::string& dir, const std::str
   return out;
 }
 
+// The ceiling of the census cost on this machine, from the instruction mix: an evaluation
+// (bilinear census) reads four 64-bit codes of the neighbour (the XORs, POPCNTs and weights run
+// on ALU ports beside the loads), and a core issues at most 3 loads per cycle (AMD Zen 4, Intel
+// Golden Cove: 3 load ports), so a core does at most 0.75 evaluations per cycle. Times the
+// threads and the clock read from /proc/cpuinfo.
+nlohmann::json MachineLimit(int threads) {
+  double mhz = 0;
+  std::ifstream cpuinfo("/proc/cpuinfo");
+  for (std::string line; std::getline(cpuinfo, line);) {
+    if (line.rfind("cpu MHz", 0) == 0 && line.find(':') != std::string::npos) {
+      mhz = std::atof(line.substr(line.find(':') + 1).c_str());
+      break;
+    }
+  }
+  const double loads_per_cycle = 3, loads_per_evaluation = 4;
+  const double limit = threads * mhz * 1e6 * loads_per_cycle / loads_per_evaluation;
+  return {{"threads", threads}, {"cpu_mhz", mhz}, {"loads_per_cycle_per_core", loads_per_cycle},
+          {"loads_per_evaluation", loads_per_evaluation}, {"evaluations_per_second", limit},
+          {"derivation", "threads x clock x 3 loads per cycle / 4 neighbour codes per bilinear census evaluation "
+                         "(load-port bound; the XOR, POPCNT and weighting run on other ports)"}};
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -181,9 +207,19 @@ int main(int argc, char** argv) {
   nlohmann::json report = {{"threads", threads}, {"confidence_threshold", threshold}};
   try {
     if (only.empty() || only == "synth") report["synth"] = Synth(runner, work, threshold);
-    if (only.empty() || only == "temple")
-      report["temple"] = Middlebury(runner, work, "middlebury_templeSparseRing",
-                                    {-0.073568, 0.021728, -0.012445, 0.028855, 0.181892, 0.062736}, threshold);
+    if (only.empty() || only == "temple") {
+      const std::vector<double> box = {-0.073568, 0.021728, -0.012445, 0.028855, 0.181892, 0.062736};
+      report["temple"] = Middlebury(runner, work, "middlebury_templeSparseRing", box, threshold);
+      if (sweep::ActiveIsa() != sweep::Isa::kPortable) {  // the same run on the portable build
+        const sweep::Isa active = sweep::ActiveIsa();
+        sweep::SetIsa(sweep::Isa::kPortable);
+        const nlohmann::json portable = Middlebury(runner, work, "middlebury_templeSparseRing", box, threshold);
+        sweep::SetIsa(active);
+        report["temple"]["portable"] = {{"wall_seconds", portable["wall_seconds"]},
+                                        {"evaluations_per_second", portable["plane_sweep"]["evaluations_per_second"]},
+                                        {"fraction_kept_object", portable["fraction_kept_object"]}};
+      }
+    }
     if (only.empty() || only == "dino")
       report["dino"] = Middlebury(runner, work, "middlebury_dinoSparseRing",
                                   {-0.061897, -0.018874, -0.057845, 0.010897, 0.068227, 0.015495}, threshold);
@@ -192,6 +228,8 @@ int main(int argc, char** argv) {
     return 1;
   }
   report["mve_dmrecon_temple_full_seconds"] = 161.6;
+  report["isa"] = sweep::IsaName(sweep::ActiveIsa());
+  report["machine_limit"] = MachineLimit(threads);
   WriteFileAtomic(out, report.dump(2) + "\n");
   std::cout << "wrote " << out << "\n";
   return 0;

@@ -57,27 +57,25 @@ cv::Mat ToGray(const cv::Mat& image) {
   return gray;
 }
 
-// Rejected pixels (<= 0) take the smaller of the nearest valid disparities left and right on
-// their row: occlusions belong to the background.
-void FillHoles(cv::Mat* disparity) {
-  for (int y = 0; y < disparity->rows; ++y) {
-    float* d = disparity->ptr<float>(y);
-    const int w = disparity->cols;
-    std::vector<float> left(w, -1.f);
-    float last = -1.f;
-    for (int x = 0; x < w; ++x) {
-      if (d[x] > 0) last = d[x];
-      left[x] = last;
+// Rejected pixels (<= 0) of row y take the smaller of the nearest valid disparities left and right
+// on the row: occlusions belong to the background.
+void FillHoles(cv::Mat* disparity, int y) {
+  float* d = disparity->ptr<float>(y);
+  const int w = disparity->cols;
+  std::vector<float> left(w, -1.f);
+  float last = -1.f;
+  for (int x = 0; x < w; ++x) {
+    if (d[x] > 0) last = d[x];
+    left[x] = last;
+  }
+  last = -1.f;
+  for (int x = w - 1; x >= 0; --x) {
+    if (d[x] > 0) {
+      last = d[x];
+      continue;
     }
-    last = -1.f;
-    for (int x = w - 1; x >= 0; --x) {
-      if (d[x] > 0) {
-        last = d[x];
-        continue;
-      }
-      const float l = left[x], r = last;
-      d[x] = l > 0 && r > 0 ? std::min(l, r) : std::max(l, r);
-    }
+    const float l = left[x], r = last;
+    d[x] = l > 0 && r > 0 ? std::min(l, r) : std::max(l, r);
   }
 }
 
@@ -146,22 +144,22 @@ StereoPairResult StereoPair(const cv::Mat& left_image, const cv::Mat& right_imag
   lap("aggregation");
   const sweep::Winners winners = sweep::WinnerTakeAll(aggregated, nullptr, options.confidence_scale, options.lr_check);
   lap("winner");
-  cv::Mat disparity = winners.plane.clone();
-  // Disparity 0 is a valid answer but "<= 0" means none in the output: nudge it.
-  disparity.setTo(1e-3f, disparity == 0.f);
-  if (options.lr_check) {
-    const cv::Mat& right_winners = winners.right;
-    for (int y = 0; y < disparity.rows; ++y) {
-      float* d = disparity.ptr<float>(y);
-      const int* r = right_winners.ptr<int>(y);
+  cv::Mat disparity = winners.plane;
+  tbb::parallel_for(0, disparity.rows, [&](int y) {
+    float* d = disparity.ptr<float>(y);
+    for (int x = 0; x < disparity.cols; ++x) {
+      if (d[x] == 0.f) d[x] = 1e-3f;  // disparity 0 is an answer, but "<= 0" means none in the output
+    }
+    if (options.lr_check) {
+      const int* r = winners.right.ptr<int>(y);
       for (int x = 0; x < disparity.cols; ++x) {
         const int di = static_cast<int>(std::lround(d[x]));
         const int xr = x - di;
         if (d[x] < 0 || xr < 0 || std::abs(r[xr] - di) > options.lr_tolerance) d[x] = -1.f;
       }
     }
-  }
-  if (options.fill_holes) FillHoles(&disparity);
+    if (options.fill_holes) FillHoles(&disparity, y);
+  });
   if (options.median_radius > 0) cv::medianBlur(disparity, disparity, 2 * options.median_radius + 1);
   result.unfilled_fraction = 1.0 - static_cast<double>(cv::countNonZero(disparity > 0)) / disparity.total();
   result.disparity = disparity;

@@ -686,7 +686,10 @@ Winners WinnerTakeAll(const Aggregated& ag, const CostVolume* data, double confi
   if (right_winners) out.right = cv::Mat(h, w, CV_32S, cv::Scalar(-1));
   tbb::parallel_for(0, h, [&](int y) {
     std::vector<uint16_t> s(stride);
+    // Right-view winners of this row, stored right to left: left pixel x at disparity d is right
+    // pixel x - d, entry w - 1 - x + d, so a left pixel's disparities update a contiguous run.
     std::vector<uint32_t> right_cost(right_winners ? w : 0, 0xFFFFFFFFu);
+    std::vector<int32_t> right_disparity(right_winners ? w : 0, -1);
     float* plane = out.plane.ptr<float>(y);
     float* conf = out.confidence.ptr<float>(y);
     for (int x = 0; x < w; ++x) {
@@ -703,14 +706,16 @@ Winners WinnerTakeAll(const Aggregated& ag, const CostVolume* data, double confi
       int best = 0;
       while (s[best] != lowest) ++best;
       if (right_winners) {
-        // Left pixel x at disparity d is right pixel x - d. Left pixels come in increasing x, so for
-        // a right pixel the disparities come in increasing order: a strict < keeps the smallest.
-        int* right = out.right.ptr<int>(y);
-        for (int d = 0; d < np && d <= x; ++d) {
-          if (s[d] < right_cost[x - d]) {
-            right_cost[x - d] = s[d];
-            right[x - d] = d;
-          }
+        // Left pixels come in increasing x, so a right pixel sees its disparities in increasing
+        // order: a strict < keeps the smallest among equal costs.
+        uint32_t* cost = right_cost.data() + (w - 1 - x);
+        int32_t* disparity = right_disparity.data() + (w - 1 - x);
+        const int count = std::min(np, x + 1);
+        for (int d = 0; d < count; ++d) {
+          const uint32_t value = s[d];
+          const bool better = value < cost[d];
+          cost[d] = better ? value : cost[d];
+          disparity[d] = better ? d : disparity[d];
         }
       }
       float sub = static_cast<float>(best);
@@ -730,6 +735,10 @@ Winners WinnerTakeAll(const Aggregated& ag, const CostVolume* data, double confi
       const float mean = static_cast<float>(total) / np;
       const float margin = (mean - c[best]) / std::max(1.f, mean);
       conf[x] = static_cast<float>(std::clamp(margin * confidence_scale, 0.0, 1.0));
+    }
+    if (right_winners) {
+      int* right = out.right.ptr<int>(y);
+      for (int x = 0; x < w; ++x) right[x] = right_disparity[w - 1 - x];
     }
   });
   return out;
