@@ -78,7 +78,8 @@ class PlaneSweepStage : public Stage {
   std::string Summary() const override {
     return "CPU plane-sweep stereo (census, best-k, semi-global) to COLMAP depth/normal/confidence maps";
   }
-  // 2: hull bounds that reach the camera are not used; 3: fixed-point bilinear census weights (1/256 px)
+  // 2: hull bounds that reach the camera are not used; 3: fixed-point bilinear census weights (1/256 px),
+  // per-pixel plane ranges from hull/hull.ply
   std::string Version() const override { return "3"; }
   HoldoutRole Role() const override { return HoldoutRole::kTrainingOnly; }
   bool Shardable() const override { return true; }

@@ -184,89 +184,105 @@ void ZnccSlice(const cv::Mat& ref, const cv::Mat& ref_mean, const cv::Mat& ref_v
   }
 }
 
-// One semi-global path step: L(p,d) = C(p,d) + min(L(p-r,d), L(p-r,d+-1) + P1, min L(p-r) + P2) - min L(p-r).
-// `prev` and `cur` are padded by one sentinel on each side. Returns min over d of L. Signed 16-bit
-// so that min vectorises with SSE2 (all values stay below 2^15).
-template <bool kAssign>
-inline int16_t PathStep(const uint16_t* __restrict c, const int16_t* __restrict prev, int16_t min_prev, int16_t p1,
-                        int16_t p2, int n, int16_t* __restrict cur, uint16_t* __restrict sum) {
-  const int16_t mp2 = static_cast<int16_t>(min_prev + p2);
-  int16_t m = 0x7FFF;
-  for (int d = 0; d < n; ++d) {
-    const int16_t a = prev[d];
-    const int16_t b = static_cast<int16_t>(prev[d - 1] + p1);
-    const int16_t e = static_cast<int16_t>(prev[d + 1] + p1);
-    const int16_t t = std::min(std::min(a, b), std::min(e, mp2));
-    const int16_t l = static_cast<int16_t>(static_cast<int16_t>(c[d]) + t - min_prev);
-    cur[d] = l;
-    sum[d] = kAssign ? static_cast<uint16_t>(l) : static_cast<uint16_t>(sum[d] + l);
-    m = std::min(m, l);
+// One pixel's semi-global step along K paths at once:
+//   L_k(p,d) = C(p,d) + min(L_k(p-r_k,d), L_k(p-r_k,d+-1) + P1, min L_k(p-r_k) + P2_k) - min L_k(p-r_k),
+// and sum[d] = sum over k of L_k(p,d). `prev[k]` is path k's previous pixel (padded by one entry
+// on each side); a path that starts here reads the zero row with min 0, which makes L = C.
+// `cur[k]` receives L_k, `min_out[k]` its minimum. Signed 16-bit lanes: all values stay below 2^15
+// (the sums wrap as uint16, like the volume they are added into, in any order).
+template <int K>
+inline void PathSteps(const uint16_t* __restrict c, int n, const int16_t* const* prev, const int16_t* min_prev,
+                      const int16_t* p2, int16_t p1, int16_t* const* cur, int16_t* min_out, uint16_t* __restrict sum) {
+  int16_t mp2[K], m[K];
+  for (int k = 0; k < K; ++k) {
+    mp2[k] = static_cast<int16_t>(min_prev[k] + p2[k]);
+    m[k] = 0x7FFF;
   }
-  return m;
-}
-
-template <bool kAssign>
-inline int16_t PathStart(const uint16_t* __restrict c, int n, int16_t* __restrict cur, uint16_t* __restrict sum) {
-  int16_t m = 0x7FFF;
+  // The rows of different paths and the sum never overlap: no dependence between iterations.
+#pragma GCC ivdep
   for (int d = 0; d < n; ++d) {
-    const int16_t v = static_cast<int16_t>(c[d]);
-    cur[d] = v;
-    sum[d] = kAssign ? static_cast<uint16_t>(v) : static_cast<uint16_t>(sum[d] + v);
-    m = std::min(m, v);
+    uint16_t total = 0;
+#pragma GCC unroll 4
+    for (int k = 0; k < K; ++k) {
+      const int16_t* pv = prev[k];
+      const int16_t a = pv[d];
+      const int16_t b = static_cast<int16_t>(pv[d - 1] + p1);
+      const int16_t e = static_cast<int16_t>(pv[d + 1] + p1);
+      const int16_t t = std::min(std::min(a, b), std::min(e, mp2[k]));
+      const int16_t l = static_cast<int16_t>(static_cast<int16_t>(c[d]) + t - min_prev[k]);
+      cur[k][d] = l;
+      m[k] = std::min(m[k], l);
+      total = static_cast<uint16_t>(total + l);
+    }
+    sum[d] = total;
   }
-  return m;
+  for (int k = 0; k < K; ++k) min_out[k] = m[k];
 }
 
 // One pass over the image in scan order `s` (+1: top-left to bottom-right; -1: reverse) along the
 // paths arriving from the previous pixel and, when `diagonals`, the previous row's three pixels
-// (else only the one above).
-void SgmPass(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, int s, std::vector<uint16_t>* out) {
+// (else only the one above); `out` receives the sum of those paths.
+template <int kRowPaths>
+void SgmPassPaths(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, int s, std::vector<uint16_t>* out) {
+  constexpr int K = 1 + kRowPaths;  // the row path, then the paths from the previous row
   const int w = v.width, h = v.height, n = v.stride, ps = n + 2;
-  const bool diagonals = o.paths == 8;
-  out->resize(v.data.size());  // every entry is assigned by the row path first
-  const int ndir = diagonals ? 3 : 1;  // row paths: from (x - s, y - s), (x, y - s), (x + s, y - s)
-  std::vector<int16_t> prev_row(static_cast<size_t>(ndir) * w * ps, kSentinel), cur_row(prev_row.size(), kSentinel);
-  std::vector<int16_t> prev_min(static_cast<size_t>(ndir) * w, 0), cur_min(prev_min.size(), 0);
+  out->resize(v.data.size());  // every entry is assigned
+  std::vector<int16_t> prev_row(static_cast<size_t>(kRowPaths) * w * ps, kSentinel), cur_row(prev_row.size(), kSentinel);
+  std::vector<int16_t> prev_min(static_cast<size_t>(kRowPaths) * w, 0), cur_min(prev_min.size(), 0);
   std::vector<int16_t> left(ps, kSentinel), left_cur(ps, kSentinel);
+  const std::vector<int16_t> start(ps, 0);  // the previous pixel of a path that starts: L = C
   const int16_t p1 = static_cast<int16_t>(o.p1);
   int16_t p2_table[256];
   for (int g = 0; g < 256; ++g) {
     const double p2 = o.p2_gamma <= 0 ? o.p2 : o.p2 / (1.0 + g / o.p2_gamma);
     p2_table[g] = static_cast<int16_t>(std::max<double>(p1 + 1, p2));
   }
-  auto p2_for = [&](int g0, int g1) -> int16_t { return p2_table[std::abs(g0 - g1)]; };
+  const int16_t* prev[K];
+  int16_t* cur[K];
+  int16_t min_prev[K], min_out[K], p2[K];
+  int16_t left_min = 0;
   for (int yi = 0; yi < h; ++yi) {
     const int y = s > 0 ? yi : h - 1 - yi;
     const uint8_t* g = gray.ptr<uint8_t>(y);
     const uint8_t* gp = yi > 0 ? gray.ptr<uint8_t>(y - s) : nullptr;
-    int16_t left_min = 0;
     for (int xi = 0; xi < w; ++xi) {
       const int x = s > 0 ? xi : w - 1 - xi;
-      const uint16_t* c = v.At(x, y);
-      uint16_t* sum = out->data() + (static_cast<size_t>(y) * w + x) * n;
       // From the previous pixel on the row.
-      if (xi == 0) {
-        left_min = PathStart<true>(c, n, left_cur.data() + 1, sum);
-      } else {
-        left_min = PathStep<true>(c, left.data() + 1, left_min, p1, p2_for(g[x], g[x - s]), n, left_cur.data() + 1, sum);
-      }
-      std::swap(left, left_cur);
-      // From the previous row.
-      for (int k = 0; k < ndir; ++k) {
-        const int dx = diagonals ? (k - 1) * s : 0;  // source pixel x offset
+      prev[0] = xi == 0 ? start.data() + 1 : left.data() + 1;
+      min_prev[0] = xi == 0 ? 0 : left_min;
+      p2[0] = xi == 0 ? 0 : p2_table[std::abs(g[x] - g[x - s])];
+      cur[0] = left_cur.data() + 1;
+      // From the previous row: (x - s, y - s), (x, y - s), (x + s, y - s), or only (x, y - s).
+      for (int k = 0; k < kRowPaths; ++k) {
+        const int dx = kRowPaths == 3 ? (k - 1) * s : 0;
         const int xs = x + dx;
-        int16_t* cur = cur_row.data() + (static_cast<size_t>(k) * w + x) * ps + 1;
-        int16_t& cm = cur_min[static_cast<size_t>(k) * w + x];
+        cur[1 + k] = cur_row.data() + (static_cast<size_t>(k) * w + x) * ps + 1;
         if (yi == 0 || xs < 0 || xs >= w) {
-          cm = PathStart<false>(c, n, cur, sum);
+          prev[1 + k] = start.data() + 1;
+          min_prev[1 + k] = 0;
+          p2[1 + k] = 0;
         } else {
-          const int16_t* pv = prev_row.data() + (static_cast<size_t>(k) * w + xs) * ps + 1;
-          cm = PathStep<false>(c, pv, prev_min[static_cast<size_t>(k) * w + xs], p1, p2_for(g[x], gp[xs]), n, cur, sum);
+          prev[1 + k] = prev_row.data() + (static_cast<size_t>(k) * w + xs) * ps + 1;
+          min_prev[1 + k] = prev_min[static_cast<size_t>(k) * w + xs];
+          p2[1 + k] = p2_table[std::abs(g[x] - gp[xs])];
         }
       }
+      PathSteps<K>(v.At(x, y), n, prev, min_prev, p2, p1, cur, min_out,
+                   out->data() + (static_cast<size_t>(y) * w + x) * n);
+      left_min = min_out[0];
+      std::swap(left, left_cur);
+      for (int k = 0; k < kRowPaths; ++k) cur_min[static_cast<size_t>(k) * w + x] = min_out[1 + k];
     }
     std::swap(prev_row, cur_row);
     std::swap(prev_min, cur_min);
+  }
+}
+
+void SgmPass(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, int s, std::vector<uint16_t>* out) {
+  if (o.paths == 8) {
+    SgmPassPaths<3>(v, gray, o, s, out);
+  } else {
+    SgmPassPaths<1>(v, gray, o, s, out);
   }
 }
 
@@ -384,15 +400,31 @@ void ComputeTaps(const float* hom, int n, int p0, int p1, float xc, float yc, in
 }
 
 // Census costs of a rectified pair's planes p0..p1-1 (plane p moves the pixel by shift[p] along its
-// row): one Hamming distance each, 16 units per bit.
-void ShiftCensusCosts(uint64_t code, const uint64_t* src, const int* shift, int p0, int p1, int x, int y, int sw, int sh,
-                      uint16_t* out) {
+// row): one Hamming distance each, 16 units per bit. `disparity_order`: shift[p] = -p for all p.
+void ShiftCensusCosts(uint64_t code, const uint64_t* src, const int* shift, bool disparity_order, int p0, int p1, int x,
+                      int y, int sw, int sh, uint16_t* out) {
   if (y >= sh) {
     std::fill(out + p0, out + p1, kOutsideCost);
     return;
   }
   const uint64_t* row = src + static_cast<size_t>(y) * sw;
-  for (int p = p0; p < p1; ++p) {
+  int p = p0;
+#if IBMR_SWEEP_AVX512
+  // Disparity order (shift[p] = -p, as rectified pairs have): plane p reads code x - p, so eight
+  // planes read eight consecutive codes, loaded at once and reversed.
+  const __m512i code_v = _mm512_set1_epi64(static_cast<long long>(code));
+  const __m512i reverse = _mm512_set_epi64(0, 1, 2, 3, 4, 5, 6, 7);
+  for (; disparity_order && p + 8 <= p1; p += 8) {
+    const int first = x - p - 7;  // the code of plane p + 7, the lowest address
+    if (first < 0 || x - p >= sw) break;  // the row's ends: one plane at a time
+    const __m512i codes = _mm512_permutexvar_epi64(reverse, _mm512_loadu_si512(row + first));
+    const __m512i distances = _mm512_popcnt_epi64(_mm512_xor_si512(codes, code_v));
+    _mm_storeu_si128(reinterpret_cast<__m128i*>(out + p), _mm_slli_epi16(_mm512_cvtepi64_epi16(distances), 4));
+  }
+#else
+  (void)disparity_order;
+#endif
+  for (; p < p1; ++p) {
     const int xs = x + shift[p];
     const bool inside = xs >= 0 && xs < sw;
     const uint16_t cost = static_cast<uint16_t>(__builtin_popcountll(code ^ row[inside ? xs : 0]) << 4);
@@ -472,6 +504,11 @@ int64_t BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector<st
     }
     if (!all_shifts) shift[i].clear();
   }
+  std::vector<char> disparity_order(nn, 0);
+  for (int i = 0; i < nn; ++i) {
+    disparity_order[i] = !shift[i].empty();
+    for (int p = 0; p < static_cast<int>(shift[i].size()); ++p) disparity_order[i] &= shift[i][p] == -p;
+  }
   const int k_shift = (k & (k - 1)) == 0 ? __builtin_ctz(k) : -1;  // a power-of-two k divides by a shift
   tbb::enumerable_thread_specific<int64_t> evaluations(0);
   tbb::parallel_for(tbb::blocked_range<int>(0, h, 4), [&](const tbb::blocked_range<int>& rows) {
@@ -498,7 +535,7 @@ int64_t BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector<st
           const bool shifts = !shift[i].empty();
           uint16_t* c = costs.data() + static_cast<size_t>(i) * n;
           if (shifts) {
-            ShiftCensusCosts(code, src[i].data(), shift[i].data(), p0, p_end, x, y, sw, sh, c);
+            ShiftCensusCosts(code, src[i].data(), shift[i].data(), disparity_order[i], p0, p_end, x, y, sw, sh, c);
           } else {
             ComputeTaps(hom[i].data(), n, p0, p1, x + 0.5f, y + 0.5f, sw, sh, &taps);
             CensusCosts(code, src[i].data(), sw, taps, p0, p1, c);
