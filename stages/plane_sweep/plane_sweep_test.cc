@@ -113,21 +113,29 @@ TEST(StereoPair, RecoversAConstantShift) {
   }
 }
 
-// Two pinhole views of a textured fronto-parallel plane at depth 5: the sweep finds it.
-TEST(PlaneSweep, FindsATexturedPlane) {
-  const int w = 128, h = 96;
-  const Camera camera = Camera::Pinhole(w, h, 100, 100, w / 2.0, h / 2.0);
-  const double depth = 5.0;
-  SweepView ref{"ref", RandomTexture(w, h, 7), camera, Rigid3d()};
+// A reference view of a textured fronto-parallel plane at depth 5 and two neighbours shifted by
+// +-0.5 along x (128x96, focal 100).
+class TexturedPlane : public ::testing::Test {
+ protected:
+  static constexpr int w = 128, h = 96;
+  static constexpr double depth = 5.0;
+  SweepView ref;
   std::vector<SweepView> neighbours;
-  for (double baseline : {-0.5, 0.5}) {
-    SweepView v{"n", cv::Mat(), camera, Rigid3d(Eigen::Matrix3d::Identity(), Eigen::Vector3d(baseline, 0, 0))};
-    // Neighbour pixel = ref pixel + f * baseline / depth horizontally: warp the texture.
-    const double dx = 100 * baseline / depth;
-    cv::Mat m = (cv::Mat_<double>(2, 3) << 1, 0, dx, 0, 1, 0);
-    cv::warpAffine(ref.gray, v.gray, m, ref.gray.size(), cv::INTER_LINEAR, cv::BORDER_REFLECT);
-    neighbours.push_back(v);
+  void SetUp() override {
+    const Camera camera = Camera::Pinhole(w, h, 100, 100, w / 2.0, h / 2.0);
+    ref = SweepView{"ref", RandomTexture(w, h, 7), camera, Rigid3d()};
+    for (double baseline : {-0.5, 0.5}) {
+      SweepView v{"n", cv::Mat(), camera, Rigid3d(Eigen::Matrix3d::Identity(), Eigen::Vector3d(baseline, 0, 0))};
+      // Neighbour pixel = ref pixel + f * baseline / depth horizontally: warp the texture.
+      cv::Mat m = (cv::Mat_<double>(2, 3) << 1, 0, 100 * baseline / depth, 0, 1, 0);
+      cv::warpAffine(ref.gray, v.gray, m, ref.gray.size(), cv::INTER_LINEAR, cv::BORDER_REFLECT);
+      neighbours.push_back(v);
+    }
   }
+};
+
+// The sweep finds the textured plane.
+TEST_F(TexturedPlane, IsFound) {
   PlaneSweepOptions options;
   options.num_planes = 48;
   options.confidence_threshold = 0;
@@ -144,18 +152,7 @@ TEST(PlaneSweep, FindsATexturedPlane) {
 // Per-pixel depth bounds (a hull's): pixels sweep only their planes, so the work shrinks and the
 // depth is still found; bounds that exclude the true depth keep it out; unbounded pixels (near 0)
 // sweep every plane.
-TEST(PlaneSweep, PixelBoundsLimitThePlanesOfEachPixel) {
-  const int w = 128, h = 96;
-  const Camera camera = Camera::Pinhole(w, h, 100, 100, w / 2.0, h / 2.0);
-  const double depth = 5.0;
-  SweepView ref{"ref", RandomTexture(w, h, 7), camera, Rigid3d()};
-  std::vector<SweepView> neighbours;
-  for (double baseline : {-0.5, 0.5}) {
-    SweepView v{"n", cv::Mat(), camera, Rigid3d(Eigen::Matrix3d::Identity(), Eigen::Vector3d(baseline, 0, 0))};
-    cv::Mat m = (cv::Mat_<double>(2, 3) << 1, 0, 100 * baseline / depth, 0, 1, 0);
-    cv::warpAffine(ref.gray, v.gray, m, ref.gray.size(), cv::INTER_LINEAR, cv::BORDER_REFLECT);
-    neighbours.push_back(v);
-  }
+TEST_F(TexturedPlane, PixelBoundsLimitThePlanesOfEachPixel) {
   PlaneSweepOptions options;
   options.num_planes = 64;
   options.confidence_threshold = 0;
