@@ -7,18 +7,38 @@
 // than the bound is never taken, so the mesh does not span holes wider than that. Faces are then
 // turned to agree with the particles' normals.
 // Inside test of a closed hull: parity of ray crossings through a CGAL AABB tree of its triangles.
+//
+// Reproducibility: CGAL's advancing front, as its free function sets it up, depends on where its
+// objects land in memory, so the same particles gave different meshes from run to run (templeRing:
+// 139175 to 139212 faces; two runs with --jobs 1 agreed, as a single thread leaves the heap in the
+// same state, but TBB work done on the calling thread does not). Addresses are compared in:
+//  - the Delaunay triangulation's handles: which of its two cells represents a facet in the facet
+//    scans (and so which way the front turns around an edge, and which of equal facets it takes
+//    first), and the vertex removals of the front's post-processing (hash maps and canonical vertex
+//    triples keyed by handles, which decide the new cells). Time-stamped vertices and cells (CGAL's
+//    Has_timestamp, which Mesh_3 uses for the same reason) compare and hash by creation order.
+//  - the front's priority queue, a std::set of (priority, pointer to a border edge's record), whose
+//    ties (two border edges whose best facets share a Delaunay sphere, the constant stand-by
+//    priorities) fell back to the records' addresses; std::less is specialised below for it.
+// Neither changes which facets the algorithm prefers, only the order among equals. The price: a
+// time-stamp comparison reads the neighbouring cell, and the front scans every facet once per piece
+// of surface it starts (templeRing: 128 pieces, triangulation 4.6 s -> 7.6 s).
 #include <CGAL/AABB_traits.h>
 #include <CGAL/AABB_tree.h>
 #include <CGAL/AABB_triangle_primitive.h>
 #include <CGAL/Advancing_front_surface_reconstruction.h>
+#include <CGAL/Delaunay_triangulation_3.h>
 #include <CGAL/Exact_predicates_inexact_constructions_kernel.h>
+#include <CGAL/Triangulation_data_structure_3.h>
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
 
 #include <array>
 #include <cmath>
+#include <functional>
 #include <map>
+#include <utility>
 
 #include "stages/surfels/surfels.h"
 
@@ -28,6 +48,66 @@ namespace {
 
 using Kernel = CGAL::Exact_predicates_inexact_constructions_kernel;
 using Point = Kernel::Point_3;
+
+// A vertex or cell base with a time stamp (set by CGAL's Compact_container when the object is
+// created): handles then compare and hash by creation order, not by address.
+template <typename Base>
+class TimeStamped : public Base {
+ public:
+  using Has_timestamp = CGAL::Tag_true;
+  template <typename Tds2>
+  struct Rebind_TDS {
+    using Other = TimeStamped<typename Base::template Rebind_TDS<Tds2>::Other>;
+  };
+  using Base::Base;
+  std::size_t time_stamp() const { return time_stamp_; }
+  void set_time_stamp(const std::size_t& stamp) { time_stamp_ = stamp; }
+
+ private:
+  std::size_t time_stamp_ = std::size_t(-1);
+};
+
+// The types of CGAL::advancing_front_surface_reconstruction's free function, with time stamps.
+using FrontVertexBase =
+    CGAL::Advancing_front_surface_reconstruction_vertex_base_3<Kernel, TimeStamped<CGAL::Triangulation_vertex_base_3<Kernel>>>;
+using FrontCellBase = CGAL::Advancing_front_surface_reconstruction_cell_base_3<
+    Kernel, TimeStamped<CGAL::Delaunay_triangulation_cell_base_3<Kernel>>>;
+using FrontTds = CGAL::Triangulation_data_structure_3<FrontVertexBase, FrontCellBase>;
+using FrontDelaunay = CGAL::Delaunay_triangulation_3<Kernel, FrontTds>;
+// An entry of the front's priority queue: (priority, the border edge's record).
+using FrontQueueEntry = FrontTds::Vertex::Radius_ptr_type;
+
+}  // namespace
+
+}  // namespace ibmr
+
+// The front's priority queue is a std::set<FrontQueueEntry> with the default std::less, which breaks
+// ties by the record's address. Ties are broken here by the (sorted) indices of the border edge's
+// two vertices instead: they stay fixed while an entry is queued (CGAL rewrites a queued record only
+// for the same edge, or moves it to the neighbouring cell, which keeps its vertices), and two
+// queued records for one edge do not occur (the address remains the last resort).
+namespace std {
+template <>
+struct less<ibmr::FrontQueueEntry> {
+  bool operator()(const ibmr::FrontQueueEntry& a, const ibmr::FrontQueueEntry& b) const {
+    if (a.first != b.first) return a.first < b.first;
+    if (a.second == b.second) return false;
+    const std::pair<std::size_t, std::size_t> ka = EdgeKey(*a.second), kb = EdgeKey(*b.second);
+    if (ka != kb) return ka < kb;
+    return a.second < b.second;
+  }
+  template <typename Record>
+  static std::pair<std::size_t, std::size_t> EdgeKey(const Record& record) {
+    const auto& edge = record.first.first;  // (cell, i, j): the border edge in its border facet's cell
+    const std::size_t u = edge.first->vertex(edge.second)->id(), v = edge.first->vertex(edge.third)->id();
+    return std::minmax(u, v);
+  }
+};
+}  // namespace std
+
+namespace ibmr {
+
+namespace {
 
 // Facets with an edge longer than `bound` get the infinite priority (never used).
 struct EdgeBound {
@@ -70,19 +150,27 @@ TriangleMesh TriangulateParticles(const PointCloud& particles, double max_edge_l
   mesh.normals = particles.normals;
   mesh.colors = particles.colors;
   if (particles.size() < 3) return mesh;
-  std::vector<Point> points;
+  // What CGAL::advancing_front_surface_reconstruction does, on the time-stamped triangulation
+  // (vertex ids = particle indices; default radius ratio bound 5 and beta 0.52).
+  std::vector<std::pair<Point, std::size_t>> points;
   points.reserve(particles.size());
-  for (const auto& p : particles.positions) points.emplace_back(p.x(), p.y(), p.z());
+  for (size_t i = 0; i < particles.size(); ++i) {
+    const Eigen::Vector3f& p = particles.positions[i];
+    points.emplace_back(Point(p.x(), p.y(), p.z()), i);
+  }
   std::vector<std::array<std::size_t, 3>> facets;
-  CGAL::advancing_front_surface_reconstruction(points.begin(), points.end(), std::back_inserter(facets),
-                                               EdgeBound{max_edge_length * max_edge_length});
+  {
+    FrontDelaunay delaunay(points.begin(), points.end());
+    CGAL::Advancing_front_surface_reconstruction<FrontDelaunay, EdgeBound> front(
+        delaunay, EdgeBound{max_edge_length * max_edge_length});
+    front.run();
+    CGAL::write_triple_indices(std::back_inserter(facets), front);
+  }
   mesh.faces.reserve(facets.size());
   for (const auto& f : facets) mesh.faces.emplace_back(static_cast<int>(f[0]), static_cast<int>(f[1]), static_cast<int>(f[2]));
   if (!particles.normals.empty()) OrientPieces(particles, &mesh);
-  // CGAL emits the facets in an order (and each piece in an orientation) that depends on where its
-  // cells landed in memory, so two runs on the same particles differ. A canonical order, after the
-  // orientation is settled (each face rotated to start at its smallest index, then sorted), makes
-  // the mesh, and all that follows, reproducible.
+  // A canonical order, after the orientation is settled (each face rotated to start at its smallest
+  // index, then sorted), so that the faces do not depend on the order CGAL emits them in.
   for (Eigen::Vector3i& f : mesh.faces) {
     while (f[0] > f[1] || f[0] > f[2]) f = Eigen::Vector3i(f[1], f[2], f[0]);
   }

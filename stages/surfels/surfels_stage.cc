@@ -38,7 +38,9 @@ class SurfelsStage : public Stage {
   std::string Summary() const override {
     return "Oriented particles from the fused points, relaxed and grown, and their mesh (surfels/surfels.ply, surfels/mesh.ply)";
   }
-  std::string Version() const override { return "3"; }  // 2: mesh faces in a canonical order; 3: surfel radii 0.75 spacing
+  // 2: mesh faces in a canonical order; 3: surfel radii 0.75 spacing; 4: the advancing front breaks
+  // ties by creation order and vertex indices, not addresses (the same mesh from run to run)
+  std::string Version() const override { return "4"; }
   HoldoutRole Role() const override { return HoldoutRole::kTrainingOnly; }
 
   std::vector<ParamSpec> Parameters() const override {

@@ -1,16 +1,20 @@
 // Tests of the surfels stage (seed 000 section 5): options; each potential's gradient against
 // finite differences; noisy samples of a sphere and a plane converge onto the true surface with
 // even spacing; the triangulation of a sampled closed surface is a closed 2-manifold (Euler
-// characteristic 2) and a missing strip wider than a few spacings stays open; free space and the
-// hull remove floaters; bad input (NaN, no normals, nothing) is handled; one adapter run.
+// characteristic 2) and a missing strip wider than a few spacings stays open; the outputs do not
+// depend on the heap's state or the thread count; free space and the hull remove floaters; bad
+// input (NaN, no normals, nothing) is handled; one adapter run.
 #include "stages/surfels/surfels.h"
 
 #include <gtest/gtest.h>
+#include <tbb/global_control.h>
 #include <unistd.h>
 
 #include <cmath>
+#include <cstdlib>
 #include <filesystem>
 #include <map>
+#include <memory>
 #include <random>
 
 #include "pipeline/core/colmap_array_io.h"
@@ -281,6 +285,73 @@ TEST(SurfelMesh, SampledSphereIsAClosedManifold) {
     const Eigen::Vector3f normal = (mesh.vertices[f[1]] - mesh.vertices[f[0]]).cross(mesh.vertices[f[2]] - mesh.vertices[f[0]]);
     ASSERT_GT(normal.dot(mesh.vertices[f[0]]), 0);
   }
+}
+
+// Leaves the heap fragmented: `count` small blocks allocated and every other one freed, so that what
+// is allocated next lands elsewhere (as after parallel work done on the calling thread). Returns the
+// blocks still held, for FreeAll.
+std::vector<void*> FragmentHeap(int count, uint32_t seed) {
+  std::mt19937 rng(seed);
+  std::vector<void*> blocks;
+  for (int i = 0; i < count; ++i) blocks.push_back(std::malloc(16 + rng() % 256));
+  for (size_t i = 0; i < blocks.size(); i += 2) {
+    std::free(blocks[i]);
+    blocks[i] = nullptr;
+  }
+  return blocks;
+}
+void FreeAll(std::vector<void*>* blocks) {
+  for (void* block : *blocks) std::free(block);
+  blocks->clear();
+}
+
+// CGAL's advancing front broke ties by comparing addresses (its Delaunay handles, its queue's
+// records), so the same particles gave different faces depending on the heap's state: on this
+// input five of six runs differed before time-stamped handles and the queue's tie-break.
+TEST(SurfelMesh, TheFacesDoNotDependOnWhereObjectsLandInMemory) {
+  PointCloud points;
+  const int n = 5000;
+  const double spacing = std::sqrt(4 * M_PI / n);
+  std::mt19937 rng(7);
+  std::normal_distribution<float> noise(0, 1);
+  for (int i = 0; i < n; ++i) {  // Fibonacci sphere with noise of half a spacing: holes, ties, post-processing
+    const double z = 1 - 2 * (i + 0.5) / n, r = std::sqrt(1 - z * z), phi = i * M_PI * (3 - std::sqrt(5.0));
+    const Eigen::Vector3f p = Eigen::Vector3f(r * std::cos(phi), r * std::sin(phi), z) +
+                              0.5f * static_cast<float>(spacing) * Eigen::Vector3f(noise(rng), noise(rng), noise(rng));
+    points.positions.push_back(p);
+    points.normals.push_back(p.normalized());
+  }
+  const TriangleMesh reference = TriangulateParticles(points, 3 * spacing);
+  ASSERT_GT(reference.faces.size(), 9000u);
+  for (int round = 1; round <= 4; ++round) {
+    std::vector<void*> blocks = FragmentHeap(5000 * round, round);
+    const TriangleMesh mesh = TriangulateParticles(points, 3 * spacing);
+    FreeAll(&blocks);
+    ASSERT_EQ(mesh.faces.size(), reference.faces.size()) << "round " << round;
+    EXPECT_TRUE(mesh.faces == reference.faces) << "round " << round;
+  }
+}
+
+// The whole sequence gives the same surfels and mesh, bit for bit, with one thread or all of them.
+TEST(Surfels, TheOutputsDoNotDependOnTheThreadCount) {
+  const PointCloud data = NoisyPlane(40000, 0.002, [](const Eigen::Vector3f& p) { return p.head<2>().norm() < 0.3f; });
+  auto run = [&](int threads) {
+    std::unique_ptr<tbb::global_control> limit;
+    if (threads > 0) limit = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism, threads);
+    return ReconstructSurfels(data, {}, nullptr, FixedSpacing(0.05));
+  };
+  const SurfelResult all = run(0);
+  std::vector<void*> blocks = FragmentHeap(20000, 1);
+  const SurfelResult one = run(1);
+  FreeAll(&blocks);
+  ASSERT_GT(all.mesh.faces.size(), 1000u);
+  EXPECT_TRUE(one.surfels.positions == all.surfels.positions);
+  EXPECT_TRUE(one.surfels.normals == all.surfels.normals);
+  EXPECT_TRUE(one.surfels.radius == all.surfels.radius);
+  EXPECT_TRUE(one.surfels.colors == all.surfels.colors);
+  EXPECT_TRUE(one.surfels.confidence == all.surfels.confidence);
+  EXPECT_TRUE(one.mesh.vertices == all.mesh.vertices);
+  EXPECT_TRUE(one.mesh.faces == all.mesh.faces);
 }
 
 TEST(Surfels, AMissingStripWiderThanAFewSpacingsStaysOpen) {
