@@ -114,7 +114,7 @@ ScreenVertex Project(const ClipVertex& v, const Intrinsics& k) {
 
 // Rasterizes one clipped triangle of face `face_id`; `weights[i]` maps vertex i of this
 // triangle to the original face's vertices.
-void RasterizeTriangle(const ClipVertex tri[3], int face_id, const Intrinsics& k, bool farthest, RasterResult* result) {
+void RasterizeTriangle(const ClipVertex tri[3], int face_id, const Intrinsics& k, RasterResult* result) {
   const ScreenVertex v[3] = {Project(tri[0], k), Project(tri[1], k), Project(tri[2], k)};
   const double area = (v[1].x - v[0].x) * (v[2].y - v[0].y) - (v[1].y - v[0].y) * (v[2].x - v[0].x);
   if (!(std::abs(area) > 0.0)) return;  // degenerate (or NaN)
@@ -151,7 +151,7 @@ void RasterizeTriangle(const ClipVertex tri[3], int face_id, const Intrinsics& k
       if (!(sum_w > 0.0)) continue;
       const double z = sum_e / sum_w;
       const size_t index = static_cast<size_t>(r) * k.width + c;
-      if (ids[index] >= 0 && !(farthest ? z > depth[index] : z < depth[index])) continue;
+      if (ids[index] >= 0 && !(z < depth[index])) continue;
       Eigen::Vector3d b(w0 / sum_w, w1 / sum_w, w2 / sum_w);
       if (!identity) b = b[0] * tri[0].weights + b[1] * tri[1].weights + b[2] * tri[2].weights;
       depth[index] = static_cast<float>(z);
@@ -202,7 +202,7 @@ RasterResult Rasterize(const TriangleMesh& mesh, const Camera& camera, const Rig
     const int n = ClipNear(in, options.near_z, polygon);
     for (int t = 1; t + 1 < n; ++t) {
       const ClipVertex tri[3] = {polygon[0], polygon[t], polygon[t + 1]};
-      RasterizeTriangle(tri, static_cast<int>(f), k, options.farthest, &result);
+      RasterizeTriangle(tri, static_cast<int>(f), k, &result);
     }
   }
   return result;

@@ -17,8 +17,6 @@ namespace ibmr {
 struct RasterizeOptions {
   double near_z = 1e-3;  // scene units; geometry closer than this is clipped
   bool cull_backfaces = false;  // drop faces whose vertices appear clockwise in the image
-  bool farthest = false;  // keep the farthest surface per pixel instead of the nearest (the back
-                          // of a closed mesh: with the nearest, the depth range it spans)
 };
 
 struct RasterResult {

@@ -113,22 +113,6 @@ TEST(Rasterizer, NearerTriangleWinsInEitherOrder) {
   }
 }
 
-TEST(Rasterizer, FarthestKeepsTheFartherTriangleInEitherOrder) {
-  const Camera camera = Camera::Pinhole(40, 40, 40, 40, 20, 20);
-  TriangleMesh mesh;
-  mesh.vertices = {{-10, -10, 6}, {10, -10, 6}, {0, 10, 6}, {-1, -1, 3}, {1, -1, 3}, {0, 1, 3}};
-  mesh.faces = {{0, 1, 2}, {3, 4, 5}};
-  RasterizeOptions options;
-  options.farthest = true;
-  for (int order = 0; order < 2; ++order) {
-    const RasterResult result = Rasterize(mesh, camera, Rigid3d(), options);
-    EXPECT_EQ(result.face_id[20 * 40 + 20], order == 0 ? 0 : 1);
-    EXPECT_FLOAT_EQ(result.depth.At(20, 20), 6.f);
-    EXPECT_FLOAT_EQ(result.depth.At(20, 2), 6.f);
-    std::swap(mesh.faces[0], mesh.faces[1]);
-  }
-}
-
 // A fronto-parallel grid at z = 1 whose vertices project exactly onto pixel centres
 // (u = 64 x + 32.5 with x = k / 64), so many centres lie exactly on edges and vertices.
 TriangleMesh PixelAlignedGrid() {

@@ -188,8 +188,9 @@ PlaneSweepResult PlaneSweep(const SweepView& reference, const std::vector<SweepV
   const sweep::EngineOptions engine = ToEngine(options);
   sweep::PlaneRanges ranges;
   if (pixel_bounds != nullptr) {
-    if (pixel_bounds->near.width != w || pixel_bounds->near.height != h || pixel_bounds->far.width != w ||
-        pixel_bounds->far.height != h) {
+    const bool has_far = !pixel_bounds->far.Empty();
+    if (pixel_bounds->near.width != w || pixel_bounds->near.height != h ||
+        (has_far && (pixel_bounds->far.width != w || pixel_bounds->far.height != h))) {
       throw std::invalid_argument("PlaneSweep: pixel bounds must have the reference image's size");
     }
     // Planes are uniform in inverse depth: plane p holds 1/z = w_min + p * step.
@@ -198,7 +199,7 @@ PlaneSweepResult PlaneSweep(const SweepView& reference, const std::vector<SweepV
     ranges.last.resize(ranges.first.size());
     for (size_t i = 0; i < ranges.first.size(); ++i) {
       const double z_near = pixel_bounds->near.data[i] * (1.0 - options.depth_margin);
-      const double z_far = pixel_bounds->far.data[i] * (1.0 + options.depth_margin);
+      const double z_far = has_far ? pixel_bounds->far.data[i] * (1.0 + options.depth_margin) : far;
       if (!(pixel_bounds->near.data[i] > 0) || !(z_far >= pixel_bounds->near.data[i])) {
         ranges.first[i] = 0, ranges.last[i] = static_cast<uint16_t>(np - 1);  // unbounded: every plane
         continue;

@@ -92,9 +92,9 @@ struct PlaneSweepResult {
   size_t volume_bytes = 0;    // bytes of the cost volumes held for this view
 };
 
-// Per-pixel depth bounds of the reference view (z), e.g. the nearest and farthest surface of a
-// visual hull along each pixel's ray; near 0 where the pixel is unbounded (the hull does not cover
-// it: background the held-out photos still show).
+// Per-pixel depth bounds of the reference view (z): `near`, e.g. the nearest surface of a visual
+// hull along each pixel's ray, 0 where the pixel is unbounded (the hull does not cover it); `far`
+// the farthest (empty: the sweep's far bound; behind a hull's back the background can show).
 struct PixelDepthBounds {
   DepthMap near, far;
 };

@@ -1,7 +1,7 @@
 // Adapter of the plane_sweep stage: for every training view, picks neighbours, depth bounds
 // (hull/depth_bounds.json, else the sparse points, else the config's bounding box or depth
-// range) and, with hull/hull.ply, per-pixel bounds (the hull's nearest and farthest surface along
-// each pixel's ray, rasterized), runs the plane sweep (plane_sweep.h) and writes COLMAP maps:
+// range) and, with hull/hull.ply, per-pixel near bounds (the hull's nearest surface along each
+// pixel's ray, rasterized), runs the plane sweep (plane_sweep.h) and writes COLMAP maps:
 //   dense/stereo/depth_maps/<image>.photometric.bin       z depth, 0 = no estimate
 //   dense/stereo/normal_maps/<image>.photometric.bin      3 channels, camera frame
 //   dense/stereo/confidence_maps/<image>.photometric.bin  1 channel in [0, 1]
@@ -79,7 +79,7 @@ class PlaneSweepStage : public Stage {
     return "CPU plane-sweep stereo (census, best-k, semi-global) to COLMAP depth/normal/confidence maps";
   }
   // 2: hull bounds that reach the camera are not used; 3: fixed-point bilinear census weights (1/256 px),
-  // per-pixel plane ranges from hull/hull.ply
+  // per-pixel near bounds from hull/hull.ply
   std::string Version() const override { return "3"; }
   HoldoutRole Role() const override { return HoldoutRole::kTrainingOnly; }
   bool Shardable() const override { return true; }
@@ -121,8 +121,8 @@ class PlaneSweepStage : public Stage {
          "Fallback scene box [xmin, ymin, zmin, xmax, ymax, zmax] (world); depth bounds from its corners"},
         {"depth_margin", ParamType::kDouble, s(d.depth_margin), "Relative margin around sparse-point, box or per-pixel hull depths"},
         {"hull_ranges", ParamType::kBool, "true",
-         "With hull/hull.ply: each pixel the hull covers sweeps only the planes between its nearest and farthest "
-         "surface (+ depth_margin); pixels outside the hull sweep every plane"},
+         "With hull/hull.ply: each pixel the hull covers sweeps only the planes from the hull's nearest surface "
+         "(- depth_margin) to the view's far bound; pixels outside the hull sweep every plane"},
         {"min_angle_deg", ParamType::kDouble, s(d.min_angle_deg), "Smallest neighbour triangulation angle, degrees"},
         {"max_angle_deg", ParamType::kDouble, s(d.max_angle_deg), "Largest neighbour triangulation angle, degrees"},
         {"target_angle_deg", ParamType::kDouble, s(d.target_angle_deg), "Preferred triangulation angle, degrees"},
@@ -203,11 +203,12 @@ class PlaneSweepStage : public Stage {
         PixelDepthBounds bounds;
         const bool per_pixel = hull_ranges && source == "hull" && !hull.faces.empty();
         if (per_pixel) {
+          // The hull's front only: nothing of the object lies in front of it, but behind its back
+          // the background can show (between templeRing's columns: the lit backdrop, -0.25 dB on
+          // the held-out photos when the back bounded the sweep too).
           RasterizeOptions raster;
           raster.near_z = 0.5 * near;
           bounds.near = Rasterize(hull, key.camera, key.cam_from_world, raster).depth;
-          raster.farthest = true;
-          bounds.far = Rasterize(hull, key.camera, key.cam_from_world, raster).depth;
         }
         result = PlaneSweep(key, neighbours, near, far, view_options, per_pixel ? &bounds : nullptr);
       }
