@@ -416,6 +416,77 @@ void ShiftCensusCosts(uint64_t code, const uint64_t* src, const int* shift, bool
   }
 }
 
+// A family of homographies affine in the plane index, H_p = base + p * step (fronto-parallel planes
+// uniform in inverse depth: H_p = K' (R + t n^T / d_p) K^-1 with 1/d_p linear in p): the taps of a
+// pixel then need two 3-vectors per pixel and one multiply-add per coordinate and plane.
+struct AffineFamily {
+  float base[9], step[9];
+};
+
+// True (and the family) when `homographies` are affine in the index to 1e-9 of their largest entry.
+bool FindAffineFamily(const std::vector<Eigen::Matrix3d>& homographies, AffineFamily* family) {
+  const int np = static_cast<int>(homographies.size());
+  if (np < 2) return false;
+  const Eigen::Matrix3d step = (homographies.back() - homographies.front()) / (np - 1);
+  double scale = 0;
+  for (const Eigen::Matrix3d& h : homographies) scale = std::max(scale, h.cwiseAbs().maxCoeff());
+  for (int p = 0; p < np; ++p) {
+    if ((homographies[p] - (homographies.front() + p * step)).cwiseAbs().maxCoeff() > 1e-9 * scale) return false;
+  }
+  for (int e = 0; e < 9; ++e) {
+    family->base[e] = static_cast<float>(homographies.front()(e / 3, e % 3));
+    family->step[e] = static_cast<float>(step(e / 3, e % 3));
+  }
+  return true;
+}
+
+// ComputeTaps for an affine family (same outputs' meaning; the same float steps in both builds).
+void ComputeAffineTaps(const AffineFamily& f, int p0, int p1, float xc, float yc, int sw, int sh, Taps* taps) {
+  int32_t* index = taps->index.data();
+  int32_t* wx = taps->wx.data();
+  int32_t* wy = taps->wy.data();
+  const float max_u = static_cast<float>(sw - 1), max_v = static_cast<float>(sh - 1);
+  // Per pixel: the homogeneous image of the pixel under H_0, and its change per plane.
+  const float u0 = f.base[0] * xc + f.base[1] * yc + f.base[2], du = f.step[0] * xc + f.step[1] * yc + f.step[2];
+  const float v0 = f.base[3] * xc + f.base[4] * yc + f.base[5], dv = f.step[3] * xc + f.step[4] * yc + f.step[5];
+  const float z0 = f.base[6] * xc + f.base[7] * yc + f.base[8], dz = f.step[6] * xc + f.step[7] * yc + f.step[8];
+#if IBMR_SWEEP_AVX512
+  const __m512 half = _mm512_set1_ps(0.5f), zero = _mm512_setzero_ps();
+  const __m512 one = _mm512_set1_ps(static_cast<float>(kWeightOne)), mu = _mm512_set1_ps(max_u), mv = _mm512_set1_ps(max_v);
+  const __m512 u0v = _mm512_set1_ps(u0), duv = _mm512_set1_ps(du), v0v = _mm512_set1_ps(v0), dvv = _mm512_set1_ps(dv);
+  const __m512 z0v = _mm512_set1_ps(z0), dzv = _mm512_set1_ps(dz);
+  const __m512i width = _mm512_set1_epi32(sw), minus_one = _mm512_set1_epi32(-1);
+  const __m512i lanes = _mm512_set_epi32(15, 14, 13, 12, 11, 10, 9, 8, 7, 6, 5, 4, 3, 2, 1, 0);
+  for (int p = p0; p < p1; p += 16) {
+    const __m512 pf = _mm512_cvtepi32_ps(_mm512_add_epi32(_mm512_set1_epi32(p), lanes));
+    const __m512 z = _mm512_add_ps(z0v, _mm512_mul_ps(pf, dzv));
+    const __m512 u = _mm512_sub_ps(_mm512_div_ps(_mm512_add_ps(u0v, _mm512_mul_ps(pf, duv)), z), half);
+    const __m512 v = _mm512_sub_ps(_mm512_div_ps(_mm512_add_ps(v0v, _mm512_mul_ps(pf, dvv)), z), half);
+    const __mmask16 inside = _mm512_cmp_ps_mask(z, zero, _CMP_GT_OQ) & _mm512_cmp_ps_mask(u, zero, _CMP_GE_OQ) &
+                             _mm512_cmp_ps_mask(v, zero, _CMP_GE_OQ) & _mm512_cmp_ps_mask(u, mu, _CMP_LT_OQ) &
+                             _mm512_cmp_ps_mask(v, mv, _CMP_LT_OQ);
+    const __m512 uc = _mm512_maskz_mov_ps(inside, u), vc = _mm512_maskz_mov_ps(inside, v);
+    const __m512i x0 = _mm512_cvttps_epi32(uc), y0 = _mm512_cvttps_epi32(vc);
+    const __m512 ax = _mm512_sub_ps(uc, _mm512_cvtepi32_ps(x0)), ay = _mm512_sub_ps(vc, _mm512_cvtepi32_ps(y0));
+    _mm512_storeu_si512(wx + p, _mm512_cvttps_epi32(_mm512_add_ps(_mm512_mul_ps(ax, one), half)));
+    _mm512_storeu_si512(wy + p, _mm512_cvttps_epi32(_mm512_add_ps(_mm512_mul_ps(ay, one), half)));
+    _mm512_storeu_si512(index + p, _mm512_mask_blend_epi32(inside, minus_one, _mm512_add_epi32(_mm512_mullo_epi32(y0, width), x0)));
+  }
+#else
+  for (int p = p0; p < p1; ++p) {
+    const float pf = static_cast<float>(p);
+    const float z = z0 + pf * dz;
+    const float u = (u0 + pf * du) / z - 0.5f, v = (v0 + pf * dv) / z - 0.5f;
+    const bool inside = z > 0 && u >= 0 && v >= 0 && u < max_u && v < max_v;
+    const float uc = inside ? u : 0.f, vc = inside ? v : 0.f;
+    const int x0 = static_cast<int>(uc), y0 = static_cast<int>(vc);
+    wx[p] = static_cast<int32_t>((uc - static_cast<float>(x0)) * kWeightOne + 0.5f);
+    wy[p] = static_cast<int32_t>((vc - static_cast<float>(y0)) * kWeightOne + 0.5f);
+    index[p] = inside ? y0 * sw + x0 : -1;
+  }
+#endif
+}
+
 // Census cost of every plane: Hamming distances between the reference code and the four codes
 // around the correspondence, interpolated bilinearly (a cost curve smooth in the plane index, for
 // sub-pixel accuracy), 16 units per bit: ((h00 (1-ax) + h01 ax)(1-ay) + (h10 (1-ax) + h11 ax) ay)
@@ -488,6 +559,9 @@ int64_t BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector<st
     }
     if (!all_shifts) shift[i].clear();
   }
+  std::vector<AffineFamily> family(nn);
+  std::vector<char> affine(nn, 0);
+  for (int i = 0; i < nn; ++i) affine[i] = shift[i].empty() && FindAffineFamily(neighbours[i].homographies, &family[i]);
   std::vector<char> disparity_order(nn, 0);
   for (int i = 0; i < nn; ++i) {
     disparity_order[i] = !shift[i].empty();
@@ -521,7 +595,11 @@ int64_t BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector<st
           if (shifts) {
             ShiftCensusCosts(code, src[i].data(), shift[i].data(), disparity_order[i], p0, p_end, x, y, sw, sh, c);
           } else {
-            ComputeTaps(hom[i].data(), n, p0, p1, x + 0.5f, y + 0.5f, sw, sh, &taps);
+            if (affine[i]) {
+              ComputeAffineTaps(family[i], p0, p1, x + 0.5f, y + 0.5f, sw, sh, &taps);
+            } else {
+              ComputeTaps(hom[i].data(), n, p0, p1, x + 0.5f, y + 0.5f, sw, sh, &taps);
+            }
             CensusCosts(code, src[i].data(), sw, taps, p0, p1, c);
           }
         }
