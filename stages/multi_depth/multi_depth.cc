@@ -7,6 +7,7 @@
 #include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
+#include <opencv2/imgproc.hpp>
 
 namespace ibmr {
 
@@ -273,6 +274,13 @@ MultiDepthResult MakeDepthConsistent(const DepthView& key, const std::vector<con
   // only, so an area that no view matched (untextured) stays empty.
   const std::vector<DepthMap> warped = WarpNeighbors(prepared, key.camera, w, h, options);
   const DepthMap first_pass = result.depth;
+  // Pixels with an accepted depth within 2 pixels (KeptRange's window): only they can be filled, and
+  // most empty pixels (background) are far from any, so they skip the candidate search.
+  cv::Mat near_kept(h, w, CV_8U);
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) near_kept.at<uint8_t>(y, x) = first_pass.At(x, y) > 0 ? 255 : 0;
+  cv::dilate(near_kept, near_kept, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(5, 5)), cv::Point(-1, -1), 1,
+             cv::BORDER_CONSTANT, cv::Scalar(0));
   const float tolerance = static_cast<float>(options.depth_tolerance);
   std::vector<float> candidates;
   std::vector<size_t> filled;
@@ -280,6 +288,7 @@ MultiDepthResult MakeDepthConsistent(const DepthView& key, const std::vector<con
     for (int x = 0; x < w; ++x) {
       if (result.depth.At(x, y) > 0) continue;
       if (IsValidDepth(key.depth.At(x, y)) && ConfidenceAt(key.confidence, x, y) < options.min_confidence) continue;
+      if (near_kept.at<uint8_t>(y, x) == 0) continue;
       constexpr int kR = 1;  // candidates from a 3x3 window: forward warping leaves gaps
       candidates.clear();
       for (const DepthMap& z : warped) {
