@@ -276,22 +276,23 @@ void BoxFilterVolume(CostVolume* v, int r) {
   const int w = v->width, h = v->height, n = v->stride;
   std::vector<uint16_t>& horizontal = v->scratch;
   horizontal.resize(v->data.size());
+  // Horizontal sums (at most 31 costs of 1023: 16 bits suffice), each pixel's from its left
+  // neighbour's: out(x) = out(x - 1) + in(x + r) - in(x - r - 1).
   tbb::parallel_for(0, h, [&](int y) {
-    std::vector<uint16_t> acc(n, 0);
     const uint16_t* in = v->At(0, y);
     uint16_t* out = horizontal.data() + static_cast<size_t>(y) * w * n;
-    for (int x = 0; x < std::min(r, w); ++x)
-      for (int d = 0; d < n; ++d) acc[d] += in[static_cast<size_t>(x) * n + d];
-    for (int x = 0; x < w; ++x) {
-      if (x + r < w) {
-        const uint16_t* add = in + static_cast<size_t>(x + r) * n;
-        for (int d = 0; d < n; ++d) acc[d] += add[d];
-      }
-      if (x - r - 1 >= 0) {
-        const uint16_t* sub = in + static_cast<size_t>(x - r - 1) * n;
-        for (int d = 0; d < n; ++d) acc[d] -= sub[d];
-      }
-      std::copy(acc.begin(), acc.end(), out + static_cast<size_t>(x) * n);
+    std::fill(out, out + n, static_cast<uint16_t>(0));
+    for (int x = 0; x <= std::min(r, w - 1); ++x) {
+      const uint16_t* add = in + static_cast<size_t>(x) * n;
+      for (int d = 0; d < n; ++d) out[d] = static_cast<uint16_t>(out[d] + add[d]);
+    }
+    for (int x = 1; x < w; ++x) {
+      uint16_t* __restrict o = out + static_cast<size_t>(x) * n;
+      const uint16_t* __restrict left = o - n;
+      const uint16_t* __restrict add = in + static_cast<size_t>(std::min(x + r, w - 1)) * n;
+      const uint16_t* __restrict sub = in + static_cast<size_t>(std::max(x - r - 1, 0)) * n;
+      const uint16_t keep_add = x + r < w ? 0xFFFF : 0, keep_sub = x - r - 1 >= 0 ? 0xFFFF : 0;
+      for (int d = 0; d < n; ++d) o[d] = static_cast<uint16_t>(left[d] + (add[d] & keep_add) - (sub[d] & keep_sub));
     }
   });
   const size_t row = static_cast<size_t>(w) * n;
