@@ -79,6 +79,22 @@ void FillHoles(cv::Mat* disparity, int y) {
   }
 }
 
+// cv::medianBlur (square window of radius r, borders replicated) in two bands of rows filtered in
+// parallel (OpenCV filters a float image on one thread); each band carries r rows of its
+// neighbour's as context, so the result equals the whole image's.
+cv::Mat MedianInBands(const cv::Mat& image, int r) {
+  cv::Mat out(image.size(), image.type());
+  const int half = image.rows / 2;
+  tbb::parallel_for(0, 2, [&](int band) {
+    const int y0 = band == 0 ? 0 : half, y1 = band == 0 ? half : image.rows;
+    const int c0 = std::max(0, y0 - r), c1 = std::min(image.rows, y1 + r);  // with context rows
+    cv::Mat filtered;
+    cv::medianBlur(image.rowRange(c0, c1), filtered, 2 * r + 1);
+    filtered.rowRange(y0 - c0, y1 - c0).copyTo(out.rowRange(y0, y1));
+  });
+  return out;
+}
+
 }  // namespace
 
 bool PlaneSweepOptions::Check(std::string* error) const {
@@ -160,7 +176,7 @@ StereoPairResult StereoPair(const cv::Mat& left_image, const cv::Mat& right_imag
     }
     if (options.fill_holes) FillHoles(&disparity, y);
   });
-  if (options.median_radius > 0) cv::medianBlur(disparity, disparity, 2 * options.median_radius + 1);
+  if (options.median_radius > 0) disparity = MedianInBands(disparity, options.median_radius);
   result.unfilled_fraction = 1.0 - static_cast<double>(cv::countNonZero(disparity > 0)) / disparity.total();
   result.disparity = disparity;
   result.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
