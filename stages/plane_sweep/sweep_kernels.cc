@@ -447,47 +447,56 @@ struct Taps {
   }
 };
 
+// The taps of plane p from its correspondence (u, v) (pixel centres at integers) and depth z: the
+// top-left code's index (-1 outside the neighbour or behind it) and the bilinear weights.
+// Outside (even NaN) coordinates become 0 before the conversion, which stays defined.
+inline void StoreTap(float z, float u, float v, float max_u, float max_v, int sw, int p, Taps* taps) {
+  const bool inside = z > 0 && u >= 0 && v >= 0 && u < max_u && v < max_v;
+  const float uc = inside ? u : 0.f, vc = inside ? v : 0.f;
+  const int x0 = static_cast<int>(uc), y0 = static_cast<int>(vc);
+  taps->wx[p] = static_cast<int32_t>((uc - static_cast<float>(x0)) * kWeightOne + 0.5f);
+  taps->wy[p] = static_cast<int32_t>((vc - static_cast<float>(y0)) * kWeightOne + 0.5f);
+  taps->index[p] = inside ? y0 * sw + x0 : -1;
+}
+
+#if IBMR_SWEEP_AVX512
+// StoreTap for planes p..p+15, the same operations lane by lane.
+inline void StoreTaps16(__m512 z, __m512 u, __m512 v, float max_u, float max_v, int sw, int p, Taps* taps) {
+  const __m512 half = _mm512_set1_ps(0.5f), zero = _mm512_setzero_ps(), one = _mm512_set1_ps(static_cast<float>(kWeightOne));
+  const __mmask16 inside = _mm512_cmp_ps_mask(z, zero, _CMP_GT_OQ) & _mm512_cmp_ps_mask(u, zero, _CMP_GE_OQ) &
+                           _mm512_cmp_ps_mask(v, zero, _CMP_GE_OQ) & _mm512_cmp_ps_mask(u, _mm512_set1_ps(max_u), _CMP_LT_OQ) &
+                           _mm512_cmp_ps_mask(v, _mm512_set1_ps(max_v), _CMP_LT_OQ);
+  const __m512 uc = _mm512_maskz_mov_ps(inside, u), vc = _mm512_maskz_mov_ps(inside, v);
+  const __m512i x0 = _mm512_cvttps_epi32(uc), y0 = _mm512_cvttps_epi32(vc);
+  const __m512 ax = _mm512_sub_ps(uc, _mm512_cvtepi32_ps(x0)), ay = _mm512_sub_ps(vc, _mm512_cvtepi32_ps(y0));
+  _mm512_storeu_si512(taps->wx.data() + p, _mm512_cvttps_epi32(_mm512_add_ps(_mm512_mul_ps(ax, one), half)));
+  _mm512_storeu_si512(taps->wy.data() + p, _mm512_cvttps_epi32(_mm512_add_ps(_mm512_mul_ps(ay, one), half)));
+  const __m512i at = _mm512_add_epi32(_mm512_mullo_epi32(y0, _mm512_set1_epi32(sw)), x0);
+  _mm512_storeu_si512(taps->index.data() + p, _mm512_mask_blend_epi32(inside, _mm512_set1_epi32(-1), at));
+}
+#endif
+
 // Taps of pixel centre (xc, yc) for planes p0..p1-1 (multiples of 16); `hom` holds the nine
 // homography entries as rows of `n` planes (padding planes all zero: outside). The float steps are
 // the same elementwise IEEE operations, in the same order, in both builds.
 void ComputeTaps(const float* hom, int n, int p0, int p1, float xc, float yc, int sw, int sh, Taps* taps) {
-  int32_t* index = taps->index.data();
-  int32_t* wx = taps->wx.data();
-  int32_t* wy = taps->wy.data();
   const float max_u = static_cast<float>(sw - 1), max_v = static_cast<float>(sh - 1);
 #if IBMR_SWEEP_AVX512
-  const __m512 x = _mm512_set1_ps(xc), y = _mm512_set1_ps(yc), half = _mm512_set1_ps(0.5f), zero = _mm512_setzero_ps();
-  const __m512 one = _mm512_set1_ps(static_cast<float>(kWeightOne)), mu = _mm512_set1_ps(max_u), mv = _mm512_set1_ps(max_v);
-  const __m512i width = _mm512_set1_epi32(sw), minus_one = _mm512_set1_epi32(-1);
+  const __m512 x = _mm512_set1_ps(xc), y = _mm512_set1_ps(yc), half = _mm512_set1_ps(0.5f);
   auto row = [&](int e, int p) { return _mm512_loadu_ps(hom + static_cast<size_t>(e) * n + p); };
   for (int p = p0; p < p1; p += 16) {
     const __m512 z = _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(row(6, p), x), _mm512_mul_ps(row(7, p), y)), row(8, p));
     const __m512 un = _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(row(0, p), x), _mm512_mul_ps(row(1, p), y)), row(2, p));
     const __m512 vn = _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(row(3, p), x), _mm512_mul_ps(row(4, p), y)), row(5, p));
-    const __m512 u = _mm512_sub_ps(_mm512_div_ps(un, z), half), v = _mm512_sub_ps(_mm512_div_ps(vn, z), half);
-    const __mmask16 inside = _mm512_cmp_ps_mask(z, zero, _CMP_GT_OQ) & _mm512_cmp_ps_mask(u, zero, _CMP_GE_OQ) &
-                             _mm512_cmp_ps_mask(v, zero, _CMP_GE_OQ) & _mm512_cmp_ps_mask(u, mu, _CMP_LT_OQ) &
-                             _mm512_cmp_ps_mask(v, mv, _CMP_LT_OQ);
-    const __m512 uc = _mm512_maskz_mov_ps(inside, u), vc = _mm512_maskz_mov_ps(inside, v);
-    const __m512i x0 = _mm512_cvttps_epi32(uc), y0 = _mm512_cvttps_epi32(vc);
-    const __m512 ax = _mm512_sub_ps(uc, _mm512_cvtepi32_ps(x0)), ay = _mm512_sub_ps(vc, _mm512_cvtepi32_ps(y0));
-    _mm512_storeu_si512(wx + p, _mm512_cvttps_epi32(_mm512_add_ps(_mm512_mul_ps(ax, one), half)));
-    _mm512_storeu_si512(wy + p, _mm512_cvttps_epi32(_mm512_add_ps(_mm512_mul_ps(ay, one), half)));
-    const __m512i at = _mm512_add_epi32(_mm512_mullo_epi32(y0, width), x0);
-    _mm512_storeu_si512(index + p, _mm512_mask_blend_epi32(inside, minus_one, at));
+    StoreTaps16(z, _mm512_sub_ps(_mm512_div_ps(un, z), half), _mm512_sub_ps(_mm512_div_ps(vn, z), half), max_u, max_v, sw,
+                p, taps);
   }
 #else
   for (int p = p0; p < p1; ++p) {
     const float z = hom[6 * n + p] * xc + hom[7 * n + p] * yc + hom[8 * n + p];
     const float u = (hom[0 * n + p] * xc + hom[1 * n + p] * yc + hom[2 * n + p]) / z - 0.5f;
     const float v = (hom[3 * n + p] * xc + hom[4 * n + p] * yc + hom[5 * n + p]) / z - 0.5f;
-    const bool inside = z > 0 && u >= 0 && v >= 0 && u < max_u && v < max_v;
-    // Outside (even NaN) coordinates become 0 before the conversion, which stays defined.
-    const float uc = inside ? u : 0.f, vc = inside ? v : 0.f;
-    const int x0 = static_cast<int>(uc), y0 = static_cast<int>(vc);
-    wx[p] = static_cast<int32_t>((uc - static_cast<float>(x0)) * kWeightOne + 0.5f);
-    wy[p] = static_cast<int32_t>((vc - static_cast<float>(y0)) * kWeightOne + 0.5f);
-    index[p] = inside ? y0 * sw + x0 : -1;
+    StoreTap(z, u, v, max_u, max_v, sw, p, taps);
   }
 #endif
 }
@@ -551,47 +560,28 @@ bool FindAffineFamily(const std::vector<Eigen::Matrix3d>& homographies, AffineFa
 
 // ComputeTaps for an affine family (same outputs' meaning; the same float steps in both builds).
 void ComputeAffineTaps(const AffineFamily& f, int p0, int p1, float xc, float yc, int sw, int sh, Taps* taps) {
-  int32_t* index = taps->index.data();
-  int32_t* wx = taps->wx.data();
-  int32_t* wy = taps->wy.data();
   const float max_u = static_cast<float>(sw - 1), max_v = static_cast<float>(sh - 1);
   // Per pixel: the homogeneous image of the pixel under H_0, and its change per plane.
   const float u0 = f.base[0] * xc + f.base[1] * yc + f.base[2], du = f.step[0] * xc + f.step[1] * yc + f.step[2];
   const float v0 = f.base[3] * xc + f.base[4] * yc + f.base[5], dv = f.step[3] * xc + f.step[4] * yc + f.step[5];
   const float z0 = f.base[6] * xc + f.base[7] * yc + f.base[8], dz = f.step[6] * xc + f.step[7] * yc + f.step[8];
 #if IBMR_SWEEP_AVX512
-  const __m512 half = _mm512_set1_ps(0.5f), zero = _mm512_setzero_ps();
-  const __m512 one = _mm512_set1_ps(static_cast<float>(kWeightOne)), mu = _mm512_set1_ps(max_u), mv = _mm512_set1_ps(max_v);
+  const __m512 half = _mm512_set1_ps(0.5f);
   const __m512 u0v = _mm512_set1_ps(u0), duv = _mm512_set1_ps(du), v0v = _mm512_set1_ps(v0), dvv = _mm512_set1_ps(dv);
   const __m512 z0v = _mm512_set1_ps(z0), dzv = _mm512_set1_ps(dz);
-  const __m512i width = _mm512_set1_epi32(sw), minus_one = _mm512_set1_epi32(-1);
   const __m512i lanes = _mm512_set_epi32(15, 14, 13, 12, 11, 10, 9, 8, 7, 6, 5, 4, 3, 2, 1, 0);
   for (int p = p0; p < p1; p += 16) {
     const __m512 pf = _mm512_cvtepi32_ps(_mm512_add_epi32(_mm512_set1_epi32(p), lanes));
     const __m512 z = _mm512_add_ps(z0v, _mm512_mul_ps(pf, dzv));
     const __m512 u = _mm512_sub_ps(_mm512_div_ps(_mm512_add_ps(u0v, _mm512_mul_ps(pf, duv)), z), half);
     const __m512 v = _mm512_sub_ps(_mm512_div_ps(_mm512_add_ps(v0v, _mm512_mul_ps(pf, dvv)), z), half);
-    const __mmask16 inside = _mm512_cmp_ps_mask(z, zero, _CMP_GT_OQ) & _mm512_cmp_ps_mask(u, zero, _CMP_GE_OQ) &
-                             _mm512_cmp_ps_mask(v, zero, _CMP_GE_OQ) & _mm512_cmp_ps_mask(u, mu, _CMP_LT_OQ) &
-                             _mm512_cmp_ps_mask(v, mv, _CMP_LT_OQ);
-    const __m512 uc = _mm512_maskz_mov_ps(inside, u), vc = _mm512_maskz_mov_ps(inside, v);
-    const __m512i x0 = _mm512_cvttps_epi32(uc), y0 = _mm512_cvttps_epi32(vc);
-    const __m512 ax = _mm512_sub_ps(uc, _mm512_cvtepi32_ps(x0)), ay = _mm512_sub_ps(vc, _mm512_cvtepi32_ps(y0));
-    _mm512_storeu_si512(wx + p, _mm512_cvttps_epi32(_mm512_add_ps(_mm512_mul_ps(ax, one), half)));
-    _mm512_storeu_si512(wy + p, _mm512_cvttps_epi32(_mm512_add_ps(_mm512_mul_ps(ay, one), half)));
-    _mm512_storeu_si512(index + p, _mm512_mask_blend_epi32(inside, minus_one, _mm512_add_epi32(_mm512_mullo_epi32(y0, width), x0)));
+    StoreTaps16(z, u, v, max_u, max_v, sw, p, taps);
   }
 #else
   for (int p = p0; p < p1; ++p) {
     const float pf = static_cast<float>(p);
     const float z = z0 + pf * dz;
-    const float u = (u0 + pf * du) / z - 0.5f, v = (v0 + pf * dv) / z - 0.5f;
-    const bool inside = z > 0 && u >= 0 && v >= 0 && u < max_u && v < max_v;
-    const float uc = inside ? u : 0.f, vc = inside ? v : 0.f;
-    const int x0 = static_cast<int>(uc), y0 = static_cast<int>(vc);
-    wx[p] = static_cast<int32_t>((uc - static_cast<float>(x0)) * kWeightOne + 0.5f);
-    wy[p] = static_cast<int32_t>((vc - static_cast<float>(y0)) * kWeightOne + 0.5f);
-    index[p] = inside ? y0 * sw + x0 : -1;
+    StoreTap(z, (u0 + pf * du) / z - 0.5f, (v0 + pf * dv) / z - 0.5f, max_u, max_v, sw, p, taps);
   }
 #endif
 }
