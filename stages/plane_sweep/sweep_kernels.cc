@@ -217,6 +217,14 @@ inline int16_t PathStart(const uint16_t* __restrict c, int n, int16_t* __restric
   return m;
 }
 
+// The large-jump penalty by grey step |g0 - g1|: P2 / (1 + step / gamma), at least P1 + 1.
+void FillP2Table(const EngineOptions& o, int16_t table[256]) {
+  for (int g = 0; g < 256; ++g) {
+    const double p2 = o.p2_gamma <= 0 ? o.p2 : o.p2 / (1.0 + g / o.p2_gamma);
+    table[g] = static_cast<int16_t>(std::max<double>(static_cast<int16_t>(o.p1) + 1, p2));
+  }
+}
+
 // One pass over the image in scan order `s` (+1: top-left to bottom-right; -1: reverse) along the
 // paths arriving from the previous pixel and, when `diagonals`, the previous row's three pixels
 // (else only the one above).
@@ -230,10 +238,7 @@ void SgmPassPerPath(const CostVolume& v, const cv::Mat& gray, const EngineOption
   std::vector<int16_t> left(ps, kSentinel), left_cur(ps, kSentinel);
   const int16_t p1 = static_cast<int16_t>(o.p1);
   int16_t p2_table[256];
-  for (int g = 0; g < 256; ++g) {
-    const double p2 = o.p2_gamma <= 0 ? o.p2 : o.p2 / (1.0 + g / o.p2_gamma);
-    p2_table[g] = static_cast<int16_t>(std::max<double>(p1 + 1, p2));
-  }
+  FillP2Table(o, p2_table);
   auto p2_for = [&](int g0, int g1) -> int16_t { return p2_table[std::abs(g0 - g1)]; };
   for (int yi = 0; yi < h; ++yi) {
     const int y = s > 0 ? yi : h - 1 - yi;
@@ -319,10 +324,7 @@ void SgmPassFused(const CostVolume& v, const cv::Mat& gray, const EngineOptions&
   const std::vector<int16_t> start(ps, 0);  // the previous pixel of a path that starts: L = C
   const int16_t p1 = static_cast<int16_t>(o.p1);
   int16_t p2_table[256];
-  for (int g = 0; g < 256; ++g) {
-    const double p2 = o.p2_gamma <= 0 ? o.p2 : o.p2 / (1.0 + g / o.p2_gamma);
-    p2_table[g] = static_cast<int16_t>(std::max<double>(p1 + 1, p2));
-  }
+  FillP2Table(o, p2_table);
   const int16_t* prev[K];
   int16_t* cur[K];
   int16_t min_prev[K], min_out[K], p2[K];
@@ -593,7 +595,7 @@ void ComputeAffineTaps(const AffineFamily& f, int p0, int p1, float xc, float yc
 void CensusCosts(uint64_t code, const uint64_t* src, int sw, const Taps& taps, int p0, int p1, uint16_t* out) {
 #if IBMR_SWEEP_AVX512
   const __m512i code_v = _mm512_set1_epi64(static_cast<long long>(code));
-  const __m512i zero = _mm512_setzero_si512(), one = _mm512_set1_epi32(kWeightOne);
+  const __m512i zero = _mm512_setzero_si512();
   const __m512i round = _mm512_set1_epi32(1 << (2 * kWeightShift - 5)), outside = _mm512_set1_epi32(kOutsideCost);
   // Hamming distances of 16 lanes at index + offset, as 16 x int32.
   auto distances = [&](__m512i index, __mmask16 valid, int offset) {
@@ -646,25 +648,23 @@ int64_t BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector<st
   // Homographies as float rows of n planes (padding planes zero); integer shifts detected for
   // rectified pairs.
   std::vector<std::vector<float>> hom(nn, std::vector<float>(9 * static_cast<size_t>(n), 0.f));
+  // Otherwise, homographies affine in the plane index are detected (fronto-parallel sweeps).
   std::vector<std::vector<int>> shift(nn);
+  std::vector<char> disparity_order(nn, 0), affine(nn, 0);
+  std::vector<AffineFamily> family(nn);
   for (int i = 0; i < nn; ++i) {
-    bool all_shifts = true;
+    bool all_shifts = true, in_order = true;
     for (int p = 0; p < np; ++p) {
       const Eigen::Matrix3d& m = neighbours[i].homographies[p];
       for (int e = 0; e < 9; ++e) hom[i][static_cast<size_t>(e) * n + p] = static_cast<float>(m(e / 3, e % 3));
       int dx = 0, dy = 0;
       all_shifts &= IsIntegerTranslation(m, &dx, &dy) && dy == 0;
+      in_order &= dx == -p;
       shift[i].push_back(dx);
     }
     if (!all_shifts) shift[i].clear();
-  }
-  std::vector<AffineFamily> family(nn);
-  std::vector<char> affine(nn, 0);
-  for (int i = 0; i < nn; ++i) affine[i] = shift[i].empty() && FindAffineFamily(neighbours[i].homographies, &family[i]);
-  std::vector<char> disparity_order(nn, 0);
-  for (int i = 0; i < nn; ++i) {
-    disparity_order[i] = !shift[i].empty();
-    for (int p = 0; p < static_cast<int>(shift[i].size()); ++p) disparity_order[i] &= shift[i][p] == -p;
+    disparity_order[i] = all_shifts && in_order;
+    affine[i] = !all_shifts && FindAffineFamily(neighbours[i].homographies, &family[i]);
   }
   const int k_shift = (k & (k - 1)) == 0 ? __builtin_ctz(k) : -1;  // a power-of-two k divides by a shift
   tbb::enumerable_thread_specific<int64_t> evaluations(0);
