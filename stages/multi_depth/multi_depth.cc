@@ -301,10 +301,10 @@ MultiDepthResult MakeDepthConsistent(const DepthView& key, const std::vector<con
       }
       if (candidates.empty()) continue;
       // Accepted own depths around the pixel bound the candidates (a weak smoothness term that
-      // keeps surfaces hidden from the key, warped in from far neighbours, out of it); without
-      // any, nothing is filled.
+      // keeps surfaces hidden from the key, warped in from far neighbours, out of it); near_kept
+      // says there is one.
       float lo = 0, hi = 0;
-      if (!KeptRange(first_pass, x, y, 2, &lo, &hi)) continue;
+      KeptRange(first_pass, x, y, 2, &lo, &hi);
       lo *= 1 - 3 * tolerance, hi *= 1 + 3 * tolerance;
       candidates.erase(std::remove_if(candidates.begin(), candidates.end(), [&](float c) { return c < lo || c > hi; }),
                        candidates.end());
