@@ -1,9 +1,12 @@
 // Parallel per-view loop with resumption and shards (see per_view.h).
 #include "pipeline/core/per_view.h"
 
+#include <tbb/parallel_for.h>
 #include <tbb/parallel_for_each.h>
+#include <tbb/task_arena.h>
 
 #include <algorithm>
+#include <atomic>
 #include <mutex>
 
 #include "pipeline/core/errors.h"
@@ -39,7 +42,7 @@ PerViewSummary ForEachView(StageContext& context, const std::string& phase, cons
   progress->Begin(phase, summary.resumed + todo.size());
   if (summary.resumed > 0) progress->Advance(summary.resumed, "(done by an earlier run)");
   std::mutex mutex;
-  tbb::parallel_for_each(todo.begin(), todo.end(), [&](const std::string& view) {
+  auto run_one = [&](const std::string& view) {
     // A failure names its view (for a cluster job, the line the user reads first).
     auto named = [&](const std::exception& e) {
       const std::string message = e.what();
@@ -57,7 +60,26 @@ PerViewSummary ForEachView(StageContext& context, const std::string& phase, cons
     progress->Advance(1, view);
     std::lock_guard<std::mutex> lock(mutex);
     summary.pieces[view] = std::move(piece);
-  });
+  };
+  const int slots = context.max_views_in_flight;
+  if (slots <= 0 || slots >= tbb::this_task_arena::max_concurrency()) {
+    tbb::parallel_for_each(todo.begin(), todo.end(), run_one);
+  } else {
+    // `slots` views at a time (memory): each slot takes the next view when its last is done, and
+    // the threads without a slot help inside the views' own parallel loops.
+    std::atomic<size_t> next{0};
+    std::atomic<bool> failed{false};
+    tbb::parallel_for(0, slots, [&](int) {
+      for (size_t i = next++; i < todo.size() && !failed; i = next++) {
+        try {
+          run_one(todo[i]);
+        } catch (...) {
+          failed = true;
+          throw;
+        }
+      }
+    });
+  }
   progress->End();
   summary.computed = todo.size();
   context.views_resumed += summary.resumed;

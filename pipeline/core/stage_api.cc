@@ -69,18 +69,19 @@ std::vector<std::string> StageContext::TrainingImageNamesIfReadable() const {
   }
 }
 
-double LargestTrainingImagePixels(const StageContext& context) {
-  if (!std::filesystem::exists(context.workspace.Path("sparse/images.txt"))) return 0;
+ImageSize LargestTrainingImage(const StageContext& context) {
+  if (!std::filesystem::exists(context.workspace.Path("sparse/images.txt"))) return {};
   try {
     const SparseModel model = context.LoadModel();
-    double largest = 0;
+    ImageSize largest;
     for (const std::string& name : context.TrainingImageNames(model)) {
       const Camera& camera = model.CameraOf(*model.FindImage(name));
-      largest = std::max(largest, static_cast<double>(camera.width) * camera.height);
+      const ImageSize size{camera.width, camera.height};
+      if (size.Pixels() > largest.Pixels()) largest = size;
     }
     return largest;
   } catch (const std::exception&) {
-    return 0;
+    return {};
   }
 }
 

@@ -45,6 +45,9 @@ struct StageContext {
   // the merge, a run without a shard, aggregates. Empty: the whole stage.
   std::set<std::string> shard_views;
   size_t views_resumed = 0;                // views the per-view loops found already done (for the record)
+  // Views ForEachView works on at once (each with all threads' help), so that their memory fits
+  // the run's budget; 0: as many as there are threads.
+  int max_views_in_flight = 0;
 
   bool IsHeldOut(const std::string& image_name) const { return heldout_images.count(image_name) > 0; }
   // Reads workspace sparse/. For kTrainingOnly stages the held-out images are removed (and their
@@ -99,9 +102,13 @@ struct StageCommand {
   std::function<int(const std::vector<std::string>& args)> main;
 };
 
-// Width x height of the largest camera among the training views of workspace sparse/; 0 when it is
-// missing or unreadable (for estimates made before the stage runs).
-double LargestTrainingImagePixels(const StageContext& context);
+// The largest camera (most pixels) among the training views of the workspace's model; 0 x 0 when
+// it is missing or unreadable (for estimates made before the stage runs).
+struct ImageSize {
+  int width = 0, height = 0;
+  double Pixels() const { return static_cast<double>(width) * height; }
+};
+ImageSize LargestTrainingImage(const StageContext& context);
 
 class StageRegistry {
  public:

@@ -1,5 +1,6 @@
-// Two tiny stages for runner tests: `produce` writes a.txt from an external file and an
-// integer parameter; `consume` copies a.txt to b.txt. Both count their runs.
+// Tiny stages for runner tests: `produce` writes a.txt from an external file and an integer
+// parameter; `consume` copies a.txt to b.txt (both count their runs); `per_view` writes one file
+// per view of eight in ForEachView, each view said to need 100 MB, and counts the views in flight.
 #pragma once
 
 #include <atomic>
@@ -8,7 +9,11 @@
 #include <sstream>
 #include <stdexcept>
 
+#include <chrono>
+#include <thread>
+
 #include "pipeline/core/atomic_file.h"
+#include "pipeline/core/per_view.h"
 #include "pipeline/core/stage_api.h"
 
 namespace ibmr {
@@ -59,9 +64,38 @@ class Consume : public Stage {
   }
 };
 
+inline std::atomic<int> views_in_flight{0};
+inline std::atomic<int> most_views_in_flight{0};
+
+class PerView : public Stage {
+ public:
+  std::string Name() const override { return "per_view"; }
+  std::string Summary() const override { return "test: one file per view"; }
+  std::string Version() const override { return "1"; }
+  HoldoutRole Role() const override { return HoldoutRole::kAllViews; }
+  std::vector<ParamSpec> Parameters() const override { return {}; }
+  std::optional<ParamError> CheckParams(const Params&) const override { return std::nullopt; }
+  std::vector<std::string> Inputs(const StageContext&) const override { return {}; }
+  std::vector<std::string> Outputs(const StageContext&) const override { return {"views"}; }
+  double ViewMemoryMb(const StageContext&) const override { return 100; }
+  void Run(StageContext& c) const override {
+    std::filesystem::create_directories(c.workspace.Path("views"));
+    ForEachView(c, "per_view", {"v0", "v1", "v2", "v3", "v4", "v5", "v6", "v7"}, [&](const std::string& view) {
+      const int now = ++views_in_flight;
+      for (int seen = most_views_in_flight; now > seen && !most_views_in_flight.compare_exchange_weak(seen, now);) {
+      }
+      std::this_thread::sleep_for(std::chrono::milliseconds(20));
+      WriteFileAtomic(c.workspace.Path("views/" + view), view);
+      --views_in_flight;
+      return nlohmann::json();
+    });
+  }
+};
+
 inline void Register(StageRegistry* registry) {
   registry->Add(std::make_unique<Produce>());
   registry->Add(std::make_unique<Consume>());
+  registry->Add(std::make_unique<PerView>());
 }
 
 }  // namespace testing_stages

@@ -70,6 +70,10 @@ int main(int argc, char** argv) {
   run->add_option("--set", overrides, "Override a parameter: stage.key=value (repeatable)")->allow_extra_args(false);
   run->add_flag("--dry-run", options.dry_run, "List what would run and why; change nothing");
   run->add_option("--jobs", options.jobs, "Worker threads (default: all cores)")->check(CLI::PositiveNumber);
+  run->add_option("--memory-limit", options.memory_limit_mb,
+                  "Memory of a per-view stage's views in flight together, MB (default: what is available when "
+                  "the stage starts); fewer views run at once when theirs would exceed it")
+      ->check(CLI::PositiveNumber);
   bool write_report = false;
   run->add_flag("--report", write_report, "Then write the workspace's report page and print its path");
   run->add_option("--views", options.views,

@@ -25,6 +25,12 @@ struct StageRecord {
   double wall_seconds = 0;
   double cpu_seconds = 0;
   double peak_memory_mb = 0;
+  // Per-view stages: the memory budget the views in flight were fitted to (--memory-limit, or
+  // what was available when the stage started), the stage's estimate of one view, and the views
+  // run at once. 0: not a per-view stage (no estimate).
+  double memory_budget_mb = 0;
+  double view_memory_mb = 0;
+  int views_in_flight = 0;
   size_t views_resumed = 0;  // per-view work found done by an interrupted run or by shards (how it ran,
                              // not what it made: the metrics count every view either way)
   std::string reused_from;  // another workspace whose outputs of the same key were linked in (ibmr sweep);

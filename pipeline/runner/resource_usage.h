@@ -8,5 +8,7 @@ namespace ibmr {
 double CpuSeconds();       // user + system time of this process so far
 void ResetPeakMemory();    // best effort; the next PeakMemoryMb() is the peak since this call
 double PeakMemoryMb();     // VmHWM in MB
+// Memory the system can give without swapping (MemAvailable), MB; 0 when unknown.
+double AvailableMemoryMb();
 
 }  // namespace ibmr

@@ -4,7 +4,9 @@
 #include <spdlog/fmt/ranges.h>
 #include <spdlog/spdlog.h>
 #include <tbb/global_control.h>
+#include <tbb/task_arena.h>
 
+#include <algorithm>
 #include <chrono>
 #include <ctime>
 #include <filesystem>
@@ -177,9 +179,36 @@ std::vector<StageStatus> Runner::Status() const {
   return statuses;
 }
 
+namespace {
+
+// Caps the views a per-view stage runs at once to what the memory budget holds (at least one),
+// and notes the budget in the record.
+void FitViewsToMemory(const Stage& stage, double memory_limit_mb, StageContext* context, StageRecord* record) {
+  const double view_mb = stage.ViewMemoryMb(*context);
+  if (view_mb <= 0) return;
+  const double budget = memory_limit_mb > 0 ? memory_limit_mb : AvailableMemoryMb();
+  if (budget <= 0) return;
+  const int threads = tbb::this_task_arena::max_concurrency();
+  const int fit = static_cast<int>(budget / view_mb);
+  context->max_views_in_flight = std::clamp(fit, 1, threads);
+  record->memory_budget_mb = budget;
+  record->view_memory_mb = view_mb;
+  record->views_in_flight = context->max_views_in_flight;
+  if (fit < 1) {
+    spdlog::warn("[{}] one view needs about {:.0f} MB, more than the memory budget of {:.0f} MB; running one view "
+                 "at a time (lower max_image_size or the stage's memory parameters, or raise --memory-limit)",
+                 stage.Name(), view_mb, budget);
+  } else if (fit < threads) {
+    spdlog::info("[{}] {} view(s) at a time: about {:.0f} MB each within a budget of {:.0f} MB", stage.Name(),
+                 context->max_views_in_flight, view_mb, budget);
+  }
+}
+
+}  // namespace
+
 bool Runner::Execute(const Stage& stage, StageContext& context, const std::string& key, const nlohmann::json& inputs,
-                     bool interactive) {
-  TerminalProgress progress(stage.Name(), interactive);
+                     const RunOptions& options) {
+  TerminalProgress progress(stage.Name(), options.interactive);
   context.progress = &progress;
   context.checkpoint = CheckpointOf(stage, key);
 
@@ -193,6 +222,7 @@ bool Runner::Execute(const Stage& stage, StageContext& context, const std::strin
   record.outputs = stage.Outputs(context);
   record.started = NowIso();
   record.status = "running";
+  FitViewsToMemory(stage, options.memory_limit_mb, &context, &record);
   WriteRecord(RecordPath(stage.Name()), record);
 
   spdlog::info("[{}] running (version {}, params {})", stage.Name(), stage.Version(), context.params.ToJson().dump());
@@ -384,6 +414,8 @@ int Runner::RunShard(const RunOptions& options) {
   context.progress = &progress;
   context.checkpoint = CheckpointOf(stage, key);
   context.shard_views.insert(options.views.begin(), options.views.end());
+  StageRecord unused;  // a shard writes no record
+  FitViewsToMemory(stage, options.memory_limit_mb, &context, &unused);
   const auto wall_start = std::chrono::steady_clock::now();
   try {
     stage.Run(context);
@@ -445,7 +477,7 @@ int Runner::Run(const RunOptions& options) {
     if (!options.force && !options.reuse_from.empty() && Reuse(stage, context, key, options.reuse_from)) continue;
     spdlog::info("[{}] runs: {}", stage.Name(), reason);
     ++ran;
-    if (!Execute(stage, context, key, inputs, options.interactive)) return 1;
+    if (!Execute(stage, context, key, inputs, options)) return 1;
   }
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   if (options.dry_run) {

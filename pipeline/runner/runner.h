@@ -19,6 +19,9 @@ struct RunOptions {
   bool force = false; // run the selected stages even when up to date
   bool dry_run = false;
   int jobs = -1;      // TBB threads; -1: all cores
+  // Memory the views in flight of a per-view stage may take together, MB (Stage::ViewMemoryMb
+  // each); 0: what the system has available when the stage starts.
+  double memory_limit_mb = 0;
   bool interactive = false;  // draw progress bars (stderr is a terminal)
   // Other workspaces (a sweep's earlier variants): a stale stage whose cache key matches an ok
   // record there gets that workspace's outputs hard-linked (or copied) in instead of running.
@@ -73,7 +76,7 @@ class Runner {
   // The per-view marks of a stage's run with cache key `key` (records/<stage>.views/).
   ViewCheckpoint CheckpointOf(const Stage& stage, const std::string& key) const;
   bool Execute(const Stage& stage, StageContext& context, const std::string& key, const nlohmann::json& inputs,
-               bool interactive);
+               const RunOptions& options);
   // Runs the shard `options.views` of the stage `options.only` (see RunOptions::views).
   int RunShard(const RunOptions& options);
   // Links in the outputs of `stage` from the first workspace of `from` whose record has `key`;

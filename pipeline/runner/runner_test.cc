@@ -147,5 +147,32 @@ TEST_F(RunnerTest, RecordHoldsInputsParamsAndCosts) {
   EXPECT_EQ(record->metrics["bytes"], 1);
 }
 
+// A per-view stage runs as many views at once as the memory budget holds (one at least), and its
+// record keeps the budget, the estimate of one view and the views in flight.
+TEST_F(RunnerTest, MemoryLimitCapsTheViewsInFlight) {
+  std::ofstream(dir_ / "c.yaml") << "workspace: ws\nstages:\n  - per_view\n";
+  for (const auto& [limit, expected] : std::vector<std::pair<double, int>>{{150, 1}, {50, 1}, {250, 2}}) {
+    testing_stages::most_views_in_flight = 0;
+    RunOptions options;
+    options.jobs = 4;
+    options.force = true;
+    options.memory_limit_mb = limit;
+    Run({}, options);
+    ASSERT_EQ(last_exit_, 0);
+    const auto record = ReadRecord((dir_ / "ws/records/per_view.json").string());
+    ASSERT_TRUE(record);
+    EXPECT_EQ(record->memory_budget_mb, limit);
+    EXPECT_EQ(record->view_memory_mb, 100);
+    EXPECT_EQ(record->views_in_flight, expected) << "limit " << limit;
+    EXPECT_LE(testing_stages::most_views_in_flight, expected) << "limit " << limit;
+    EXPECT_TRUE(fs::exists(dir_ / "ws/views/v7"));
+  }
+  // Without a limit: what the system has available, recorded.
+  RunOptions options;
+  options.force = true;
+  Run({}, options);
+  EXPECT_GT(ReadRecord((dir_ / "ws/records/per_view.json").string())->memory_budget_mb, 0);
+}
+
 }  // namespace
 }  // namespace ibmr

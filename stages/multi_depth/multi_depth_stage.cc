@@ -65,7 +65,7 @@ class MultiDepthStage : public Stage {
   HoldoutRole Role() const override { return HoldoutRole::kTrainingOnly; }
   bool Shardable() const override { return true; }
   double ViewMemoryMb(const StageContext& context) const override {
-    const double pixels = LargestTrainingImagePixels(context);
+    const double pixels = LargestTrainingImage(context).Pixels();
     // The key view's depth, normals and confidence (20 bytes per pixel), each neighbour's depth and
     // confidence (8), the result (20), and the program. 640x480: 132 MB estimated, 150 MB measured.
     const double bytes = pixels * (20.0 + 8.0 * context.params.Int("max_neighbors") + 20.0);

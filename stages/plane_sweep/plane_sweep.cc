@@ -119,6 +119,7 @@ bool PlaneSweepOptions::Check(std::string* error) const {
   if (min_depth != -1 && !(min_depth > 0)) return Fail(error, "min_depth", "must be > 0 or -1", min_depth);
   if (max_depth != -1 && !(max_depth > 0 && (min_depth == -1 || max_depth > min_depth)))
     return Fail(error, "max_depth", "must be > min_depth (or -1)", max_depth);
+  if (max_view_memory_mb < 0) return Fail(error, "max_view_memory_mb", "must be >= 0 (0: unlimited)", max_view_memory_mb);
   if (!(depth_margin >= 0 && depth_margin <= 2)) return Fail(error, "depth_margin", "must be in [0, 2]", depth_margin);
   if (!(min_angle_deg >= 0 && min_angle_deg < max_angle_deg))
     return Fail(error, "min_angle_deg", "must be in [0, max_angle_deg)", min_angle_deg);
@@ -183,6 +184,29 @@ StereoPairResult StereoPair(const cv::Mat& left_image, const cv::Mat& right_imag
   return result;
 }
 
+double SweepFixedBytesPerPixel(int num_neighbors) {
+  // Grey images (1 byte each), winners (8), texture factor (4), plane ranges (4), the output maps
+  // (4 + 12 + 4) and the float working copies of the texture factor (12).
+  return 1.0 + num_neighbors + 8 + 4 + 4 + 20 + 12;
+}
+
+double SweepVolumeBytesPerRow(int width, int num_planes) {
+  const int stride = (num_planes + 15) / 16 * 16;
+  return 4.0 * width * stride * sizeof(uint16_t);
+}
+
+int SweepBands(int width, int height, const PlaneSweepOptions& options) {
+  if (options.max_view_memory_mb <= 0) return 1;
+  // What the program itself holds (code, TBB, pools) is counted in the stage's estimate, not here.
+  const double budget = options.max_view_memory_mb * 1048576.0 -
+                        SweepFixedBytesPerPixel(options.num_neighbors) * width * height;
+  const double per_row = SweepVolumeBytesPerRow(width, options.num_planes);
+  if (per_row * height <= budget) return 1;
+  // A band's own rows plus its context rows must fit; at least 16 own rows however small the budget.
+  const int rows = std::max(16, static_cast<int>(budget / per_row) - 2 * kBandContextRows);
+  return (height + rows - 1) / rows;
+}
+
 PlaneSweepResult PlaneSweep(const SweepView& reference, const std::vector<SweepView>& neighbours, double near,
                             double far, const PlaneSweepOptions& options, const PixelDepthBounds* pixel_bounds) {
   const int w = reference.gray.cols, h = reference.gray.rows, np = options.num_planes;
@@ -202,7 +226,7 @@ PlaneSweepResult PlaneSweep(const SweepView& reference, const std::vector<SweepV
     engine_neighbours.push_back(std::move(n));
   }
   const sweep::EngineOptions engine = ToEngine(options);
-  sweep::PlaneRanges ranges;
+  sweep::PlaneRanges ranges;  // of the whole reference
   if (pixel_bounds != nullptr) {
     const bool has_far = !pixel_bounds->far.Empty();
     if (pixel_bounds->near.width != w || pixel_bounds->near.height != h ||
@@ -227,16 +251,42 @@ PlaneSweepResult PlaneSweep(const SweepView& reference, const std::vector<SweepV
       if (last < 0 || first > np - 1) ranges.first[i] = 1, ranges.last[i] = 0;  // outside the swept range
     }
   }
-  sweep::BufferLease buffers;
-  sweep::CostVolume& volume = buffers->volume;
+  // Bands of rows (one: the whole image), each matched with context rows around it.
   PlaneSweepResult result;
-  result.evaluations =
-      sweep::BuildCostVolume(reference.gray, engine_neighbours, engine, &volume, pixel_bounds ? &ranges : nullptr);
+  result.bands = SweepBands(w, h, options);
   result.full_evaluations = static_cast<int64_t>(np) * w * h * static_cast<int64_t>(neighbours.size());
-  sweep::Aggregated& aggregated = buffers->aggregated;
-  sweep::Aggregate(volume, reference.gray, engine, &aggregated);
-  result.volume_bytes = (volume.data.size() + volume.scratch.size() + aggregated.a.size() + aggregated.b.size()) * sizeof(uint16_t);
-  const sweep::Winners winners = sweep::WinnerTakeAll(aggregated, &volume, options.confidence_scale);
+  cv::Mat winner_plane(h, w, CV_32F), winner_confidence(h, w, CV_32F);
+  sweep::BufferLease buffers;
+  for (int band = 0; band < result.bands; ++band) {
+    const int y0 = static_cast<int>(static_cast<int64_t>(band) * h / result.bands);
+    const int y1 = static_cast<int>(static_cast<int64_t>(band + 1) * h / result.bands);
+    const int c0 = result.bands == 1 ? 0 : std::max(0, y0 - kBandContextRows);
+    const int c1 = result.bands == 1 ? h : std::min(h, y1 + kBandContextRows);
+    const cv::Mat band_gray = result.bands == 1 ? reference.gray : reference.gray.rowRange(c0, c1).clone();
+    std::vector<sweep::Neighbour> band_neighbours = engine_neighbours;
+    if (c0 > 0) {  // band pixel (x, y) is the reference's (x, y + c0)
+      Eigen::Matrix3d shift = Eigen::Matrix3d::Identity();
+      shift(1, 2) = c0;
+      for (sweep::Neighbour& n : band_neighbours)
+        for (Eigen::Matrix3d& homography : n.homographies) homography = homography * shift;
+    }
+    sweep::PlaneRanges band_ranges;
+    if (!ranges.first.empty()) {
+      const size_t begin = static_cast<size_t>(c0) * w, end = static_cast<size_t>(c1) * w;
+      band_ranges.first.assign(ranges.first.begin() + begin, ranges.first.begin() + end);
+      band_ranges.last.assign(ranges.last.begin() + begin, ranges.last.begin() + end);
+    }
+    sweep::CostVolume& volume = buffers->volume;
+    result.evaluations += sweep::BuildCostVolume(band_gray, band_neighbours, engine, &volume,
+                                                 band_ranges.first.empty() ? nullptr : &band_ranges);
+    sweep::Aggregated& aggregated = buffers->aggregated;
+    sweep::Aggregate(volume, band_gray, engine, &aggregated);
+    result.volume_bytes = std::max(result.volume_bytes, (volume.data.size() + volume.scratch.size() +
+                                                         aggregated.a.size() + aggregated.b.size()) * sizeof(uint16_t));
+    const sweep::Winners winners = sweep::WinnerTakeAll(aggregated, &volume, options.confidence_scale);
+    winners.plane.rowRange(y0 - c0, y1 - c0).copyTo(winner_plane.rowRange(y0, y1));
+    winners.confidence.rowRange(y0 - c0, y1 - c0).copyTo(winner_confidence.rowRange(y0, y1));
+  }
   result.depth = DepthMap(w, h, 1, 0.f);
   result.confidence = FloatMap(w, h, 1, 0.f);
   // Texture factor: where the reference has no contrast over the census window, no cost curve
@@ -256,8 +306,8 @@ PlaneSweepResult PlaneSweep(const SweepView& reference, const std::vector<SweepV
   }
   size_t valid = 0;
   for (int y = 0; y < h; ++y) {
-    const float* plane = winners.plane.ptr<float>(y);
-    const float* conf = winners.confidence.ptr<float>(y);
+    const float* plane = winner_plane.ptr<float>(y);
+    const float* conf = winner_confidence.ptr<float>(y);
     for (int x = 0; x < w; ++x) {
       const float confidence = conf[x] * texture.at<float>(y, x);
       result.confidence.At(x, y) = confidence;

@@ -53,6 +53,10 @@ struct PlaneSweepOptions {
   double min_angle_deg = 3.0;     // neighbour triangulation angle range, degrees
   double max_angle_deg = 50.0;
   double target_angle_deg = 15.0; // preferred triangulation angle, degrees
+  // Memory of one view's sweep, MB (0: unlimited). When the whole image's cost volumes do not fit,
+  // the reference is swept in bands of rows, each with kBandContextRows of context above and below
+  // (see PlaneSweep); within the limit the image is swept whole.
+  int max_view_memory_mb = 1024;
   // Two-view only.
   bool lr_check = true;           // left-right consistency check
   int lr_tolerance = 1;           // pixels
@@ -82,6 +86,20 @@ struct SweepView {
   Rigid3d cam_from_world;
 };
 
+// Context rows a band of a banded sweep matches beyond its own rows, above and below, so that its
+// census windows, box windows and semi-global paths see the surface around it (see PlaneSweep).
+constexpr int kBandContextRows = 48;
+
+// Bytes of one view's sweep besides its cost volumes, per reference pixel: the grey images of the
+// view and its neighbours, winners, texture factor, plane ranges and the three output maps.
+double SweepFixedBytesPerPixel(int num_neighbors);
+// Bytes of the cost volumes (data, box scratch, two aggregation sums; 16 bits per plane, planes
+// padded to 16) per reference row of width `width`.
+double SweepVolumeBytesPerRow(int width, int num_planes);
+// Bands of rows a sweep of a width x height reference takes within options.max_view_memory_mb
+// (1: the whole image at once).
+int SweepBands(int width, int height, const PlaneSweepOptions& options);
+
 struct PlaneSweepResult {
   DepthMap depth;        // z depth, 0: no estimate (confidence below the threshold)
   FloatMap normals;      // 3 channels, camera frame, towards the camera; 0 where no depth
@@ -89,7 +107,8 @@ struct PlaneSweepResult {
   int64_t evaluations = 0;       // plane-pixel-neighbour cost evaluations done
   int64_t full_evaluations = 0;  // ... that sweeping every plane at every pixel would do
   double valid_fraction = 0;  // fraction of pixels with depth
-  size_t volume_bytes = 0;    // bytes of the cost volumes held for this view
+  size_t volume_bytes = 0;    // bytes of the cost volumes held for this view (its largest band)
+  int bands = 1;              // bands of rows swept one after the other (1: the whole image)
 };
 
 // Per-pixel depth bounds of the reference view (z): `near`, e.g. the nearest surface of a visual
@@ -102,7 +121,11 @@ struct PixelDepthBounds {
 // Sweeps `near`..`far` (z in the reference camera, 0 < near < far). With `pixel_bounds`, each
 // bounded pixel matches only the planes within its bounds widened by options.depth_margin (and one
 // plane), and a winner that smoothing carried outside them is dropped; unbounded pixels sweep every
-// plane.
+// plane. When the cost volumes of the whole image exceed options.max_view_memory_mb, the
+// reference is swept in bands of rows (SweepBands): each band is matched with kBandContextRows
+// more rows above and below (its homographies shifted by the band's first row) and keeps the
+// winners of its own rows. Inside a band's rows the result differs from the whole image's only
+// where a semi-global path would have carried information from beyond the context rows.
 PlaneSweepResult PlaneSweep(const SweepView& reference, const std::vector<SweepView>& neighbours, double near,
                             double far, const PlaneSweepOptions& options,
                             const PixelDepthBounds* pixel_bounds = nullptr);

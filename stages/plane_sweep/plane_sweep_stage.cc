@@ -84,13 +84,16 @@ class PlaneSweepStage : public Stage {
   HoldoutRole Role() const override { return HoldoutRole::kTrainingOnly; }
   bool Shardable() const override { return true; }
   double ViewMemoryMb(const StageContext& context) const override {
-    const double pixels = LargestTrainingImagePixels(context);
+    const ImageSize size = LargestTrainingImage(context);
+    const double pixels = size.Pixels();
     const PlaneSweepOptions o = ToOptions(context.params);
-    // The cost volume, its scratch and the two aggregation buffers, 16 bits per pixel and plane
-    // (PlaneSweepResult::volume_bytes); grey images of the view and its neighbours; the three output
-    // maps (4 + 12 + 4 bytes per pixel); and the program itself. 640x480 with 128 planes: 420 MB
-    // estimated, 384 MB measured.
-    const double bytes = 4.0 * pixels * o.num_planes * 2 + (1 + o.num_neighbors) * pixels + 20.0 * pixels;
+    // The cost volumes (data, box scratch, two aggregation sums: 16 bits per pixel and plane) of
+    // the largest band, the images and maps of the whole view, and the program itself (100 MB).
+    // 640x480 with 128 planes: 420 MB estimated, 384 MB measured.
+    const int bands = SweepBands(size.width, size.height, o);
+    const int band_rows = bands == 1 ? size.height : (size.height + bands - 1) / bands + 2 * kBandContextRows;
+    const double bytes = SweepVolumeBytesPerRow(size.width, o.num_planes) * std::min(size.height, band_rows) +
+                         SweepFixedBytesPerPixel(o.num_neighbors) * pixels;
     return pixels > 0 ? bytes / 1048576.0 + 100.0 : 0.0;
   }
 
@@ -119,6 +122,8 @@ class PlaneSweepStage : public Stage {
         {"max_depth", ParamType::kDouble, "-1", "Fallback far depth, scene units; -1: none"},
         {"bounding_box", ParamType::kDoubleList, "[]",
          "Fallback scene box [xmin, ymin, zmin, xmax, ymax, zmax] (world); depth bounds from its corners"},
+        {"max_view_memory_mb", ParamType::kInt, s(d.max_view_memory_mb),
+         "Memory of one view's sweep, MB; larger images are swept in bands of rows (0: unlimited)"},
         {"depth_margin", ParamType::kDouble, s(d.depth_margin), "Relative margin around sparse-point, box or per-pixel hull depths"},
         {"hull_ranges", ParamType::kBool, "true",
          "With hull/hull.ply: each pixel the hull covers sweeps only the planes from the hull's nearest surface "
@@ -220,11 +225,13 @@ class PlaneSweepStage : public Stage {
       for (int j : chosen) neighbour_names.push_back(names[j]);
       return nlohmann::json{{"near", near}, {"far", far}, {"bounds_from", source}, {"neighbors", neighbour_names},
                             {"valid_fraction", result.valid_fraction}, {"evaluations", result.evaluations},
-                            {"full_evaluations", result.full_evaluations}, {"cost_volume_mb", result.volume_bytes / 1048576.0}};
+                            {"full_evaluations", result.full_evaluations}, {"cost_volume_mb", result.volume_bytes / 1048576.0},
+                            {"bands", result.bands}};
     });
     // Totals over every view (resumed and sharded ones too), in name order.
     int64_t evaluations = 0, full_evaluations = 0;
     double valid_sum = 0, volume_max = 0;
+    int bands_max = 1;
     std::map<std::string, int> bound_sources;
     nlohmann::json per_view = nlohmann::json::object();
     for (const auto& [name, piece] : summary.pieces) {
@@ -232,6 +239,7 @@ class PlaneSweepStage : public Stage {
       full_evaluations += piece.value("full_evaluations", piece.at("evaluations").get<int64_t>());
       valid_sum += piece.at("valid_fraction").get<double>();
       volume_max = std::max(volume_max, piece.at("cost_volume_mb").get<double>());
+      bands_max = std::max(bands_max, piece.value("bands", 1));
       ++bound_sources[piece.at("bounds_from").get<std::string>()];
       per_view[name] = {{"near", piece["near"]}, {"far", piece["far"]}, {"bounds_from", piece["bounds_from"]},
                         {"neighbors", piece["neighbors"]}, {"valid_fraction", piece["valid_fraction"]}};
@@ -247,6 +255,7 @@ class PlaneSweepStage : public Stage {
     context.metrics["evaluations_per_second"] = evaluations_here.load() / seconds;
     context.metrics["mean_valid_fraction"] = names.empty() ? 0.0 : valid_sum / names.size();
     context.metrics["cost_volume_mb_per_view"] = volume_max;
+    context.metrics["bands_per_view"] = bands_max;  // > 1: swept in bands of rows within max_view_memory_mb
     context.metrics["peak_rss_mb"] = peak_rss;
     context.metrics["bounds_from"] = bound_sources;
     context.metrics["per_view"] = per_view;
@@ -275,6 +284,7 @@ class PlaneSweepStage : public Stage {
     o.min_depth = p.Double("min_depth");
     o.max_depth = p.Double("max_depth");
     o.depth_margin = p.Double("depth_margin");
+    if (p.Has("max_view_memory_mb")) o.max_view_memory_mb = static_cast<int>(p.Int("max_view_memory_mb"));
     o.min_angle_deg = p.Double("min_angle_deg");
     o.max_angle_deg = p.Double("max_angle_deg");
     o.target_angle_deg = p.Double("target_angle_deg");

@@ -186,6 +186,58 @@ TEST_F(TexturedPlane, PixelBoundsLimitThePlanesOfEachPixel) {
   EXPECT_EQ(excluded_good, 0) << "of " << excluded;
 }
 
+// A memory limit below the whole image's cost volumes: the reference is swept in bands of rows.
+// On a plane slanted along the rows (depth 4 at the top to 7 at the bottom, so each band holds
+// other depths) the banded sweep finds the plane and agrees with the whole-image sweep almost
+// everywhere, holding a fraction of its cost volumes.
+TEST(PlaneSweep, BandsWithinTheMemoryLimitAgreeWithTheWholeImage) {
+  const int w = 160, h = 240;
+  const Camera camera = Camera::Pinhole(w, h, 150, 150, w / 2.0, h / 2.0);
+  const SweepView ref{"ref", RandomTexture(w, h, 11), camera, Rigid3d()};
+  // The plane n.X = d in the reference frame with 1/z linear in the row: 1/z = (n_y y_n + n_z) / d
+  // for normalised image coordinate y_n; z = 4 at the top row, 7 at the bottom.
+  const double yn_top = (0.5 - h / 2.0) / 150, yn_bottom = (h - 0.5 - h / 2.0) / 150;
+  const double ny = (1 / 7.0 - 1 / 4.0) / (yn_bottom - yn_top), nz = 1 / 4.0 - ny * yn_top;  // with d = 1
+  auto true_depth = [&](int y) { return 1.0 / (ny * (y + 0.5 - h / 2.0) / 150 + nz); };
+  std::vector<SweepView> neighbours;
+  const Eigen::Matrix3d k = camera.K();
+  for (double baseline : {-0.4, 0.4}) {
+    SweepView v{"n", cv::Mat(), camera, Rigid3d(Eigen::Matrix3d::Identity(), Eigen::Vector3d(baseline, 0, 0))};
+    // The plane's homography from the reference to the neighbour, X_n = X + t: H = K (I + t n^T / d) K^-1.
+    const Eigen::Matrix3d hom = k * (Eigen::Matrix3d::Identity() + Eigen::Vector3d(baseline, 0, 0) *
+                                                                      Eigen::RowVector3d(0, ny, nz)) * k.inverse();
+    cv::Mat m(3, 3, CV_64F);
+    for (int r = 0; r < 3; ++r)
+      for (int c = 0; c < 3; ++c) m.at<double>(r, c) = hom(r, c);
+    cv::warpPerspective(ref.gray, v.gray, m, ref.gray.size(), cv::INTER_LINEAR, cv::BORDER_REFLECT);
+    neighbours.push_back(v);
+  }
+  PlaneSweepOptions options;
+  options.num_planes = 64;
+  options.confidence_threshold = 0;
+  options.max_view_memory_mb = 0;
+  const PlaneSweepResult whole = PlaneSweep(ref, neighbours, 3.0, 10.0, options);
+  options.max_view_memory_mb = 2;
+  ASSERT_GT(SweepBands(w, h, options), 2);
+  const PlaneSweepResult banded = PlaneSweep(ref, neighbours, 3.0, 10.0, options);
+  EXPECT_EQ(banded.bands, SweepBands(w, h, options));
+  EXPECT_EQ(whole.bands, 1);
+  EXPECT_LT(banded.volume_bytes, 0.75 * whole.volume_bytes);
+  int good = 0, agree = 0, inner = 0;
+  for (int y = 4; y < h - 4; ++y) {
+    for (int x = 8; x < w - 8; ++x) {
+      ++inner;
+      const float z = banded.depth.At(x, y);
+      // Fronto-parallel planes 2.6% apart at the far end, which smoothing turns into stairs.
+      good += std::fabs(z - true_depth(y)) < 0.04 * true_depth(y);
+      agree += std::fabs(z - whole.depth.At(x, y)) < 0.005 * true_depth(y);
+    }
+  }
+  EXPECT_GT(good, 0.9 * inner);
+  EXPECT_GT(agree, 0.99 * inner);
+  for (float c : banded.confidence.data) ASSERT_TRUE(c >= 0 && c <= 1);
+}
+
 TEST(PlaneSweep, UntexturedImageHasLowConfidence) {
   const int w = 96, h = 72;
   const Camera camera = Camera::Pinhole(w, h, 80, 80, w / 2.0, h / 2.0);
