@@ -42,9 +42,12 @@ std::string ReadText(const fs::path& path) {
 }
 
 // A record without what differs between two runs of the same work: when and how long it ran, its
-// memory, how many views an earlier run or a shard had finished, and the metrics that are times.
+// memory and the memory budget (what was free), how many views an earlier run or a shard had
+// finished, and the metrics that are times.
 nlohmann::json WithoutTimes(nlohmann::json record) {
-  for (const char* key : {"started", "wall_seconds", "cpu_seconds", "peak_memory_mb", "views_resumed"}) record.erase(key);
+  for (const char* key : {"started", "wall_seconds", "cpu_seconds", "peak_memory_mb", "views_resumed", "memory_budget_mb",
+                          "views_in_flight"})
+    record.erase(key);
   nlohmann::json metrics = nlohmann::json::object();
   for (auto it = record["metrics"].begin(); it != record["metrics"].end(); ++it) {
     const std::string& k = it.key();

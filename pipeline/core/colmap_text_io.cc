@@ -342,6 +342,8 @@ std::string FormatPoints(const SparseModel& model) {
 
 }  // namespace
 
+std::map<int, Camera> ReadCamerasText(const std::string& folder) { return ReadCameras(folder); }
+
 SparseModel ReadSparseModelText(const std::string& folder) {
   SparseModel model;
   model.cameras = ReadCameras(folder);

@@ -6,6 +6,7 @@
 // Reading errors name the file, the line number and the field.
 #pragma once
 
+#include <map>
 #include <string>
 
 #include "pipeline/core/sparse_model.h"
@@ -14,6 +15,8 @@ namespace ibmr {
 
 // Reads a folder holding cameras.txt, images.txt and points3D.txt (points3D.txt may be absent).
 SparseModel ReadSparseModelText(const std::string& folder);
+// Reads `folder`/cameras.txt alone (calibrate's calibration/cameras.txt), by camera id.
+std::map<int, Camera> ReadCamerasText(const std::string& folder);
 // Writes the three files into `folder` (created if needed), each atomically.
 void WriteSparseModelText(const std::string& folder, const SparseModel& model);
 

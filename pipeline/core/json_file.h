@@ -23,4 +23,15 @@ inline nlohmann::json ReadStageJson(const std::string& path, const std::string& 
   }
 }
 
+// A JSON file read for a decision that tolerates its absence (a stage's declared outputs, the
+// runner's tools), or `fallback` when it is absent or not valid JSON.
+inline nlohmann::json ReadJsonOr(const std::string& path, nlohmann::json fallback) {
+  if (!std::filesystem::exists(path)) return fallback;
+  try {
+    return nlohmann::json::parse(ReadFile(path));
+  } catch (const std::exception&) {
+    return fallback;
+  }
+}
+
 }  // namespace ibmr

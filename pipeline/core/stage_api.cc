@@ -61,7 +61,7 @@ std::vector<std::string> StageContext::TrainingImageNames(const SparseModel& mod
 }
 
 std::vector<std::string> StageContext::TrainingImageNamesIfReadable() const {
-  if (!std::filesystem::exists(workspace.Path("sparse/images.txt"))) return {};
+  if (!std::filesystem::exists(workspace.SparseDir() + "/images.txt")) return {};
   try {
     return TrainingImageNames(LoadModel());
   } catch (const std::exception&) {
@@ -70,7 +70,7 @@ std::vector<std::string> StageContext::TrainingImageNamesIfReadable() const {
 }
 
 ImageSize LargestTrainingImage(const StageContext& context) {
-  if (!std::filesystem::exists(context.workspace.Path("sparse/images.txt"))) return {};
+  if (!std::filesystem::exists(context.workspace.SparseDir() + "/images.txt")) return {};
   try {
     const SparseModel model = context.LoadModel();
     ImageSize largest;

@@ -50,13 +50,13 @@ struct StageContext {
   int max_views_in_flight = 0;
 
   bool IsHeldOut(const std::string& image_name) const { return heldout_images.count(image_name) > 0; }
-  // Reads workspace sparse/. For kTrainingOnly stages the held-out images are removed (and their
+  // Reads the workspace's model (SparseDir). For kTrainingOnly stages the held-out images are removed (and their
   // observations from the tracks), which is how the runner keeps them out of reconstruction.
   SparseModel LoadModel() const;
   // Names of the views this stage may reconstruct from, sorted (held-out views removed for
   // kTrainingOnly stages).
   std::vector<std::string> TrainingImageNames(const SparseModel& model) const;
-  // The same from the workspace's sparse/, or empty when it is missing or unreadable: for declaring
+  // The same from the workspace's model, or empty when it is missing or unreadable: for declaring
   // per-view inputs before the stage runs (Run() then reports the problem).
   std::vector<std::string> TrainingImageNamesIfReadable() const;
 };
@@ -76,6 +76,13 @@ class Stage {
   // Inputs are hashed for the cache; an optional input that does not exist hashes as "missing".
   virtual std::vector<std::string> Inputs(const StageContext& context) const = 0;
   virtual std::vector<std::string> Outputs(const StageContext& context) const = 0;
+  // The model and images folders (workspace-relative, among its outputs) this stage leaves for the
+  // stages after it to read (Workspace::SparseDir, ImagesDir); an empty member leaves that folder
+  // as it was. Import: sparse, images; sfm: sfm/sparse; undistort: dense/sparse, dense/images.
+  struct ModelFolders {
+    std::string sparse, images;
+  };
+  virtual ModelFolders WritesModel() const { return {}; }
   // Does the work. Throws IoError / InputError with a message for the user on failure.
   virtual void Run(StageContext& context) const = 0;
   // True when shards of the stage's views may run as separate processes or cluster jobs (`--views`,

@@ -1,7 +1,8 @@
 // Workspace layout: the files on disk are the interface between stages. COLMAP's names where
 // COLMAP has one, so COLMAP, OpenMVS and nerfstudio tools read what the pipeline writes:
 //   images/                       input images (copied or rendered), names as in images.txt
-//   sparse/                       COLMAP text model (cameras.txt, images.txt, points3D.txt)
+//   sparse/                       COLMAP text model (cameras.txt, images.txt, points3D.txt) of import
+//   sfm/sparse/                   the model sfm estimates (its input sparse/ stays as it was)
 //   masks/<image name>.png        foreground masks of training views, 0 background, 255 foreground
 //   heldout/masks/<image name>.png  masks of held-out views (for scoring only)
 //   dense/images/, dense/sparse/  undistorted images and model
@@ -33,8 +34,17 @@ class Workspace {
     return path.compare(0, prefix.size(), prefix) == 0 ? path.substr(prefix.size()) : path;
   }
 
-  std::string ImagesDir() const { return Path("images"); }
-  std::string SparseDir() const { return Path("sparse"); }
+  // The model and images a stage reads: the last ones written before it in the config
+  // (Stage::WritesModel: import's sparse/ and images/, sfm's sfm/sparse/, undistort's dense/sparse/
+  // and dense/images/), set by the runner; sparse/ and images/ by default.
+  std::string ImagesDir() const { return Path(images_); }
+  std::string SparseDir() const { return Path(sparse_); }
+  const std::string& ImagesRelative() const { return images_; }
+  const std::string& SparseRelative() const { return sparse_; }
+  void SetModelFolders(std::string sparse, std::string images) {
+    sparse_ = std::move(sparse);
+    images_ = std::move(images);
+  }
   std::string MasksDir() const { return Path("masks"); }
   std::string MaskPath(const std::string& image_name) const { return Path("masks/" + image_name + ".png"); }
   std::string DepthMapPath(const std::string& image_name, const std::string& kind) const {
@@ -62,6 +72,7 @@ class Workspace {
 
  private:
   std::string root_;
+  std::string sparse_ = "sparse", images_ = "images";
 };
 
 }  // namespace ibmr

@@ -54,13 +54,15 @@ class Consume : public Stage {
   std::string Summary() const override { return "test: copies a.txt to b.txt"; }
   std::string Version() const override { return "1"; }
   HoldoutRole Role() const override { return HoldoutRole::kTrainingOnly; }
-  std::vector<ParamSpec> Parameters() const override { return {{"suffix", ParamType::kString, "x", "appended"}}; }
+  std::vector<ParamSpec> Parameters() const override {
+    return {{"suffix", ParamType::kString, "x", "appended"}, {"output", ParamType::kString, "b.txt", "file written"}};
+  }
   std::optional<ParamError> CheckParams(const Params&) const override { return std::nullopt; }
   std::vector<std::string> Inputs(const StageContext&) const override { return {"a.txt"}; }
-  std::vector<std::string> Outputs(const StageContext&) const override { return {"b.txt"}; }
+  std::vector<std::string> Outputs(const StageContext& c) const override { return {c.params.String("output")}; }
   void Run(StageContext& c) const override {
     ++consume_runs;
-    WriteFileAtomic(c.workspace.Path("b.txt"), ReadFile(c.workspace.Path("a.txt")) + c.params.String("suffix"));
+    WriteFileAtomic(c.workspace.Path(c.params.String("output")), ReadFile(c.workspace.Path("a.txt")) + c.params.String("suffix"));
   }
 };
 

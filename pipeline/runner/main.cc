@@ -198,6 +198,10 @@ int main(int argc, char** argv) {
     return 2;
   }
   ibmr::Runner runner(config, registry);
+  if (const std::string shared = runner.SharedOutputs(); !shared.empty()) {
+    std::cerr << "error: " << shared << "\n";
+    return 2;
+  }
   // What a job or a Snakemake rule passes to `ibmr run` to see this config as this process does.
   std::vector<std::string> run_args = {std::filesystem::absolute(config_path).lexically_normal().string(),
                                        "--workspace", config.workspace};

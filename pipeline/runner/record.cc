@@ -60,13 +60,4 @@ void WriteRecord(const std::string& path, const StageRecord& record) {
   WriteFileAtomic(path, record.ToJson().dump(2) + "\n");
 }
 
-nlohmann::json ReadJsonOr(const std::string& path, nlohmann::json fallback) {
-  if (!std::filesystem::exists(path)) return fallback;
-  try {
-    return nlohmann::json::parse(ReadFile(path));
-  } catch (const std::exception&) {
-    return fallback;
-  }
-}
-
 }  // namespace ibmr

@@ -8,6 +8,8 @@
 #include <optional>
 #include <string>
 
+#include "pipeline/core/json_file.h"  // ReadJsonOr
+
 namespace ibmr {
 
 struct StageRecord {
@@ -44,8 +46,5 @@ struct StageRecord {
 std::optional<StageRecord> ReadRecord(const std::string& path);
 void WriteRecord(const std::string& path, const StageRecord& record);
 
-// A JSON file the runner's tools read (scores, renders, sweeps), or `fallback` when it is absent
-// or not valid JSON.
-nlohmann::json ReadJsonOr(const std::string& path, nlohmann::json fallback);
 
 }  // namespace ibmr

@@ -54,7 +54,7 @@ bool Overlaps(const std::string& a, const std::string& b) {
 
 std::vector<std::string> SortedImageNames(const Workspace& workspace) {
   std::vector<std::string> names;
-  if (!fs::exists(workspace.Path("sparse/images.txt"))) return names;
+  if (!fs::exists(workspace.SparseDir() + "/images.txt")) return names;
   try {
     const SparseModel model = ReadSparseModelText(workspace.SparseDir());
     for (int id : model.ImageIdsByName()) names.push_back(model.images.at(id).name);
@@ -77,6 +77,12 @@ std::string Runner::RecordPath(const std::string& stage) const {
 StageContext Runner::MakeContext(const Stage& stage, const StageConfig& stage_config) const {
   StageContext context;
   context.workspace = Workspace(config_.workspace);
+  // The model and images of the last stage before this one that writes them.
+  for (size_t i = 0; i < config_.stages.size() && &config_.stages[i] != &stage_config; ++i) {
+    const Stage::ModelFolders folders = registry_.Find(config_.stages[i].name)->WritesModel();
+    context.workspace.SetModelFolders(folders.sparse.empty() ? context.workspace.SparseRelative() : folders.sparse,
+                                      folders.images.empty() ? context.workspace.ImagesRelative() : folders.images);
+  }
   context.params = stage_config.params;
   context.config_dir = config_.dir;
   context.inputs = config_.inputs;
@@ -158,6 +164,26 @@ std::vector<std::string> Runner::DeclaredInputs(size_t index) const {
 std::vector<std::string> Runner::DeclaredOutputs(size_t index) const {
   const Stage& stage = *registry_.Find(config_.stages.at(index).name);
   return stage.Outputs(MakeContext(stage, config_.stages[index]));
+}
+
+std::string Runner::SharedOutputs() const {
+  const Workspace workspace(config_.workspace);
+  std::vector<std::vector<std::string>> outputs;
+  for (size_t i = 0; i < config_.stages.size(); ++i) outputs.push_back(DeclaredOutputs(i));
+  for (size_t i = 0; i < outputs.size(); ++i) {
+    for (size_t j = i + 1; j < outputs.size(); ++j) {
+      for (const std::string& a : outputs[i]) {
+        for (const std::string& b : outputs[j]) {
+          if (!Overlaps(Resolve(workspace, a), Resolve(workspace, b))) continue;
+          return config_.path + ": stages '" + config_.stages[i].name + "' and '" + config_.stages[j].name +
+                 "' both write " + (a.size() <= b.size() ? a : b) + " ('" + a + "' and '" + b +
+                 "'); a file has one writer, so that the cache knows which stage made it: drop one of the stages "
+                 "or point one at another folder";
+        }
+      }
+    }
+  }
+  return "";
 }
 
 std::vector<StageStatus> Runner::Status() const {

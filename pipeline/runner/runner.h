@@ -62,6 +62,9 @@ class Runner {
   const Config& config() const { return config_; }
   const StageRegistry& registry() const { return registry_; }
 
+  // One writer per file: the problem when two stages of the config declare the same output (or
+  // one inside the other), naming both and the path; "" when none do.
+  std::string SharedOutputs() const;
   // What is up to date and what is stale, and why (no work done).
   std::vector<StageStatus> Status() const;
   // Runs the selected stale stages. Returns 0 on success, 1 when a stage failed, 2 on a usage error.

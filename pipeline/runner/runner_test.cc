@@ -174,5 +174,19 @@ TEST_F(RunnerTest, MemoryLimitCapsTheViewsInFlight) {
   EXPECT_GT(ReadRecord((dir_ / "ws/records/per_view.json").string())->memory_budget_mb, 0);
 }
 
+// One writer per file: a config whose stages declare the same output (or one inside the other)
+// is refused, naming both stages and the file.
+TEST_F(RunnerTest, TwoStagesDeclaringOneOutputAreRefused) {
+  auto shared = [&](const std::string& yaml) {
+    std::ofstream(dir_ / "c.yaml") << yaml;
+    return Runner(LoadConfig((dir_ / "c.yaml").string(), registry_), registry_).SharedOutputs();
+  };
+  EXPECT_EQ(shared("workspace: ws\nstages:\n  - produce\n  - consume\n"), "");
+  const std::string same = shared("workspace: ws\nstages:\n  - produce\n  - consume: {output: a.txt}\n");
+  EXPECT_NE(same.find("'produce' and 'consume' both write a.txt"), std::string::npos) << same;
+  const std::string inside = shared("workspace: ws\nstages:\n  - per_view\n  - consume: {output: views/v1}\n");
+  EXPECT_NE(inside.find("'per_view' and 'consume' both write views"), std::string::npos) << inside;
+}
+
 }  // namespace
 }  // namespace ibmr

@@ -1,7 +1,7 @@
 // Adapter of the calibrate stage: reads the target images of a folder, calibrates (calibrate.h),
-// writes calibration/camera.yml (OpenCV YAML), calibration/cameras.txt and sparse/cameras.txt
-// (COLMAP model, pixel centre (0.5, 0.5)), and optionally undistorts a folder of images into
-// calibration/undistorted/. Per-view errors and rejection reasons go into the record's metrics.
+// writes calibration/camera.yml (OpenCV YAML) and calibration/cameras.txt (COLMAP, pixel centre
+// (0.5, 0.5); import.cameras gives it to a folder's photos), and optionally undistorts a folder of
+// images into calibration/undistorted/. Per-view errors and rejection reasons go into the record's metrics.
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
@@ -46,9 +46,9 @@ class CalibrateStage : public Stage {
  public:
   std::string Name() const override { return "calibrate"; }
   std::string Summary() const override {
-    return "Planar-target calibration (chessboard / circle grids, OpenCV) into sparse/cameras.txt and OpenCV YAML";
+    return "Planar-target calibration (chessboard / circle grids, OpenCV) into calibration/cameras.txt and OpenCV YAML";
   }
-  std::string Version() const override { return "1"; }
+  std::string Version() const override { return "2"; }  // 2: calibration/cameras.txt only (import.cameras reads it)
   HoldoutRole Role() const override { return HoldoutRole::kAllViews; }
 
   std::vector<ParamSpec> Parameters() const override {
@@ -86,7 +86,7 @@ class CalibrateStage : public Stage {
     return inputs;
   }
   std::vector<std::string> Outputs(const StageContext& context) const override {
-    std::vector<std::string> outputs{"calibration/camera.yml", "calibration/cameras.txt", "sparse/cameras.txt"};
+    std::vector<std::string> outputs{"calibration/camera.yml", "calibration/cameras.txt"};
     if (!context.params.String("undistort_source").empty()) outputs.push_back("calibration/undistorted");
     return outputs;
   }
@@ -135,11 +135,6 @@ class CalibrateStage : public Stage {
     const std::string cameras = CalibrationToColmapCameras(result);
     WriteFileAtomic(context.workspace.Path("calibration/camera.yml"), CalibrationToOpenCvYaml(result));
     WriteFileAtomic(context.workspace.Path("calibration/cameras.txt"), cameras);
-    WriteFileAtomic(context.workspace.Path("sparse/cameras.txt"), cameras);
-    // A model with cameras only is still a valid COLMAP text model (sfm reads its intrinsics).
-    for (const char* file : {"sparse/images.txt", "sparse/points3D.txt"}) {
-      if (!fs::exists(context.workspace.Path(file))) WriteFileAtomic(context.workspace.Path(file), "");
-    }
   }
 
   static void FillMetrics(const CalibrationResult& result, nlohmann::json* metrics) {

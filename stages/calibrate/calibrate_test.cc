@@ -132,7 +132,7 @@ TEST(CalibrateStage, OpenCvChessboardSet) {
   ASSERT_EQ(context.metrics["rejected"].size(), 1u) << context.metrics.dump();
   EXPECT_EQ(context.metrics["rejected"][0]["name"], "left02.jpg");
   EXPECT_NE(context.metrics["rejected"][0]["reason"].get<std::string>().find("outlier"), std::string::npos);
-  EXPECT_NE(ReadFile(workspace.string() + "/sparse/cameras.txt").find("FULL_OPENCV 640 480"), std::string::npos);
+  EXPECT_NE(ReadFile(workspace.string() + "/calibration/cameras.txt").find("FULL_OPENCV 640 480"), std::string::npos);
   EXPECT_NE(ReadFile(workspace.string() + "/calibration/camera.yml").find("camera_matrix"), std::string::npos);
   fs::remove_all(workspace);
 }

@@ -168,8 +168,8 @@ class CarveStage : public Stage {
     return std::nullopt;
   }
 
-  std::vector<std::string> Inputs(const StageContext&) const override {
-    return {"sparse", "masks", "heldout/masks"};
+  std::vector<std::string> Inputs(const StageContext& context) const override {
+    return {context.workspace.SparseRelative(), "masks", "heldout/masks"};
   }
   std::vector<std::string> Outputs(const StageContext&) const override { return {"hull"}; }
 

@@ -59,13 +59,13 @@ class EvalPosesStage : public Stage {
  public:
   std::string Name() const override { return "eval_poses"; }
   std::string Summary() const override {
-    return "Pose errors of sparse/ against ground_truth/sparse/ after a similarity alignment";
+    return "Pose errors of the estimated model (sfm/sparse/) against the known one (sparse/) after a similarity alignment";
   }
   std::string Version() const override { return "2"; }
   HoldoutRole Role() const override { return HoldoutRole::kAllViews; }
   std::vector<ParamSpec> Parameters() const override {
     return {{"min_common", ParamType::kInt, "3", "Cameras needed in both models for the alignment; >= 3"},
-            {"truth", ParamType::kString, "ground_truth/sparse", "Workspace-relative folder of the true model"}};
+            {"truth", ParamType::kString, "sparse", "Workspace-relative folder of the true model (import's known cameras)"}};
   }
   std::optional<ParamError> CheckParams(const Params& params) const override {
     EvalPosesOptions options;
@@ -75,15 +75,15 @@ class EvalPosesStage : public Stage {
     return std::nullopt;
   }
   std::vector<std::string> Inputs(const StageContext& context) const override {
-    return {"sparse", context.params.String("truth")};
+    return {context.workspace.SparseRelative(), context.params.String("truth")};
   }
   std::vector<std::string> Outputs(const StageContext&) const override { return {"eval_poses"}; }
 
   void Run(StageContext& context) const override {
     const std::string truth_dir = context.workspace.Path(context.params.String("truth"));
     if (!fs::exists(truth_dir + "/images.txt")) {
-      throw InputError("eval_poses.truth: " + truth_dir + "/images.txt is missing; the sfm stage keeps import's known "
-                       "cameras there (run import with known cameras, then sfm)");
+      throw InputError("eval_poses.truth: " + truth_dir + "/images.txt is missing; import writes known "
+                       "cameras to sparse/ (run import with known cameras, then sfm)");
     }
     EvalPosesOptions options;
     options.min_common = static_cast<int>(context.params.Int("min_common"));

@@ -58,7 +58,7 @@ class FuseStage : public Stage {
 
   std::vector<std::string> Inputs(const StageContext& context) const override {
     const std::string kind = context.params.String("input_type");
-    std::vector<std::string> inputs = {"sparse", "images"};
+    std::vector<std::string> inputs = {context.workspace.SparseRelative(), context.workspace.ImagesRelative()};
     const std::vector<std::string> names = context.TrainingImageNamesIfReadable();
     if (names.empty()) {
       for (const char* folder : {"dense/stereo/depth_maps", "dense/stereo/normal_maps", "dense/stereo/confidence_maps"}) inputs.push_back(folder);

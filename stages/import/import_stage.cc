@@ -122,6 +122,9 @@ class ImportStage : public Stage {
         {"focal_prior", ParamType::kDouble, "1.2", "Focal length without EXIF, times max(width, height); > 0"},
         {"folder_camera_model", ParamType::kString, "SIMPLE_RADIAL", "Camera model for a plain image folder",
          {"SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV"}},
+        {"cameras", ParamType::kString, "\"\"",
+         "Plain folder: a COLMAP cameras.txt whose camera every photo takes (calibrate's calibration/cameras.txt; "
+         "workspace-relative unless absolute); empty: from EXIF and focal_prior"},
     };
   }
 
@@ -137,9 +140,14 @@ class ImportStage : public Stage {
   }
 
   std::vector<std::string> Inputs(const StageContext& context) const override {
-    const std::string source = Source(context);
-    return source.empty() ? std::vector<std::string>{} : std::vector<std::string>{source};
+    std::vector<std::string> inputs;
+    if (!Source(context).empty()) inputs.push_back(Source(context));
+    if (context.params.Has("cameras") && !context.params.String("cameras").empty()) {
+      inputs.push_back(context.params.String("cameras"));
+    }
+    return inputs;
   }
+  ModelFolders WritesModel() const override { return {"sparse", "images"}; }
   std::vector<std::string> Outputs(const StageContext&) const override {
     return {"images", "sparse", "image_list.txt"};
   }
@@ -150,7 +158,7 @@ class ImportStage : public Stage {
     if (!fs::is_directory(source)) throw InputError("import.source: '" + source + "' is not a folder");
     ImportOptions options = ToOptions(context.params);
     if (options.format == ImportFormat::kAuto) options.format = DetectFormat(source);
-    Capture capture = ReadCapture(source, options, context.params);
+    Capture capture = ReadCapture(source, options, context.params, CalibratedCamera(context));
     const size_t resized = LimitImageSize(&capture, static_cast<int>(context.params.Int("max_image_size")));
     CopyImages(capture, context);
     if (resized > 0) {
@@ -199,7 +207,8 @@ class ImportStage : public Stage {
     nlohmann::json converted = nlohmann::json::object();  // photo -> what reading it converts
   };
 
-  Capture ReadCapture(const std::string& source, const ImportOptions& options, const Params& params) const {
+  Capture ReadCapture(const std::string& source, const ImportOptions& options, const Params& params,
+                      const std::optional<Camera>& calibrated) const {
     Capture capture;
     capture.image_dir = source;
     switch (options.format) {
@@ -247,7 +256,8 @@ class ImportStage : public Stage {
         break;
       default:
         capture.names = ListImages(source);
-        capture.model = ReadFolder(source, &capture.names, options, &capture.skipped, &capture.converted);
+        capture.model = ReadFolder(source, &capture.names, options, calibrated, &capture.skipped,
+                                   &capture.converted);
         return capture;
     }
     for (int id : capture.model.ImageIdsByName()) capture.names.push_back(capture.model.images.at(id).name);
@@ -288,8 +298,30 @@ class ImportStage : public Stage {
 
   // A plain folder: photos that cannot be used are skipped with a warning naming them and why
   // (empty, not an image, truncated, a byte-identical duplicate of another), conversions are said.
+  // The camera of import.cameras (every photo of a plain folder takes it), or nullopt when unset.
+  static std::optional<Camera> CalibratedCamera(const StageContext& context) {
+    const Params& params = context.params;
+    if (!params.Has("cameras") || params.String("cameras").empty()) return std::nullopt;
+    const std::string given = params.String("cameras");
+    const fs::path file = fs::path(given).is_absolute() ? given : context.workspace.Path(given);
+    if (file.filename() != "cameras.txt") {
+      throw InputError("import.cameras: '" + file.string() + "' must name a COLMAP cameras.txt (e.g. calibration/cameras.txt)");
+    }
+    std::map<int, Camera> cameras;
+    try {
+      cameras = ReadCamerasText(file.parent_path().string());
+    } catch (const std::exception& e) {
+      throw InputError(std::string("import.cameras: ") + e.what() + "; run calibrate first or fix the path");
+    }
+    if (cameras.size() != 1) {
+      throw InputError("import.cameras: " + file.string() + " holds " + std::to_string(cameras.size()) +
+                       " cameras; expected the one camera all photos share");
+    }
+    return cameras.begin()->second;
+  }
+
   SparseModel ReadFolder(const std::string& source, std::vector<std::string>* names_in_out, const ImportOptions& options,
-                         nlohmann::json* skipped, nlohmann::json* converted) const {
+                         const std::optional<Camera>& calibrated, nlohmann::json* skipped, nlohmann::json* converted) const {
     SparseModel model;
     std::vector<std::string> names;
     std::map<std::string, std::string> first_with_hash;
@@ -324,7 +356,18 @@ class ImportStage : public Stage {
     for (const std::string& name : names) {
       const std::string path = source + "/" + name;
       const auto [width, height] = sizes.at(name);
-      Camera camera = FolderCamera(width, height, ExifFocalPixels(path, width, height), options);
+      Camera camera;
+      if (calibrated) {
+        if (calibrated->width != width || calibrated->height != height) {
+          throw InputError(path + " is " + std::to_string(width) + "x" + std::to_string(height) + " but the camera of " +
+                           "import.cameras is " + std::to_string(calibrated->width) + "x" +
+                           std::to_string(calibrated->height) + "; photos of another camera or size need their own " +
+                           "calibration (or leave import.cameras empty)");
+        }
+        camera = *calibrated;
+      } else {
+        camera = FolderCamera(width, height, ExifFocalPixels(path, width, height), options);
+      }
       camera.camera_id = static_cast<int>(model.cameras.size()) + 1;
       model.cameras[camera.camera_id] = camera;
     }

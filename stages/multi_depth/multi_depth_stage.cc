@@ -95,7 +95,7 @@ class MultiDepthStage : public Stage {
   }
 
   std::vector<std::string> Inputs(const StageContext& context) const override {
-    std::vector<std::string> inputs = {"sparse"};
+    std::vector<std::string> inputs = {context.workspace.SparseRelative()};
     const std::vector<std::string> names = context.TrainingImageNamesIfReadable();
     if (names.empty()) {  // before sparse/ exists: the folders, for dependency order only
       for (const char* folder : {"dense/stereo/depth_maps", "dense/stereo/normal_maps", "dense/stereo/confidence_maps"}) inputs.push_back(folder);

@@ -144,11 +144,21 @@ class PlaneSweepStage : public Stage {
     return std::nullopt;
   }
 
-  std::vector<std::string> Inputs(const StageContext&) const override {
-    return {"images", "sparse", "hull/depth_bounds.json", "hull/hull.ply"};
+  std::vector<std::string> Inputs(const StageContext& context) const override {
+    return {context.workspace.ImagesRelative(), context.workspace.SparseRelative(), "hull/depth_bounds.json", "hull/hull.ply"};
   }
-  std::vector<std::string> Outputs(const StageContext&) const override {
-    return {"dense/stereo/depth_maps", "dense/stereo/normal_maps", "dense/stereo/confidence_maps"};
+  // The photometric maps of each training view (multi_depth writes the geometric ones beside them);
+  // before the model exists, the folders (for dependency order only).
+  std::vector<std::string> Outputs(const StageContext& context) const override {
+    const std::vector<std::string> names = context.TrainingImageNamesIfReadable();
+    if (names.empty()) return {"dense/stereo/depth_maps", "dense/stereo/normal_maps", "dense/stereo/confidence_maps"};
+    std::vector<std::string> outputs;
+    for (const std::string& name : names) {
+      outputs.push_back("dense/stereo/depth_maps/" + name + ".photometric.bin");
+      outputs.push_back("dense/stereo/normal_maps/" + name + ".photometric.bin");
+      outputs.push_back(Workspace::ConfidenceMapRelative(name, "photometric"));
+    }
+    return outputs;
   }
 
   void Run(StageContext& context) const override {
@@ -169,7 +179,7 @@ class PlaneSweepStage : public Stage {
         const Image& image = model.images.at(ids[i]);
         const Camera& camera = model.CameraOf(image);
         const std::string problem = camera.Validate();
-        if (!problem.empty()) throw InputError("sparse/cameras.txt: camera of " + image.name + ": " + problem);
+        if (!problem.empty()) throw InputError(context.workspace.SparseDir() + "/cameras.txt: camera of " + image.name + ": " + problem);
         views[i].name = image.name;
         views[i].cam_from_world = image.cam_from_world;
         views[i].gray = LoadGray(context.workspace.ImagesDir() + "/" + image.name, camera, &views[i].camera);

@@ -149,7 +149,7 @@ class RenderStage : public Stage {
   // and writes renders.json.
   bool Shardable() const override { return true; }
   std::vector<std::string> ShardViews(const StageContext& context) const override {
-    if (!fs::exists(context.workspace.Path("sparse/images.txt"))) return {};
+    if (!fs::exists(context.workspace.SparseDir() + "/images.txt")) return {};
     std::vector<std::string> names = PhotoViewNames(context);
     if (!context.params.DoubleList("novel_look_at").empty()) names.push_back("novel");
     std::sort(names.begin(), names.end());
@@ -281,7 +281,7 @@ class RenderStage : public Stage {
   // Workspace-relative where the file lies inside the workspace, so that the cache key does not
   // depend on where the workspace sits (a sweep's variants, a copy, a cluster's mount point).
   std::vector<std::string> Inputs(const StageContext& context) const override {
-    std::vector<std::string> inputs = {"images", "sparse"};
+    std::vector<std::string> inputs = {context.workspace.ImagesRelative(), context.workspace.SparseRelative()};
     for (const std::string& entry : context.params.StringList("proxies")) {
       const ProxySpec spec = ParseProxy(entry, context.workspace);
       if (spec.kind == ModelKind::kSplatDepth || spec.kind == ModelKind::kSplatDepthMerged) {

@@ -82,10 +82,18 @@ class ScoreStage : public Stage {
     return std::nullopt;
   }
 
-  std::vector<std::string> Inputs(const StageContext&) const override {
-    return {"renders", "images", "sparse", "ground_truth/masks", "heldout/masks", "masks"};
+  std::vector<std::string> Inputs(const StageContext& context) const override {
+    return {"renders", context.workspace.ImagesRelative(), context.workspace.SparseRelative(), "ground_truth/masks", "heldout/masks", "masks"};
   }
-  std::vector<std::string> Outputs(const StageContext&) const override { return {"scores"}; }
+  // The scores and an error-image folder per rendered model (select writes beside them).
+  std::vector<std::string> Outputs(const StageContext& context) const override {
+    std::vector<std::string> outputs = {"scores/heldout.json"};
+    const nlohmann::json renders = ReadJsonOr(context.workspace.Path("renders/renders.json"), nlohmann::json::object());
+    for (const nlohmann::json& proxy : renders.value("proxies", nlohmann::json::array())) {
+      if (proxy.value("status", "") == "rendered") outputs.push_back("scores/" + proxy.value("name", ""));
+    }
+    return outputs;
+  }
 
   void Run(StageContext& context) const override {
     const ScoreOptions options = ToOptions(context.params);

@@ -1,22 +1,16 @@
-// Adapter of the sfm stage: runs COLMAP (sfm.h) on the workspace's images and writes the model
-// into sparse/, so that every downstream stage uses the recovered cameras.
-//
-// Ground truth is kept apart, never used here: import writes the known cameras of Middlebury,
-// Strecha or synthetic captures into sparse/. Before its own model replaces sparse/, this stage
-// snapshots what import (or calibrate) wrote into sfm/input_sparse/ and, when it holds poses,
-// copies it to ground_truth/sparse/ for eval_poses. From the snapshot only the intrinsics are read
-// (known_intrinsics: true), never poses. The stage knows whether sparse/ is its own output through
-// sfm/written_model.hash (a hash of the images.txt it wrote): on a re-run with other parameters
-// sparse/ is its own model, and the snapshot stays the input; after a new import it is re-taken.
-// Its inputs for the cache are images/ and image_list.txt (import's outputs), so a re-run of
-// import re-runs sfm.
+// Adapter of the sfm stage: runs COLMAP (sfm.h) on the workspace's images and writes the model it
+// recovers into sfm/sparse/, which the stages after it read (Stage::WritesModel). Its input model,
+// sparse/ (what import or synth wrote), stays as it was: one writer per file, so a new import
+// re-runs sfm, and the known cameras of Middlebury, Strecha or synthetic captures stay there for
+// eval_poses. From the input only the intrinsics are read (known_intrinsics: true), never poses.
+// Its inputs for the cache are images/, image_list.txt and sparse/ (import's outputs).
 //
 // Holdout: the role is kAllViews: held-out views need cameras too (render and score use them),
 // so they are registered with the rest; reconstruction stages drop them through LoadModel().
 //
 // On failure (too few views registered) with on_failure: keep_input, the known cameras of the
-// snapshot are written back to sparse/ and the failure is reported in the metrics (which views,
-// why); with on_failure: error the stage fails with that message.
+// input are written to sfm/sparse/ and the failure is reported in the metrics (which views, why);
+// with on_failure: error the stage fails with that message.
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
@@ -26,7 +20,6 @@
 
 #include "pipeline/core/atomic_file.h"
 #include "pipeline/core/colmap_text_io.h"
-#include "pipeline/core/content_hash.h"
 #include "pipeline/core/errors.h"
 #include "pipeline/core/stage_api.h"
 #include "stages/sfm/sfm.h"
@@ -72,18 +65,6 @@ KnownIntrinsics ReadSharedIntrinsics(const std::string& path, std::string* why) 
   return known;
 }
 
-void CopyFolder(const fs::path& from, const fs::path& to) {
-  const fs::path tmp = to.string() + ".tmp";
-  fs::remove_all(tmp);
-  fs::create_directories(tmp);
-  for (const auto& entry : fs::directory_iterator(from)) {
-    if (entry.is_regular_file()) fs::copy_file(entry.path(), tmp / entry.path().filename());
-  }
-  fs::remove_all(to);
-  fs::create_directories(to.parent_path());
-  fs::rename(tmp, to);
-}
-
 bool HasPoses(const std::string& folder) {
   if (!fs::exists(folder + "/images.txt")) return false;
   try {
@@ -95,11 +76,12 @@ bool HasPoses(const std::string& folder) {
 
 class SfmStage : public Stage {
  public:
+  static constexpr const char* kModel = "sfm/sparse";
   std::string Name() const override { return "sfm"; }
   std::string Summary() const override {
-    return "Structure from motion with the COLMAP command line (known intrinsics held fixed, retries) into sparse/";
+    return "Structure from motion with the COLMAP command line (known intrinsics held fixed, retries) into sfm/sparse/";
   }
-  std::string Version() const override { return "1"; }
+  std::string Version() const override { return "2"; }  // 2: writes sfm/sparse/, leaves sparse/ as it was
   HoldoutRole Role() const override { return HoldoutRole::kAllViews; }
 
   std::vector<ParamSpec> Parameters() const override {
@@ -131,27 +113,21 @@ class SfmStage : public Stage {
     return std::nullopt;
   }
 
-  std::vector<std::string> Inputs(const StageContext&) const override { return {"images", "image_list.txt"}; }
-  std::vector<std::string> Outputs(const StageContext& context) const override {
-    std::vector<std::string> outputs = {"sparse", "sfm"};
-    if (fs::exists(context.workspace.Path("ground_truth/sparse"))) outputs.push_back("ground_truth/sparse");
-    return outputs;
+  std::vector<std::string> Inputs(const StageContext& context) const override {
+    return {context.workspace.ImagesRelative(), "image_list.txt", context.workspace.SparseRelative()};
   }
+  std::vector<std::string> Outputs(const StageContext&) const override { return {"sfm"}; }
+  ModelFolders WritesModel() const override { return {kModel, ""}; }
 
   void Run(StageContext& context) const override {
     const Workspace& ws = context.workspace;
-    const std::string snapshot = ws.Path("sfm/input_sparse");
-    const std::string marker = ws.Path("sfm/written_model.hash");
-    const std::string images_txt = ws.Path("sparse/images.txt");
-    const bool sparse_is_ours = fs::exists(marker) && fs::exists(images_txt) && ReadFile(marker) == HashPath(images_txt);
-    if (fs::exists(ws.SparseDir()) && !sparse_is_ours) CopyFolder(ws.SparseDir(), snapshot);
-    const bool has_truth = HasPoses(snapshot);
-    if (has_truth) CopyFolder(snapshot, ws.Path("ground_truth/sparse"));
-
+    const std::string known = ws.SparseDir();  // the input model: known cameras, when import had them
+    const std::string output = ws.Path(kModel);
+    const bool has_truth = HasPoses(known);
     KnownIntrinsics intrinsics;
     std::string why;
     if (context.params.Bool("known_intrinsics")) {
-      intrinsics = ReadSharedIntrinsics(snapshot + "/cameras.txt", &why);
+      intrinsics = ReadSharedIntrinsics(known + "/cameras.txt", &why);
       if (intrinsics.model.empty()) spdlog::warn("[sfm] known_intrinsics: {}; estimating them", why);
     }
     const std::vector<std::string> names = ImageNames(ws);
@@ -168,17 +144,15 @@ class SfmStage : public Stage {
       context.metrics["status"] = "failed";
       context.metrics["failure"] = message;
       if (context.params.String("on_failure") == "keep_input" && has_truth) {
-        spdlog::error("[{}] {}; on_failure: keep_input, sparse/ keeps the known cameras", Name(), message);
-        WriteSparseModelText(ws.SparseDir(), ReadSparseModelText(snapshot));
-        context.metrics["fallback"] = "known cameras (sfm/input_sparse) written to sparse/";
-        WriteFileAtomic(marker, HashPath(images_txt));
+        spdlog::error("[{}] {}; on_failure: keep_input, {} gets the known cameras", Name(), message, kModel);
+        WriteSparseModelText(output, ReadSparseModelText(known));
+        context.metrics["fallback"] = "known cameras (" + ws.SparseRelative() + ") written to " + kModel;
         return;
       }
       throw InputError(message + (has_truth ? "; set sfm.on_failure: keep_input to fall back to the known cameras" : ""));
     }
     context.metrics["status"] = result.unregistered.empty() ? "all registered" : "partial";
-    WriteSparseModelText(ws.SparseDir(), result.model);
-    WriteFileAtomic(marker, HashPath(images_txt));
+    WriteSparseModelText(output, result.model);
   }
 
  private:

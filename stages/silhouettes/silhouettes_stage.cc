@@ -106,7 +106,7 @@ class SilhouettesStage : public Stage {
   }
 
   std::vector<std::string> Inputs(const StageContext& context) const override {
-    std::vector<std::string> inputs = {"images", "sparse"};
+    std::vector<std::string> inputs = {context.workspace.ImagesRelative(), context.workspace.SparseRelative()};
     const std::string& mode = context.params.String("mode");
     if (mode == "background") inputs.push_back(context.params.String("background"));
     if (mode == "user") inputs.push_back(MaskFolderInput(context));

@@ -95,7 +95,7 @@ class SurfelsStage : public Stage {
   }
 
   std::vector<std::string> Inputs(const StageContext& context) const override {
-    std::vector<std::string> inputs = {"sparse", kFused};
+    std::vector<std::string> inputs = {context.workspace.SparseRelative(), kFused};
     const std::string kind = context.params.String("free_space_maps");
     if (kind != "none") {
       const std::vector<std::string> names = context.TrainingImageNamesIfReadable();

@@ -140,6 +140,7 @@ class SynthStage : public Stage {
   }
 
   std::vector<std::string> Inputs(const StageContext&) const override { return {}; }
+  ModelFolders WritesModel() const override { return {"sparse", "images"}; }
   std::vector<std::string> Outputs(const StageContext&) const override {
     return {"images", "sparse", "ground_truth"};
   }

@@ -28,7 +28,10 @@ class UndistortStage : public Stage {
   HoldoutRole Role() const override { return HoldoutRole::kAllViews; }
   std::vector<ParamSpec> Parameters() const override { return {}; }
   std::optional<ParamError> CheckParams(const Params&) const override { return std::nullopt; }
-  std::vector<std::string> Inputs(const StageContext&) const override { return {"sparse", "images"}; }
+  std::vector<std::string> Inputs(const StageContext& context) const override {
+    return {context.workspace.SparseRelative(), context.workspace.ImagesRelative()};
+  }
+  ModelFolders WritesModel() const override { return {"dense/sparse", "dense/images"}; }
   std::vector<std::string> Outputs(const StageContext&) const override { return {"dense/images", "dense/sparse"}; }
 
   void Run(StageContext& context) const override {
@@ -37,7 +40,7 @@ class UndistortStage : public Stage {
     std::map<int, std::pair<cv::Mat, cv::Mat>> maps;
     for (const auto& [id, camera] : model.cameras) {
       const std::string invalid = camera.Validate();
-      if (!invalid.empty()) throw InputError("undistort: camera " + std::to_string(id) + " in sparse/cameras.txt: " + invalid);
+      if (!invalid.empty()) throw InputError("undistort: camera " + std::to_string(id) + " in " + context.workspace.SparseDir() + "/cameras.txt: " + invalid);
       if (camera.HasDistortion()) UndistortMaps(camera, &maps[id].first, &maps[id].second);
     }
     std::map<std::string, const Image*> by_name;
