@@ -27,10 +27,22 @@ cv::Mat UndistortImage(const cv::Mat& image, const cv::Mat& map_x, const cv::Mat
   return output;
 }
 
-SparseModel UndistortModel(const SparseModel& model) {
+bool UndistortOptions::Check(std::string* error) const {
+  if (max_image_size != 0 && (max_image_size < 16 || max_image_size > 100000)) {
+    *error = "max_image_size: must be 0 (keep) or in [16, 100000], got " + std::to_string(max_image_size);
+    return false;
+  }
+  return true;
+}
+
+SparseModel UndistortModel(const SparseModel& model, const UndistortOptions& options) {
   SparseModel result = model;
   for (auto& [id, camera] : result.cameras) {
     camera = model.cameras.at(id).Undistorted();
+    const int longest = std::max(camera.width, camera.height);
+    if (options.max_image_size > 0 && longest > options.max_image_size) {
+      camera = camera.Scaled(static_cast<double>(options.max_image_size) / longest);
+    }
     camera.camera_id = id;
   }
   for (auto& [id, image] : result.images) {

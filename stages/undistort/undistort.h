@@ -14,8 +14,10 @@
 namespace ibmr {
 
 struct UndistortOptions {
-  bool keep_undistorted_as_is = true;  // images of pinhole cameras are copied unchanged
-  bool Check(std::string* error) const { (void)error; return true; }  // no invalid combinations
+  // Longest side of the undistorted images, pixels (COLMAP's image_undistorter max_image_size):
+  // larger ones are downscaled (area averaging) with their cameras; 0: as they are.
+  int max_image_size = 1600;
+  bool Check(std::string* error) const;
 };
 
 // Lookup maps (OpenCV remap, pixel centres at integer coordinates) from the pinhole camera
@@ -25,7 +27,8 @@ void UndistortMaps(const Camera& camera, cv::Mat* map_x, cv::Mat* map_y);
 // Resamples one image; the output camera is camera.Undistorted().
 cv::Mat UndistortImage(const cv::Mat& image, const cv::Mat& map_x, const cv::Mat& map_y);
 
-// The model with every camera replaced by its undistorted pinhole and 2D points moved accordingly.
-SparseModel UndistortModel(const SparseModel& model);
+// The model with every camera replaced by its undistorted pinhole, scaled so that its longest side
+// is at most options.max_image_size, and 2D points moved accordingly.
+SparseModel UndistortModel(const SparseModel& model, const UndistortOptions& options = UndistortOptions());
 
 }  // namespace ibmr
