@@ -8,7 +8,9 @@
 
 #include <filesystem>
 
+#include "pipeline/core/atomic_file.h"
 #include "pipeline/core/colmap_array_io.h"
+#include "pipeline/core/colmap_stereo_config.h"
 #include "pipeline/core/errors.h"
 #include "pipeline/core/per_view.h"
 #include "pipeline/core/rank_correlation.h"
@@ -111,7 +113,7 @@ class MultiDepthStage : public Stage {
   }
 
   std::vector<std::string> Outputs(const StageContext& context) const override {
-    std::vector<std::string> outputs;
+    std::vector<std::string> outputs = {kFusionConfig};
     for (const std::string& name : context.TrainingImageNamesIfReadable()) {
       outputs.push_back("dense/stereo/depth_maps/" + name + ".geometric.bin");
       outputs.push_back("dense/stereo/normal_maps/" + name + ".geometric.bin");
@@ -184,6 +186,7 @@ class MultiDepthStage : public Stage {
       }
     }
 
+    WriteFileAtomic(workspace.Path(kFusionConfig), FormatFusionConfig(names));
     nlohmann::json& m = context.metrics;
     m["views"] = names.size();
     m["input_samples"] = totals.input_samples;

@@ -21,7 +21,9 @@
 #include <mutex>
 #include <opencv2/imgproc.hpp>
 
+#include "pipeline/core/atomic_file.h"
 #include "pipeline/core/colmap_array_io.h"
+#include "pipeline/core/colmap_stereo_config.h"
 #include "pipeline/core/errors.h"
 #include "pipeline/core/image_io.h"
 #include "pipeline/core/per_view.h"
@@ -151,8 +153,10 @@ class PlaneSweepStage : public Stage {
   // before the model exists, the folders (for dependency order only).
   std::vector<std::string> Outputs(const StageContext& context) const override {
     const std::vector<std::string> names = context.TrainingImageNamesIfReadable();
-    if (names.empty()) return {"dense/stereo/depth_maps", "dense/stereo/normal_maps", "dense/stereo/confidence_maps"};
-    std::vector<std::string> outputs;
+    if (names.empty()) {
+      return {"dense/stereo/depth_maps", "dense/stereo/normal_maps", "dense/stereo/confidence_maps", kPatchMatchConfig};
+    }
+    std::vector<std::string> outputs = {kPatchMatchConfig};
     for (const std::string& name : names) {
       outputs.push_back("dense/stereo/depth_maps/" + name + ".photometric.bin");
       outputs.push_back("dense/stereo/normal_maps/" + name + ".photometric.bin");
@@ -243,6 +247,7 @@ class PlaneSweepStage : public Stage {
     double valid_sum = 0, volume_max = 0;
     int bands_max = 1;
     std::map<std::string, int> bound_sources;
+    std::map<std::string, std::vector<std::string>> sources;  // for COLMAP's patch-match.cfg
     nlohmann::json per_view = nlohmann::json::object();
     for (const auto& [name, piece] : summary.pieces) {
       evaluations += piece.at("evaluations").get<int64_t>();
@@ -251,9 +256,11 @@ class PlaneSweepStage : public Stage {
       volume_max = std::max(volume_max, piece.at("cost_volume_mb").get<double>());
       bands_max = std::max(bands_max, piece.value("bands", 1));
       ++bound_sources[piece.at("bounds_from").get<std::string>()];
+      sources[name] = piece.at("neighbors").get<std::vector<std::string>>();
       per_view[name] = {{"near", piece["near"]}, {"far", piece["far"]}, {"bounds_from", piece["bounds_from"]},
                         {"neighbors", piece["neighbors"]}, {"valid_fraction", piece["valid_fraction"]}};
     }
+    WriteFileAtomic(context.workspace.Path(kPatchMatchConfig), FormatPatchMatchConfig(sources));
     const double peak_rss = PeakRssMb();
     sweep::ReleaseBufferPool();
     const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();

@@ -1,0 +1,58 @@
+// COLMAP's own tools run on the project's dense workspace: after synth -> undistort -> plane_sweep
+// -> multi_depth, dense/ holds images/, sparse/ (with triangulated points, so that COLMAP finds
+// overlapping views), stereo/{depth,normal}_maps/ and the patch-match.cfg and fusion.cfg that
+// COLMAP reads; `colmap stereo_fusion --workspace_path dense` fuses points, and they lie on the
+// synthetic object. Skipped where COLMAP is not installed.
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <filesystem>
+#include <fstream>
+#include <iostream>
+
+#include "pipeline/core/ply_io.h"
+#include "pipeline/core/surface_accuracy.h"
+#include "tests/run_command.h"
+
+namespace fs = std::filesystem;
+
+namespace {
+
+TEST(ColmapFusion, StereoFusionFusesTheProjectsDepthMaps) {
+  if (ibmr_e2e::RunCommand("command -v colmap").exit_code != 0) {
+    GTEST_SKIP() << "colmap is not installed (scripts/setup installs it); skipped";
+  }
+  const fs::path root = fs::temp_directory_path() / ("ibmr_colmap_fusion_" + std::to_string(::getpid()));
+  fs::remove_all(root);
+  fs::create_directories(root);
+  std::ofstream(root / "c.yaml") << "workspace: ws\nstages:\n"
+                                    "  - synth: {scene: object_ring, views: 12, width: 320, height: 240}\n"
+                                    "  - undistort: {}\n"
+                                    "  - plane_sweep: {num_planes: 64}\n"
+                                    "  - multi_depth: {}\n";
+  const auto run = ibmr_e2e::RunCommand(std::string(IBMR_BINARY) + " run '" + (root / "c.yaml").string() + "'");
+  ASSERT_EQ(run.exit_code, 0) << run.output;
+  const fs::path dense = root / "ws/dense";
+  for (const char* file : {"stereo/patch-match.cfg", "stereo/fusion.cfg", "sparse/points3D.txt"}) {
+    ASSERT_TRUE(fs::exists(dense / file)) << file;
+  }
+  // Each view's depth map is seen by few others in a ring of 12, so two consistent pixels suffice.
+  const fs::path fused = root / "colmap_fused.ply";
+  const auto fusion = ibmr_e2e::RunCommand("colmap stereo_fusion --workspace_path '" + dense.string() +
+                                           "' --input_type geometric --StereoFusion.min_num_pixels 2 --output_path '" +
+                                           fused.string() + "'");
+  ASSERT_EQ(fusion.exit_code, 0) << fusion.output;
+  const ibmr::PointCloud cloud = ibmr::ReadPointCloudPly(fused.string());
+  EXPECT_GT(cloud.size(), 2000u) << fusion.output;
+  // On the object (radius ~1): 90% of COLMAP's points within 2% of its radius of the true surface.
+  const ibmr::TriangleMesh truth = ibmr::ReadMeshPly((root / "ws/ground_truth/mesh.ply").string());
+  const ibmr::PointSetAccuracy accuracy =
+      ibmr::EvaluatePointSet(cloud, truth, ibmr::SampleSurface(truth, 20000), 0.02);
+  EXPECT_LT(accuracy.accuracy_90, 0.02) << "median " << accuracy.accuracy_median;
+  std::cout << "colmap stereo_fusion: " << cloud.size() << " points, 90% within " << accuracy.accuracy_90
+            << " of the true surface (median " << accuracy.accuracy_median << ")\n";
+  fs::remove_all(root);
+}
+
+}  // namespace
