@@ -45,7 +45,7 @@ std::string ReadText(const fs::path& path) {
 // memory and the memory budget (what was free), how many views an earlier run or a shard had
 // finished, and the metrics that are times.
 nlohmann::json WithoutTimes(nlohmann::json record) {
-  for (const char* key : {"started", "wall_seconds", "cpu_seconds", "peak_memory_mb", "views_resumed", "memory_budget_mb",
+  for (const char* key : {"started", "wall_seconds", "cpu_seconds", "peak_memory_mb", "views_resumed", "memory_budget_mb", "child_peak_memory_mb",
                           "views_in_flight"})
     record.erase(key);
   nlohmann::json metrics = nlohmann::json::object();

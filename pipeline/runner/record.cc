@@ -14,6 +14,7 @@ nlohmann::json StageRecord::ToJson() const {
           {"error", error},       {"started", started},     {"wall_seconds", wall_seconds},
           {"cpu_seconds", cpu_seconds}, {"peak_memory_mb", peak_memory_mb}};
   if (views_resumed > 0) json["views_resumed"] = views_resumed;
+  if (child_peak_memory_mb > 0) json["child_peak_memory_mb"] = child_peak_memory_mb;
   if (view_memory_mb > 0) {
     json["memory_budget_mb"] = memory_budget_mb;
     json["view_memory_mb"] = view_memory_mb;
@@ -40,6 +41,7 @@ StageRecord StageRecord::FromJson(const nlohmann::json& j) {
   r.cpu_seconds = j.value("cpu_seconds", 0.0);
   r.peak_memory_mb = j.value("peak_memory_mb", 0.0);
   r.views_resumed = j.value("views_resumed", size_t{0});
+  r.child_peak_memory_mb = j.value("child_peak_memory_mb", 0.0);
   r.memory_budget_mb = j.value("memory_budget_mb", 0.0);
   r.view_memory_mb = j.value("view_memory_mb", 0.0);
   r.views_in_flight = j.value("views_in_flight", 0);

@@ -27,6 +27,9 @@ struct StageRecord {
   double wall_seconds = 0;
   double cpu_seconds = 0;
   double peak_memory_mb = 0;
+  // Peak of the largest program the stage ran (COLMAP), when it was larger than any before it in
+  // this process; 0: none.
+  double child_peak_memory_mb = 0;
   // Per-view stages: the memory budget the views in flight were fitted to (--memory-limit, or
   // what was available when the stage started), the stage's estimate of one view, and the views
   // run at once. 0: not a per-view stage (no estimate).

@@ -31,6 +31,12 @@ double PeakMemoryMb() {
   return usage.ru_maxrss / 1024.0;
 }
 
+double ChildPeakMemoryMb() {
+  rusage usage{};
+  getrusage(RUSAGE_CHILDREN, &usage);
+  return usage.ru_maxrss / 1024.0;  // kB
+}
+
 double AvailableMemoryMb() {
   std::ifstream meminfo("/proc/meminfo");
   std::string line;

@@ -8,6 +8,8 @@ namespace ibmr {
 double CpuSeconds();       // user + system time of this process so far
 void ResetPeakMemory();    // best effort; the next PeakMemoryMb() is the peak since this call
 double PeakMemoryMb();     // VmHWM in MB
+// Peak resident memory of the largest child process waited for so far (COLMAP), MB.
+double ChildPeakMemoryMb();
 // Memory the system can give without swapping (MemAvailable), MB; 0 when unknown.
 double AvailableMemoryMb();
 

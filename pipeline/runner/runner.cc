@@ -259,6 +259,7 @@ bool Runner::Execute(const Stage& stage, StageContext& context, const std::strin
   for (const std::string& output : record.outputs) stale += RemoveStaleTemporaries(context.workspace.Path(output));
   if (stale > 0) spdlog::info("[{}] removed {} temporary file(s) left by an interrupted run", stage.Name(), stale);
   ResetPeakMemory();
+  const double child_peak_before = ChildPeakMemoryMb();
   const double cpu_start = CpuSeconds();
   const auto wall_start = std::chrono::steady_clock::now();
   try {
@@ -274,13 +275,17 @@ bool Runner::Execute(const Stage& stage, StageContext& context, const std::strin
   record.wall_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall_start).count();
   record.cpu_seconds = CpuSeconds() - cpu_start;
   record.peak_memory_mb = PeakMemoryMb();
+  if (ChildPeakMemoryMb() > child_peak_before) record.child_peak_memory_mb = ChildPeakMemoryMb();
   record.metrics = context.metrics;
   record.views_resumed = context.views_resumed;
   if (record.status == "ok") {
     WriteRecord(RecordPath(stage.Name()), record);
     context.checkpoint.Clear();
-    spdlog::info("[{}] done in {:.2f}s wall, {:.2f}s CPU, peak {:.0f} MB", stage.Name(), record.wall_seconds,
-                 record.cpu_seconds, record.peak_memory_mb);
+    spdlog::info("[{}] done in {:.2f}s wall, {:.2f}s CPU, peak {:.0f} MB{}", stage.Name(), record.wall_seconds,
+                 record.cpu_seconds, record.peak_memory_mb,
+                 record.child_peak_memory_mb > 0
+                     ? fmt::format(" (programs it ran: {:.0f} MB)", record.child_peak_memory_mb)
+                     : std::string());
     return true;
   }
   WriteRecord(RecordPath(stage.Name()), record);
