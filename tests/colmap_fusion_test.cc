@@ -2,7 +2,8 @@
 // -> multi_depth, dense/ holds images/, sparse/ (with triangulated points, so that COLMAP finds
 // overlapping views), stereo/{depth,normal}_maps/ and the patch-match.cfg and fusion.cfg that
 // COLMAP reads; `colmap stereo_fusion --workspace_path dense` fuses points, and they lie on the
-// synthetic object. Skipped where COLMAP is not installed.
+// synthetic object; and on templeSparseRing's imported cameras once sfm.known_poses has
+// triangulated points for them. Skipped where COLMAP is not installed.
 #include <gtest/gtest.h>
 #include <unistd.h>
 
@@ -52,6 +53,40 @@ TEST(ColmapFusion, StereoFusionFusesTheProjectsDepthMaps) {
   EXPECT_LT(accuracy.accuracy_90, 0.02) << "median " << accuracy.accuracy_median;
   std::cout << "colmap stereo_fusion: " << cloud.size() << " points, 90% within " << accuracy.accuracy_90
             << " of the true surface (median " << accuracy.accuracy_median << ")\n";
+  fs::remove_all(root);
+}
+
+// Imported cameras (Middlebury's, no sparse points): sfm.known_poses keeps them and triangulates
+// points with COLMAP, so that stereo_fusion finds the overlapping views of the project's maps.
+TEST(ColmapFusion, KnownPosesGetPointsSoThatStereoFusionFuses) {
+  const fs::path temple = fs::path(IBMR_SOURCE_DIR) / "../shared/datasets/middlebury_templeSparseRing";
+  if (ibmr_e2e::RunCommand("command -v colmap").exit_code != 0) GTEST_SKIP() << "colmap is not installed; skipped";
+  if (!fs::exists(temple)) GTEST_SKIP() << temple << " is absent; real-data test skipped";
+  const fs::path root = fs::temp_directory_path() / ("ibmr_colmap_known_poses_" + std::to_string(::getpid()));
+  fs::remove_all(root);
+  fs::create_directories(root);
+  std::ofstream(root / "c.yaml") << "workspace: ws\ninputs:\n  images: " << temple.string()
+                                 << "\nstages:\n"
+                                    "  - import: {format: middlebury}\n"
+                                    "  - sfm: {known_poses: true, max_image_size: 640}\n"
+                                    "  - undistort: {}\n"
+                                    "  - plane_sweep: {num_planes: 64}\n"
+                                    "  - multi_depth: {}\n";
+  const auto run = ibmr_e2e::RunCommand(std::string(IBMR_BINARY) + " run '" + (root / "c.yaml").string() + "'");
+  ASSERT_EQ(run.exit_code, 0) << run.output;
+  const fs::path dense = root / "ws/dense";
+  std::ifstream points(dense / "sparse/points3D.txt");
+  size_t lines = 0;
+  for (std::string line; std::getline(points, line);) lines += !line.empty() && line[0] != '#';
+  EXPECT_GT(lines, 500u);
+  const fs::path fused = root / "colmap_fused.ply";
+  const auto fusion = ibmr_e2e::RunCommand("colmap stereo_fusion --workspace_path '" + dense.string() +
+                                           "' --input_type geometric --output_path '" + fused.string() + "'");
+  ASSERT_EQ(fusion.exit_code, 0) << fusion.output;
+  const size_t fused_points = ibmr::ReadPointCloudPly(fused.string()).size();
+  EXPECT_GT(fused_points, 1000u) << fusion.output;  // none without the sparse points
+  std::cout << "templeSparseRing, known poses: " << lines << " sparse points, colmap stereo_fusion " << fused_points
+            << " points\n";
   fs::remove_all(root);
 }
 

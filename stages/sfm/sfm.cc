@@ -2,6 +2,7 @@
 #include "stages/sfm/sfm.h"
 
 #include <spdlog/spdlog.h>
+#include <sqlite3.h>
 
 #include <algorithm>
 #include <filesystem>
@@ -121,6 +122,29 @@ class ColmapRunner {
   SfmResult* result_;
   bool no_initial_pair_ = false;
 };
+
+// Image name -> (image id, camera id) in a COLMAP database.
+std::map<std::string, std::pair<int, int>> DatabaseImageIds(const std::string& path) {
+  sqlite3* db = nullptr;
+  if (sqlite3_open_v2(path.c_str(), &db, SQLITE_OPEN_READONLY, nullptr) != SQLITE_OK) {
+    const std::string message = db ? sqlite3_errmsg(db) : "out of memory";
+    sqlite3_close(db);
+    throw IoError(path + ": cannot open COLMAP's database: " + message);
+  }
+  std::map<std::string, std::pair<int, int>> ids;
+  sqlite3_stmt* query = nullptr;
+  if (sqlite3_prepare_v2(db, "SELECT image_id, camera_id, name FROM images", -1, &query, nullptr) == SQLITE_OK) {
+    while (sqlite3_step(query) == SQLITE_ROW) {
+      const unsigned char* name = sqlite3_column_text(query, 2);
+      if (name) ids[reinterpret_cast<const char*>(name)] = {sqlite3_column_int(query, 0), sqlite3_column_int(query, 1)};
+    }
+  }
+  const std::string message = sqlite3_errmsg(db);
+  sqlite3_finalize(query);
+  sqlite3_close(db);
+  if (ids.empty()) throw IoError(path + ": no images in COLMAP's database (" + message + ")");
+  return ids;
+}
 
 // Converts a binary model folder to TXT and reads it.
 bool ReadColmapModel(ColmapRunner* runner, int attempt, const std::string& bin_dir, const std::string& txt_dir,
@@ -274,6 +298,89 @@ bool SfmOptions::Check(std::string* error) const {
   static const std::set<std::string> kModels = {"SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV", "FULL_OPENCV"};
   if (!kModels.count(camera_model)) return Fail(error, "camera_model: unknown COLMAP camera model '" + camera_model + "'");
   return true;
+}
+
+SfmResult TriangulateKnownPoses(const std::string& image_dir, const SparseModel& known, const std::string& work_dir,
+                                const std::string& log_dir, const SfmOptions& options, ProgressReporter* progress) {
+  NullProgress null_progress;
+  if (!progress) progress = &null_progress;
+  const std::string colmap = FindExecutable(options.colmap);
+  if (colmap.empty()) throw InputError("sfm.colmap: the COLMAP executable '" + options.colmap + "' was not found on PATH");
+  if (known.images.empty()) throw InputError("sfm.known_poses: the input model has no posed images");
+  fs::remove_all(work_dir);
+  fs::create_directories(work_dir);
+  fs::create_directories(log_dir);
+  // One camera for all when the known cameras agree (held at their values), else one per image.
+  const std::vector<int> order = known.ImageIdsByName();
+  const Camera& first = known.CameraOf(known.images.at(order.front()));
+  bool shared = true;
+  std::string list;
+  for (int id : order) {
+    const Camera& camera = known.CameraOf(known.images.at(id));
+    shared &= camera.model == first.model && camera.params == first.params && camera.width == first.width &&
+              camera.height == first.height;
+    list += known.images.at(id).name + "\n";
+  }
+  WriteFileAtomic(work_dir + "/image_list.txt", list);
+  const std::string known_dir = work_dir + "/known", triangulated = work_dir + "/triangulated";
+  fs::create_directories(triangulated);
+
+  SfmResult result;
+  result.attempts = 1;
+  ColmapRunner runner(colmap, log_dir, progress, &result);
+  const std::string database = work_dir + "/database.db", threads = std::to_string(options.num_threads);
+  std::vector<std::string> extract = {"--database_path", database, "--image_path", image_dir, "--image_list_path",
+                                      work_dir + "/image_list.txt", "--ImageReader.single_camera", shared ? "1" : "0",
+                                      "--ImageReader.camera_model", CameraModelName(first.model),
+                                      "--SiftExtraction.use_gpu", "0", "--SiftExtraction.num_threads", threads,
+                                      "--SiftExtraction.max_image_size", std::to_string(options.max_image_size),
+                                      "--SiftExtraction.max_num_features", std::to_string(options.max_num_features)};
+  if (shared) extract.insert(extract.end(), {"--ImageReader.camera_params", Join(first.params)});
+  std::string error;
+  const size_t n = order.size();
+  if (!runner.Run(1, "feature_extractor", extract, "feature extraction", n, std::regex(R"(\[(\d+)/\d+\])"), &error)) {
+    throw InputError("sfm: " + error);
+  }
+  // The known model under the ids COLMAP's database gave the images (the order extraction finished).
+  const std::map<std::string, std::pair<int, int>> ids = DatabaseImageIds(database);
+  SparseModel input;
+  for (int id : order) {
+    Image image = known.images.at(id);
+    const auto it = ids.find(image.name);
+    if (it == ids.end()) throw InputError("sfm: COLMAP's feature_extractor did not read " + image.name + "; see " + log_dir);
+    Camera camera = known.CameraOf(image);
+    image.image_id = it->second.first;
+    image.camera_id = camera.camera_id = it->second.second;
+    image.points2D.clear();
+    input.cameras[camera.camera_id] = camera;
+    input.images[image.image_id] = image;
+  }
+  WriteSparseModelText(known_dir, input);
+  if (!runner.Run(1, "exhaustive_matcher",
+                  {"--database_path", database, "--SiftMatching.use_gpu", "0", "--SiftMatching.num_threads", threads},
+                  "matching", 1, std::regex("^$"), &error) ||
+      !runner.Run(1, "point_triangulator",
+                  {"--database_path", database, "--image_path", image_dir, "--input_path", known_dir, "--output_path",
+                   triangulated, "--Mapper.ba_refine_focal_length", "0", "--Mapper.ba_refine_principal_point", "0",
+                   "--Mapper.ba_refine_extra_params", "0"},
+                  "triangulating", 1, std::regex("^$"), &error) ||
+      !ReadColmapModel(&runner, 1, triangulated, triangulated + "_txt", &result.model, &error)) {
+    throw InputError("sfm: " + error);
+  }
+  // The poses must come back as they went in: otherwise COLMAP numbered the images differently.
+  for (const auto& [id, image] : result.model.images) {
+    const Image* original = known.FindImage(image.name);
+    if (original == nullptr ||
+        (image.cam_from_world.translation - original->cam_from_world.translation).norm() >
+            1e-6 * (1 + original->cam_from_world.translation.norm())) {
+      throw InputError("sfm.known_poses: COLMAP returned another pose for " + image.name +
+                       " (its database numbers the images otherwise); see " + log_dir);
+    }
+  }
+  for (const auto& [id, image] : known.images) result.registered.push_back(image.name);
+  std::sort(result.registered.begin(), result.registered.end());
+  result.num_models = 1;
+  return result;
 }
 
 SfmResult RunColmapSfm(const std::string& image_dir, const std::vector<std::string>& image_names,

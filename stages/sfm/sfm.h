@@ -74,4 +74,12 @@ SfmResult RunColmapSfm(const std::string& image_dir, const std::vector<std::stri
                        const KnownIntrinsics& intrinsics, const std::string& work_dir, const std::string& log_dir,
                        const SfmOptions& options, ProgressReporter* progress);
 
+// Known poses (imported cameras): keeps `known`'s cameras and poses and triangulates points from
+// COLMAP features and exhaustive matches (feature_extractor -> exhaustive_matcher ->
+// point_triangulator, poses and intrinsics held fixed), so that COLMAP's dense tools find the
+// views that overlap. Image ids follow the sorted names, as COLMAP numbers the image list it reads.
+// Throws InputError when COLMAP fails or numbers the images otherwise.
+SfmResult TriangulateKnownPoses(const std::string& image_dir, const SparseModel& known, const std::string& work_dir,
+                                const std::string& log_dir, const SfmOptions& options, ProgressReporter* progress);
+
 }  // namespace ibmr

@@ -88,6 +88,9 @@ class SfmStage : public Stage {
     return {
         {"colmap", ParamType::kString, "colmap", "COLMAP executable (name on PATH or path)", {}, false},
         {"known_intrinsics", ParamType::kBool, "true", "Hold the intrinsics of sparse/cameras.txt fixed (one shared camera)"},
+        {"known_poses", ParamType::kBool, "false",
+         "Keep the imported cameras and poses of sparse/ and only triangulate points (COLMAP point_triangulator), "
+         "so that COLMAP's dense tools find overlapping views"},
         {"camera_model", ParamType::kString, "SIMPLE_RADIAL", "COLMAP camera model when intrinsics are estimated",
          {"SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV", "FULL_OPENCV"}},
         {"matcher", ParamType::kString, "exhaustive", "Feature matcher", kMatchers},
@@ -124,6 +127,18 @@ class SfmStage : public Stage {
     const std::string known = ws.SparseDir();  // the input model: known cameras, when import had them
     const std::string output = ws.Path(kModel);
     const bool has_truth = HasPoses(known);
+    if (context.params.Has("known_poses") && context.params.Bool("known_poses")) {
+      if (!has_truth) throw InputError("sfm.known_poses: " + known + " has no posed images; import posed cameras first");
+      const SfmResult result = TriangulateKnownPoses(ws.ImagesDir(), ReadSparseModelText(known), ws.Path("sfm/work"),
+                                                     ws.LogsDir(), ToOptions(context.params), context.progress);
+      FillMetrics(result, KnownIntrinsics(), result.registered.size(), &context.metrics);
+      context.metrics["status"] = "known poses, points triangulated";
+      context.metrics["points"] = result.model.points.size();
+      spdlog::info("[sfm] known poses kept; {} points triangulated over {} views", result.model.points.size(),
+                   result.model.images.size());
+      WriteSparseModelText(output, result.model);
+      return;
+    }
     KnownIntrinsics intrinsics;
     std::string why;
     if (context.params.Bool("known_intrinsics")) {
