@@ -20,20 +20,28 @@ namespace fs = std::filesystem;
 
 namespace {
 
+// Runs `stages` (YAML lines) in a fresh workspace under a temporary root, with `inputs` (YAML
+// lines, may be empty); returns the root (ws/ inside it) or an empty path when the run failed.
+fs::path RunPipeline(const std::string& name, const std::string& inputs, const std::string& stages) {
+  const fs::path root = fs::temp_directory_path() / (name + "_" + std::to_string(::getpid()));
+  fs::remove_all(root);
+  fs::create_directories(root);
+  std::ofstream(root / "c.yaml") << "workspace: ws\n" << inputs << "stages:\n" << stages;
+  const auto run = ibmr_e2e::RunCommand(std::string(IBMR_BINARY) + " run '" + (root / "c.yaml").string() + "'");
+  EXPECT_EQ(run.exit_code, 0) << run.output;
+  return run.exit_code == 0 ? root : fs::path();
+}
+
 TEST(ColmapFusion, StereoFusionFusesTheProjectsDepthMaps) {
   if (ibmr_e2e::RunCommand("command -v colmap").exit_code != 0) {
     GTEST_SKIP() << "colmap is not installed (scripts/setup installs it); skipped";
   }
-  const fs::path root = fs::temp_directory_path() / ("ibmr_colmap_fusion_" + std::to_string(::getpid()));
-  fs::remove_all(root);
-  fs::create_directories(root);
-  std::ofstream(root / "c.yaml") << "workspace: ws\nstages:\n"
+  const fs::path root = RunPipeline("ibmr_colmap_fusion", "",
                                     "  - synth: {scene: object_ring, views: 12, width: 320, height: 240}\n"
                                     "  - undistort: {}\n"
                                     "  - plane_sweep: {num_planes: 64}\n"
-                                    "  - multi_depth: {}\n";
-  const auto run = ibmr_e2e::RunCommand(std::string(IBMR_BINARY) + " run '" + (root / "c.yaml").string() + "'");
-  ASSERT_EQ(run.exit_code, 0) << run.output;
+                                    "  - multi_depth: {}\n");
+  ASSERT_FALSE(root.empty());
   const fs::path dense = root / "ws/dense";
   for (const char* file : {"stereo/patch-match.cfg", "stereo/fusion.cfg", "sparse/points3D.txt"}) {
     ASSERT_TRUE(fs::exists(dense / file)) << file;
@@ -62,18 +70,13 @@ TEST(ColmapFusion, KnownPosesGetPointsSoThatStereoFusionFuses) {
   const fs::path temple = fs::path(IBMR_SOURCE_DIR) / "../shared/datasets/middlebury_templeSparseRing";
   if (ibmr_e2e::RunCommand("command -v colmap").exit_code != 0) GTEST_SKIP() << "colmap is not installed; skipped";
   if (!fs::exists(temple)) GTEST_SKIP() << temple << " is absent; real-data test skipped";
-  const fs::path root = fs::temp_directory_path() / ("ibmr_colmap_known_poses_" + std::to_string(::getpid()));
-  fs::remove_all(root);
-  fs::create_directories(root);
-  std::ofstream(root / "c.yaml") << "workspace: ws\ninputs:\n  images: " << temple.string()
-                                 << "\nstages:\n"
+  const fs::path root = RunPipeline("ibmr_colmap_known_poses", "inputs:\n  images: " + temple.string() + "\n",
                                     "  - import: {format: middlebury}\n"
                                     "  - sfm: {known_poses: true, max_image_size: 640}\n"
                                     "  - undistort: {}\n"
                                     "  - plane_sweep: {num_planes: 64}\n"
-                                    "  - multi_depth: {}\n";
-  const auto run = ibmr_e2e::RunCommand(std::string(IBMR_BINARY) + " run '" + (root / "c.yaml").string() + "'");
-  ASSERT_EQ(run.exit_code, 0) << run.output;
+                                    "  - multi_depth: {}\n");
+  ASSERT_FALSE(root.empty());
   const fs::path dense = root / "ws/dense";
   std::ifstream points(dense / "sparse/points3D.txt");
   size_t lines = 0;

@@ -52,16 +52,22 @@ TEST(Undistort, RampLandsWhereTheRayProjects) {
   EXPECT_NE(out.at<float>(30, 40), 40.5f);  // the lookup moved: distortion is not ignored
 }
 
-TEST(Undistort, ModelPointsFollowTheCamera) {
+// One view of the Distorted() camera observing `point`.
+SparseModel OneDistortedView(const Eigen::Vector3d& point) {
   SparseModel model;
   model.cameras[1] = Distorted();
   Image image;
   image.image_id = 1;
   image.camera_id = 1;
   image.name = "a.png";
-  const Eigen::Vector3d point(-0.3, 0.2, 1.0);
   image.points2D.push_back({model.cameras[1].ImgFromCam(point), -1});
   model.images[1] = image;
+  return model;
+}
+
+TEST(Undistort, ModelPointsFollowTheCamera) {
+  const Eigen::Vector3d point(-0.3, 0.2, 1.0);
+  const SparseModel model = OneDistortedView(point);
   const SparseModel out = UndistortModel(model);
   EXPECT_FALSE(out.cameras.at(1).HasDistortion());
   const Eigen::Vector2d expected = out.cameras.at(1).ImgFromCam(point);
@@ -71,25 +77,18 @@ TEST(Undistort, ModelPointsFollowTheCamera) {
 // max_image_size: the undistorted camera is scaled so that its longest side fits, and the 2D
 // points follow it (they still lie where the 3D point projects).
 TEST(Undistort, LargeImagesAreScaledToTheMaxImageSize) {
-  SparseModel model;
-  model.cameras[1] = Distorted();
-  Image image;
-  image.image_id = 1;
-  image.camera_id = 1;
-  image.name = "a.png";
   const Eigen::Vector3d point(-0.3, 0.2, 1.0);
-  image.points2D.push_back({model.cameras[1].ImgFromCam(point), -1});
-  model.images[1] = image;
+  const SparseModel model = OneDistortedView(point);
   UndistortOptions options;
-  const int longest = std::max(model.cameras[1].width, model.cameras[1].height);
+  const int longest = std::max(model.cameras.at(1).width, model.cameras.at(1).height);
   options.max_image_size = longest / 2;
   const SparseModel out = UndistortModel(model, options);
   const Camera& camera = out.cameras.at(1);
   EXPECT_EQ(std::max(camera.width, camera.height), longest / 2);
-  EXPECT_NEAR(camera.FocalX(), 0.5 * model.cameras[1].FocalX(), 0.01 * camera.FocalX());
+  EXPECT_NEAR(camera.FocalX(), 0.5 * model.cameras.at(1).FocalX(), 0.01 * camera.FocalX());
   EXPECT_NEAR((out.images.at(1).points2D[0].xy - camera.ImgFromCam(point)).norm(), 0, 1e-6);
   options.max_image_size = 0;  // as they are
-  EXPECT_EQ(UndistortModel(model, options).cameras.at(1).width, model.cameras[1].width);
+  EXPECT_EQ(UndistortModel(model, options).cameras.at(1).width, model.cameras.at(1).width);
   options.max_image_size = 8;
   std::string error;
   EXPECT_FALSE(options.Check(&error));
