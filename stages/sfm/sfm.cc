@@ -183,7 +183,8 @@ SparseModel RunAttempt(const Attempt& a, const std::string& image_dir, const std
   if (a.new_features) {
     fs::remove(database);
     std::vector<std::string> args = {"--database_path", database, "--image_path", image_dir, "--image_list_path",
-                                     work_dir + "/image_list.txt", "--ImageReader.single_camera", "1",
+                                     work_dir + "/image_list.txt", "--ImageReader.single_camera",
+                                     options.single_camera || !intrinsics.model.empty() ? "1" : "0",
                                      "--SiftExtraction.use_gpu", "0", "--SiftExtraction.num_threads", threads,
                                      "--SiftExtraction.max_image_size", std::to_string(options.max_image_size),
                                      "--SiftExtraction.max_num_features", std::to_string(a.max_num_features)};

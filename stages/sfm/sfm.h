@@ -40,6 +40,9 @@ struct SfmOptions {
   double filter_max_reproj_error = 4.0;  // (0, 100]
   int global_refinements = 5;    // Mapper.ba_global_max_refinements (filter + adjust rounds); 1..100
   int num_threads = -1;          // -1: all cores
+  // One camera shared by all photos (COLMAP's ImageReader.single_camera); false when the photos
+  // differ in size (COLMAP would skip those of another size) or come from several cameras.
+  bool single_camera = true;
   bool Check(std::string* error) const;  // error starts with the YAML key
 };
 

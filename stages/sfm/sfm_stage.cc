@@ -146,7 +146,14 @@ class SfmStage : public Stage {
       if (intrinsics.model.empty()) spdlog::warn("[sfm] known_intrinsics: {}; estimating them", why);
     }
     const std::vector<std::string> names = ImageNames(ws);
-    const SfmOptions options = ToOptions(context.params);
+    SfmOptions options = ToOptions(context.params);
+    const std::map<std::string, int> sizes = PhotoSizes(known);
+    if (sizes.size() > 1 && intrinsics.model.empty()) {
+      std::string listed;
+      for (const auto& [size, count] : sizes) listed += (listed.empty() ? "" : ", ") + size + ": " + std::to_string(count);
+      spdlog::info("[sfm] photos of {} sizes ({}): one camera per photo", sizes.size(), listed);
+      options.single_camera = false;
+    }
     const SfmResult result = RunColmapSfm(ws.ImagesDir(), names, intrinsics, ws.Path("sfm/work"), ws.LogsDir(),
                                           options, context.progress);
     FillMetrics(result, intrinsics, names.size(), &context.metrics);
@@ -184,6 +191,18 @@ class SfmStage : public Stage {
     options.global_refinements = static_cast<int>(std::clamp<int64_t>(params.Int("global_refinements"), -1, 1000));
     options.num_threads = static_cast<int>(params.Int("num_threads"));
     return options;
+  }
+
+  // "WIDTHxHEIGHT" -> number of cameras of the input model with that size (empty when unreadable).
+  static std::map<std::string, int> PhotoSizes(const std::string& model_dir) {
+    std::map<std::string, int> sizes;
+    try {
+      for (const auto& [id, camera] : ReadCamerasText(model_dir)) {
+        ++sizes[std::to_string(camera.width) + "x" + std::to_string(camera.height)];
+      }
+    } catch (const std::exception&) {
+    }
+    return sizes;
   }
 
   static std::vector<std::string> ImageNames(const Workspace& ws) {
