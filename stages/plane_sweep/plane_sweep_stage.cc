@@ -49,7 +49,7 @@ double PeakRssMb() {
 }
 
 // Grey image of a view, undistorted in memory when the camera has distortion.
-cv::Mat LoadGray(const std::string& path, const Camera& camera, Camera* undistorted) {
+cv::Mat LoadGrayUndistorted(const std::string& path, const Camera& camera, Camera* undistorted) {
   const cv::Mat color = ReadImageColor(path);
   if (color.cols != camera.width || color.rows != camera.height) {
     throw InputError(path + ": image is " + std::to_string(color.cols) + "x" + std::to_string(color.rows) +
@@ -74,6 +74,18 @@ cv::Mat LoadGray(const std::string& path, const Camera& camera, Camera* undistor
   return out;
 }
 
+// Grey, undistorted, and downscaled (area averaging) when its longest side exceeds `max_size`
+// (> 0); `undistorted` is the camera of the result.
+cv::Mat LoadGray(const std::string& path, const Camera& camera, int max_size, Camera* undistorted) {
+  cv::Mat gray = LoadGrayUndistorted(path, camera, undistorted);
+  const int longest = std::max(gray.cols, gray.rows);
+  if (max_size <= 0 || longest <= max_size) return gray;
+  *undistorted = undistorted->Scaled(static_cast<double>(max_size) / longest);
+  cv::Mat smaller;
+  cv::resize(gray, smaller, cv::Size(undistorted->width, undistorted->height), 0, 0, cv::INTER_AREA);
+  return smaller;
+}
+
 class PlaneSweepStage : public Stage {
  public:
   std::string Name() const override { return "plane_sweep"; }
@@ -86,7 +98,12 @@ class PlaneSweepStage : public Stage {
   HoldoutRole Role() const override { return HoldoutRole::kTrainingOnly; }
   bool Shardable() const override { return true; }
   double ViewMemoryMb(const StageContext& context) const override {
-    const ImageSize size = LargestTrainingImage(context);
+    ImageSize size = LargestTrainingImage(context);
+    const int max_size = context.params.Has("max_image_size") ? static_cast<int>(context.params.Int("max_image_size")) : 0;
+    if (max_size > 0 && std::max(size.width, size.height) > max_size) {  // matched at this size
+      const double factor = static_cast<double>(max_size) / std::max(size.width, size.height);
+      size = {static_cast<int>(std::lround(size.width * factor)), static_cast<int>(std::lround(size.height * factor))};
+    }
     const double pixels = size.Pixels();
     const PlaneSweepOptions o = ToOptions(context.params);
     // The cost volumes (data, box scratch, two aggregation sums: 16 bits per pixel and plane) of
@@ -124,6 +141,9 @@ class PlaneSweepStage : public Stage {
         {"max_depth", ParamType::kDouble, "-1", "Fallback far depth, scene units; -1: none"},
         {"bounding_box", ParamType::kDoubleList, "[]",
          "Fallback scene box [xmin, ymin, zmin, xmax, ymax, zmax] (world); depth bounds from its corners"},
+        {"max_image_size", ParamType::kInt, "1600",
+         "Longest side the views are matched at, px (COLMAP's name): larger ones are downscaled and their maps are "
+         "written at that size; 0: as they are"},
         {"max_view_memory_mb", ParamType::kInt, s(d.max_view_memory_mb),
          "Memory of one view's sweep, MB; larger images are swept in bands of rows (0: unlimited)"},
         {"depth_margin", ParamType::kDouble, s(d.depth_margin), "Relative margin around sparse-point, box or per-pixel hull depths"},
@@ -142,6 +162,10 @@ class PlaneSweepStage : public Stage {
     const std::vector<double> box = params.DoubleList("bounding_box");
     if (!box.empty() && (box.size() != 6 || box[0] >= box[3] || box[1] >= box[4] || box[2] >= box[5])) {
       return ParamError{"bounding_box", "must be empty or [xmin, ymin, zmin, xmax, ymax, zmax] with min < max"};
+    }
+    const int64_t max_size = params.Has("max_image_size") ? params.Int("max_image_size") : 0;
+    if (max_size != 0 && (max_size < 16 || max_size > 100000)) {
+      return ParamError{"max_image_size", "must be 0 (as they are) or in [16, 100000], got " + std::to_string(max_size)};
     }
     return std::nullopt;
   }
@@ -186,7 +210,8 @@ class PlaneSweepStage : public Stage {
         if (!problem.empty()) throw InputError(context.workspace.SparseDir() + "/cameras.txt: camera of " + image.name + ": " + problem);
         views[i].name = image.name;
         views[i].cam_from_world = image.cam_from_world;
-        views[i].gray = LoadGray(context.workspace.ImagesDir() + "/" + image.name, camera, &views[i].camera);
+        views[i].gray = LoadGray(context.workspace.ImagesDir() + "/" + image.name, camera,
+                                 static_cast<int>(context.params.Has("max_image_size") ? context.params.Int("max_image_size") : 0), &views[i].camera);
       });
       return views[i];
     };
