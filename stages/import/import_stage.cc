@@ -441,16 +441,18 @@ class ImportStage : public Stage {
 
 namespace {
 
-// `ibmr export-transforms WORKSPACE [OUT]`: the workspace's sparse/ model as a nerfstudio
-// transforms.json (frames "images/<name>", OpenGL camera axes), written to OUT (default
-// WORKSPACE/transforms.json) so nerfstudio and instant-ngp read the workspace as it is.
+// `ibmr export-transforms WORKSPACE [OUT]`: the workspace's posed model (sfm/sparse/ when sfm
+// ran, else sparse/) as a nerfstudio transforms.json (frames "images/<name>", OpenGL camera axes),
+// written to OUT (default WORKSPACE/transforms.json) so nerfstudio and instant-ngp read the
+// workspace as it is.
 int ExportTransformsCommand(const std::vector<std::string>& args) {
   if (args.empty() || args.size() > 2 || args[0] == "--help") {
     std::cout << "usage: ibmr export-transforms WORKSPACE [OUT.json]   (default OUT: WORKSPACE/transforms.json)\n";
     return !args.empty() && args[0] == "--help" ? 0 : 2;
   }
   try {
-    const Workspace workspace(args[0]);
+    Workspace workspace(args[0]);
+    if (fs::exists(workspace.Path("sfm/sparse/images.txt"))) workspace.SetModelFolders("sfm/sparse", "images");
     const SparseModel model = ReadSparseModelText(workspace.SparseDir());
     if (model.images.empty()) throw InputError(workspace.SparseDir() + ": no posed image to export");
     const std::string out = args.size() == 2 ? args[1] : workspace.Path("transforms.json");
@@ -467,7 +469,7 @@ int ExportTransformsCommand(const std::vector<std::string>& args) {
 
 void RegisterStage_import(StageRegistry* registry) {
   registry->Add(std::make_unique<ImportStage>());
-  registry->AddCommand({"export-transforms", "Write sparse/ as a nerfstudio / instant-ngp transforms.json",
+  registry->AddCommand({"export-transforms", "Write sfm/sparse/ (else sparse/) as a nerfstudio / instant-ngp transforms.json",
                         ExportTransformsCommand});
 }
 
