@@ -5,6 +5,7 @@
 #include <spdlog/spdlog.h>
 #include <tbb/global_control.h>
 #include <tbb/task_arena.h>
+#include <malloc.h>
 
 #include <algorithm>
 #include <chrono>
@@ -272,6 +273,10 @@ bool Runner::Execute(const Stage& stage, StageContext& context, const std::strin
     record.status = "failed";
     record.error = e.what();
   }
+  // Give the heap the stage freed back to the system, so that the next stage's peak (and the
+  // memory budget's headroom) does not carry it: without this the full-size castle's render
+  // peaked at 3138 MB after surfels, against 2408 MB in a process of its own.
+  malloc_trim(0);
   record.wall_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall_start).count();
   record.cpu_seconds = CpuSeconds() - cpu_start;
   record.peak_memory_mb = PeakMemoryMb();
