@@ -1,6 +1,7 @@
 // Parallel per-view loop with resumption and shards (see per_view.h).
 #include "pipeline/core/per_view.h"
 
+#include <spdlog/spdlog.h>
 #include <tbb/parallel_for.h>
 #include <tbb/parallel_for_each.h>
 #include <tbb/task_arena.h>
@@ -10,6 +11,7 @@
 #include <mutex>
 
 #include "pipeline/core/errors.h"
+#include "pipeline/core/process_memory.h"
 
 namespace ibmr {
 
@@ -61,6 +63,20 @@ PerViewSummary ForEachView(StageContext& context, const std::string& phase, cons
     std::lock_guard<std::mutex> lock(mutex);
     summary.pieces[view] = std::move(piece);
   };
+  // What the stage loaded before this loop counts against the budget: refit the views in
+  // flight to the memory left now (the full-size castle's render holds its 20 M depth splats
+  // before it renders a view).
+  if (context.view_memory_mb > 0 && !todo.empty()) {
+    const int threads = tbb::this_task_arena::max_concurrency();
+    const double remaining = RemainingMemoryMb(context.memory_limit_mb);
+    const int fit = std::clamp(static_cast<int>(remaining / context.view_memory_mb), 1, threads);
+    const int before = context.max_views_in_flight > 0 ? context.max_views_in_flight : threads;
+    if (fit < before) {
+      spdlog::info("{}: {} view(s) at a time: {:.0f} MB left, about {:.0f} MB per view", phase, fit, remaining,
+                   context.view_memory_mb);
+      context.max_views_in_flight = fit;
+    }
+  }
   const int slots = context.max_views_in_flight;
   if (slots <= 0 || slots >= tbb::this_task_arena::max_concurrency()) {
     tbb::parallel_for_each(todo.begin(), todo.end(), run_one);

@@ -46,8 +46,13 @@ struct StageContext {
   std::set<std::string> shard_views;
   size_t views_resumed = 0;                // views the per-view loops found already done (for the record)
   // Views ForEachView works on at once (each with all threads' help), so that their memory fits
-  // the run's budget; 0: as many as there are threads.
+  // the run's budget; 0: as many as there are threads. ForEachView lowers it when what the stage
+  // already holds (a model loaded before its per-view loop) leaves room for fewer.
   int max_views_in_flight = 0;
+  // The budget behind it: the stage's estimate of one view (Stage::ViewMemoryMb; 0: none), and
+  // the process's limit (--memory-limit; 0: what the system has available).
+  double view_memory_mb = 0;
+  double memory_limit_mb = 0;
 
   bool IsHeldOut(const std::string& image_name) const { return heldout_images.count(image_name) > 0; }
   // Reads the workspace's model (SparseDir). For kTrainingOnly stages the held-out images are removed (and their

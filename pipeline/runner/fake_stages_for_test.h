@@ -68,6 +68,7 @@ class Consume : public Stage {
 
 inline std::atomic<int> views_in_flight{0};
 inline std::atomic<int> most_views_in_flight{0};
+inline std::atomic<int> per_view_model_mb{0};  // memory PerView holds (touched) through its loop
 
 class PerView : public Stage {
  public:
@@ -82,12 +83,13 @@ class PerView : public Stage {
   double ViewMemoryMb(const StageContext&) const override { return 100; }
   void Run(StageContext& c) const override {
     std::filesystem::create_directories(c.workspace.Path("views"));
+    const std::vector<char> model(static_cast<size_t>(per_view_model_mb) << 20, 1);  // like a loaded model
     ForEachView(c, "per_view", {"v0", "v1", "v2", "v3", "v4", "v5", "v6", "v7"}, [&](const std::string& view) {
       const int now = ++views_in_flight;
       for (int seen = most_views_in_flight; now > seen && !most_views_in_flight.compare_exchange_weak(seen, now);) {
       }
       std::this_thread::sleep_for(std::chrono::milliseconds(20));
-      WriteFileAtomic(c.workspace.Path("views/" + view), view);
+      WriteFileAtomic(c.workspace.Path("views/" + view), view + (model.empty() ? "" : std::string(1, model.back())));
       --views_in_flight;
       return nlohmann::json();
     });

@@ -13,6 +13,7 @@ nlohmann::json StageRecord::ToJson() const {
           {"outputs", outputs},   {"heldout", heldout},     {"metrics", metrics},
           {"error", error},       {"started", started},     {"wall_seconds", wall_seconds},
           {"cpu_seconds", cpu_seconds}, {"peak_memory_mb", peak_memory_mb}};
+  if (start_memory_mb > 0) json["start_memory_mb"] = start_memory_mb;
   if (views_resumed > 0) json["views_resumed"] = views_resumed;
   if (child_peak_memory_mb > 0) json["child_peak_memory_mb"] = child_peak_memory_mb;
   if (view_memory_mb > 0) {
@@ -40,6 +41,7 @@ StageRecord StageRecord::FromJson(const nlohmann::json& j) {
   r.wall_seconds = j.value("wall_seconds", 0.0);
   r.cpu_seconds = j.value("cpu_seconds", 0.0);
   r.peak_memory_mb = j.value("peak_memory_mb", 0.0);
+  r.start_memory_mb = j.value("start_memory_mb", 0.0);
   r.views_resumed = j.value("views_resumed", size_t{0});
   r.child_peak_memory_mb = j.value("child_peak_memory_mb", 0.0);
   r.memory_budget_mb = j.value("memory_budget_mb", 0.0);

@@ -27,6 +27,9 @@ struct StageRecord {
   double wall_seconds = 0;
   double cpu_seconds = 0;
   double peak_memory_mb = 0;
+  // Resident memory of the process when the stage started (what earlier stages left, plus the
+  // program); the peak above includes it.
+  double start_memory_mb = 0;
   // Peak of the largest program the stage ran (COLMAP), when it was larger than any before it in
   // this process; 0: none.
   double child_peak_memory_mb = 0;

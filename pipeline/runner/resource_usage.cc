@@ -37,13 +37,4 @@ double ChildPeakMemoryMb() {
   return usage.ru_maxrss / 1024.0;  // kB
 }
 
-double AvailableMemoryMb() {
-  std::ifstream meminfo("/proc/meminfo");
-  std::string line;
-  while (std::getline(meminfo, line)) {
-    if (line.rfind("MemAvailable:", 0) == 0) return std::stod(line.substr(13)) / 1024.0;  // kB
-  }
-  return 0;
-}
-
 }  // namespace ibmr

@@ -10,7 +10,5 @@ void ResetPeakMemory();    // best effort; the next PeakMemoryMb() is the peak s
 double PeakMemoryMb();     // VmHWM in MB
 // Peak resident memory of the largest child process waited for so far (COLMAP), MB.
 double ChildPeakMemoryMb();
-// Memory the system can give without swapping (MemAvailable), MB; 0 when unknown.
-double AvailableMemoryMb();
 
 }  // namespace ibmr

@@ -19,6 +19,7 @@
 #include "pipeline/core/content_hash.h"
 #include "pipeline/core/per_view.h"
 #include "pipeline/runner/record.h"
+#include "pipeline/core/process_memory.h"
 #include "pipeline/runner/resource_usage.h"
 #include "pipeline/runner/terminal_progress.h"
 
@@ -215,19 +216,23 @@ void FitViewsToMemory(const Stage& stage, double memory_limit_mb, StageContext* 
   if (view_mb <= 0) return;
   const double budget = memory_limit_mb > 0 ? memory_limit_mb : AvailableMemoryMb();
   if (budget <= 0) return;
+  const double remaining = RemainingMemoryMb(memory_limit_mb);
   const int threads = tbb::this_task_arena::max_concurrency();
-  const int fit = static_cast<int>(budget / view_mb);
+  const int fit = static_cast<int>(remaining / view_mb);
   context->max_views_in_flight = std::clamp(fit, 1, threads);
+  context->view_memory_mb = view_mb;
+  context->memory_limit_mb = memory_limit_mb;
   record->memory_budget_mb = budget;
   record->view_memory_mb = view_mb;
   record->views_in_flight = context->max_views_in_flight;
   if (fit < 1) {
-    spdlog::warn("[{}] one view needs about {:.0f} MB, more than the memory budget of {:.0f} MB; running one view "
-                 "at a time (lower max_image_size or the stage's memory parameters, or raise --memory-limit)",
-                 stage.Name(), view_mb, budget);
+    spdlog::warn("[{}] one view needs about {:.0f} MB, more than the {:.0f} MB left of the memory budget ({:.0f} MB); "
+                 "running one view at a time (lower max_image_size or the stage's memory parameters, or raise "
+                 "--memory-limit)",
+                 stage.Name(), view_mb, remaining, budget);
   } else if (fit < threads) {
-    spdlog::info("[{}] {} view(s) at a time: about {:.0f} MB each within a budget of {:.0f} MB", stage.Name(),
-                 context->max_views_in_flight, view_mb, budget);
+    spdlog::info("[{}] {} view(s) at a time: about {:.0f} MB each within the {:.0f} MB left of a budget of {:.0f} MB",
+                 stage.Name(), context->max_views_in_flight, view_mb, remaining, budget);
   }
 }
 
@@ -260,6 +265,7 @@ bool Runner::Execute(const Stage& stage, StageContext& context, const std::strin
   for (const std::string& output : record.outputs) stale += RemoveStaleTemporaries(context.workspace.Path(output));
   if (stale > 0) spdlog::info("[{}] removed {} temporary file(s) left by an interrupted run", stage.Name(), stale);
   ResetPeakMemory();
+  record.start_memory_mb = ResidentMemoryMb();
   const double child_peak_before = ChildPeakMemoryMb();
   const double cpu_start = CpuSeconds();
   const auto wall_start = std::chrono::steady_clock::now();
@@ -282,12 +288,13 @@ bool Runner::Execute(const Stage& stage, StageContext& context, const std::strin
   record.peak_memory_mb = PeakMemoryMb();
   if (ChildPeakMemoryMb() > child_peak_before) record.child_peak_memory_mb = ChildPeakMemoryMb();
   record.metrics = context.metrics;
+  if (record.view_memory_mb > 0) record.views_in_flight = context.max_views_in_flight;  // as lowered by the loops
   record.views_resumed = context.views_resumed;
   if (record.status == "ok") {
     WriteRecord(RecordPath(stage.Name()), record);
     context.checkpoint.Clear();
-    spdlog::info("[{}] done in {:.2f}s wall, {:.2f}s CPU, peak {:.0f} MB{}", stage.Name(), record.wall_seconds,
-                 record.cpu_seconds, record.peak_memory_mb,
+    spdlog::info("[{}] done in {:.2f}s wall, {:.2f}s CPU, peak {:.0f} MB (from {:.0f} MB at the start){}",
+                 stage.Name(), record.wall_seconds, record.cpu_seconds, record.peak_memory_mb, record.start_memory_mb,
                  record.child_peak_memory_mb > 0
                      ? fmt::format(" (programs it ran: {:.0f} MB)", record.child_peak_memory_mb)
                      : std::string());

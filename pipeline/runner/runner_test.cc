@@ -8,6 +8,7 @@
 #include <filesystem>
 #include <fstream>
 
+#include "pipeline/core/process_memory.h"
 #include "pipeline/runner/fake_stages_for_test.h"
 #include "pipeline/runner/record.h"
 
@@ -148,10 +149,14 @@ TEST_F(RunnerTest, RecordHoldsInputsParamsAndCosts) {
 }
 
 // A per-view stage runs as many views at once as the memory budget holds (one at least), and its
-// record keeps the budget, the estimate of one view and the views in flight.
+// record keeps the budget, the estimate of one view and the views in flight. The budget is the
+// process's: what it holds already counts against it.
 TEST_F(RunnerTest, MemoryLimitCapsTheViewsInFlight) {
   std::ofstream(dir_ / "c.yaml") << "workspace: ws\nstages:\n  - per_view\n";
-  for (const auto& [limit, expected] : std::vector<std::pair<double, int>>{{150, 1}, {50, 1}, {250, 2}}) {
+  const double held = ResidentMemoryMb();
+  ASSERT_GT(held, 0);
+  for (const auto& [above, expected] : std::vector<std::pair<double, int>>{{150, 1}, {50, 1}, {260, 2}}) {
+    const double limit = held + above;
     testing_stages::most_views_in_flight = 0;
     RunOptions options;
     options.jobs = 4;
@@ -166,6 +171,20 @@ TEST_F(RunnerTest, MemoryLimitCapsTheViewsInFlight) {
     EXPECT_EQ(record->views_in_flight, expected) << "limit " << limit;
     EXPECT_LE(testing_stages::most_views_in_flight, expected) << "limit " << limit;
     EXPECT_TRUE(fs::exists(dir_ / "ws/views/v7"));
+  }
+  // Memory the stage takes before its per-view loop (a loaded model) leaves room for fewer views.
+  testing_stages::per_view_model_mb = 150;
+  testing_stages::most_views_in_flight = 0;
+  {
+    RunOptions options;
+    options.jobs = 4;
+    options.force = true;
+    options.memory_limit_mb = held + 260;
+    Run({}, options);
+    testing_stages::per_view_model_mb = 0;
+    ASSERT_EQ(last_exit_, 0);
+    EXPECT_EQ(ReadRecord((dir_ / "ws/records/per_view.json").string())->views_in_flight, 1);
+    EXPECT_EQ(testing_stages::most_views_in_flight, 1);
   }
   // Without a limit: what the system has available, recorded.
   RunOptions options;
