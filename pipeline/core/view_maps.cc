@@ -1,0 +1,216 @@
+// Polygon view maps (see view_maps.h; seed 003 §7-8).
+#include "pipeline/core/view_maps.h"
+
+#include <Eigen/Geometry>
+#include <cmath>
+#include <algorithm>
+#include <cstring>
+#include <limits>
+
+#include "pipeline/core/atomic_file.h"
+#include "pipeline/core/errors.h"
+
+namespace ibmr {
+
+namespace {
+
+constexpr char kMagic[8] = {'I', 'B', 'M', 'R', 'V', 'M', '0', '1'};
+constexpr double kHalfPi = 1.5707963267948966;
+
+double GridCoordinate(int i, int grid) { return -kHalfPi + 2.0 * kHalfPi * i / (grid - 1); }
+
+template <typename T>
+void Put(std::string* out, T value) {
+  out->append(reinterpret_cast<const char*>(&value), sizeof(T));
+}
+
+class Reader {
+ public:
+  Reader(const std::string& path, std::string bytes) : path_(path), bytes_(std::move(bytes)) {}
+  template <typename T>
+  T Get(const char* what) {
+    if (offset_ + sizeof(T) > bytes_.size()) {
+      throw InputError(path_ + ": ends inside " + what + " at byte " + std::to_string(offset_) +
+                       " (truncated; run the texture stage again)");
+    }
+    T value;
+    std::memcpy(&value, bytes_.data() + offset_, sizeof(T));
+    offset_ += sizeof(T);
+    return value;
+  }
+  std::string Bytes(size_t n, const char* what) {
+    if (offset_ + n > bytes_.size()) {
+      throw InputError(path_ + ": ends inside " + what + " (truncated; run the texture stage again)");
+    }
+    std::string s = bytes_.substr(offset_, n);
+    offset_ += n;
+    return s;
+  }
+  bool AtEnd() const { return offset_ == bytes_.size(); }
+
+ private:
+  std::string path_, bytes_;
+  size_t offset_ = 0;
+};
+
+}  // namespace
+
+Eigen::Matrix3d FaceFrame(const Eigen::Vector3d& normal) {
+  const Eigen::Vector3d n = normal.normalized();
+  Eigen::Vector3d x = Eigen::Vector3d::UnitY().cross(n);
+  if (x.norm() < 1e-6) x = Eigen::Vector3d::UnitX();  // y_W and n collinear (Eq. 1)
+  x.normalize();
+  const Eigen::Vector3d y = n.cross(x);
+  Eigen::Matrix3d frame;
+  frame << x, y, n;
+  return frame;
+}
+
+Eigen::Vector2d MapDirection(const Eigen::Matrix3d& frame, const Eigen::Vector3d& direction) {
+  const Eigen::Vector3d n = frame.col(2);
+  const Eigen::Vector3d v = direction.normalized();
+  const Eigen::Vector3d rotated = n.cross(v).cross(n);  // Eq. 2: v laid into the face's plane
+  const double length = rotated.norm();
+  if (length < 1e-12) return Eigen::Vector2d::Zero();  // along the normal (or against it)
+  const double arc = std::acos(std::clamp(n.dot(v), -1.0, 1.0));
+  return arc / length * Eigen::Vector2d(frame.col(0).dot(rotated), frame.col(1).dot(rotated));
+}
+
+void BuildGrid(int grid, FaceViewMap* face) {
+  face->nearest.clear();
+  if (face->views.size() < 2) return;
+  face->nearest.resize(static_cast<size_t>(grid) * grid);
+  for (int j = 0; j < grid; ++j) {
+    for (int i = 0; i < grid; ++i) {
+      const Eigen::Vector2f sample(static_cast<float>(GridCoordinate(i, grid)), static_cast<float>(GridCoordinate(j, grid)));
+      size_t best = 0;
+      float best_distance = std::numeric_limits<float>::max();
+      for (size_t k = 0; k < face->directions.size(); ++k) {
+        const float d = (face->directions[k] - sample).squaredNorm();
+        if (d < best_distance) best_distance = d, best = k;
+      }
+      face->nearest[static_cast<size_t>(j) * grid + i] = static_cast<uint8_t>(best);
+    }
+  }
+}
+
+ViewBlend BlendFor(const ViewMaps& maps, int face_index, const Eigen::Matrix3d& frame,
+                   const Eigen::Vector3d& direction) {
+  ViewBlend blend;
+  const FaceViewMap& face = maps.faces[face_index];
+  if (face.views.empty()) return blend;
+  if (face.views.size() == 1 || face.nearest.empty()) {
+    blend.count = 1;
+    blend.views[0] = face.views[0];
+    blend.weights[0] = 1.f;
+    return blend;
+  }
+  const int grid = maps.grid;
+  const Eigen::Vector2d p = MapDirection(frame, direction);
+  // Continuous grid coordinates, clamped to the grid (directions beyond the horizon take the
+  // border's views).
+  const double scale = (grid - 1) / (2.0 * kHalfPi);
+  const double gx = std::clamp((p.x() + kHalfPi) * scale, 0.0, grid - 1.0);
+  const double gy = std::clamp((p.y() + kHalfPi) * scale, 0.0, grid - 1.0);
+  const int i = std::min(static_cast<int>(gx), grid - 2);
+  const int j = std::min(static_cast<int>(gy), grid - 2);
+  const double fx = gx - i, fy = gy - j;
+  // The cell splits along its diagonal from (i, j) to (i+1, j+1): barycentric weights of the
+  // triangle holding (fx, fy).
+  std::array<std::pair<int, int>, 3> corners;
+  std::array<double, 3> w;
+  if (fx >= fy) {
+    corners = {{{i, j}, {i + 1, j}, {i + 1, j + 1}}};
+    w = {1.0 - fx, fx - fy, fy};
+  } else {
+    corners = {{{i, j}, {i, j + 1}, {i + 1, j + 1}}};
+    w = {1.0 - fy, fy - fx, fx};
+  }
+  for (int c = 0; c < 3; ++c) {
+    const int k = face.nearest[static_cast<size_t>(corners[c].second) * grid + corners[c].first];
+    const int view = face.views[k];
+    int slot = 0;
+    while (slot < blend.count && blend.views[slot] != view) ++slot;
+    if (slot == blend.count) {
+      blend.views[slot] = view;
+      blend.weights[slot] = 0.f;
+      ++blend.count;
+    }
+    blend.weights[slot] += static_cast<float>(w[c]);
+  }
+  return blend;
+}
+
+void WriteViewMaps(const ViewMaps& maps, const std::string& path) {
+  std::string out(kMagic, sizeof(kMagic));
+  Put<uint32_t>(&out, static_cast<uint32_t>(maps.faces.size()));
+  Put<uint32_t>(&out, static_cast<uint32_t>(maps.view_names.size()));
+  Put<uint32_t>(&out, static_cast<uint32_t>(maps.grid));
+  for (const std::string& name : maps.view_names) {
+    Put<uint32_t>(&out, static_cast<uint32_t>(name.size()));
+    out += name;
+  }
+  const size_t cells = static_cast<size_t>(maps.grid) * maps.grid;
+  for (const FaceViewMap& face : maps.faces) {
+    Put<uint16_t>(&out, static_cast<uint16_t>(face.views.size()));
+    for (size_t k = 0; k < face.views.size(); ++k) {
+      Put<uint16_t>(&out, face.views[k]);
+      Put<float>(&out, face.directions[k].x());
+      Put<float>(&out, face.directions[k].y());
+    }
+    if (face.views.size() >= 2) {
+      if (face.nearest.size() != cells) throw IoError(path + ": a face's view map grid is not built (internal)");
+      out.append(reinterpret_cast<const char*>(face.nearest.data()), cells);
+    }
+  }
+  WriteFileAtomic(path, out);
+}
+
+ViewMaps ReadViewMaps(const std::string& path) {
+  Reader in(path, ReadFile(path));
+  if (in.Bytes(sizeof(kMagic), "the header") != std::string(kMagic, sizeof(kMagic))) {
+    throw InputError(path + ": not a view map file (expected IBMRVM01 at the start; run the texture stage again)");
+  }
+  ViewMaps maps;
+  const uint32_t faces = in.Get<uint32_t>("the header");
+  const uint32_t views = in.Get<uint32_t>("the header");
+  maps.grid = static_cast<int>(in.Get<uint32_t>("the header"));
+  if (maps.grid < 2 || maps.grid > 256) {
+    throw InputError(path + ": grid " + std::to_string(maps.grid) + " is outside [2, 256]");
+  }
+  if (views > 65535) throw InputError(path + ": " + std::to_string(views) + " views, more than 65535");
+  for (uint32_t v = 0; v < views; ++v) {
+    const uint32_t length = in.Get<uint32_t>("a view name");
+    if (length > 4096) throw InputError(path + ": view name " + std::to_string(v) + " is " + std::to_string(length) + " bytes long");
+    maps.view_names.push_back(in.Bytes(length, "a view name"));
+  }
+  const size_t cells = static_cast<size_t>(maps.grid) * maps.grid;
+  maps.faces.reserve(std::min<uint32_t>(faces, 1u << 24));
+  for (uint32_t f = 0; f < faces; ++f) {
+    FaceViewMap face;
+    const uint16_t count = in.Get<uint16_t>("a face");
+    for (uint16_t k = 0; k < count; ++k) {
+      const uint16_t view = in.Get<uint16_t>("a face's views");
+      if (view >= views) {
+        throw InputError(path + ": face " + std::to_string(f) + " names view " + std::to_string(view) + " of " +
+                         std::to_string(views));
+      }
+      const float px = in.Get<float>("a face's views");
+      const float py = in.Get<float>("a face's views");
+      face.views.push_back(view);
+      face.directions.emplace_back(px, py);
+    }
+    if (count >= 2) {
+      const std::string grid = in.Bytes(cells, "a face's grid");
+      face.nearest.assign(grid.begin(), grid.end());
+      for (uint8_t k : face.nearest) {
+        if (k >= count) throw InputError(path + ": face " + std::to_string(f) + "'s grid names entry " + std::to_string(k) + " of " + std::to_string(count));
+      }
+    }
+    maps.faces.push_back(std::move(face));
+  }
+  if (!in.AtEnd()) throw InputError(path + ": bytes after the last face (a different version? run the texture stage again)");
+  return maps;
+}
+
+}  // namespace ibmr

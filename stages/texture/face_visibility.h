@@ -1,0 +1,52 @@
+// Which faces a view sees, and how well (seed 003 §5 visibility preprocessing; seed 000 §6 lines
+// 4587-4654: z-buffer visibility, cosine weighting).
+//
+// A view sees a face when the face is in front of the camera and faces it (cosine of the viewing
+// angle >= min_cos_angle), its three vertices project inside the image, and its vertices and
+// centroid, pulled 5% toward the centroid, pass the z-buffer of the whole mesh within
+// visibility_epsilon of their depth: seed 003 samples points of each polygon against an item
+// buffer. Faces partly hidden are not split (seed 003 splits them); they count as unseen by that
+// view, so a texture never maps an occluder's pixels onto them.
+//
+// Quality (the view selection's data term) follows Waechter et al.'s gradient magnitude integral:
+// the sum over the face's pixels in the item buffer of (1 + gradient magnitude / 32), so larger,
+// sharper, less oblique projections win (the projected area carries the cosine weighting of seed
+// 000 §6). A face smaller than a pixel gets its projected area in pixels.
+#pragma once
+
+#include <Eigen/Core>
+#include <opencv2/core.hpp>
+#include <vector>
+
+#include "pipeline/core/camera.h"
+#include "pipeline/core/mesh.h"
+#include "pipeline/core/rigid3.h"
+#include "stages/texture/texture_options.h"
+
+namespace ibmr {
+
+// One view's observation of one face.
+struct FaceObservation {
+  int view = 0;
+  float quality = 0;
+  Eigen::Vector3f mean_color = Eigen::Vector3f::Zero();  // BGR, over the face's pixels (or its centroid)
+};
+
+// Per face: the views that see it entirely, in view order.
+using FaceObservations = std::vector<std::vector<FaceObservation>>;
+
+// Face centroids and unit normals (zero for degenerate faces, which no view sees).
+struct FaceGeometry {
+  std::vector<Eigen::Vector3d> centroids;
+  std::vector<Eigen::Vector3d> normals;
+  static FaceGeometry Of(const TriangleMesh& mesh);
+};
+
+// The faces `image` (CV_8UC3, the camera's size) sees entirely, with their quality and mean colour,
+// appended to `observations` (sized to the faces) under index `view`. Not thread-safe for the
+// same `observations`; run views in parallel into separate lists and merge.
+void ObserveView(const TriangleMesh& mesh, const FaceGeometry& geometry, const Camera& camera,
+                 const Rigid3d& cam_from_world, const cv::Mat& image, int view, const TextureOptions& options,
+                 std::vector<std::pair<int, FaceObservation>>* seen);
+
+}  // namespace ibmr
