@@ -306,4 +306,40 @@ size_t FillHoles(const AtlasLayout& layout, const std::vector<int>& labels, cons
   return frontier.size();
 }
 
+double SeamStepInAtlas(const TexturedMesh& textured, const std::vector<int>& labels,
+                       const std::vector<std::array<int, 3>>& adjacency) {
+  const TriangleMesh& mesh = textured.mesh;
+  // Atlas colour of face f at barycentric b.
+  const auto color = [&](int f, const Eigen::Vector3f& b) {
+    const cv::Mat& page = textured.pages[textured.face_page[f]];
+    const Eigen::Vector2f uv = (b[0] * textured.face_uv[f].row(0) + b[1] * textured.face_uv[f].row(1) + b[2] * textured.face_uv[f].row(2)).transpose();
+    const Eigen::Vector2f texel = TexelFromUv(uv, page.cols, page.rows);
+    return Bilinear(page, texel.x(), texel.y());
+  };
+  double sum = 0;
+  size_t count = 0;
+  for (size_t f = 0; f < adjacency.size(); ++f) {
+    for (int e = 0; e < 3; ++e) {
+      const int g = adjacency[f][e];
+      if (g <= static_cast<int>(f) || labels[f] < 0 || labels[g] < 0 || labels[f] == labels[g]) continue;
+      // Points on the shared edge (a quarter, half, three quarters along it) in each face's
+      // barycentric coordinates: the same surface points, so a perfect atlas gives equal colours.
+      const int a = mesh.faces[f][e], b = mesh.faces[f][(e + 1) % 3];
+      int ga = 0, gb = 0;
+      for (int k = 0; k < 3; ++k) {
+        if (mesh.faces[g][k] == a) ga = k;
+        if (mesh.faces[g][k] == b) gb = k;
+      }
+      for (const float t : {0.25f, 0.5f, 0.75f}) {
+        Eigen::Vector3f in_f = Eigen::Vector3f::Zero(), in_g = Eigen::Vector3f::Zero();
+        in_f[e] = 1 - t, in_f[(e + 1) % 3] = t;
+        in_g[ga] = 1 - t, in_g[gb] = t;
+        sum += (color(static_cast<int>(f), in_f) - color(g, in_g)).cwiseAbs().mean();
+        ++count;
+      }
+    }
+  }
+  return count ? sum / count : 0.0;
+}
+
 }  // namespace ibmr

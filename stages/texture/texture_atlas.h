@@ -73,4 +73,12 @@ void ApplyLeveling(const AtlasLayout& layout, const SeamLeveling& leveling, int 
 size_t FillHoles(const AtlasLayout& layout, const std::vector<int>& labels, const FaceObservations& observations,
                  const std::vector<double>& gains, const std::vector<std::array<int, 3>>& adjacency, TexturedMesh* out);
 
+// The colour step across the seams as the atlas holds it: for each edge between faces of
+// different labels, the atlas colours (bilinear) of the two faces at the same points of the
+// shared edge (a quarter, half and three quarters along it), their absolute difference averaged
+// over the channels; the mean over those points (0 without seams). What leveling is for,
+// measured on its output.
+double SeamStepInAtlas(const TexturedMesh& textured, const std::vector<int>& labels,
+                       const std::vector<std::array<int, 3>>& adjacency);
+
 }  // namespace ibmr

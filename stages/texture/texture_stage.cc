@@ -10,8 +10,9 @@
 // image in memory only while its view is worked on.
 // Writes texture/mesh.obj + mesh.mtl + atlas_<page>.png, texture/mesh.glb (binary glTF, pages
 // embedded) and texture/view_maps.bin (pipeline/core/view_maps.h). The record counts faces seen
-// and unseen, patches, pages, the seam step before and after leveling, the gains, and the view
-// selection's energy per sweep.
+// and unseen, patches, pages, the seam step at the seam vertices before and after leveling and
+// across the seams in the written atlas (seam_step_atlas), the gains, and the view selection's
+// energy per sweep.
 #include <spdlog/spdlog.h>
 #include <tbb/parallel_for.h>
 
@@ -202,6 +203,7 @@ class TextureStage : public Stage {
       }
     }
     context.metrics["seam_step_after"] = leveling.MeanSeamStep(options.seam_leveling);
+    context.metrics["seam_step_atlas"] = SeamStepInAtlas(textured, selection.labels, adjacency);
     const size_t unreached = FillHoles(layout, selection.labels, observations, gains, adjacency, &textured);
     context.metrics["seconds_leveling"] = SecondsSince(start);
 

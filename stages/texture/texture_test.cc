@@ -262,17 +262,26 @@ TEST(ColorLeveling, AnExposureDifferenceIsLeveledAcrossSeams) {
     scene.views.push_back({camera, LookAt(Eigen::Vector3d(v ? 1.2 : -1.2, 0.1, 2.6), Eigen::Vector3d::Zero(), Eigen::Vector3d::UnitY())});
     scene.images.push_back(RenderChecker(camera, scene.views.back().cam_from_world, exposure[v]));
   }
+  const auto adjacency = FaceAdjacency(scene.mesh);
   TextureOptions raw;
   raw.gain_compensation = false;
   raw.seam_leveling = false;
   double raw_before = 0, raw_after = 0;
-  TextureScene(scene, raw, &raw_before, &raw_after);
+  ViewSelection selection;
+  const double raw_atlas = SeamStepInAtlas(TextureScene(scene, raw, &raw_before, &raw_after, nullptr, &selection), selection.labels, adjacency);
   TextureOptions leveled;
   leveled.gain_compensation = false;
   double before = 0, after = 0;
-  TextureScene(scene, leveled, &before, &after);
+  const double leveled_atlas = SeamStepInAtlas(TextureScene(scene, leveled, &before, &after, nullptr, &selection), selection.labels, adjacency);
   EXPECT_GT(raw_after, 10.0) << "the exposure difference shows at the seams";
   EXPECT_LE(after, 0.5 * raw_after) << "leveled " << after << " against " << raw_after;
+  // Measured on the atlas itself, across the seam edges: the gains and the leveling together
+  // (additive offsets alone cannot undo a gain on a two-colour texture: the step differs by
+  // colour, and the offsets are linear along an edge).
+  const double full_atlas = SeamStepInAtlas(TextureScene(scene, TextureOptions(), &before, &after, nullptr, &selection), selection.labels, adjacency);
+  EXPECT_GT(raw_atlas, 10.0);
+  EXPECT_LT(leveled_atlas, raw_atlas);
+  EXPECT_LE(full_atlas, 0.5 * raw_atlas) << "gains and leveling " << full_atlas << ", leveling alone " << leveled_atlas << ", neither " << raw_atlas;
   std::vector<double> gains;
   TextureScene(scene, TextureOptions(), &before, &after, &gains);
   EXPECT_NEAR(gains[1] / gains[0], 1.0 / 0.65, 0.08);
