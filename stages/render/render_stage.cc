@@ -19,6 +19,16 @@
 //                            skins and outliers flagged (depth_images.h), every drawable sample kept
 //   splat_depth_merged       the same after tile merging [N 4.6]: one sample per surface point
 //   splat_surfels            the oriented discs of surfels/surfels.ply
+//   textured                 the texture stage's mesh drawn with its atlas (texture/mesh.obj with
+//                            mesh.mtl and atlas_<page>.png; textured.h): one colour per surface point
+//   vdtm                     view-dependent texture mapping (seed 003 §7-8; vdtm.h): per face and
+//                            frame, the view map of texture/view_maps.bin blends at most 3 training
+//                            photos; faces no photo sees take the atlas of texture/mesh.obj (§6).
+//                            exclude_self drops the rendered view's own photo from every blend.
+//   A missing texture/mesh.obj or texture/view_maps.bin skips textured / vdtm like a missing mesh.
+// Metrics per model: ms_per_frame_<name>, the mean wall time of one view's render (supersampled
+// render and downsampling, not the file writes; views run concurrently, so it compares models of
+// one run, not machines), and seconds_<name> for the whole model including its preparation.
 // Writes renders/<proxy>/<image stem>.png, <image stem>.coverage.png (255 covered) and
 // <image stem>.json (the view's coverage, sources, files) per proxy,
 // the primary proxy's copies as renders/<image stem>.png and .coverage.png, and renders/renders.json.
@@ -27,8 +37,10 @@
 #include <spdlog/spdlog.h>
 #include <tbb/parallel_for.h>
 
+#include <algorithm>
 #include <chrono>
 #include <map>
+#include <memory>
 #include <set>
 #include <charconv>
 #include <filesystem>
@@ -40,10 +52,14 @@
 #include "pipeline/core/per_view.h"
 #include "pipeline/core/ply_io.h"
 #include "pipeline/core/stage_api.h"
+#include "pipeline/core/textured_mesh.h"
+#include "pipeline/core/view_maps.h"
 #include "stages/render/depth_image_io.h"
 #include "stages/render/mesh_decimation.h"
 #include "stages/render/render.h"
 #include "stages/render/splat.h"
+#include "stages/render/textured.h"
+#include "stages/render/vdtm.h"
 
 namespace fs = std::filesystem;
 
@@ -51,12 +67,13 @@ namespace ibmr {
 
 namespace {
 
-enum class ModelKind { kPlane, kMesh, kSplatDepth, kSplatDepthMerged, kSplatSurfels };
+enum class ModelKind { kPlane, kMesh, kSplatDepth, kSplatDepthMerged, kSplatSurfels, kTextured, kVdtm };
 
 struct ProxySpec {
   std::string name;
   ModelKind kind = ModelKind::kMesh;
   std::string path;                    // empty for the plane and the depth-image splats; absolute otherwise
+  std::string view_maps;               // vdtm: absolute path of the view maps
   std::string depth_type;              // splat_depth[:TYPE]: the depth maps drawn (empty: splat_depth_type)
   std::vector<std::string> fallbacks;  // absolute paths of meshes that fill where `path` misses
   int detail = 0;                      // "@N": a mesh decimated to N faces; depth images at 1/N resolution
@@ -111,6 +128,13 @@ ProxySpec ParseProxy(const std::string& entry, const Workspace& workspace) {
     spec.path = workspace.Path("surfels/surfels.ply");
     return spec;
   }
+  if (path == "textured" || path == "vdtm") {
+    spec.kind = path == "textured" ? ModelKind::kTextured : ModelKind::kVdtm;
+    name_or(path);
+    spec.path = workspace.Path("texture/mesh.obj");
+    if (spec.kind == ModelKind::kVdtm) spec.view_maps = workspace.Path("texture/view_maps.bin");
+    return spec;
+  }
   for (size_t bar = path.rfind('|'); bar != std::string::npos; bar = path.rfind('|')) {
     spec.fallbacks.insert(spec.fallbacks.begin(), Absolute(path.substr(bar + 1), workspace));
     path = path.substr(0, bar);
@@ -127,6 +151,20 @@ ProxySpec ParseProxy(const std::string& entry, const Workspace& workspace) {
 
 std::string Stem(const std::string& image_name) { return fs::path(image_name).stem().string(); }
 
+// Which sub-samples a model drew, for Downsample, where that is its coverage (splats, textured
+// meshes: every drawn sub-sample has a colour).
+ProxySurface HitsOf(const RenderResult& fine) {
+  ProxySurface surface;
+  surface.width = fine.coverage.cols;
+  surface.height = fine.coverage.rows;
+  surface.hit.assign(static_cast<size_t>(surface.width) * surface.height, 0);
+  for (int y = 0; y < surface.height; ++y) {
+    const uint8_t* row = fine.coverage.ptr<uint8_t>(y);
+    for (int x = 0; x < surface.width; ++x) surface.hit[static_cast<size_t>(y) * surface.width + x] = row[x] != 0;
+  }
+  return surface;
+}
+
 Camera PinholeOf(const Camera& camera, const std::string& image_name) {
   if (camera.HasDistortion()) {
     throw InputError("render: camera " + std::to_string(camera.camera_id) + " of image " + image_name + " (" +
@@ -141,9 +179,12 @@ class RenderStage : public Stage {
  public:
   std::string Name() const override { return "render"; }
   std::string Summary() const override {
-    return "Unstructured lumigraph rendering of held-out views from the training views (plane / mesh proxies)";
+    return "Image-based rendering of held-out views from the training views (ULR over plane / mesh proxies, "
+           "splats, textured mesh, view-dependent texture mapping)";
   }
-  std::string Version() const override { return "4"; }  // 2: splat models, background fill; 3: elliptical splat footprints; 4: model sizes
+  // 2: splat models, background fill; 3: elliptical splat footprints; 4: model sizes; 5: textured
+  // and vdtm models (texture stage), ms_per_frame_<model> metrics.
+  std::string Version() const override { return "5"; }
   HoldoutRole Role() const override { return HoldoutRole::kScoring; }
   // Shards are held-out views: each renders every model for its views; the merge gathers them
   // and writes renders.json.
@@ -296,6 +337,12 @@ class RenderStage : public Stage {
         const std::string type = spec.depth_type.empty() ? context.params.String("splat_depth_type") : spec.depth_type;
         inputs.push_back(type == "truth" ? "ground_truth/depth" : "dense/stereo");
       }
+      if (spec.kind == ModelKind::kTextured || spec.kind == ModelKind::kVdtm) {
+        // mesh.obj with its mesh.mtl and atlas pages (and view_maps.bin): the texture stage's folder.
+        const std::string folder = context.workspace.Relative(fs::path(spec.path).parent_path().string());
+        if (std::find(inputs.begin(), inputs.end(), folder) == inputs.end()) inputs.push_back(folder);
+        continue;
+      }
       if (!spec.path.empty()) inputs.push_back(context.workspace.Relative(spec.path));
       for (const std::string& fallback : spec.fallbacks) inputs.push_back(context.workspace.Relative(fallback));
     }
@@ -386,11 +433,12 @@ class RenderStage : public Stage {
     const int factor = static_cast<int>(context.params.Int("supersample"));
     // Leave-one-out sources of a desired view (a training view rendered from the others).
     const auto sources_for = [&](const std::vector<SourceView>& all, const Desired& view, std::vector<SourceView>* own) {
-      if (!context.params.Bool("exclude_self")) return &all;
+      const bool has_self = std::any_of(all.begin(), all.end(), [&](const SourceView& s) { return s.name == view.name; });
+      if (!context.params.Bool("exclude_self") || !has_self) return &all;  // no copy (nor of depth maps)
       for (const SourceView& s : all) {
         if (s.name != view.name) own->push_back(s);
       }
-      return own->size() != all.size() ? static_cast<const std::vector<SourceView>*>(own) : &all;
+      return static_cast<const std::vector<SourceView>*>(own);
     };
     // ULR over a plane (no `layers`) or meshes (the first hit of the first mesh that covers a pixel).
     const auto render_ulr = [&](const std::vector<SourceView>& all, const std::vector<const TriangleMesh*>& layers,
@@ -467,6 +515,52 @@ class RenderStage : public Stage {
                        refused ? " (" + std::to_string(refused) + " non-manifold faces dropped)" : std::string());
         }
       }
+      // Texture models: the texture stage's mesh and atlas, and for vdtm its view maps.
+      const bool is_texture = spec.kind == ModelKind::kTextured || spec.kind == ModelKind::kVdtm;
+      TexturedMesh textured;
+      ViewMaps view_maps;
+      std::unique_ptr<VdtmRenderer> vdtm;
+      if (is_texture) {
+        const auto prepare_start = std::chrono::steady_clock::now();
+        if (!fs::exists(spec.path)) {
+          skip(spec.path + " does not exist (run the texture stage)");
+          continue;
+        }
+        if (!spec.view_maps.empty() && !fs::exists(spec.view_maps)) {
+          skip(spec.view_maps + " does not exist (run the texture stage)");
+          continue;
+        }
+        try {
+          textured = ReadTexturedObj(spec.path);
+          const std::string invalid = textured.Validate();
+          if (textured.mesh.faces.empty() || !invalid.empty()) {
+            skip(spec.path + " has no usable faces" + (invalid.empty() ? "" : " (" + invalid + ")"));
+            continue;
+          }
+          if (spec.kind == ModelKind::kVdtm) {
+            view_maps = ReadViewMaps(spec.view_maps);
+            vdtm = std::make_unique<VdtmRenderer>(&textured, &view_maps, &sources);
+          }
+        } catch (const InputError& e) {  // unreadable or inconsistent files: like a missing mesh, not fatal
+          skip(e.what());
+          continue;
+        } catch (const IoError& e) {
+          skip(e.what());
+          continue;
+        }
+        if (vdtm) {
+          pj["view_maps"] = context.workspace.Relative(spec.view_maps);
+          pj["view_map_views"] = view_maps.view_names.size();
+          pj["view_map_views_with_source"] = vdtm->MatchedViews();
+          if (vdtm->MatchedViews() < static_cast<int>(view_maps.view_names.size())) {
+            spdlog::warn("[render] proxy {}: {} of the {} views of {} are not training views here; never sampled",
+                         spec.name, view_maps.view_names.size() - vdtm->MatchedViews(), view_maps.view_names.size(),
+                         spec.view_maps);
+          }
+        }
+        context.metrics["prepare_seconds_" + spec.name] =
+            std::chrono::duration<double>(std::chrono::steady_clock::now() - prepare_start).count();
+      }
       std::vector<TriangleMesh> fallbacks;
       for (const std::string& path : spec.fallbacks) {
         TriangleMesh fallback = fs::exists(path) ? ReadMeshPly(path) : TriangleMesh();
@@ -519,7 +613,7 @@ class RenderStage : public Stage {
         context.metrics["prepare_seconds_" + spec.name] = stats.seconds;
         context.metrics["samples_" + spec.name] = cloud.size();
       }
-      pj["model"] = ModelSize(spec, layers, cloud);
+      pj["model"] = is_texture ? TexturedModelSize(spec, textured) : ModelSize(spec, layers, cloud);
       // A model drawn from ground truth is a reference, not a reconstruction: select skips it.
       const bool splat_depth = spec.kind == ModelKind::kSplatDepth || spec.kind == ModelKind::kSplatDepthMerged;
       const std::string depth_type = spec.depth_type.empty() ? context.params.String("splat_depth_type") : spec.depth_type;
@@ -542,34 +636,58 @@ class RenderStage : public Stage {
       std::vector<std::string> keys;
       for (const Desired& view : desired) keys.push_back(spec.name + "__" + view.stem);
       double splat_seconds = 0, splat_megapixels = 0;
+      double frame_seconds = 0;  // every model: the views' render times (not the file writes)
+      size_t frames = 0;
       const PerViewSummary rendered = ForEachView(context, "render " + spec.name, keys, [&](const std::string& key) -> nlohmann::json {
         const Desired& view = desired[std::find(keys.begin(), keys.end(), key) - keys.begin()];
         std::string plane_kind;
         size_t used_sources = 0;
         RenderResult result;
+        double atlas_fraction = -1;  // vdtm: covered sub-samples coloured by the atlas
+        const auto frame_start = std::chrono::steady_clock::now();
         if (spec.kind == ModelKind::kPlane || is_mesh) {
           result = render_ulr(proxy_sources, layers, view, &plane_kind, &used_sources);
+        } else if (is_texture) {
+          const Camera camera = factor > 1 ? view.camera.Scaled(factor) : view.camera;
+          RenderResult fine;
+          if (vdtm) {
+            // Leave-one-out: the view's own photo is never a source (exclude_self).
+            int self = -1;
+            if (context.params.Bool("exclude_self")) {
+              for (size_t i = 0; i < sources.size(); ++i) {
+                if (sources[i].name == view.name) self = static_cast<int>(i);
+              }
+            }
+            VdtmStats stats;
+            fine = vdtm->Render(camera, view.cam_from_world, self, &stats);
+            if (fine.covered_pixels > 0) atlas_fraction = static_cast<double>(stats.atlas_pixels) / fine.covered_pixels;
+            const bool self_mapped = self >= 0 && std::find(view_maps.view_names.begin(), view_maps.view_names.end(),
+                                                            view.name) != view_maps.view_names.end();
+            used_sources = static_cast<size_t>(vdtm->MatchedViews() - (self_mapped ? 1 : 0));
+          } else {
+            fine = RenderTextured(textured, camera, view.cam_from_world);
+          }
+          result = Downsample(fine, HitsOf(fine), factor);
         } else {
           const auto splat_start = std::chrono::steady_clock::now();
           const Camera camera = factor > 1 ? view.camera.Scaled(factor) : view.camera;
           const SplatImage splats = RenderSplats(cloud, camera, view.cam_from_world, splat_options);
-          ProxySurface surface;  // Downsample needs only which sub-samples were hit
-          surface.width = camera.width;
-          surface.height = camera.height;
-          surface.hit.assign(static_cast<size_t>(camera.width) * camera.height, 0);
-          for (int y = 0; y < camera.height; ++y) {
-            for (int x = 0; x < camera.width; ++x) surface.hit[static_cast<size_t>(y) * camera.width + x] = splats.coverage.at<uint8_t>(y, x) != 0;
-          }
           RenderResult fine;
           fine.image = splats.image;
           fine.coverage = splats.coverage;
           fine.covered_pixels = splats.covered_pixels;
-          result = Downsample(fine, surface, factor);
+          result = Downsample(fine, HitsOf(fine), factor);
           used_sources = spec.kind == ModelKind::kSplatSurfels ? 0 : training.size();
           const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - splat_start).count();
           std::lock_guard<std::mutex> lock(mutex);
           splat_seconds += seconds;
           splat_megapixels += 1e-6 * view.camera.width * view.camera.height;
+        }
+        {
+          const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - frame_start).count();
+          std::lock_guard<std::mutex> lock(mutex);
+          frame_seconds += seconds;
+          ++frames;
         }
         WriteImage(folder + "/" + view.stem + ".png", result.image);
         WriteImage(folder + "/" + view.stem + ".coverage.png", result.coverage);
@@ -583,6 +701,7 @@ class RenderStage : public Stage {
                                               (static_cast<double>(view.camera.width) * view.camera.height)},
                              {"sources", used_sources}};
         if (!plane_kind.empty()) vj["plane"] = plane_kind;
+        if (atlas_fraction >= 0) vj["atlas_fraction"] = atlas_fraction;
         const auto fill = background.find(view.stem);
         if (spec.kind != ModelKind::kPlane && fill != background.end()) {
           const RenderResult filled = FillHoles(result, fill->second);
@@ -609,6 +728,12 @@ class RenderStage : public Stage {
         // Speed of the splatting alone: milliseconds per output megapixel per million samples.
         context.metrics["ms_per_megapixel_per_million_splats_" + spec.name] =
             1e3 * splat_seconds / splat_megapixels / (1e-6 * cloud.size());
+      }
+      if (frames > 0) {
+        // Mean wall time of one view's render in this run (views run concurrently: compare models of
+        // one run, e.g. vdtm with ULR over the same mesh).
+        context.metrics["ms_per_frame_" + spec.name] = 1e3 * frame_seconds / frames;
+        pj["ms_per_frame"] = 1e3 * frame_seconds / frames;
       }
       proxies_json.push_back(pj);
       context.metrics["seconds_" + spec.name] = seconds;
@@ -694,6 +819,27 @@ class RenderStage : public Stage {
       default:
         return {{"kind", "depth_samples"}, {"elements", cloud.size()}, {"bytes", cloud.size() * 7}};
     }
+  }
+
+  // A texture model's size: its triangles, and the bytes of mesh.obj, mesh.mtl, the atlas pages
+  // and, for vdtm, the view maps (as the files store them).
+  static nlohmann::json TexturedModelSize(const ProxySpec& spec, const TexturedMesh& textured) {
+    const fs::path folder = fs::path(spec.path).parent_path();
+    std::vector<fs::path> files = {spec.path, fs::path(spec.path).replace_extension(".mtl")};
+    for (size_t page = 0; page < textured.pages.size(); ++page) files.push_back(folder / ("atlas_" + std::to_string(page) + ".png"));
+    if (!spec.view_maps.empty()) files.push_back(spec.view_maps);
+    uintmax_t bytes = 0;
+    for (const fs::path& file : files) {
+      std::error_code ec;
+      const uintmax_t size = fs::file_size(file, ec);
+      if (!ec) bytes += size;
+    }
+    const size_t triangles = textured.mesh.faces.size();
+    return {{"kind", spec.kind == ModelKind::kVdtm ? "vdtm" : "textured_mesh"},
+            {"elements", triangles},
+            {"triangles", triangles},
+            {"pages", textured.pages.size()},
+            {"bytes", bytes}};
   }
 
   static SplatOptions ToSplatOptions(const Params& params) {

@@ -1,0 +1,182 @@
+// View-dependent texture mapping with polygon view maps (see vdtm.h; seed 003 §7-8).
+#include "stages/render/vdtm.h"
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
+#include <cmath>
+#include <limits>
+#include <unordered_map>
+
+#include "pipeline/core/errors.h"
+#include "pipeline/core/rasterizer.h"
+#include "stages/render/textured.h"
+
+namespace ibmr {
+
+namespace {
+
+// The face's corners in double precision.
+struct Corners {
+  Eigen::Vector3d a, b, c;
+};
+
+Corners CornersOf(const TriangleMesh& mesh, int face) {
+  const Eigen::Vector3i& f = mesh.faces[face];
+  return {mesh.vertices[f[0]].cast<double>(), mesh.vertices[f[1]].cast<double>(), mesh.vertices[f[2]].cast<double>()};
+}
+
+// The geometric unit normal of a counter-clockwise face (+z for a degenerate one, which the
+// rasterizer never draws anyway).
+Eigen::Vector3d FaceNormal(const Corners& corners) {
+  const Eigen::Vector3d n = (corners.b - corners.a).cross(corners.c - corners.a);
+  const double length = n.norm();
+  return length > 0 && std::isfinite(length) ? Eigen::Vector3d(n / length) : Eigen::Vector3d::UnitZ();
+}
+
+}  // namespace
+
+VdtmRenderer::VdtmRenderer(const TexturedMesh* mesh, const ViewMaps* maps, const std::vector<SourceView>* sources)
+    : mesh_(mesh), maps_(maps), sources_(sources) {
+  if (maps->faces.size() != mesh->mesh.faces.size()) {
+    throw InputError("vdtm: the view maps hold " + std::to_string(maps->faces.size()) + " faces but the mesh has " +
+                     std::to_string(mesh->mesh.faces.size()) + " (files of different texture runs? run texture again)");
+  }
+  std::unordered_map<std::string, int> source_by_name;
+  for (size_t i = 0; i < sources->size(); ++i) source_by_name.emplace((*sources)[i].name, static_cast<int>(i));
+  source_of_view_.assign(maps->view_names.size(), -1);
+  for (size_t v = 0; v < maps->view_names.size(); ++v) {
+    const auto found = source_by_name.find(maps->view_names[v]);
+    if (found == source_by_name.end()) continue;
+    source_of_view_[v] = found->second;
+    ++matched_views_;
+  }
+  for (const SourceView& source : *sources) {
+    Prepared p;
+    p.rotation = source.cam_from_world.R();
+    p.translation = source.cam_from_world.translation;
+    p.fx = source.camera.FocalX();
+    p.fy = source.camera.FocalY();
+    p.cx = source.camera.PrincipalX();
+    p.cy = source.camera.PrincipalY();
+    p.width = source.image.cols;
+    p.height = source.image.rows;
+    prepared_.push_back(p);
+  }
+}
+
+FaceBlend VdtmRenderer::Blend(int face, const Eigen::Vector3d& desired_center, int exclude_source) const {
+  FaceBlend blend;
+  const FaceViewMap& map = maps_->faces[face];
+  if (map.views.empty()) return blend;  // seen by no view: the atlas (hole filling, §6)
+  const Corners corners = CornersOf(mesh_->mesh, face);
+  const Eigen::Vector3d centroid = (corners.a + corners.b + corners.c) / 3.0;
+  const Eigen::Matrix3d frame = FaceFrame(FaceNormal(corners));
+  Eigen::Vector3d direction = desired_center - centroid;
+  direction = direction.norm() > 0 ? Eigen::Vector3d(direction.normalized()) : Eigen::Vector3d(frame.col(2));
+  const ViewBlend views = BlendFor(*maps_, face, frame, direction);
+  float sum = 0.f;
+  for (int i = 0; i < views.count; ++i) {
+    const int source = source_of_view_[views.views[i]];
+    if (source < 0 || source == exclude_source || !(views.weights[i] > 0.f)) continue;
+    blend.sources[blend.count] = source;
+    blend.weights[blend.count] = views.weights[i];
+    sum += views.weights[i];
+    ++blend.count;
+  }
+  if (blend.count > 0) {
+    for (int i = 0; i < blend.count; ++i) blend.weights[i] /= sum;
+    return blend;
+  }
+  // Every view of the map's triangle is gone (the desired view's own photo, or a photo that is
+  // not a source): the nearest remaining view of the face in the map plane, what the grid would
+  // have held without them (§7: each grid sample takes the nearest view).
+  const Eigen::Vector2f p = MapDirection(frame, direction).cast<float>();
+  float best = std::numeric_limits<float>::max();
+  for (size_t k = 0; k < map.views.size(); ++k) {
+    const int source = source_of_view_[map.views[k]];
+    if (source < 0 || source == exclude_source) continue;
+    const float d = (map.directions[k] - p).squaredNorm();
+    if (d < best) {
+      best = d;
+      blend.count = 1;
+      blend.sources[0] = source;
+      blend.weights[0] = 1.f;
+    }
+  }
+  return blend;
+}
+
+RenderResult VdtmRenderer::Render(const Camera& camera, const Rigid3d& cam_from_world, int exclude_source,
+                                  VdtmStats* stats) const {
+  const RasterResult raster = Rasterize(mesh_->mesh, camera, cam_from_world);
+  const Eigen::Vector3d desired_center = cam_from_world.Inverse().translation;
+  // The faces this frame covers, then each one's blend once (§8: per polygon, before drawing).
+  const size_t num_faces = mesh_->mesh.faces.size();
+  std::vector<uint8_t> covered_face(num_faces, 0);
+  for (const int face : raster.face_id) {
+    if (face >= 0) covered_face[face] = 1;
+  }
+  std::vector<int> faces;
+  for (size_t f = 0; f < num_faces; ++f) {
+    if (covered_face[f]) faces.push_back(static_cast<int>(f));
+  }
+  std::vector<FaceBlend> blends(num_faces);
+  tbb::parallel_for(size_t{0}, faces.size(), [&](size_t i) {
+    blends[faces[i]] = Blend(faces[i], desired_center, exclude_source);
+  });
+
+  RenderResult result;
+  result.image = cv::Mat(camera.height, camera.width, CV_8UC3, cv::Scalar::all(0));
+  result.coverage = cv::Mat(camera.height, camera.width, CV_8UC1, cv::Scalar::all(0));
+  std::vector<size_t> row_blended(camera.height, 0), row_atlas(camera.height, 0);
+  const std::vector<Eigen::Vector3f>& vertices = mesh_->mesh.vertices;
+  tbb::parallel_for(tbb::blocked_range<int>(0, camera.height), [&](const tbb::blocked_range<int>& rows) {
+    for (int y = rows.begin(); y < rows.end(); ++y) {
+      uint8_t* out = result.image.ptr<uint8_t>(y);
+      uint8_t* covered = result.coverage.ptr<uint8_t>(y);
+      for (int x = 0; x < camera.width; ++x) {
+        const int face = raster.face_id[static_cast<size_t>(y) * camera.width + x];
+        if (face < 0) continue;
+        const Eigen::Vector3f bary(raster.barycentric.At(x, y, 0), raster.barycentric.At(x, y, 1),
+                                   raster.barycentric.At(x, y, 2));
+        const FaceBlend& blend = blends[face];
+        Eigen::Vector3f bgr = Eigen::Vector3f::Zero();
+        float sum = 0.f;
+        if (blend.count > 0) {
+          const Eigen::Vector3i& f = mesh_->mesh.faces[face];
+          const Eigen::Vector3d p = (bary[0] * vertices[f[0]] + bary[1] * vertices[f[1]] + bary[2] * vertices[f[2]]).cast<double>();
+          for (int i = 0; i < blend.count; ++i) {
+            const Prepared& s = prepared_[blend.sources[i]];
+            const Eigen::Vector3d q = s.rotation * p + s.translation;
+            if (!(q.z() > 0)) continue;
+            const double u = s.fx * q.x() / q.z() + s.cx, v = s.fy * q.y() / q.z() + s.cy;
+            if (!(u >= 0 && u < s.width && v >= 0 && v < s.height)) continue;  // outside: dropped
+            bgr += blend.weights[i] * SampleBilinear((*sources_)[blend.sources[i]].image, static_cast<float>(u),
+                                                     static_cast<float>(v));
+            sum += blend.weights[i];
+          }
+        }
+        if (sum > 0.f) {
+          bgr /= sum;  // renormalised over the views that reached the pixel
+          ++row_blended[y];
+        } else {
+          bgr = SampleAtlas(*mesh_, face, bary);
+          ++row_atlas[y];
+        }
+        for (int c = 0; c < 3; ++c) out[3 * x + c] = cv::saturate_cast<uint8_t>(bgr[c]);
+        covered[x] = 255;
+      }
+    }
+  });
+  VdtmStats counts;
+  for (int y = 0; y < camera.height; ++y) {
+    counts.blended_pixels += row_blended[y];
+    counts.atlas_pixels += row_atlas[y];
+  }
+  result.covered_pixels = counts.blended_pixels + counts.atlas_pixels;
+  if (stats) *stats = counts;
+  return result;
+}
+
+}  // namespace ibmr

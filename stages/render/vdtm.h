@@ -1,0 +1,91 @@
+// The `vdtm` render model: view-dependent texture mapping with polygon view maps (Debevec, Yu &
+// Borshukov, seed 003), on the CPU, per pixel in one pass instead of the paper's three.
+//
+// Preprocessing is the texture stage's (texture/view_maps.bin, pipeline/core/view_maps.h): per
+// face, the training views that see it entirely (visibility, seed 003 §5) and its view map
+// (§7); faces no view sees carry the atlas's hole filling (§6, texture/mesh.obj). Per frame:
+//  1. per face covered by the desired view: the desired direction d (unit, from the face centroid
+//     toward the desired camera centre) is located in the face's view map, BlendFor(maps, face,
+//     FaceFrame(n), d): at most three views and their barycentric weights (§7, Fig. 6). Computed
+//     once per face per frame, as the paper does per polygon before drawing (§8); views that are
+//     not among the sources (held out, missing) or that are the desired view's own photo
+//     (leave-one-out) are dropped and the others renormalised; when none remains, the face's
+//     remaining view nearest to the desired direction in the map plane takes weight 1 (what the
+//     grid would hold without the dropped views: each sample keeps the nearest view, §7);
+//  2. per covered pixel (rasterizer: nearest face, perspective-correct barycentrics): the world
+//     point p from the barycentrics, projected into each of the face's views (projective texture
+//     mapping, §4) and sampled bilinearly; colour = sum w_i I_i(p) / sum w_i over the views where p
+//     falls inside the image (no per-pixel visibility test: the view maps list only views that see
+//     the face entirely, §5). This sum is what the three additive passes of §8 accumulate.
+//  3. no usable view (a face seen by none: count 0, §8 "polygons not visible in any image";
+//     or every projection outside its image): the atlas colour (textured.h).
+// Known limits kept on purpose (seed 003 §9): weights are continuous in the viewpoint but not
+// across faces (seams), and source resolution is ignored.
+//
+// Face normal convention: the geometric normal (v1 - v0) x (v2 - v0), unit (counter-clockwise
+// faces seen from outside), the frame the texture stage builds the view maps in.
+#pragma once
+
+#include <Eigen/Core>
+#include <array>
+#include <string>
+#include <vector>
+
+#include "pipeline/core/camera.h"
+#include "pipeline/core/rigid3.h"
+#include "pipeline/core/textured_mesh.h"
+#include "pipeline/core/view_maps.h"
+#include "stages/render/render.h"
+
+namespace ibmr {
+
+// A face's blend for one frame, in source indices: up to three sources, weights summing to 1.
+struct FaceBlend {
+  int count = 0;                     // 0: no usable view; the atlas colour
+  std::array<int, 3> sources{};      // indices into the renderer's sources
+  std::array<float, 3> weights{};
+};
+
+// Where a frame's covered pixels took their colour from.
+struct VdtmStats {
+  size_t blended_pixels = 0;  // from at least one source photo
+  size_t atlas_pixels = 0;    // from the atlas (no view sees the face, or every projection outside)
+};
+
+class VdtmRenderer {
+ public:
+  // `mesh`, `maps` and `sources` must outlive the renderer. Face i of `maps` is face i of
+  // `mesh`; the maps' views are matched to `sources` by name (SourceView::name ==
+  // ViewMaps::view_names[v]), and a view with no source is never sampled. Throws InputError when
+  // the face counts differ.
+  VdtmRenderer(const TexturedMesh* mesh, const ViewMaps* maps, const std::vector<SourceView>* sources);
+
+  // Face `face`'s blend for a desired camera centred at `desired_center`; `exclude_source` (an
+  // index into the sources, -1: none) is never used (leave-one-out).
+  FaceBlend Blend(int face, const Eigen::Vector3d& desired_center, int exclude_source = -1) const;
+
+  // Renders the desired camera (pinhole; distortion ignored). Rows run in parallel (TBB).
+  // Supersampling: call with camera.Scaled(factor), then Downsample.
+  RenderResult Render(const Camera& camera, const Rigid3d& cam_from_world, int exclude_source = -1,
+                      VdtmStats* stats = nullptr) const;
+
+  // Number of the maps' views that have a source.
+  int MatchedViews() const { return matched_views_; }
+
+ private:
+  struct Prepared {  // per source: projection constants
+    Eigen::Matrix3d rotation;
+    Eigen::Vector3d translation;
+    double fx, fy, cx, cy;
+    int width, height;
+  };
+
+  const TexturedMesh* mesh_;
+  const ViewMaps* maps_;
+  const std::vector<SourceView>* sources_;
+  std::vector<int> source_of_view_;  // per view of the maps: index into sources, -1 when absent
+  std::vector<Prepared> prepared_;
+  int matched_views_ = 0;
+};
+
+}  // namespace ibmr
