@@ -55,6 +55,7 @@ std::vector<double> SolveGains(const FaceObservations& observations, int views, 
 SeamLeveling::SeamLeveling(const TriangleMesh& mesh, const std::vector<int>& labels) : mesh_(mesh), labels_(labels) {
   face_variables_.assign(mesh.faces.size() * 3, -1);
   variables_of_vertex_.resize(mesh.vertices.size());
+  faces_of_vertex_.resize(mesh.vertices.size());
   std::unordered_map<uint64_t, int> index;
   for (size_t f = 0; f < mesh.faces.size(); ++f) {
     if (labels[f] < 0) continue;
@@ -68,6 +69,7 @@ SeamLeveling::SeamLeveling(const TriangleMesh& mesh, const std::vector<int>& lab
         variables_of_vertex_[vertex].push_back(it->second);
       }
       face_variables_[f * 3 + k] = it->second;
+      faces_of_vertex_[vertex].push_back(static_cast<int>(f));
     }
   }
   for (const std::vector<int>& variables : variables_of_vertex_) {
@@ -75,8 +77,34 @@ SeamLeveling::SeamLeveling(const TriangleMesh& mesh, const std::vector<int>& lab
     ++seam_vertices_;
     seam_variables_.insert(seam_variables_.end(), variables.begin(), variables.end());
   }
-  colors_.assign(vertex_of_.size(), Eigen::Vector3f::Zero());
   offsets_.assign(vertex_of_.size(), Eigen::Vector3f::Zero());
+}
+
+void SeamLeveling::SetColorsFromFaces(const FaceObservations& observations, const std::vector<double>& gains) {
+  terms_.clear();
+  const auto color_in = [&](int f, int view, Eigen::Vector3f* color) {
+    for (const FaceObservation& o : observations[f]) {
+      if (o.view == view) {
+        *color = o.mean_color * static_cast<float>(gains[view]);
+        return true;
+      }
+    }
+    return false;
+  };
+  for (size_t v = 0; v < variables_of_vertex_.size(); ++v) {
+    const std::vector<int>& variables = variables_of_vertex_[v];
+    for (size_t a = 0; a < variables.size(); ++a) {
+      for (size_t b = a + 1; b < variables.size(); ++b) {
+        const int la = label_of_[variables[a]], lb = label_of_[variables[b]];
+        Eigen::Vector3f sum = Eigen::Vector3f::Zero(), ca, cb;
+        int count = 0;
+        for (int f : faces_of_vertex_[v]) {
+          if (color_in(f, la, &ca) && color_in(f, lb, &cb)) sum += cb - ca, ++count;
+        }
+        if (count > 0) terms_.push_back({variables[a], variables[b], sum / static_cast<float>(count)});
+      }
+    }
+  }
 }
 
 bool SeamLeveling::Solve(double smoothness) {
@@ -93,15 +121,8 @@ bool SeamLeveling::Solve(double smoothness) {
     rhs.row(i) += weight * d.transpose();
     rhs.row(j) -= weight * d.transpose();
   };
-  // Seams: (f1 + g1 - f2 - g2)^2 = (g1 - g2 - (f2 - f1))^2.
-  for (const std::vector<int>& variables : variables_of_vertex_) {
-    for (size_t a = 0; a < variables.size(); ++a) {
-      for (size_t b = a + 1; b < variables.size(); ++b) {
-        const Eigen::Vector3d d = (colors_[variables[b]] - colors_[variables[a]]).cast<double>();
-        add_difference(variables[a], variables[b], 1.0, d);
-      }
-    }
-  }
+  // Seams: (f_a + g_a - f_b - g_b)^2 = (g_a - g_b - (f_b - f_a))^2.
+  for (const SeamTerm& term : terms_) add_difference(term.a, term.b, 1.0, term.step.cast<double>());
   // Smoothness along the edges of each labelled face.
   for (size_t f = 0; f < mesh_.faces.size(); ++f) {
     if (labels_[f] < 0) continue;
@@ -122,18 +143,12 @@ bool SeamLeveling::Solve(double smoothness) {
 
 double SeamLeveling::MeanSeamStep(bool with_offsets) const {
   double sum = 0;
-  size_t count = 0;
-  for (const std::vector<int>& variables : variables_of_vertex_) {
-    for (size_t a = 0; a < variables.size(); ++a) {
-      for (size_t b = a + 1; b < variables.size(); ++b) {
-        Eigen::Vector3f step = colors_[variables[a]] - colors_[variables[b]];
-        if (with_offsets) step += offsets_[variables[a]] - offsets_[variables[b]];
-        sum += step.cwiseAbs().mean();
-        ++count;
-      }
-    }
+  for (const SeamTerm& term : terms_) {
+    Eigen::Vector3f step = term.step;
+    if (with_offsets) step -= offsets_[term.a] - offsets_[term.b];
+    sum += step.cwiseAbs().mean();
   }
-  return count ? sum / count : 0.0;
+  return terms_.empty() ? 0.0 : sum / terms_.size();
 }
 
 }  // namespace ibmr

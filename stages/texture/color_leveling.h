@@ -11,7 +11,10 @@
 // vertex gets one colour offset g_{v,l} per label l of its incident faces, minimising
 //   sum over seam vertices v and label pairs (l1, l2) of (f_{v,l1} + g_{v,l1} - f_{v,l2} - g_{v,l2})^2
 //   + leveling_smoothness * sum over edges (a, b) of faces labelled l of (g_{a,l} - g_{b,l})^2,
-// with f_{v,l} the vertex's colour in view l. The offsets are interpolated across each face
+// with f_{v,l2} - f_{v,l1} the colour difference between the views at the vertex: the mean over
+// the faces around v that both views see of (face colour in l2 - face colour in l1), after the
+// gains (face means over many pixels, not a point sample at the vertex, which on a mesh that is
+// off the surface by a pixel reads the background or an edge). The offsets are interpolated across each face
 // (barycentric) and added to its texels: the colour steps at the seams vanish and the correction
 // spreads smoothly over the patches, which keep their detail. Sparse least squares (Eigen's
 // SimplicialLDLT on the normal equations), per channel, with a 1e-4 ridge for vertices the
@@ -44,8 +47,9 @@ class SeamLeveling {
   const std::vector<int>& SeamVariables() const { return seam_variables_; }
   size_t SeamVertices() const { return seam_vertices_; }
 
-  // Colour f_{v,l} (BGR) of a seam unknown, sampled in view l after its gain.
-  void SetColor(int variable, const Eigen::Vector3f& bgr) { colors_[variable] = bgr; }
+  // The colour differences of the seam terms from the faces' mean colours per view (times the
+  // gains); a pair of labels without a face around the vertex that both see is left out.
+  void SetColorsFromFaces(const FaceObservations& observations, const std::vector<double>& gains);
   // Solves for the offsets (BGR per unknown); false when the solver failed (offsets stay zero).
   bool Solve(double smoothness);
   const Eigen::Vector3f& Offset(int variable) const { return offsets_[variable]; }
@@ -61,7 +65,13 @@ class SeamLeveling {
   std::vector<std::vector<int>> variables_of_vertex_;
   std::vector<int> seam_variables_;
   size_t seam_vertices_ = 0;
-  std::vector<Eigen::Vector3f> colors_, offsets_;
+  std::vector<std::vector<int>> faces_of_vertex_;
+  struct SeamTerm {
+    int a, b;             // unknowns (same vertex, two labels)
+    Eigen::Vector3f step;  // f_b - f_a
+  };
+  std::vector<SeamTerm> terms_;
+  std::vector<Eigen::Vector3f> offsets_;
 };
 
 }  // namespace ibmr

@@ -2,6 +2,7 @@
 #include "stages/texture/face_visibility.h"
 
 #include <Eigen/Geometry>
+#include <algorithm>
 #include <opencv2/imgproc.hpp>
 
 #include "pipeline/core/rasterizer.h"
@@ -62,8 +63,9 @@ void ObserveView(const TriangleMesh& mesh, const FaceGeometry& geometry, const C
     const Eigen::Vector3d& n = geometry.normals[f];
     if (n.isZero()) continue;
     const Eigen::Vector3d to_camera = center - geometry.centroids[f];
+    // Either side: a mesh from real data has faces wound the wrong way (OrientFaces turns them).
     const double cos_angle = n.dot(to_camera.normalized());
-    if (!(cos_angle >= std::max(options.min_cos_angle, 1e-6))) continue;
+    if (!(std::abs(cos_angle) >= std::max(options.min_cos_angle, 1e-6))) continue;
     // The vertices (pulled 5% toward the centroid, so that a neighbour sharing the vertex does not
     // decide the test) and the centroid against the z-buffer.
     bool visible = true;
@@ -95,6 +97,7 @@ void ObserveView(const TriangleMesh& mesh, const FaceGeometry& geometry, const C
     if (!visible) continue;
     FaceObservation observation;
     observation.view = view;
+    observation.back = cos_angle < 0;
     if (pixels[f] > 0) {
       observation.quality = quality[f];
       observation.mean_color = color_sum[f] / static_cast<float>(pixels[f]);
@@ -106,6 +109,44 @@ void ObserveView(const TriangleMesh& mesh, const FaceGeometry& geometry, const C
     }
     seen->emplace_back(static_cast<int>(f), observation);
   }
+}
+
+size_t OrientFaces(FaceObservations* observations, TriangleMesh* mesh, FaceGeometry* geometry) {
+  size_t flipped = 0;
+  for (size_t f = 0; f < observations->size(); ++f) {
+    std::vector<FaceObservation>& list = (*observations)[f];
+    size_t back = 0;
+    for (const FaceObservation& o : list) back += o.back;
+    const bool flip = 2 * back > list.size();
+    list.erase(std::remove_if(list.begin(), list.end(), [&](const FaceObservation& o) { return o.back != flip; }), list.end());
+    if (!flip) continue;
+    std::swap(mesh->faces[f][1], mesh->faces[f][2]);
+    geometry->normals[f] = -geometry->normals[f];
+    for (FaceObservation& o : list) o.back = false;
+    ++flipped;
+  }
+  return flipped;
+}
+
+size_t RemoveInconsistentViews(double tolerance, FaceObservations* observations) {
+  const auto luminance = [](const FaceObservation& o) {
+    return 0.114f * o.mean_color[0] + 0.587f * o.mean_color[1] + 0.299f * o.mean_color[2];
+  };
+  size_t removed = 0;
+  std::vector<float> values;
+  for (std::vector<FaceObservation>& list : *observations) {
+    if (list.size() < 3) continue;
+    values.clear();
+    for (const FaceObservation& o : list) values.push_back(luminance(o));
+    std::nth_element(values.begin(), values.begin() + values.size() / 2, values.end());
+    const float median = values[values.size() / 2];
+    const float allowed = std::max(20.f, static_cast<float>(tolerance) * median);
+    const size_t before = list.size();
+    list.erase(std::remove_if(list.begin(), list.end(), [&](const FaceObservation& o) { return std::abs(luminance(o) - median) > allowed; }),
+               list.end());
+    removed += before - list.size();
+  }
+  return removed;
 }
 
 }  // namespace ibmr

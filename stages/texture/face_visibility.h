@@ -1,8 +1,8 @@
 // Which faces a view sees, and how well (seed 003 §5 visibility preprocessing; seed 000 §6 lines
 // 4587-4654: z-buffer visibility, cosine weighting).
 //
-// A view sees a face when the face is in front of the camera and faces it (cosine of the viewing
-// angle >= min_cos_angle), its three vertices project inside the image, and its vertices and
+// A view sees a face when the face is in front of the camera and seen at an angle whose cosine,
+// on either side of the face, is at least min_cos_angle, its three vertices project inside the image, and its vertices and
 // centroid, pulled 5% toward the centroid, pass the z-buffer of the whole mesh within
 // visibility_epsilon of their depth: seed 003 samples points of each polygon against an item
 // buffer. Faces partly hidden are not split (seed 003 splits them); they count as unseen by that
@@ -30,6 +30,7 @@ struct FaceObservation {
   int view = 0;
   float quality = 0;
   Eigen::Vector3f mean_color = Eigen::Vector3f::Zero();  // BGR, over the face's pixels (or its centroid)
+  bool back = false;  // the view sees the face's back (its winding is the wrong way round, or the view is wrong)
 };
 
 // Per face: the views that see it entirely, in view order.
@@ -48,5 +49,18 @@ struct FaceGeometry {
 void ObserveView(const TriangleMesh& mesh, const FaceGeometry& geometry, const Camera& camera,
                  const Rigid3d& cam_from_world, const cv::Mat& image, int view, const TextureOptions& options,
                  std::vector<std::pair<int, FaceObservation>>* seen);
+
+// Turns each face toward the views that see it: a face seen mostly from its back is flipped (the
+// mesh's winding and the geometry's normal), and the views on the minority side are dropped
+// (meshes from real data, e.g. the surfel mesh, have some faces wound the wrong way; their
+// normals would otherwise point away from every view that sees them). Returns the flipped faces.
+size_t OrientFaces(FaceObservations* observations, TriangleMesh* mesh, FaceGeometry* geometry);
+
+// Photo-consistency (Waechter et al. 2014 §4.1 remove views that disagree with the others): a face
+// seen by three or more views drops those whose mean luminance differs from the median of its
+// views by more than max(20 levels, tolerance * median), e.g. a view where the face's pixels are
+// the background because the mesh is larger than the object, or where an occluder the mesh lacks
+// is in front. Returns the observations removed.
+size_t RemoveInconsistentViews(double tolerance, FaceObservations* observations);
 
 }  // namespace ibmr

@@ -194,15 +194,6 @@ void CopyPatches(const AtlasLayout& layout, int view, const cv::Mat& image, doub
   }
 }
 
-void SampleSeamColors(const TriangleMesh& mesh, const TextureView& view, int view_index, const cv::Mat& image,
-                      double gain, SeamLeveling* leveling) {
-  for (int variable : leveling->SeamVariables()) {
-    if (leveling->LabelOf(variable) != view_index) continue;
-    const Eigen::Vector2d q = Project(view, mesh.vertices[leveling->VertexOf(variable)]);
-    leveling->SetColor(variable, Bilinear(image, q.x(), q.y()) * static_cast<float>(gain));
-  }
-}
-
 void ApplyLeveling(const AtlasLayout& layout, const SeamLeveling& leveling, int padding, TexturedMesh* out) {
   // Per page, the offset of each texel from the nearest labelled face (inside first).
   for (size_t page = 0; page < out->pages.size(); ++page) {

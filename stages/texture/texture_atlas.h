@@ -60,11 +60,6 @@ AtlasLayout LayoutAtlas(const TriangleMesh& mesh, const std::vector<int>& labels
 // different views may be copied in parallel.
 void CopyPatches(const AtlasLayout& layout, int view, const cv::Mat& image, double gain, TexturedMesh* out);
 
-// Colours of the seam unknowns of view `view`: the image (times the gain) at the vertex's
-// projection, bilinear.
-void SampleSeamColors(const TriangleMesh& mesh, const TextureView& view, int view_index, const cv::Mat& image,
-                      double gain, SeamLeveling* leveling);
-
 // Adds the solved offsets to the texels of every labelled face (and the padding around it).
 void ApplyLeveling(const AtlasLayout& layout, const SeamLeveling& leveling, int padding, TexturedMesh* out);
 

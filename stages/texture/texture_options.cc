@@ -14,6 +14,9 @@ bool TextureOptions::Check(std::string* error) const {
   if (max_iterations < 1 || max_iterations > 1000) return fail("max_iterations: must be in [1, 1000], got " + std::to_string(max_iterations));
   if (!(visibility_epsilon > 0 && visibility_epsilon < 0.5)) return fail("visibility_epsilon: must be in (0, 0.5), got " + std::to_string(visibility_epsilon));
   if (!(min_cos_angle >= 0 && min_cos_angle < 1)) return fail("min_cos_angle: must be in [0, 1), got " + std::to_string(min_cos_angle));
+  if (!(consistency_tolerance >= 0 && consistency_tolerance <= 10)) {
+    return fail("consistency_tolerance: must be in [0, 10], got " + std::to_string(consistency_tolerance));
+  }
   if (!(gain_sigma > 0) || !std::isfinite(gain_sigma)) return fail("gain_sigma: must be a finite number > 0, got " + std::to_string(gain_sigma));
   if (!(leveling_smoothness > 0) || !std::isfinite(leveling_smoothness)) {
     return fail("leveling_smoothness: must be a finite number > 0, got " + std::to_string(leveling_smoothness));

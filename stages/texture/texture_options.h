@@ -13,8 +13,11 @@ struct TextureOptions {
   int max_iterations = 30;         // sweeps of iterated conditional modes (stops earlier when stable)
   // A face is seen by a view when its vertices and centroid pass the z-buffer test within this
   // fraction of their depth (seed 003 §5 samples points of each polygon against the item buffer).
-  double visibility_epsilon = 0.01;
+  double visibility_epsilon = 0.005;
   double min_cos_angle = 0.05;     // faces seen more obliquely than this (cosine) are not used
+  // Views whose mean luminance of a face differs from the median of its views by more than this
+  // fraction (at least 20 levels) are not used for it (photo-consistency); 0: keep every view.
+  double consistency_tolerance = 0.25;
   bool gain_compensation = true;   // per-view exposure gains, solved jointly
   double gain_sigma = 0.3;         // prior on the gains: sigma of (gain - 1)
   bool seam_leveling = true;       // per-vertex colour offsets, sparse least squares

@@ -5,9 +5,10 @@
 // face_view_maps.h).
 //
 // Reads `mesh` (default surfels/mesh.ply; any triangle mesh PLY: the hull, a user's mesh), the
-// model and undistorted images of the workspace (training views only). Images are streamed:
-// two passes over the views (visibility and quality; then seam colours and patches), each
-// image in memory only while its view is worked on.
+// model and undistorted images of the workspace (training views only). Faces are turned toward
+// the views that see them, and views that disagree with a face's other views dropped
+// (face_visibility.h). Images are streamed: two passes over the views (visibility, quality and
+// colours; then the patches), each image in memory only while its view is worked on.
 // Writes texture/mesh.obj + mesh.mtl + atlas_<page>.png, texture/mesh.glb (binary glTF, pages
 // embedded) and texture/view_maps.bin (pipeline/core/view_maps.h). The record counts faces seen
 // and unseen, patches, pages, the seam step at the seam vertices before and after leveling and
@@ -44,6 +45,7 @@ TextureOptions ToOptions(const Params& p) {
   o.max_iterations = static_cast<int>(p.Int("max_iterations"));
   o.visibility_epsilon = p.Double("visibility_epsilon");
   o.min_cos_angle = p.Double("min_cos_angle");
+  o.consistency_tolerance = p.Double("consistency_tolerance");
   o.gain_compensation = p.Bool("gain_compensation");
   o.gain_sigma = p.Double("gain_sigma");
   o.seam_leveling = p.Bool("seam_leveling");
@@ -77,6 +79,8 @@ class TextureStage : public Stage {
         {"max_iterations", ParamType::kInt, std::to_string(d.max_iterations), "sweeps of iterated conditional modes, [1, 1000]"},
         {"visibility_epsilon", ParamType::kDouble, std::to_string(d.visibility_epsilon), "z-buffer tolerance, fraction of depth, (0, 0.5)"},
         {"min_cos_angle", ParamType::kDouble, std::to_string(d.min_cos_angle), "faces seen more obliquely (cosine) are not used, [0, 1)"},
+        {"consistency_tolerance", ParamType::kDouble, std::to_string(d.consistency_tolerance),
+         "drop a face's views whose luminance is off its views' median by more than this fraction (>= 20 levels); 0: off, [0, 10]"},
         {"gain_compensation", ParamType::kBool, "true", "solve per-view exposure gains"},
         {"gain_sigma", ParamType::kDouble, std::to_string(d.gain_sigma), "prior sigma of a gain around 1, > 0"},
         {"seam_leveling", ParamType::kBool, "true", "global seam leveling (per-vertex colour offsets)"},
@@ -106,11 +110,11 @@ class TextureStage : public Stage {
     if (!fs::exists(mesh_path)) {
       throw InputError("texture.mesh: " + mesh_path + " does not exist (run the surfels stage, or set texture.mesh to a mesh such as hull/hull.ply)");
     }
-    const TriangleMesh mesh = ReadMeshPly(mesh_path);
+    TriangleMesh mesh = ReadMeshPly(mesh_path);
     const std::string invalid = mesh.Validate();
     if (!invalid.empty()) throw InputError(mesh_path + ": " + invalid);
     if (mesh.faces.empty()) throw InputError(mesh_path + ": the mesh has no faces; nothing to texture (a point cloud? mesh it first)");
-    const FaceGeometry geometry = FaceGeometry::Of(mesh);
+    FaceGeometry geometry = FaceGeometry::Of(mesh);
     size_t degenerate = 0;
     for (const Eigen::Vector3d& n : geometry.normals) degenerate += n.isZero();
     if (degenerate > 0) {
@@ -161,6 +165,15 @@ class TextureStage : public Stage {
       for (const auto& [f, o] : seen[v]) observations[f].push_back(o);
       std::vector<std::pair<int, FaceObservation>>().swap(seen[v]);
     }
+    const size_t flipped = OrientFaces(&observations, &mesh, &geometry);
+    // The view maps keep every view that sees a face (VDTM blends them by direction, and a view
+    // that disagrees is often the one nearest the desired direction); the atlas, one view per
+    // face, takes only the consistent ones.
+    const FaceObservations visible = observations;
+    const size_t inconsistent = options.consistency_tolerance > 0 ? RemoveInconsistentViews(options.consistency_tolerance, &observations) : 0;
+    context.metrics["faces_flipped"] = flipped;
+    context.metrics["views_dropped_inconsistent"] = inconsistent;
+    if (flipped > 0) spdlog::info("[texture] {} face(s) turned toward the views that see them", flipped);
     context.metrics["seconds_visibility"] = SecondsSince(start);
     context.metrics["views_seeing_nothing"] = zero_views;
 
@@ -177,22 +190,18 @@ class TextureStage : public Stage {
     const AtlasLayout layout = LayoutAtlas(mesh, selection.labels, adjacency, views, options, &textured);
     SeamLeveling leveling(mesh, selection.labels);
 
-    // Pass 2: seam colours and patches per view.
+    // Pass 2: the patches per view.
     start = std::chrono::steady_clock::now();
-    std::mutex leveling_mutex;
     context.progress->Begin("texture: patches", names.size());
     tbb::parallel_for(size_t{0}, names.size(), [&](size_t v) {
       const cv::Mat image = load(v);
       CopyPatches(layout, static_cast<int>(v), image, gains[v], &textured);
-      {
-        std::lock_guard<std::mutex> lock(leveling_mutex);  // SetColor touches distinct entries, but keep it simple
-        SampleSeamColors(mesh, views[v], static_cast<int>(v), image, gains[v], &leveling);
-      }
       context.progress->Advance(1, names[v]);
     });
     context.progress->End();
     context.metrics["seconds_patches"] = SecondsSince(start);
     start = std::chrono::steady_clock::now();
+    leveling.SetColorsFromFaces(observations, gains);
     context.metrics["seam_vertices"] = leveling.SeamVertices();
     context.metrics["seam_step_before"] = leveling.MeanSeamStep(false);
     if (options.seam_leveling) {
@@ -232,7 +241,7 @@ class TextureStage : public Stage {
     if (!check.empty()) throw std::runtime_error("texture: internal: the atlas is inconsistent: " + check);
     WriteTexturedObj(textured, folder, "mesh");
     WriteTexturedGlb(textured, folder + "/mesh.glb");
-    WriteViewMaps(BuildViewMaps(geometry, observations, centers, names, options.view_map_grid), folder + "/view_maps.bin");
+    WriteViewMaps(BuildViewMaps(geometry, visible, centers, names, options.view_map_grid), folder + "/view_maps.bin");
     context.metrics["seconds_write"] = SecondsSince(start);
   }
 

@@ -75,6 +75,7 @@ TEST(TextureOptions, DefaultsAreValidAndEachRangeIsChecked) {
   fails([](TextureOptions& o) { o.visibility_epsilon = 0; }, "visibility_epsilon");
   fails([](TextureOptions& o) { o.min_cos_angle = 1; }, "min_cos_angle");
   fails([](TextureOptions& o) { o.gain_sigma = 0; }, "gain_sigma");
+  fails([](TextureOptions& o) { o.consistency_tolerance = -0.1; }, "consistency_tolerance");
   fails([](TextureOptions& o) { o.leveling_smoothness = 0; }, "leveling_smoothness");
   fails([](TextureOptions& o) { o.max_texture_size = 32; }, "max_texture_size");
   fails([](TextureOptions& o) { o.padding = -1; }, "padding");
@@ -193,8 +194,8 @@ TexturedMesh TextureScene(const TexturedScene& scene, const TextureOptions& opti
   SeamLeveling leveling(scene.mesh, selection.labels);
   for (size_t v = 0; v < scene.views.size(); ++v) {
     CopyPatches(layout, static_cast<int>(v), scene.images[v], gains[v], &out);
-    SampleSeamColors(scene.mesh, scene.views[v], static_cast<int>(v), scene.images[v], gains[v], &leveling);
   }
+  leveling.SetColorsFromFaces(observations, gains);
   *step_before = leveling.MeanSeamStep(false);
   if (options.seam_leveling && leveling.Solve(options.leveling_smoothness)) ApplyLeveling(layout, leveling, options.padding, &out);
   *step_after = leveling.MeanSeamStep(options.seam_leveling);
@@ -288,13 +289,18 @@ TEST(ColorLeveling, AnExposureDifferenceIsLeveledAcrossSeams) {
   EXPECT_LE(after, 0.5 * raw_after);
 }
 
-// A face no view sees (the back of a box side here: a flap folded away) is filled from its
-// neighbours' colours, and counted.
+// A face no view sees (hidden under a small square here) is filled from its neighbours'
+// colours, and counted.
 TEST(TextureAtlas, UnseenFacesAreFilledFromTheirNeighbours) {
   TexturedScene scene;
   scene.mesh = Grid(4, 1.0, 0.0);
-  // Flip one face: it now faces away from every camera above the plane.
-  std::swap(scene.mesh.faces[5][1], scene.mesh.faces[5][2]);
+  // A square 0.5 above the plane hides face 5 (x in [0, 0.5], y in [-1, -0.5]) from the camera.
+  const int base = static_cast<int>(scene.mesh.vertices.size());
+  for (const auto& [x, y] : std::vector<std::pair<float, float>>{{-0.05f, -0.85f}, {0.45f, -0.85f}, {-0.05f, -0.33f}, {0.45f, -0.33f}}) {
+    scene.mesh.vertices.emplace_back(x, y, 0.5f);
+  }
+  scene.mesh.faces.emplace_back(base, base + 1, base + 3);
+  scene.mesh.faces.emplace_back(base, base + 3, base + 2);
   const Camera camera = TestCamera();
   scene.views.push_back({camera, LookAt(Eigen::Vector3d(0, 0.1, 2.6), Eigen::Vector3d::Zero(), Eigen::Vector3d::UnitY())});
   scene.images.push_back(cv::Mat(camera.height, camera.width, CV_8UC3, cv::Scalar(10, 100, 200)));
@@ -307,6 +313,34 @@ TEST(TextureAtlas, UnseenFacesAreFilledFromTheirNeighbours) {
   EXPECT_NEAR(c[1], 100, 3);
   EXPECT_NEAR(c[2], 200, 3);
   EXPECT_EQ(t.Validate(), "");
+}
+
+// A face wound the wrong way is seen from its back by every view: it is turned, and keeps its views.
+TEST(FaceVisibility, FacesSeenFromTheirBackAreTurned) {
+  TriangleMesh mesh = Grid(2, 1.0, 0.0);
+  std::swap(mesh.faces[3][1], mesh.faces[3][2]);
+  const Camera camera = TestCamera();
+  const Rigid3d pose = LookAt(Eigen::Vector3d(0.2, 0.1, 2.6), Eigen::Vector3d::Zero(), Eigen::Vector3d::UnitY());
+  FaceGeometry geometry = FaceGeometry::Of(mesh);
+  std::vector<std::pair<int, FaceObservation>> seen;
+  ObserveView(mesh, geometry, camera, pose, RenderChecker(camera, pose), 0, TextureOptions(), &seen);
+  FaceObservations observations(mesh.faces.size());
+  for (const auto& [f, o] : seen) observations[f].push_back(o);
+  ASSERT_EQ(observations[3].size(), 1u);
+  EXPECT_TRUE(observations[3][0].back);
+  EXPECT_EQ(OrientFaces(&observations, &mesh, &geometry), 1u);
+  EXPECT_GT(geometry.normals[3].z(), 0.9);
+  EXPECT_EQ(FaceGeometry::Of(mesh).normals[3].z(), geometry.normals[3].z());
+  EXPECT_EQ(observations[3].size(), 1u);
+}
+
+// A view that shows a face as background (dark) while the others agree is dropped for it.
+TEST(FaceVisibility, AViewDisagreeingWithTheOthersIsDropped) {
+  FaceObservations observations(1);
+  for (int v = 0; v < 4; ++v) observations[0].push_back({v, 1.f, Eigen::Vector3f::Constant(v == 2 ? 5.f : 150.f + v)});
+  EXPECT_EQ(RemoveInconsistentViews(0.25, &observations), 1u);
+  ASSERT_EQ(observations[0].size(), 3u);
+  for (const FaceObservation& o : observations[0]) EXPECT_NE(o.view, 2);
 }
 
 // View maps: each face lists the views that see it; a view's own direction finds it again.
