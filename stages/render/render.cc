@@ -44,10 +44,9 @@ inline void AddBilinear(const cv::Mat& image, double u, double v, double weight,
   }
 }
 
-// Visibility of a point at depth z projecting to (u, v): every depth-map pixel of the bilinear
-// footprint must hold the proxy within eps * z, so a sample never mixes in an occluder or the
-// background across a depth edge (the footprint is the 2x2 pixels bilinear sampling reads).
-inline bool Visible(const DepthMap& depth, double u, double v, double z, double eps) {
+}  // namespace
+
+bool VisibleInSource(const DepthMap& depth, double u, double v, double z, double eps) {
   const int x0 = std::clamp(static_cast<int>(std::floor(u - 0.5)), 0, depth.width - 1);
   const int y0 = std::clamp(static_cast<int>(std::floor(v - 0.5)), 0, depth.height - 1);
   const int x1 = std::min(x0 + 1, depth.width - 1), y1 = std::min(y0 + 1, depth.height - 1);
@@ -57,8 +56,6 @@ inline bool Visible(const DepthMap& depth, double u, double v, double z, double 
   }
   return true;
 }
-
-}  // namespace
 
 bool RenderOptions::Check(std::string* error) const {
   if (k < 2 || k > 64) {
@@ -221,7 +218,7 @@ int UlrRenderer::Blend(const Eigen::Vector3d& p, const Eigen::Vector3d& desired_
     const double border = std::min(std::min(u - 0.5, s.width - 0.5 - u), std::min(v - 0.5, s.height - 0.5 - v));
     if (!(border > 0)) continue;  // field-of-view penalty infinite
     const DepthMap& depth = (*sources_)[i].proxy_depth;
-    if (!depth.Empty() && !Visible(depth, u, v, x.z(), options_.visibility_epsilon)) continue;
+    if (!depth.Empty() && !VisibleInSource(depth, u, v, x.z(), options_.visibility_epsilon)) continue;
     const double fov = border >= s.margin ? 0.0 : (s.margin / border - 1.0) * (s.margin / border - 1.0);
     const Eigen::Vector3d to_source = s.center - p;
     const double source_distance = to_source.norm();

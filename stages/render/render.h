@@ -63,6 +63,11 @@ struct SourceView {
   DepthMap proxy_depth;    // the proxy's z depth seen from this camera; empty: no visibility test
 };
 
+// Visibility of a point at depth z projecting to (u, v) in a source: every depth-map pixel of the
+// bilinear footprint must hold the proxy within eps * z, so a sample never mixes in an occluder or
+// the background across a depth edge (the footprint is the 2x2 pixels bilinear sampling reads).
+bool VisibleInSource(const DepthMap& depth, double u, double v, double z, double eps);
+
 // The proxy as seen by the desired camera: per pixel the world point of the first hit.
 struct ProxySurface {
   int width = 0;

@@ -183,8 +183,8 @@ class RenderStage : public Stage {
            "splats, textured mesh, view-dependent texture mapping)";
   }
   // 2: splat models, background fill; 3: elliptical splat footprints; 4: model sizes; 5: textured
-  // and vdtm models (texture stage), ms_per_frame_<model> metrics.
-  std::string Version() const override { return "5"; }
+  // and vdtm models (texture stage), ms_per_frame_<model> metrics; 6: vdtm per-pixel depth test.
+  std::string Version() const override { return "6"; }
   HoldoutRole Role() const override { return HoldoutRole::kScoring; }
   // Shards are held-out views: each renders every model for its views; the merge gathers them
   // and writes renders.json.
@@ -520,6 +520,7 @@ class RenderStage : public Stage {
       TexturedMesh textured;
       ViewMaps view_maps;
       std::unique_ptr<VdtmRenderer> vdtm;
+      std::vector<SourceView> vdtm_sources;  // the sources with the textured mesh's depth (per-pixel visibility)
       if (is_texture) {
         const auto prepare_start = std::chrono::steady_clock::now();
         if (!fs::exists(spec.path)) {
@@ -539,7 +540,11 @@ class RenderStage : public Stage {
           }
           if (spec.kind == ModelKind::kVdtm) {
             view_maps = ReadViewMaps(spec.view_maps);
-            vdtm = std::make_unique<VdtmRenderer>(&textured, &view_maps, &sources);
+            vdtm_sources = sources;  // shares pixels
+            tbb::parallel_for(size_t{0}, vdtm_sources.size(), [&](size_t i) {
+              vdtm_sources[i].proxy_depth = MeshDepth(textured.mesh, vdtm_sources[i].camera, vdtm_sources[i].cam_from_world);
+            });
+            vdtm = std::make_unique<VdtmRenderer>(&textured, &view_maps, &vdtm_sources, options.visibility_epsilon);
           }
         } catch (const InputError& e) {  // unreadable or inconsistent files: like a missing mesh, not fatal
           skip(e.what());

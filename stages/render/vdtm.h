@@ -15,10 +15,15 @@
 //  2. per covered pixel (rasterizer: nearest face, perspective-correct barycentrics): the world
 //     point p from the barycentrics, projected into each of the face's views (projective texture
 //     mapping, §4) and sampled bilinearly; colour = sum w_i I_i(p) / sum w_i over the views where p
-//     falls inside the image (no per-pixel visibility test: the view maps list only views that see
-//     the face entirely, §5). This sum is what the three additive passes of §8 accumulate.
+//     falls inside the image and, when the sources carry the mesh's depth (SourceView::proxy_depth,
+//     computed once per render stage: the image-space form of §5's splitting of partly visible
+//     polygons), is not behind it by more than visibility_epsilon of its depth. The view maps list
+//     views that see the face's centroid, some of them only partly. This sum is what the three
+//     additive passes of §8 accumulate.
+//     Where the test drops every blended view, the face's next views by map distance are tried
+//     in turn (FaceBlend::fallback) and the first that passes gives the colour;
 //  3. no usable view (a face seen by none: count 0, §8 "polygons not visible in any image";
-//     or every projection outside its image): the atlas colour (textured.h).
+//     or no view passes): the atlas colour (textured.h).
 // Known limits kept on purpose (seed 003 §9): weights are continuous in the viewpoint but not
 // across faces (seams), and source resolution is ignored.
 //
@@ -44,6 +49,11 @@ struct FaceBlend {
   int count = 0;                     // 0: no usable view; the atlas colour
   std::array<int, 3> sources{};      // indices into the renderer's sources
   std::array<float, 3> weights{};
+  // The face's other views nearest to the desired direction in the map plane, nearest first:
+  // where the per-pixel test drops every blended view, the first that passes there gives the
+  // colour (what the paper's split polygon would take from its own view list).
+  int fallback_count = 0;
+  std::array<int, 4> fallback{};
 };
 
 // Where a frame's covered pixels took their colour from.
@@ -58,7 +68,10 @@ class VdtmRenderer {
   // `mesh`; the maps' views are matched to `sources` by name (SourceView::name ==
   // ViewMaps::view_names[v]), and a view with no source is never sampled. Throws InputError when
   // the face counts differ.
-  VdtmRenderer(const TexturedMesh* mesh, const ViewMaps* maps, const std::vector<SourceView>* sources);
+  // `visibility_epsilon`: the per-pixel depth test's tolerance (fraction of depth) for sources with
+  // a proxy_depth.
+  VdtmRenderer(const TexturedMesh* mesh, const ViewMaps* maps, const std::vector<SourceView>* sources,
+               double visibility_epsilon = 0.01);
 
   // Face `face`'s blend for a desired camera centred at `desired_center`; `exclude_source` (an
   // index into the sources, -1: none) is never used (leave-one-out).
@@ -86,6 +99,7 @@ class VdtmRenderer {
   std::vector<int> source_of_view_;  // per view of the maps: index into sources, -1 when absent
   std::vector<Prepared> prepared_;
   int matched_views_ = 0;
+  double visibility_epsilon_ = 0.01;
 };
 
 }  // namespace ibmr

@@ -68,20 +68,22 @@ void ObserveView(const TriangleMesh& mesh, const FaceGeometry& geometry, const C
     if (!(std::abs(cos_angle) >= std::max(options.min_cos_angle, 1e-6))) continue;
     // The vertices (pulled 5% toward the centroid, so that a neighbour sharing the vertex does not
     // decide the test) and the centroid against the z-buffer.
-    bool visible = true;
+    bool inside = true;
+    int hidden = 0;            // samples behind something
+    bool centroid_hidden = false;
     Eigen::Vector2d corners[3];
-    for (int k = 0; k < 4 && visible; ++k) {
+    for (int k = 0; k < 4 && inside; ++k) {
       Eigen::Vector3d point = geometry.centroids[f];
       if (k < 3) {
         const Eigen::Vector3d vertex = mesh.vertices[mesh.faces[f][k]].cast<double>();
         const Eigen::Vector3d in_cam = cam_from_world * vertex;
         if (!(in_cam.z() > 0)) {
-          visible = false;
+          inside = false;
           break;
         }
         corners[k] = camera.ImgFromCam(in_cam);
         if (!(corners[k].x() >= 0 && corners[k].y() >= 0 && corners[k].x() <= width && corners[k].y() <= height)) {
-          visible = false;
+          inside = false;
           break;
         }
         point = vertex + 0.05 * (geometry.centroids[f] - vertex);
@@ -92,12 +94,18 @@ void ObserveView(const TriangleMesh& mesh, const FaceGeometry& geometry, const C
       const int y = std::clamp(static_cast<int>(pixel.y()), 0, height - 1);
       const float z = raster.depth.At(x, y);
       // Nothing in front of the sample (an uncovered pixel: the face is thinner than the pixel).
-      if (z > 0 && z < in_cam.z() * (1.0 - options.visibility_epsilon)) visible = false;
+      if (z > 0 && z < in_cam.z() * (1.0 - options.visibility_epsilon)) {
+        ++hidden;
+        centroid_hidden = centroid_hidden || k == 3;
+      }
     }
-    if (!visible) continue;
+    // Entirely seen, or (for the view maps, with a per-pixel test when rendering) partly: the
+    // centroid seen, some corner hidden.
+    if (!inside || centroid_hidden) continue;
     FaceObservation observation;
     observation.view = view;
     observation.back = cos_angle < 0;
+    observation.partial = hidden > 0;
     if (pixels[f] > 0) {
       observation.quality = quality[f];
       observation.mean_color = color_sum[f] / static_cast<float>(pixels[f]);

@@ -5,8 +5,10 @@
 // on either side of the face, is at least min_cos_angle, its three vertices project inside the image, and its vertices and
 // centroid, pulled 5% toward the centroid, pass the z-buffer of the whole mesh within
 // visibility_epsilon of their depth: seed 003 samples points of each polygon against an item
-// buffer. Faces partly hidden are not split (seed 003 splits them); they count as unseen by that
-// view, so a texture never maps an occluder's pixels onto them.
+// buffer. Faces partly hidden (the centroid seen, a corner not) are not split as seed 003 splits
+// them: they are marked `partial`, kept out of the atlas (which never maps an occluder's pixels
+// onto a face) and kept in the view maps, where the renderer's per-pixel depth test takes the
+// place of the split.
 //
 // Quality (the view selection's data term) follows Waechter et al.'s gradient magnitude integral:
 // the sum over the face's pixels in the item buffer of (1 + gradient magnitude / 32), so larger,
@@ -31,6 +33,7 @@ struct FaceObservation {
   float quality = 0;
   Eigen::Vector3f mean_color = Eigen::Vector3f::Zero();  // BGR, over the face's pixels (or its centroid)
   bool back = false;  // the view sees the face's back (its winding is the wrong way round, or the view is wrong)
+  bool partial = false;  // the centroid is seen but a corner is hidden: for the view maps only
 };
 
 // Per face: the views that see it entirely, in view order.
@@ -43,7 +46,7 @@ struct FaceGeometry {
   static FaceGeometry Of(const TriangleMesh& mesh);
 };
 
-// The faces `image` (CV_8UC3, the camera's size) sees entirely, with their quality and mean colour,
+// The faces `image` (CV_8UC3, the camera's size) sees entirely or partly (see above), with their quality and mean colour,
 // appended to `observations` (sized to the faces) under index `view`. Not thread-safe for the
 // same `observations`; run views in parallel into separate lists and merge.
 void ObserveView(const TriangleMesh& mesh, const FaceGeometry& geometry, const Camera& camera,

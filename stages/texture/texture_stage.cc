@@ -17,6 +17,7 @@
 #include <spdlog/spdlog.h>
 #include <tbb/parallel_for.h>
 
+#include <algorithm>
 #include <chrono>
 #include <filesystem>
 #include <mutex>
@@ -68,7 +69,7 @@ class TextureStage : public Stage {
     return "Texture atlas of a mesh from the training views (view selection, gains, seam leveling, hole filling) "
            "and view maps for view-dependent texture mapping (texture/)";
   }
-  std::string Version() const override { return "1"; }
+  std::string Version() const override { return "2"; }  // 2: faces turned, photo-consistency, partly seen views in the view maps
   HoldoutRole Role() const override { return HoldoutRole::kTrainingOnly; }
 
   std::vector<ParamSpec> Parameters() const override {
@@ -170,6 +171,13 @@ class TextureStage : public Stage {
     // that disagrees is often the one nearest the desired direction); the atlas, one view per
     // face, takes only the consistent ones.
     const FaceObservations visible = observations;
+    size_t partial = 0;
+    for (std::vector<FaceObservation>& list : observations) {
+      const size_t before = list.size();
+      list.erase(std::remove_if(list.begin(), list.end(), [](const FaceObservation& o) { return o.partial; }), list.end());
+      partial += before - list.size();
+    }
+    context.metrics["observations_partial"] = partial;
     const size_t inconsistent = options.consistency_tolerance > 0 ? RemoveInconsistentViews(options.consistency_tolerance, &observations) : 0;
     context.metrics["faces_flipped"] = flipped;
     context.metrics["views_dropped_inconsistent"] = inconsistent;
