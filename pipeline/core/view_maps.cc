@@ -14,10 +14,10 @@ namespace ibmr {
 
 namespace {
 
-constexpr char kMagic[8] = {'I', 'B', 'M', 'R', 'V', 'M', '0', '1'};
-constexpr double kHalfPi = 1.5707963267948966;
+constexpr char kMagic[8] = {'I', 'B', 'M', 'R', 'V', 'M', '0', '2'};
+constexpr double kPi = 3.141592653589793;  // the grid's half-width: every direction, the back hemisphere too
 
-double GridCoordinate(int i, int grid) { return -kHalfPi + 2.0 * kHalfPi * i / (grid - 1); }
+double GridCoordinate(int i, int grid) { return -kPi + 2.0 * kPi * i / (grid - 1); }
 
 template <typename T>
 void Put(std::string* out, T value) {
@@ -109,9 +109,9 @@ ViewBlend BlendFor(const ViewMaps& maps, int face_index, const Eigen::Matrix3d& 
   const Eigen::Vector2d p = MapDirection(frame, direction);
   // Continuous grid coordinates, clamped to the grid (directions beyond the horizon take the
   // border's views).
-  const double scale = (grid - 1) / (2.0 * kHalfPi);
-  const double gx = std::clamp((p.x() + kHalfPi) * scale, 0.0, grid - 1.0);
-  const double gy = std::clamp((p.y() + kHalfPi) * scale, 0.0, grid - 1.0);
+  const double scale = (grid - 1) / (2.0 * kPi);
+  const double gx = std::clamp((p.x() + kPi) * scale, 0.0, grid - 1.0);
+  const double gy = std::clamp((p.y() + kPi) * scale, 0.0, grid - 1.0);
   const int i = std::min(static_cast<int>(gx), grid - 2);
   const int j = std::min(static_cast<int>(gy), grid - 2);
   const double fx = gx - i, fy = gy - j;
@@ -169,7 +169,7 @@ void WriteViewMaps(const ViewMaps& maps, const std::string& path) {
 ViewMaps ReadViewMaps(const std::string& path) {
   Reader in(path, ReadFile(path));
   if (in.Bytes(sizeof(kMagic), "the header") != std::string(kMagic, sizeof(kMagic))) {
-    throw InputError(path + ": not a view map file (expected IBMRVM01 at the start; run the texture stage again)");
+    throw InputError(path + ": not a view map file (expected IBMRVM02 at the start; run the texture stage again)");
   }
   ViewMaps maps;
   const uint32_t faces = in.Get<uint32_t>("the header");

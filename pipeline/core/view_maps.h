@@ -7,12 +7,14 @@
 // Local frame (seed 003 Eq. 1, 2): x = y_W x n (x_W when y_W and n are collinear), y = n x x.
 // A direction v (unit, from the face centroid toward a camera) maps to
 // p = acos(n.v) * (x.v_r, y.v_r) / |v_r| with v_r = (n x v) x n: the arc length from the normal
-// laid out in the face's plane. Directions up to the horizon fill the disc of radius pi/2, and
-// the grid spans [-pi/2, pi/2]^2 in `grid` x `grid` samples (sample (i, j) at
-// -pi/2 + pi * (i / (grid - 1), j / (grid - 1))).
+// laid out in the face's plane. Directions up to the horizon fill the disc of radius pi/2; the
+// grid spans [-pi, pi]^2 in `grid` x `grid` samples (sample (i, j) at
+// -pi + 2 pi * (i / (grid - 1), j / (grid - 1))), so that views behind the face's plane keep
+// their place too: a mesh from real data has normals that are off, and a view on the wrong side
+// of a face's normal may see the face well (seed 003 assumes accurate polygons).
 //
 // File texture/view_maps.bin, little-endian:
-//   char[8] "IBMRVM01"; uint32 faces; uint32 views; uint32 grid;
+//   char[8] "IBMRVM02"; uint32 faces; uint32 views; uint32 grid;
 //   views x { uint32 name_length; name bytes }            the training view names, in index order
 //   faces x { uint16 count; count x { uint16 view; float32 px; float32 py };
 //             if count >= 2: grid*grid x uint8 k (index into this face's list, row-major in j) }

@@ -32,8 +32,8 @@ Eigen::Vector3d DirectionOf(const Eigen::Matrix3d& frame, const Eigen::Vector2d&
   return std::cos(arc) * frame.col(2) + std::sin(arc) * in_plane;
 }
 
-// The map coordinate of grid sample i.
-double GridCoordinate(int i, int grid) { return -kHalfPi + 2.0 * kHalfPi * i / (grid - 1); }
+// The map coordinate of grid sample i (the grid spans [-pi, pi]).
+double GridCoordinate(int i, int grid) { return -2 * kHalfPi + 4.0 * kHalfPi * i / (grid - 1); }
 
 TEST(ViewMaps, FaceFrameIsOrthonormalWithTheNormalLast) {
   for (const Eigen::Vector3d& n : {Eigen::Vector3d(0, 0, 1), Eigen::Vector3d(1, 2, -3).normalized(),

@@ -99,13 +99,15 @@ void ObserveView(const TriangleMesh& mesh, const FaceGeometry& geometry, const C
         centroid_hidden = centroid_hidden || k == 3;
       }
     }
-    // Entirely seen, or (for the view maps, with a per-pixel test when rendering) partly: the
-    // centroid seen, some corner hidden.
-    if (!inside || centroid_hidden) continue;
+    // Entirely seen; or partly (the centroid seen, some corner hidden), or hidden behind other
+    // parts of the mesh: those two for the view maps only, where the renderer's per-pixel depth
+    // test decides.
+    if (!inside) continue;
     FaceObservation observation;
     observation.view = view;
     observation.back = cos_angle < 0;
     observation.partial = hidden > 0;
+    observation.hidden = centroid_hidden;
     if (pixels[f] > 0) {
       observation.quality = quality[f];
       observation.mean_color = color_sum[f] / static_cast<float>(pixels[f]);
@@ -123,14 +125,16 @@ size_t OrientFaces(FaceObservations* observations, TriangleMesh* mesh, FaceGeome
   size_t flipped = 0;
   for (size_t f = 0; f < observations->size(); ++f) {
     std::vector<FaceObservation>& list = (*observations)[f];
-    size_t back = 0;
-    for (const FaceObservation& o : list) back += o.back;
-    const bool flip = 2 * back > list.size();
-    list.erase(std::remove_if(list.begin(), list.end(), [&](const FaceObservation& o) { return o.back != flip; }), list.end());
-    if (!flip) continue;
+    size_t back = 0, seen = 0;
+    for (const FaceObservation& o : list) {
+      if (o.hidden) continue;  // behind other parts of the mesh: says nothing of the face's side
+      back += o.back;
+      ++seen;
+    }
+    if (2 * back <= seen) continue;
     std::swap(mesh->faces[f][1], mesh->faces[f][2]);
     geometry->normals[f] = -geometry->normals[f];
-    for (FaceObservation& o : list) o.back = false;
+    for (FaceObservation& o : list) o.back = !o.back;
     ++flipped;
   }
   return flipped;

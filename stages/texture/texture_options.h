@@ -25,7 +25,7 @@ struct TextureOptions {
   int max_texture_size = 4096;     // atlas pages are at most this many texels wide and high
   int padding = 2;                 // texels of image around each patch (edge bleeding)
   int hole_cell = 4;               // texels of the square cell of a face no view sees
-  int view_map_grid = 16;          // samples per side of each face's view map (seed 003 §7)
+  int view_map_grid = 24;          // samples per side of each face's view map (seed 003 §7)
 
   bool Check(std::string* error) const;
 };

@@ -69,7 +69,7 @@ class TextureStage : public Stage {
     return "Texture atlas of a mesh from the training views (view selection, gains, seam leveling, hole filling) "
            "and view maps for view-dependent texture mapping (texture/)";
   }
-  std::string Version() const override { return "2"; }  // 2: faces turned, photo-consistency, partly seen views in the view maps
+  std::string Version() const override { return "3"; }  // 2: faces turned, photo-consistency, partly seen views in the view maps; 3: hidden and back ones too
   HoldoutRole Role() const override { return HoldoutRole::kTrainingOnly; }
 
   std::vector<ParamSpec> Parameters() const override {
@@ -174,7 +174,7 @@ class TextureStage : public Stage {
     size_t partial = 0;
     for (std::vector<FaceObservation>& list : observations) {
       const size_t before = list.size();
-      list.erase(std::remove_if(list.begin(), list.end(), [](const FaceObservation& o) { return o.partial; }), list.end());
+      list.erase(std::remove_if(list.begin(), list.end(), [](const FaceObservation& o) { return o.partial || o.hidden || o.back; }), list.end());
       partial += before - list.size();
     }
     context.metrics["observations_partial"] = partial;

@@ -111,7 +111,9 @@ TEST(FaceVisibility, AgreesWithABruteForceRayCastUnderOcclusion) {
   std::vector<std::pair<int, FaceObservation>> seen;
   ObserveView(mesh, geometry, camera, pose, image, 0, TextureOptions(), &seen);
   std::vector<char> visible(mesh.faces.size(), 0), partly(mesh.faces.size(), 0);
-  for (const auto& [f, o] : seen) (o.partial ? partly : visible)[f] = 1;
+  for (const auto& [f, o] : seen) {
+    if (!o.hidden) (o.partial ? partly : visible)[f] = 1;
+  }
 
   const Eigen::Vector3d center = pose.Inverse().translation;
   size_t agree = 0, behind_seen = 0, behind = 0, partial_faces = 0;
@@ -186,7 +188,7 @@ TexturedMesh TextureScene(const TexturedScene& scene, const TextureOptions& opti
     std::vector<std::pair<int, FaceObservation>> seen;
     ObserveView(scene.mesh, geometry, scene.views[v].camera, scene.views[v].cam_from_world, scene.images[v], static_cast<int>(v), options, &seen);
     for (const auto& [f, o] : seen) {
-      if (!o.partial) observations[f].push_back(o);
+      if (!o.partial && !o.hidden && !o.back) observations[f].push_back(o);
     }
   }
   const auto adjacency = FaceAdjacency(scene.mesh);
@@ -335,7 +337,8 @@ TEST(FaceVisibility, FacesSeenFromTheirBackAreTurned) {
   EXPECT_EQ(OrientFaces(&observations, &mesh, &geometry), 1u);
   EXPECT_GT(geometry.normals[3].z(), 0.9);
   EXPECT_EQ(FaceGeometry::Of(mesh).normals[3].z(), geometry.normals[3].z());
-  EXPECT_EQ(observations[3].size(), 1u);
+  ASSERT_EQ(observations[3].size(), 1u);
+  EXPECT_FALSE(observations[3][0].back);
 }
 
 // A view that shows a face as background (dark) while the others agree is dropped for it.
