@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <cstring>
 #include <limits>
+#include <stdexcept>
 
 #include "pipeline/core/atomic_file.h"
 #include "pipeline/core/errors.h"
@@ -76,9 +77,13 @@ Eigen::Vector2d MapDirection(const Eigen::Matrix3d& frame, const Eigen::Vector3d
   return arc / length * Eigen::Vector2d(frame.col(0).dot(rotated), frame.col(1).dot(rotated));
 }
 
-void BuildGrid(int grid, FaceViewMap* face) {
+void BuildGrid(int grid, FaceViewMap* face, const std::vector<float>& penalty) {
   face->nearest.clear();
   if (face->views.size() < 2) return;
+  if (!penalty.empty() && penalty.size() != face->views.size()) {
+    throw std::invalid_argument("BuildGrid: " + std::to_string(penalty.size()) + " penalties for " +
+                                std::to_string(face->views.size()) + " views");
+  }
   face->nearest.resize(static_cast<size_t>(grid) * grid);
   for (int j = 0; j < grid; ++j) {
     for (int i = 0; i < grid; ++i) {
@@ -86,7 +91,8 @@ void BuildGrid(int grid, FaceViewMap* face) {
       size_t best = 0;
       float best_distance = std::numeric_limits<float>::max();
       for (size_t k = 0; k < face->directions.size(); ++k) {
-        const float d = (face->directions[k] - sample).squaredNorm();
+        float d = (face->directions[k] - sample).norm();
+        if (!penalty.empty()) d += penalty[k];
         if (d < best_distance) best_distance = d, best = k;
       }
       face->nearest[static_cast<size_t>(j) * grid + i] = static_cast<uint8_t>(best);

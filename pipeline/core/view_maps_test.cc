@@ -142,6 +142,32 @@ TEST(ViewMaps, FacesSeenByNoneOrOneView) {
   EXPECT_FLOAT_EQ(blend.weights[0], 1.f);
 }
 
+// A partly seen view holds only the samples nearer to it than any whole view by more than the
+// penalty: along the line between a whole view at x = -0.5 and a partly seen one at x = +0.5,
+// the boundary moves from x = 0 to x = penalty / 2.
+TEST(ViewMaps, PenaltyMovesTheBoundaryTowardThePartlySeenView) {
+  const int grid = 65;
+  FaceViewMap face;
+  face.views = {0, 1};
+  face.directions = {Eigen::Vector2f(-0.5f, 0.f), Eigen::Vector2f(0.5f, 0.f)};
+  const int row = (grid - 1) / 2;  // y = 0
+  const auto boundary = [&](const FaceViewMap& f) {
+    for (int i = 0; i < grid; ++i) {
+      if (f.nearest[static_cast<size_t>(row) * grid + i] == 1) return GridCoordinate(i, grid);
+    }
+    return 10.0;
+  };
+  BuildGrid(grid, &face);
+  EXPECT_NEAR(boundary(face), 0.0, 0.1);
+  BuildGrid(grid, &face, {0.f, 0.6f});
+  EXPECT_NEAR(boundary(face), 0.3, 0.1);
+  // Beyond the partly seen view the samples stay its own (a direction no whole view is near).
+  EXPECT_EQ(face.nearest[static_cast<size_t>(row) * grid + grid - 1], 1);
+  BuildGrid(grid, &face, {0.f, 100.f});  // never nearer: every sample the whole view's
+  EXPECT_EQ(std::count(face.nearest.begin(), face.nearest.end(), 1), 0);
+  EXPECT_THROW(BuildGrid(grid, &face, {0.f}), std::invalid_argument);
+}
+
 class ViewMapsFile : public ::testing::Test {
  protected:
   void SetUp() override {

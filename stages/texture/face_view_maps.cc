@@ -9,7 +9,7 @@ namespace ibmr {
 
 ViewMaps BuildViewMaps(const FaceGeometry& geometry, const FaceObservations& observations,
                        const std::vector<Eigen::Vector3d>& view_centers, const std::vector<std::string>& view_names,
-                       int grid) {
+                       int grid, double partial_penalty) {
   ViewMaps maps;
   maps.grid = grid;
   maps.view_names = view_names;
@@ -24,12 +24,14 @@ ViewMaps BuildViewMaps(const FaceGeometry& geometry, const FaceObservations& obs
     FaceViewMap& face = maps.faces[f];
     if (list.empty()) return;
     const Eigen::Matrix3d frame = FaceFrame(geometry.normals[f]);
+    std::vector<float> penalty;
     for (const FaceObservation& o : list) {
+      penalty.push_back(o.partial || o.hidden || o.back ? static_cast<float>(partial_penalty) : 0.f);
       face.views.push_back(static_cast<uint16_t>(o.view));
       const Eigen::Vector3d direction = (view_centers[o.view] - geometry.centroids[f]).normalized();
       face.directions.push_back(MapDirection(frame, direction).cast<float>());
     }
-    BuildGrid(grid, &face);
+    BuildGrid(grid, &face, penalty);
   });
   return maps;
 }

@@ -25,6 +25,9 @@ bool TextureOptions::Check(std::string* error) const {
   if (padding < 0 || padding > 64) return fail("padding: must be in [0, 64], got " + std::to_string(padding));
   if (hole_cell < 3 || hole_cell > 64) return fail("hole_cell: must be in [3, 64], got " + std::to_string(hole_cell));
   if (view_map_grid < 2 || view_map_grid > 256) return fail("view_map_grid: must be in [2, 256], got " + std::to_string(view_map_grid));
+  if (!(view_map_partial_penalty >= 0 && view_map_partial_penalty <= 10)) {
+    return fail("view_map_partial_penalty: must be in [0, 10] (radians), got " + std::to_string(view_map_partial_penalty));
+  }
   return true;
 }
 

@@ -26,6 +26,11 @@ struct TextureOptions {
   int padding = 2;                 // texels of image around each patch (edge bleeding)
   int hole_cell = 4;               // texels of the square cell of a face no view sees
   int view_map_grid = 24;          // samples per side of each face's view map (seed 003 §7)
+  // A view that sees a face only partly (a corner or its centroid hidden, or from behind its
+  // normal) counts this much farther (radians in the map plane) when the view map's samples pick
+  // their nearest view: such views fill the directions no whole view is near, and the renderer's
+  // per-pixel depth test keeps the parts they see (seed 003 splits the polygon instead).
+  double view_map_partial_penalty = 0.3;
 
   bool Check(std::string* error) const;
 };

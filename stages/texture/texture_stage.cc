@@ -55,6 +55,7 @@ TextureOptions ToOptions(const Params& p) {
   o.padding = static_cast<int>(p.Int("padding"));
   o.hole_cell = static_cast<int>(p.Int("hole_cell"));
   o.view_map_grid = static_cast<int>(p.Int("view_map_grid"));
+  o.view_map_partial_penalty = p.Double("view_map_partial_penalty");
   return o;
 }
 
@@ -69,7 +70,9 @@ class TextureStage : public Stage {
     return "Texture atlas of a mesh from the training views (view selection, gains, seam leveling, hole filling) "
            "and view maps for view-dependent texture mapping (texture/)";
   }
-  std::string Version() const override { return "3"; }  // 2: faces turned, photo-consistency, partly seen views in the view maps; 3: hidden and back ones too
+  // 2: faces turned, photo-consistency, partly seen views in the view maps; 3: hidden and back ones
+  // too; 4: those count view_map_partial_penalty farther in the grid.
+  std::string Version() const override { return "4"; }
   HoldoutRole Role() const override { return HoldoutRole::kTrainingOnly; }
 
   std::vector<ParamSpec> Parameters() const override {
@@ -90,6 +93,8 @@ class TextureStage : public Stage {
         {"padding", ParamType::kInt, std::to_string(d.padding), "image texels around each patch, [0, 64]"},
         {"hole_cell", ParamType::kInt, std::to_string(d.hole_cell), "texels per side of an unseen face's cell, [3, 64]"},
         {"view_map_grid", ParamType::kInt, std::to_string(d.view_map_grid), "view map samples per side, [2, 256]"},
+        {"view_map_partial_penalty", ParamType::kDouble, std::to_string(d.view_map_partial_penalty),
+         "radians a partly seen view counts farther in the view maps' nearest-view choice, [0, 10]"},
     };
   }
 
@@ -249,7 +254,7 @@ class TextureStage : public Stage {
     if (!check.empty()) throw std::runtime_error("texture: internal: the atlas is inconsistent: " + check);
     WriteTexturedObj(textured, folder, "mesh");
     WriteTexturedGlb(textured, folder + "/mesh.glb");
-    WriteViewMaps(BuildViewMaps(geometry, visible, centers, names, options.view_map_grid), folder + "/view_maps.bin");
+    WriteViewMaps(BuildViewMaps(geometry, visible, centers, names, options.view_map_grid, options.view_map_partial_penalty), folder + "/view_maps.bin");
     context.metrics["seconds_write"] = SecondsSince(start);
   }
 

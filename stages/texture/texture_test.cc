@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 
 #include <Eigen/Geometry>
+#include <cmath>
 #include <random>
 
 #include "stages/texture/color_leveling.h"
@@ -81,6 +82,8 @@ TEST(TextureOptions, DefaultsAreValidAndEachRangeIsChecked) {
   fails([](TextureOptions& o) { o.padding = -1; }, "padding");
   fails([](TextureOptions& o) { o.hole_cell = 2; }, "hole_cell");
   fails([](TextureOptions& o) { o.view_map_grid = 1; }, "view_map_grid");
+  fails([](TextureOptions& o) { o.view_map_partial_penalty = -0.1; }, "view_map_partial_penalty");
+  fails([](TextureOptions& o) { o.view_map_partial_penalty = std::nan(""); }, "view_map_partial_penalty");
 }
 
 // Möller-Trumbore: distance along the ray to the triangle, or -1.
