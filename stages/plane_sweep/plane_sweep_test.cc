@@ -250,11 +250,16 @@ TEST(PlaneSweep, UntexturedImageHasLowConfidence) {
   EXPECT_LT(result.valid_fraction, 0.05);
 }
 
-// The AVX-512 build of the engine's loops and the portable one give the same maps bit for bit:
-// multi-view census with general homographies (rotated neighbours, correspondences leaving the
-// image and falling behind a camera), and two-view stereo with every cost.
+// Every vectorised build of the engine's loops the CPU runs (AVX2, AVX-512) gives the portable
+// one's maps bit for bit: multi-view census with general homographies (rotated neighbours,
+// correspondences leaving the image and falling behind a camera), and two-view stereo with every
+// cost.
 TEST(SweepEngine, VectorisedAndPortableBuildsAreBitIdentical) {
-  if (sweep::BestIsa() == sweep::Isa::kPortable) GTEST_SKIP() << "this CPU runs the portable build only (no AVX-512 VPOPCNTDQ)";
+  std::vector<sweep::Isa> vectorised_isas;
+  for (sweep::Isa isa : {sweep::Isa::kAvx2, sweep::Isa::kAvx512}) {
+    if (sweep::IsaSupported(isa)) vectorised_isas.push_back(isa);
+  }
+  if (vectorised_isas.empty()) GTEST_SKIP() << "this CPU runs the portable build only (no AVX2)";
   const int w = 150, h = 110;
   const Camera camera = Camera::Pinhole(w, h, 120, 118, 74.3, 56.1);
   const SweepView ref{"ref", RandomTexture(w, h, 11), camera, Rigid3d()};
@@ -289,7 +294,6 @@ TEST(SweepEngine, VectorisedAndPortableBuildsAreBitIdentical) {
     return std::make_pair(std::move(result), pairs);
   };
   const auto portable = run(sweep::Isa::kPortable);
-  const auto vectorised = run(sweep::Isa::kAvx512);
   // Homographies not affine in the plane index (the engine's general path): the same volumes.
   std::vector<sweep::Neighbour> general(2);
   cv::RNG rng(5);
@@ -302,22 +306,56 @@ TEST(SweepEngine, VectorisedAndPortableBuildsAreBitIdentical) {
       general[i].homographies.push_back(m);
     }
   }
-  sweep::CostVolume general_portable, general_vectorised;
+  sweep::CostVolume general_portable;
   sweep::SetIsa(sweep::Isa::kPortable);
   sweep::BuildCostVolume(ref.gray, general, sweep::EngineOptions(), &general_portable);
-  sweep::SetIsa(sweep::Isa::kAvx512);
-  sweep::BuildCostVolume(ref.gray, general, sweep::EngineOptions(), &general_vectorised);
-  EXPECT_EQ(general_portable.data, general_vectorised.data);
-  sweep::SetIsa(sweep::BestIsa());
   size_t valid = 0;
   for (float z : portable.first.depth.data) valid += z > 0;
   EXPECT_GT(valid, size_t{1000}) << "the scene should give depth somewhere";
-  EXPECT_EQ(portable.first.depth.data, vectorised.first.depth.data);
-  EXPECT_EQ(portable.first.confidence.data, vectorised.first.confidence.data);
-  EXPECT_EQ(portable.first.normals.data, vectorised.first.normals.data);
-  for (size_t i = 0; i < portable.second.size(); ++i) {
-    EXPECT_EQ(cv::norm(portable.second[i], vectorised.second[i], cv::NORM_INF), 0.0) << "two-view cost " << i;
+  for (sweep::Isa isa : vectorised_isas) {
+    SCOPED_TRACE(sweep::IsaName(isa));
+    const auto vectorised = run(isa);
+    sweep::CostVolume general_vectorised;
+    sweep::BuildCostVolume(ref.gray, general, sweep::EngineOptions(), &general_vectorised);
+    EXPECT_EQ(general_portable.data, general_vectorised.data);
+    EXPECT_EQ(portable.first.depth.data, vectorised.first.depth.data);
+    EXPECT_EQ(portable.first.confidence.data, vectorised.first.confidence.data);
+    EXPECT_EQ(portable.first.normals.data, vectorised.first.normals.data);
+    for (size_t i = 0; i < portable.second.size(); ++i) {
+      EXPECT_EQ(cv::norm(portable.second[i], vectorised.second[i], cv::NORM_INF), 0.0) << "two-view cost " << i;
+    }
   }
+  sweep::SetIsa(sweep::BestIsa());
+}
+
+// The census codes of every build against the definition: bit set where the window's pixel
+// (borders clamped) is darker than the centre, offsets in row-major order, the centre skipped.
+TEST(SweepEngine, CensusCodesMatchTheDefinition) {
+  const int w = 53, h = 31;
+  cv::Mat gray(h, w, CV_8UC1);
+  cv::RNG rng(9);
+  rng.fill(gray, cv::RNG::UNIFORM, 0, 6);  // few levels: ties (not darker) are common
+  for (const auto& [rx, ry] : {std::pair{4, 3}, std::pair{1, 1}, std::pair{3, 4}}) {
+    std::vector<uint64_t> expected(static_cast<size_t>(w) * h, 0);
+    for (int y = 0; y < h; ++y) {
+      for (int x = 0; x < w; ++x) {
+        uint64_t code = 0;
+        for (int dy = -ry; dy <= ry; ++dy) {
+          for (int dx = -rx; dx <= rx; ++dx) {
+            if (dx == 0 && dy == 0) continue;
+            const uint8_t q = gray.at<uint8_t>(std::clamp(y + dy, 0, h - 1), std::clamp(x + dx, 0, w - 1));
+            code = (code << 1) | (q < gray.at<uint8_t>(y, x) ? 1u : 0u);
+          }
+        }
+        expected[static_cast<size_t>(y) * w + x] = code;
+      }
+    }
+    for (sweep::Isa isa : {sweep::Isa::kPortable, sweep::Isa::kAvx2, sweep::Isa::kAvx512}) {
+      if (!sweep::SetIsa(isa)) continue;
+      EXPECT_EQ(sweep::CensusTransform(gray, rx, ry), expected) << sweep::IsaName(isa) << " " << rx << "x" << ry;
+    }
+  }
+  sweep::SetIsa(sweep::BestIsa());
 }
 
 class PlaneSweepStageTest : public ::testing::Test {

@@ -23,40 +23,80 @@ std::vector<std::unique_ptr<Buffers>>& Pool() {
   return pool;
 }
 
-// IBMR_ISA=portable in the environment starts the process on the portable build (to compare the
-// two as whole processes).
+// IBMR_ISA=portable (or avx2) in the environment starts the process on that build where the CPU
+// runs it (to compare the builds as whole processes).
 std::atomic<Isa>& Active() {
   static std::atomic<Isa> active{[] {
     const char* forced = std::getenv("IBMR_ISA");
-    return forced != nullptr && std::strcmp(forced, "portable") == 0 ? Isa::kPortable : BestIsa();
+    if (forced != nullptr) {
+      for (Isa isa : {Isa::kPortable, Isa::kAvx2, Isa::kAvx512}) {
+        if (std::strcmp(forced, IsaName(isa)) == 0 && IsaSupported(isa)) return isa;
+      }
+    }
+    return BestIsa();
   }()};
   return active;
 }
 
 }  // namespace
 
-Isa BestIsa() {
+bool IsaSupported(Isa isa) {
+  switch (isa) {
+    case Isa::kPortable:
+      return true;
 #if IBMR_SWEEP_HAVE_AVX512
-  static const bool avx512 = __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512bw") &&
-                             __builtin_cpu_supports("avx512dq") && __builtin_cpu_supports("avx512vl") &&
-                             __builtin_cpu_supports("avx512vpopcntdq");
-  if (avx512) return Isa::kAvx512;
+    case Isa::kAvx2: {
+      static const bool avx2 = __builtin_cpu_supports("avx2") && __builtin_cpu_supports("bmi2") &&
+                               __builtin_cpu_supports("fma") && __builtin_cpu_supports("popcnt");
+      return avx2;
+    }
+    case Isa::kAvx512: {
+      static const bool avx512 = __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512bw") &&
+                                 __builtin_cpu_supports("avx512dq") && __builtin_cpu_supports("avx512vl") &&
+                                 __builtin_cpu_supports("avx512vpopcntdq");
+      return avx512;
+    }
 #endif
+    default:
+      return false;
+  }
+}
+
+Isa BestIsa() {
+  if (IsaSupported(Isa::kAvx512)) return Isa::kAvx512;
+  if (IsaSupported(Isa::kAvx2)) return Isa::kAvx2;
   return Isa::kPortable;
 }
 
 Isa ActiveIsa() { return Active().load(); }
 
 bool SetIsa(Isa isa) {
-  if (isa == Isa::kAvx512 && BestIsa() != Isa::kAvx512) return false;
+  if (!IsaSupported(isa)) return false;
   Active().store(isa);
   return true;
 }
 
-const char* IsaName(Isa isa) { return isa == Isa::kAvx512 ? "avx512" : "portable"; }
+const char* IsaName(Isa isa) {
+  switch (isa) {
+    case Isa::kAvx2:
+      return "avx2";
+    case Isa::kAvx512:
+      return "avx512";
+    default:
+      return "portable";
+  }
+}
 
 #if IBMR_SWEEP_HAVE_AVX512
-#define IBMR_SWEEP_DISPATCH(call) return ActiveIsa() == Isa::kAvx512 ? avx512::call : portable::call
+#define IBMR_SWEEP_DISPATCH(call)                                  \
+  switch (ActiveIsa()) {                                           \
+    case Isa::kAvx512:                                             \
+      return avx512::call;                                         \
+    case Isa::kAvx2:                                               \
+      return avx2::call;                                           \
+    default:                                                       \
+      return portable::call;                                       \
+  }
 #else
 #define IBMR_SWEEP_DISPATCH(call) return portable::call
 #endif

@@ -121,11 +121,13 @@ class BufferLease {
 // Frees the pooled buffers (call when a stage is done).
 void ReleaseBufferPool();
 
-// The engine's loops exist in two builds (sweep_kernels.cc): portable (the baseline instruction
-// set) and AVX-512 (gathers and VPOPCNTQ for the census cost, 32 x 16-bit lanes for aggregation).
-// The best one the CPU runs is chosen at start-up (IBMR_ISA=portable in the environment forces
-// the portable one); both give bit-identical volumes, winners and depth maps.
-enum class Isa { kPortable, kAvx512 };
+// The engine's loops exist in three builds (sweep_kernels.cc): portable (the baseline instruction
+// set), AVX2 (16 x 16-bit lanes for aggregation, 8 floats for the projections) and AVX-512
+// (gathers and VPOPCNTQ for the census cost, 32 x 16-bit lanes). The best one the CPU runs is
+// chosen at start-up (IBMR_ISA=portable or avx2 in the environment forces that one, where the
+// CPU runs it); all give bit-identical volumes, winners and depth maps.
+enum class Isa { kPortable, kAvx2, kAvx512 };
+bool IsaSupported(Isa isa);  // the CPU runs it and this build has it
 Isa BestIsa();     // the fastest build this CPU runs
 Isa ActiveIsa();   // the build in use
 bool SetIsa(Isa isa);  // false (and no change) when the CPU cannot run `isa`

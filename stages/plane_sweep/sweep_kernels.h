@@ -19,6 +19,9 @@ namespace sweep {
 namespace portable {
 IBMR_SWEEP_KERNEL_DECLARATIONS
 }  // namespace portable
+namespace avx2 {
+IBMR_SWEEP_KERNEL_DECLARATIONS
+}  // namespace avx2
 namespace avx512 {
 IBMR_SWEEP_KERNEL_DECLARATIONS
 }  // namespace avx512
