@@ -46,7 +46,7 @@ std::string ReadText(const fs::path& path) {
 // finished, and the metrics that are times.
 nlohmann::json WithoutTimes(nlohmann::json record) {
   for (const char* key : {"started", "wall_seconds", "cpu_seconds", "peak_memory_mb", "views_resumed", "memory_budget_mb", "child_peak_memory_mb",
-                          "views_in_flight"})
+                          "views_in_flight", "start_memory_mb"})
     record.erase(key);
   nlohmann::json metrics = nlohmann::json::object();
   for (auto it = record["metrics"].begin(); it != record["metrics"].end(); ++it) {
