@@ -164,19 +164,26 @@ nlohmann::json Middlebury(Runner& runner, const std::string& dir, const std::str
 // threads and the clock read from /proc/cpuinfo.
 nlohmann::json MachineLimit(int threads) {
   double mhz = 0;
+  std::string vendor;
+  int family = 0;
   std::ifstream cpuinfo("/proc/cpuinfo");
   for (std::string line; std::getline(cpuinfo, line);) {
-    if (line.rfind("cpu MHz", 0) == 0 && line.find(':') != std::string::npos) {
-      mhz = std::atof(line.substr(line.find(':') + 1).c_str());
-      break;
-    }
+    const size_t colon = line.find(':');
+    if (colon == std::string::npos) continue;
+    const std::string value = line.substr(colon + 1);
+    if (line.rfind("cpu MHz", 0) == 0 && mhz == 0) mhz = std::atof(value.c_str());
+    if (line.rfind("vendor_id", 0) == 0 && vendor.empty()) vendor = value.substr(value.find_first_not_of(' '));
+    if (line.rfind("cpu family", 0) == 0 && family == 0) family = std::atoi(value.c_str());
   }
-  const double loads_per_cycle = 3, loads_per_evaluation = 4;
+  // Loads a core issues per cycle: AMD family 23 (Zen 1 and 2) has two load ports, Zen 3 and later
+  // (and Intel since Ice Lake) three.
+  const double loads_per_cycle = vendor == "AuthenticAMD" && family <= 23 ? 2 : 3, loads_per_evaluation = 4;
   const double limit = threads * mhz * 1e6 * loads_per_cycle / loads_per_evaluation;
-  return {{"threads", threads}, {"cpu_mhz", mhz}, {"loads_per_cycle_per_core", loads_per_cycle},
-          {"loads_per_evaluation", loads_per_evaluation}, {"evaluations_per_second", limit},
-          {"derivation", "threads x clock x 3 loads per cycle / 4 neighbour codes per bilinear census evaluation "
-                         "(load-port bound; the XOR, POPCNT and weighting run on other ports)"}};
+  return {{"threads", threads}, {"cpu_mhz", mhz}, {"cpu_vendor", vendor}, {"cpu_family", family},
+          {"loads_per_cycle_per_core", loads_per_cycle}, {"loads_per_evaluation", loads_per_evaluation},
+          {"evaluations_per_second", limit},
+          {"derivation", "threads x clock x loads per cycle (2 on AMD family 23, else 3) / 4 neighbour codes per "
+                         "bilinear census evaluation (load-port bound; the XOR, POPCNT and weighting run on other ports)"}};
 }
 
 }  // namespace
