@@ -25,6 +25,7 @@
 #include <tbb/parallel_invoke.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <limits>
 #include <opencv2/imgproc.hpp>
@@ -715,70 +716,93 @@ int64_t BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector<st
   }
   const int k_shift = (k & (k - 1)) == 0 ? __builtin_ctz(k) : -1;  // a power-of-two k divides by a shift
   tbb::enumerable_thread_specific<int64_t> evaluations(0);
+  // Pixels in chunks of kChunk along a row, each neighbour in turn over the chunk: the codes one
+  // neighbour's correspondences read for a chunk stay in the first-level cache (pixel by pixel
+  // with every neighbour inside, the four neighbours' paths together overflowed it).
+  constexpr int kChunk = 16;
   tbb::parallel_for(tbb::blocked_range<int>(0, h, 4), [&](const tbb::blocked_range<int>& rows) {
-    std::vector<uint16_t> costs(static_cast<size_t>(nn) * n, kMaxCost);
+    std::vector<uint16_t> chunk_costs(static_cast<size_t>(kChunk) * nn * n, kMaxCost);
     std::vector<uint16_t> best(static_cast<size_t>(k) * n);
+    std::array<int, kChunk> chunk_p0{}, chunk_p1{};
+    std::array<bool, kChunk> chunk_live{};
     Taps taps;
     taps.Resize(n);
     int64_t& done = evaluations.local();
     for (int y = rows.begin(); y < rows.end(); ++y) {
-      for (int x = 0; x < w; ++x) {
-        const size_t pixel = static_cast<size_t>(y) * w + x;
-        int p0 = 0, p1 = n;  // blocks of 16 planes evaluated
-        if (ranges != nullptr) {
-          const int first = ranges->first[pixel], last = ranges->last[pixel];
-          if (first > last || first >= np) continue;
-          p0 = first & ~15;
-          p1 = std::min(n, (last + 16) & ~15);
+      for (int x0 = 0; x0 < w; x0 += kChunk) {
+        const int count = std::min(kChunk, w - x0);
+        for (int j = 0; j < count; ++j) {
+          const size_t pixel = static_cast<size_t>(y) * w + x0 + j;
+          int p0 = 0, p1 = n;  // blocks of 16 planes evaluated
+          chunk_live[j] = true;
+          if (ranges != nullptr) {
+            const int first = ranges->first[pixel], last = ranges->last[pixel];
+            if (first > last || first >= np) {
+              chunk_live[j] = false;
+              continue;
+            }
+            p0 = first & ~15;
+            p1 = std::min(n, (last + 16) & ~15);
+          }
+          chunk_p0[j] = p0;
+          chunk_p1[j] = p1;
+          done += static_cast<int64_t>(std::min(p1, np) - p0) * nn;
         }
-        const int p_end = std::min(p1, np);
-        done += static_cast<int64_t>(p_end - p0) * nn;
-        const uint64_t code = ref[pixel];
         for (int i = 0; i < nn; ++i) {
           const int sw = neighbours[i].gray.cols, sh = neighbours[i].gray.rows;
           const bool shifts = !shift[i].empty();
-          uint16_t* c = costs.data() + static_cast<size_t>(i) * n;
-          if (shifts) {
-            ShiftCensusCosts(code, src[i].data(), shift[i].data(), disparity_order[i], p0, p_end, x, y, sw, sh, c);
-          } else {
-            if (affine[i]) {
-              ComputeAffineTaps(family[i], p0, p1, x + 0.5f, y + 0.5f, sw, sh, &taps);
+          for (int j = 0; j < count; ++j) {
+            if (!chunk_live[j]) continue;
+            const int x = x0 + j, p0 = chunk_p0[j], p1 = chunk_p1[j];
+            const uint64_t code = ref[static_cast<size_t>(y) * w + x];
+            uint16_t* c = chunk_costs.data() + (static_cast<size_t>(j) * nn + i) * n;
+            if (shifts) {
+              ShiftCensusCosts(code, src[i].data(), shift[i].data(), disparity_order[i], p0, std::min(p1, np), x, y, sw, sh, c);
             } else {
-              ComputeTaps(hom[i].data(), n, p0, p1, x + 0.5f, y + 0.5f, sw, sh, &taps);
+              if (affine[i]) {
+                ComputeAffineTaps(family[i], p0, p1, x + 0.5f, y + 0.5f, sw, sh, &taps);
+              } else {
+                ComputeTaps(hom[i].data(), n, p0, p1, x + 0.5f, y + 0.5f, sw, sh, &taps);
+              }
+              CensusCosts(code, src[i].data(), sw, taps, p0, p1, c);
             }
-            CensusCosts(code, src[i].data(), sw, taps, p0, p1, c);
           }
         }
-        uint16_t* out = v->At(x, y);
-        if (nn == 1) {
-          std::copy(costs.data() + p0, costs.data() + p_end, out + p0);
-          continue;
-        }
-        if (k == nn) {
+        for (int j = 0; j < count; ++j) {
+          if (!chunk_live[j]) continue;
+          const int p0 = chunk_p0[j], p1 = chunk_p1[j], p_end = std::min(p1, np);
+          uint16_t* costs = chunk_costs.data() + static_cast<size_t>(j) * nn * n;
+          uint16_t* out = v->At(x0 + j, y);
+          if (nn == 1) {
+            std::copy(costs + p0, costs + p_end, out + p0);
+            continue;
+          }
+          if (k == nn) {
+            for (int p = p0; p < p_end; ++p) {
+              uint32_t sum = 0;
+              for (int i = 0; i < nn; ++i) sum += costs[static_cast<size_t>(i) * n + p];
+              out[p] = static_cast<uint16_t>(sum / nn);
+            }
+            continue;
+          }
+          // k smallest per plane by an insertion network (vectorises over planes).
+          std::fill(best.begin(), best.end(), static_cast<uint16_t>(0xFFFF));
+          for (int i = 0; i < nn; ++i) {
+            uint16_t* c = costs + static_cast<size_t>(i) * n;  // the value being inserted
+            for (int q = 0; q < k; ++q) {
+              uint16_t* b = best.data() + static_cast<size_t>(q) * n;
+              for (int p = p0; p < p1; ++p) {
+                const uint16_t lo = std::min(b[p], c[p]);
+                c[p] = std::max(b[p], c[p]);
+                b[p] = lo;
+              }
+            }
+          }
           for (int p = p0; p < p_end; ++p) {
             uint32_t sum = 0;
-            for (int i = 0; i < nn; ++i) sum += costs[static_cast<size_t>(i) * n + p];
-            out[p] = static_cast<uint16_t>(sum / nn);
+            for (int q = 0; q < k; ++q) sum += best[static_cast<size_t>(q) * n + p];
+            out[p] = static_cast<uint16_t>(k_shift >= 0 ? sum >> k_shift : sum / k);
           }
-          continue;
-        }
-        // k smallest per plane by an insertion network (vectorises over planes).
-        std::fill(best.begin(), best.end(), static_cast<uint16_t>(0xFFFF));
-        for (int i = 0; i < nn; ++i) {
-          uint16_t* c = costs.data() + static_cast<size_t>(i) * n;  // the value being inserted
-          for (int j = 0; j < k; ++j) {
-            uint16_t* b = best.data() + static_cast<size_t>(j) * n;
-            for (int p = p0; p < p1; ++p) {
-              const uint16_t lo = std::min(b[p], c[p]);
-              c[p] = std::max(b[p], c[p]);
-              b[p] = lo;
-            }
-          }
-        }
-        for (int p = p0; p < p_end; ++p) {
-          uint32_t sum = 0;
-          for (int j = 0; j < k; ++j) sum += best[static_cast<size_t>(j) * n + p];
-          out[p] = static_cast<uint16_t>(k_shift >= 0 ? sum >> k_shift : sum / k);
         }
       }
     }
