@@ -46,12 +46,15 @@ bool IsaSupported(Isa isa) {
       return true;
 #if IBMR_SWEEP_HAVE_AVX512
     case Isa::kAvx2: {
-      static const bool avx2 = __builtin_cpu_supports("avx2") && __builtin_cpu_supports("bmi2") &&
-                               __builtin_cpu_supports("fma") && __builtin_cpu_supports("popcnt");
+      // Every feature the build's `#pragma GCC target` enables (sweep_kernels.cc).
+      static const bool avx2 = __builtin_cpu_supports("avx2") && __builtin_cpu_supports("bmi") &&
+                               __builtin_cpu_supports("bmi2") && __builtin_cpu_supports("fma") &&
+                               __builtin_cpu_supports("popcnt");
       return avx2;
     }
     case Isa::kAvx512: {
-      static const bool avx512 = __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512bw") &&
+      static const bool avx512 = IsaSupported(Isa::kAvx2) && __builtin_cpu_supports("avx512cd") &&
+                                 __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512bw") &&
                                  __builtin_cpu_supports("avx512dq") && __builtin_cpu_supports("avx512vl") &&
                                  __builtin_cpu_supports("avx512vpopcntdq");
       return avx512;
