@@ -329,13 +329,14 @@ TEST(SweepEngine, VectorisedAndPortableBuildsAreBitIdentical) {
 }
 
 // The census codes of every build against the definition: bit set where the window's pixel
-// (borders clamped) is darker than the centre, offsets in row-major order, the centre skipped.
+// (borders clamped) is darker than the centre, offsets in row-major order, the centre skipped;
+// a window of more than 64 offsets (11x9) keeps the last 64.
 TEST(SweepEngine, CensusCodesMatchTheDefinition) {
   const int w = 53, h = 31;
   cv::Mat gray(h, w, CV_8UC1);
   cv::RNG rng(9);
   rng.fill(gray, cv::RNG::UNIFORM, 0, 6);  // few levels: ties (not darker) are common
-  for (const auto& [rx, ry] : {std::pair{4, 3}, std::pair{1, 1}, std::pair{3, 4}}) {
+  for (const auto& [rx, ry] : {std::pair{4, 3}, std::pair{1, 1}, std::pair{3, 4}, std::pair{5, 4}}) {
     std::vector<uint64_t> expected(static_cast<size_t>(w) * h, 0);
     for (int y = 0; y < h; ++y) {
       for (int x = 0; x < w; ++x) {
