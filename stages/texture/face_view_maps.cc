@@ -26,7 +26,7 @@ ViewMaps BuildViewMaps(const FaceGeometry& geometry, const FaceObservations& obs
     const Eigen::Matrix3d frame = FaceFrame(geometry.normals[f]);
     std::vector<float> penalty;
     for (const FaceObservation& o : list) {
-      penalty.push_back(o.partial || o.hidden || o.back ? static_cast<float>(partial_penalty) : 0.f);
+      penalty.push_back(o.SeesWhole() ? 0.f : static_cast<float>(partial_penalty));
       face.views.push_back(static_cast<uint16_t>(o.view));
       const Eigen::Vector3d direction = (view_centers[o.view] - geometry.centroids[f]).normalized();
       face.directions.push_back(MapDirection(frame, direction).cast<float>());

@@ -37,6 +37,9 @@ struct FaceObservation {
   bool back = false;  // the view sees the face's back (its winding is the wrong way round, or the view is wrong)
   bool partial = false;  // a corner is hidden: for the view maps only
   bool hidden = false;   // the centroid is hidden (the face is behind other parts of the mesh): view maps only
+
+  // The view sees the whole face from its front: the atlas takes only these; the view maps prefer them.
+  bool SeesWhole() const { return !partial && !hidden && !back; }
 };
 
 // Per face: the views that see it entirely, in view order.

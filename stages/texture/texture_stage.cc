@@ -179,7 +179,7 @@ class TextureStage : public Stage {
     size_t partial = 0;
     for (std::vector<FaceObservation>& list : observations) {
       const size_t before = list.size();
-      list.erase(std::remove_if(list.begin(), list.end(), [](const FaceObservation& o) { return o.partial || o.hidden || o.back; }), list.end());
+      list.erase(std::remove_if(list.begin(), list.end(), [](const FaceObservation& o) { return !o.SeesWhole(); }), list.end());
       partial += before - list.size();
     }
     context.metrics["observations_partial"] = partial;
