@@ -853,18 +853,21 @@ std::vector<uint64_t> CensusTransform(const cv::Mat& gray, int rx, int ry) {
       // One window offset at a time over the whole row, in groups of 8: each offset's bit goes
       // into a byte per pixel (the loop over x runs on 8-bit lanes), and each full group shifts
       // into the 64-bit codes once. The bits land in the same order as one shift per offset.
+      // (The first offset of a group assigns its bit, so `bits` needs no clearing.)
       int in_group = 0;
-      std::fill(bits.begin(), bits.end(), uint8_t{0});
       const auto flush = [&] {
         for (int x = 0; x < w; ++x) out[x] = (out[x] << in_group) | bits[x];
-        std::fill(bits.begin(), bits.end(), uint8_t{0});
         in_group = 0;
       };
       for (int dy = -ry; dy <= ry; ++dy) {
         for (int dx = -rx; dx <= rx; ++dx) {
           if (dx == 0 && dy == 0) continue;
           const uint8_t* q = padded.data() + static_cast<size_t>(dy + ry) * pw + rx + dx;
-          for (int x = 0; x < w; ++x) bits[x] = static_cast<uint8_t>((bits[x] << 1) | (q[x] < c[x]));
+          if (in_group == 0) {
+            for (int x = 0; x < w; ++x) bits[x] = static_cast<uint8_t>(q[x] < c[x]);
+          } else {
+            for (int x = 0; x < w; ++x) bits[x] = static_cast<uint8_t>((bits[x] << 1) | (q[x] < c[x]));
+          }
           if (++in_group == 8) flush();
         }
       }
