@@ -107,20 +107,26 @@ struct BlendWeight {
 
 struct RenderResult {
   cv::Mat image;     // CV_8UC3; black where not covered
-  cv::Mat coverage;  // CV_8UC1; 255 where covered (proxy hit and at least one camera usable)
+  cv::Mat coverage;  // CV_8UC1; 255 where covered (proxy hit and at least one camera usable); after
+                     // Downsample, the covered fraction of the pixel (alpha, 1-255): `image` is then
+                     // premultiplied, the model's colour over black
   size_t covered_pixels = 0;
 };
 
 // Box-filters a render made at `factor` times the resolution (Camera::Scaled(factor)) down to
 // the desired size, like a camera integrating over its pixel. Sub-samples that miss the proxy
 // (`fine_surface.hit` 0) count as black background (anti-aliased silhouettes); sub-samples that
-// hit it but that no source sees (holes) are left out of the mean. A pixel is covered when at least
-// half of its other sub-samples are.
+// hit it but that no source sees (holes) are left out of the mean. A pixel is covered when any of its
+// other sub-samples is, with its coverage (alpha) the covered fraction of them: a silhouette pixel
+// the model covers a quarter of shows a quarter of its colour, as the photograph does, rather than
+// nothing. Held out, holes black, against the earlier rule (covered when half of them are): synthetic
+// ring textured 35.7 -> 37.9 dB, ULR 30.5 -> 31.2; templeRing's surfel mesh 24.84 -> 24.93.
 RenderResult Downsample(const RenderResult& fine, const ProxySurface& fine_surface, int factor);
 
 // A model's render with its holes filled by a background render of the same view (issue: "a
 // background fallback for every renderer"): covered pixels keep the model's colour, uncovered ones
-// take the background's where it is covered.
+// take the background's where it is covered; pixels the model covers less than half of (alpha below
+// 128) count as uncovered here.
 RenderResult FillHoles(const RenderResult& model, const RenderResult& background);
 
 // The renderer: prepares per-source projection data once, then renders any number of views.

@@ -306,6 +306,51 @@ TEST(Ulr, FewerThanKCamerasHandled) {
   EXPECT_TRUE(renderer2.Weights(Eigen::Vector3d(100, 0, 0), Eigen::Vector3d(0, 0, 3)).empty());
 }
 
+// A 2 x 2 render from 4 x 4 sub-samples: the covered fraction becomes the pixel's alpha, the
+// colour is premultiplied (missed sub-samples black); FillHoles fills pixels covered less than half.
+TEST(Downsample, PartlyCoveredPixelsKeepTheirShareAndLessThanHalfIsFilled) {
+  RenderResult fine;
+  fine.image = cv::Mat(4, 4, CV_8UC3, cv::Scalar::all(0));
+  fine.coverage = cv::Mat(4, 4, CV_8UC1, cv::Scalar::all(0));
+  ProxySurface surface;
+  surface.width = surface.height = 4;
+  surface.hit.assign(16, 0);
+  auto sample = [&](int x, int y, bool hit, bool coloured) {
+    surface.hit[y * 4 + x] = hit;
+    if (coloured) {
+      fine.image.at<cv::Vec3b>(y, x) = cv::Vec3b(200, 200, 200);
+      fine.coverage.at<uint8_t>(y, x) = 255;
+    }
+  };
+  sample(0, 0, true, true);  // pixel (0, 0): one of four sub-samples on the model, three miss it
+  for (int y = 0; y < 2; ++y)
+    for (int x = 2; x < 4; ++x) sample(x, y, true, true);  // pixel (1, 0): all four
+  sample(0, 2, true, true);                                 // pixel (0, 1): one coloured, three hit
+  sample(1, 2, true, false);                                // the model where no source sees it
+  sample(0, 3, true, false);
+  sample(1, 3, true, false);
+  const RenderResult coarse = Downsample(fine, surface, 2);  // pixel (1, 1): nothing
+  EXPECT_EQ(coarse.coverage.at<uint8_t>(0, 0), 64);
+  EXPECT_EQ(coarse.image.at<cv::Vec3b>(0, 0), cv::Vec3b(50, 50, 50));
+  EXPECT_EQ(coarse.coverage.at<uint8_t>(0, 1), 255);
+  EXPECT_EQ(coarse.image.at<cv::Vec3b>(0, 1), cv::Vec3b(200, 200, 200));
+  EXPECT_EQ(coarse.coverage.at<uint8_t>(1, 0), 255);  // the unseen sub-samples are left out
+  EXPECT_EQ(coarse.image.at<cv::Vec3b>(1, 0), cv::Vec3b(200, 200, 200));
+  EXPECT_EQ(coarse.coverage.at<uint8_t>(1, 1), 0);
+  EXPECT_EQ(coarse.image.at<cv::Vec3b>(1, 1), cv::Vec3b(0, 0, 0));
+  EXPECT_EQ(coarse.covered_pixels, 3u);
+
+  RenderResult background;
+  background.image = cv::Mat(2, 2, CV_8UC3, cv::Scalar::all(100));
+  background.coverage = cv::Mat(2, 2, CV_8UC1, cv::Scalar::all(255));
+  const RenderResult filled = FillHoles(coarse, background);
+  EXPECT_EQ(filled.image.at<cv::Vec3b>(0, 0), cv::Vec3b(100, 100, 100));  // a quarter: the background's
+  EXPECT_EQ(filled.image.at<cv::Vec3b>(0, 1), cv::Vec3b(200, 200, 200));
+  EXPECT_EQ(filled.image.at<cv::Vec3b>(1, 1), cv::Vec3b(100, 100, 100));
+  EXPECT_EQ(filled.covered_pixels, 4u);
+  EXPECT_EQ(cv::countNonZero(filled.coverage == 255), 4);
+}
+
 TEST(ProxyPlane, MeanInverseDepthAndNearestToAxes) {
   const Rigid3d cam = LookAt(Eigen::Vector3d(0, 0, 5), Eigen::Vector3d::Zero(), Eigen::Vector3d(0, 1, 0));
   Plane plane;

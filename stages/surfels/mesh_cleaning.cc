@@ -4,6 +4,11 @@
 // `max_edges` edges (a hole a few spacings across) are closed, larger ones stay open: a missing
 // part of the data stays missing. Boundary loops that pass a vertex twice (two openings touching
 // at a vertex) are left alone, so the fill never makes a vertex non-manifold.
+// The open borders that remain are then moved out by the particles' disc radius (ExtendBorders):
+// the mesh joins the particles' centres, while each particle stands for a disc around its centre
+// (seed 000 section 5), so a border through the centres leaves the outer half of every border
+// disc uncovered, a rim a few pixels wide around every silhouette of the object.
+#include <Eigen/Geometry>
 #include <numeric>
 #include <unordered_map>
 
@@ -78,6 +83,65 @@ size_t FillSmallHoles(int max_edges, TriangleMesh* mesh) {
     ++filled;
   }
   return filled;
+}
+
+size_t ExtendBorders(float distance, TriangleMesh* mesh) {
+  if (distance <= 0 || mesh->faces.empty()) return 0;
+  auto key = [](int a, int b) { return (static_cast<uint64_t>(static_cast<uint32_t>(a)) << 32) | static_cast<uint32_t>(b); };
+  std::unordered_map<uint64_t, int> directed;
+  for (const auto& f : mesh->faces) {
+    for (int k = 0; k < 3; ++k) ++directed[key(f[k], f[(k + 1) % 3])];
+  }
+  // Border edges (a, b): a face has a -> b and no face has b -> a. Each one's outward direction
+  // lies in its face's plane, perpendicular to the edge, away from the face's third vertex; a
+  // border vertex moves along the sum of its two edges' directions.
+  struct Border {
+    Eigen::Vector3f outward = Eigen::Vector3f::Zero();
+    int leaving = 0, entering = 0;  // border edges starting / ending here
+    int moved = -1;                 // index of the moved copy
+  };
+  std::vector<std::pair<int, int>> edges;
+  std::unordered_map<int, Border> border;
+  const std::vector<Eigen::Vector3f>& v = mesh->vertices;
+  for (const auto& f : mesh->faces) {
+    for (int k = 0; k < 3; ++k) {
+      const int a = f[k], b = f[(k + 1) % 3], c = f[(k + 2) % 3];
+      if (directed.count(key(b, a))) continue;
+      const Eigen::Vector3f along = v[b] - v[a];
+      Eigen::Vector3f out = along.cross(along.cross(v[c] - v[a]));
+      if (out.dot(v[c] - v[a]) > 0) out = -out;
+      if (!(out.squaredNorm() > 0) || !out.allFinite()) continue;  // degenerate face
+      out.normalize();
+      edges.emplace_back(a, b);
+      border[a].outward += out;
+      ++border[a].leaving;
+      border[b].outward += out;
+      ++border[b].entering;
+    }
+  }
+  // Vertices where two openings touch (more than one border edge each way) stay where they are:
+  // there "outward" has no single meaning.
+  for (auto& [index, b] : border) {
+    if (b.leaving != 1 || b.entering != 1) continue;
+    Eigen::Vector3f out = b.outward;
+    if (!mesh->normals.empty()) out -= out.dot(mesh->normals[index]) * mesh->normals[index];
+    if (!(out.norm() > 1e-6f * b.outward.norm()) || !out.allFinite()) continue;
+    b.moved = static_cast<int>(mesh->vertices.size());
+    mesh->vertices.push_back(mesh->vertices[index] + distance * out.normalized());
+    if (!mesh->normals.empty()) mesh->normals.push_back(mesh->normals[index]);
+    if (!mesh->colors.empty()) mesh->colors.push_back(mesh->colors[index]);
+  }
+  // A quad (two faces) along each border edge whose ends both moved, oriented like the face it
+  // continues (it uses the edge as b -> a).
+  size_t extended = 0;
+  for (const auto& [a, b] : edges) {
+    const int a2 = border[a].moved, b2 = border[b].moved;
+    if (a2 < 0 || b2 < 0) continue;
+    mesh->faces.emplace_back(b, a, a2);
+    mesh->faces.emplace_back(b, a2, b2);
+    ++extended;
+  }
+  return extended;
 }
 
 std::vector<int> ConnectedPieces(const TriangleMesh& mesh) {

@@ -89,6 +89,7 @@ bool SurfelOptions::Check(std::string* error) const {
   if (!(max_edge >= 1 && max_edge <= 20)) return fail(Range("max_edge", "[1, 20]"));
   if (max_hole_edges < 0 || max_hole_edges > 1000) return fail(Range("max_hole_edges", "[0, 1000]"));
   if (min_component_faces < 0 || min_component_faces > 1000000) return fail(Range("min_component_faces", "[0, 1e6]"));
+  if (!(border_extension >= 0 && border_extension <= 2)) return fail(Range("border_extension", "[0, 2]"));
   if (max_particles < 1000 || max_particles > 50000000) return fail(Range("max_particles", "[1000, 5e7]"));
   return true;
 }
@@ -314,6 +315,7 @@ SurfelResult ReconstructSurfels(const PointCloud& input, const std::vector<Surfe
   result.mesh = TriangulateParticles(particles, options.max_edge * spacing);
   stats.small_component_faces = RemoveSmallComponents(options.min_component_faces, &result.mesh);
   stats.holes_filled = FillSmallHoles(options.max_hole_edges, &result.mesh);
+  stats.border_edges_extended = ExtendBorders(static_cast<float>(options.border_extension * spacing), &result.mesh);
   stats.triangulate_seconds = Seconds(triangulate_start);
   stats.vertices = result.mesh.vertices.size();
   stats.faces = result.mesh.faces.size();

@@ -27,7 +27,9 @@
 //     manifold mesh whose edges are at most `max_edge` spacings, so it never spans a hole wider
 //     than that; faces are oriented by the particles' normals. Pieces of fewer than
 //     `min_component_faces` faces are dropped, and openings bounded by at most `max_hole_edges`
-//     edges are closed (mesh_cleaning.cc); larger ones stay open.
+//     edges are closed (mesh_cleaning.cc); larger ones stay open. The open borders left then move
+//     out by `border_extension` spacings in the surface's tangent plane, to the edge of the border
+//     particles' discs rather than their centres.
 #pragma once
 
 #include <Eigen/Core>
@@ -65,6 +67,7 @@ struct SurfelOptions {
   double max_edge = 4.0;           // longest triangle edge, spacings, in [1, 20]
   int max_hole_edges = 24;         // close mesh holes bounded by at most this many edges, in [0, 1000]
   int min_component_faces = 50;    // drop mesh pieces with fewer faces than this, in [0, 1e6]
+  double border_extension = 0.75;  // open borders move out by this (spacings): to the border discs' rims, in [0, 2]
   int max_particles = 2000000;     // refuse to run beyond this many particles (memory), in [1000, 5e7]
 
   bool Check(std::string* error) const;  // error starts with the YAML key
@@ -95,6 +98,7 @@ struct SurfelStats {
   size_t vertices = 0, faces = 0;
   size_t holes_filled = 0;
   size_t small_component_faces = 0;  // faces of small pieces removed
+  size_t border_edges_extended = 0;  // open border edges moved out by border_extension
   double mean_step_last_sweep = 0;  // mean particle displacement of the last sweep, spacings
   double spacing_spread = 0;        // coefficient of variation of nearest-neighbour distances
   double prune_seconds = 0, relax_seconds = 0, triangulate_seconds = 0;  // wall time per phase
@@ -155,6 +159,11 @@ size_t FillSmallHoles(int max_edges, TriangleMesh* mesh);
 // vertices stay, unused); returns how many faces. Hand-written rather than OpenMesh: a halfedge
 // structure refuses the non-manifold vertices the advancing front occasionally leaves.
 size_t RemoveSmallComponents(int min_faces, TriangleMesh* mesh);
+// mesh_cleaning.cc: moves every open border out by `distance`: each border vertex (one border edge
+// in, one out) gets a copy moved along its edges' outward directions in the tangent plane of its
+// normal, and each border edge whose ends both moved gets a strip of two faces to them. Returns
+// how many border edges were extended. Vertices where openings touch stay put.
+size_t ExtendBorders(float distance, TriangleMesh* mesh);
 
 // surfel_mesh.cc (CGAL): which points lie inside a closed mesh, by the parity of ray crossings
 // (all true when it is not closed, with `closed` set false; up to 0.5% open edges are tolerated).

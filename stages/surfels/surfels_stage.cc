@@ -40,7 +40,7 @@ class SurfelsStage : public Stage {
   }
   // 2: mesh faces in a canonical order; 3: surfel radii 0.75 spacing; 4: the advancing front breaks
   // ties by creation order and vertex indices, not addresses (the same mesh from run to run)
-  std::string Version() const override { return "4"; }
+  std::string Version() const override { return "5"; }
   HoldoutRole Role() const override { return HoldoutRole::kTrainingOnly; }
 
   std::vector<ParamSpec> Parameters() const override {
@@ -80,6 +80,7 @@ class SurfelsStage : public Stage {
         {"max_edge", ParamType::kDouble, num(d.max_edge), "Longest triangle edge, spacings, [1, 20]"},
         {"max_hole_edges", ParamType::kInt, std::to_string(d.max_hole_edges), "Close mesh holes bounded by at most this many edges, [0, 1000]"},
         {"min_component_faces", ParamType::kInt, std::to_string(d.min_component_faces), "Drop mesh pieces with fewer faces, [0, 1e6]"},
+        {"border_extension", ParamType::kDouble, num(d.border_extension), "Open mesh borders move out by this, spacings (the border discs' outer half), [0, 2]"},
         {"max_particles", ParamType::kInt, std::to_string(d.max_particles), "Refuse to run beyond this many particles, [1000, 5e7]"},
         {"use_hull", ParamType::kBool, "true", "Keep the surface inside hull/hull.ply when it exists"},
         {"eval_samples", ParamType::kInt, "200000", "Samples for accuracy/completeness against ground_truth/mesh.ply, [1000, 1e7]"},
@@ -185,6 +186,7 @@ class SurfelsStage : public Stage {
     m["mesh_faces"] = s.faces;
     m["holes_filled"] = s.holes_filled;
     m["small_component_faces"] = s.small_component_faces;
+    m["border_edges_extended"] = s.border_edges_extended;
     m["mean_step_last_sweep"] = s.mean_step_last_sweep;
     m["spacing_spread"] = s.spacing_spread;
     m["used_hull"] = use_hull && s.hull_closed;
@@ -247,6 +249,7 @@ class SurfelsStage : public Stage {
     o.max_edge = params.Double("max_edge");
     o.max_hole_edges = static_cast<int>(params.Int("max_hole_edges"));
     o.min_component_faces = static_cast<int>(params.Int("min_component_faces"));
+    o.border_extension = params.Double("border_extension");
     o.max_particles = static_cast<int>(std::clamp<int64_t>(params.Int("max_particles"), -1, 2000000000));
     return o;
   }

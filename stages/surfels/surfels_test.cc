@@ -16,6 +16,7 @@
 #include <map>
 #include <memory>
 #include <random>
+#include <set>
 
 #include "pipeline/core/colmap_array_io.h"
 #include "pipeline/core/colmap_text_io.h"
@@ -120,6 +121,7 @@ TEST(SurfelOptions, RejectsInvalidRanges) {
       {"max_edge", [](SurfelOptions* o) { o->max_edge = 0.5; }},
       {"max_particles", [](SurfelOptions* o) { o->max_particles = 10; }},
       {"min_component_faces", [](SurfelOptions* o) { o->min_component_faces = -1; }},
+      {"border_extension", [](SurfelOptions* o) { o->border_extension = 2.5; }},
   };
   for (const auto& [key, breaks] : cases) {
     SurfelOptions options;
@@ -415,6 +417,39 @@ TEST(SurfelMesh, CleaningDropsSmallPiecesAndClosesSmallHoles) {
   TriangleMesh patch = Grid(6, -1);  // 50 faces, border of 20 edges
   EXPECT_EQ(FillSmallHoles(24, &patch), 0u);
   EXPECT_EQ(patch.faces.size(), 50u);
+}
+
+TEST(SurfelMesh, OpenBordersMoveOutInTheTangentPlaneAndClosedOnesStay) {
+  // A 10 x 10 sheet with a hole around vertex (5, 5): both the outer border and the hole's move by
+  // 0.4 outward (away from the faces), in the sheet's plane, with the new faces facing up.
+  TriangleMesh mesh = Grid(10, 5 * 10 + 5);
+  mesh.normals.assign(mesh.vertices.size(), Eigen::Vector3f::UnitZ());
+  const size_t faces = mesh.faces.size(), vertices = mesh.vertices.size();
+  const size_t extended = ExtendBorders(0.4f, &mesh);
+  EXPECT_EQ(extended, 36u + 8u);  // the outer border's edges and the hole's
+  EXPECT_EQ(mesh.faces.size(), faces + 2 * extended);
+  Eigen::Vector3f lo, hi;
+  ASSERT_TRUE(mesh.Bounds(&lo, &hi));
+  EXPECT_NEAR(lo.x(), -0.4f, 0.05f);  // the sheet spans [0, 9]: its sides move out by 0.4 (corners farther
+  EXPECT_NEAR(hi.y(), 9.4f, 0.05f);   // along the diagonal, by 0.4 too)
+  EXPECT_FLOAT_EQ(lo.z(), 0.0f);
+  EXPECT_FLOAT_EQ(hi.z(), 0.0f);
+  std::set<std::pair<int, int>> directed;
+  for (const auto& f : mesh.faces) {
+    const Eigen::Vector3f normal = (mesh.vertices[f[1]] - mesh.vertices[f[0]]).cross(mesh.vertices[f[2]] - mesh.vertices[f[0]]);
+    EXPECT_GT(normal.z(), 0);  // no strip folds back over the sheet
+    for (int k = 0; k < 3; ++k) EXPECT_TRUE(directed.insert({f[k], f[(k + 1) % 3]}).second) << "an edge used twice one way";
+  }
+  // The hole shrank: its vertices moved toward (5, 5) by 0.4 (the ring's sides lie at distance 1).
+  float nearest = 1e9f;
+  for (size_t i = vertices; i < mesh.vertices.size(); ++i) nearest = std::min(nearest, (mesh.vertices[i] - Eigen::Vector3f(5, 5, 0)).norm());
+  EXPECT_NEAR(nearest, 0.6f, 0.05f);
+  // A closed surface has no border: nothing moves.
+  TriangleMesh tetra;
+  tetra.vertices = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}, {0, 0, 1}};
+  tetra.faces = {{0, 2, 1}, {0, 1, 3}, {0, 3, 2}, {1, 2, 3}};
+  EXPECT_EQ(ExtendBorders(0.4f, &tetra), 0u);
+  EXPECT_EQ(tetra.vertices.size(), 4u);
 }
 
 // Two views above the plane z = 0 that saw the plane; a cluster floating at z = 0.5 is free space.
