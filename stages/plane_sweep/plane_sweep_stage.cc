@@ -30,6 +30,7 @@
 #include "pipeline/core/ply_io.h"
 #include "pipeline/core/rasterizer.h"
 #include "pipeline/core/stage_api.h"
+#include "pipeline/core/two_view_methods.h"
 #include "stages/plane_sweep/plane_sweep.h"
 #include "stages/plane_sweep/sweep_engine.h"
 
@@ -406,10 +407,12 @@ int StereoPairMain(const std::vector<std::string>& args) {
   int max_disparity = 64;
   PlaneSweepOptions options;
   std::string cost = "census";
+  std::string method = "plane_sweep";
   app.add_option("LEFT", left, "Left (reference) image")->required();
   app.add_option("RIGHT", right, "Right image")->required();
   app.add_option("--max-disparity", max_disparity, "Disparities searched: 0 .. N-1")->check(CLI::Range(1, 4096));
   app.add_option("--out", out, "Output disparity, PFM (<= 0 where no estimate)")->required();
+  app.add_option("--method", method, "plane_sweep (this stage's), or another stage's two-view method (layered)");
   app.add_option("--cost", cost, "census, sad or zncc")->check(CLI::IsMember(kCostNames));
   app.add_option("--window-radius", options.window_radius, "Box window radius, pixels");
   app.add_option("--p1", options.p1, "Small-jump penalty, cost units");
@@ -437,6 +440,22 @@ int StereoPairMain(const std::vector<std::string>& args) {
       std::cerr << "stereo-pair: " << left << " and " << right << " differ in size; a rectified pair has equal sizes\n";
       return 1;
     }
+    if (method != "plane_sweep") {
+      const TwoViewMethod other = FindTwoViewMethod(method);
+      if (!other) {
+        std::string known;
+        for (const std::string& name : TwoViewMethodNames()) known += " " + name;
+        std::cerr << "stereo-pair: --method " << method << " is not a two-view method; known:" << known << "\n";
+        return 2;
+      }
+      const auto start = std::chrono::steady_clock::now();
+      const TwoViewOutput result = other(l, r, max_disparity, {});
+      const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+      WritePfm(out, result.disparity);
+      std::cout << "stereo-pair: " << out << " (" << l.cols << "x" << l.rows << ", " << max_disparity << " disparities, "
+                << method << ", " << seconds * 1e3 << " ms)\n";
+      return 0;
+    }
     const StereoPairResult result = StereoPair(l, r, max_disparity, options);
     WritePfm(out, result.disparity);
     std::cout << "stereo-pair: " << out << " (" << l.cols << "x" << l.rows << ", " << max_disparity << " disparities, "
@@ -450,7 +469,36 @@ int StereoPairMain(const std::vector<std::string>& args) {
 
 }  // namespace
 
+// The two-view method for other stages: stereo-pair's defaults; options "fill" and "lr_check"
+// ("true"/"false") and "cost" (census, sad, zncc).
+static TwoViewOutput PlaneSweepTwoView(const cv::Mat& left, const cv::Mat& right, int max_disparity, const TwoViewOptions& given) {
+  PlaneSweepOptions options;
+  auto flag = [](const std::string& key, const std::string& value) {
+    if (value == "true") return true;
+    if (value == "false") return false;
+    throw std::invalid_argument("plane_sweep two-view option " + key + ": expected true or false, got '" + value + "'");
+  };
+  for (const auto& [key, value] : given) {
+    if (key == "fill") {
+      options.fill_holes = flag(key, value);
+    } else if (key == "lr_check") {
+      options.lr_check = flag(key, value);
+    } else if (key == "cost") {
+      if (value != "census" && value != "sad" && value != "zncc") {
+        throw std::invalid_argument("plane_sweep two-view option cost: census, sad or zncc, got '" + value + "'");
+      }
+      options.cost = value == "sad" ? MatchCost::kSad : value == "zncc" ? MatchCost::kZncc : MatchCost::kCensus;
+    } else {
+      throw std::invalid_argument("plane_sweep two-view: unknown option '" + key + "' (fill, lr_check, cost)");
+    }
+  }
+  const StereoPairResult result = StereoPair(left, right, max_disparity, options);
+  return {result.disparity, {{"seconds", result.seconds}, {"unfilled_fraction", result.unfilled_fraction},
+                             {"evaluations", result.evaluations}}};
+}
+
 void RegisterStage_plane_sweep(StageRegistry* registry) {
+  RegisterTwoViewMethod("plane_sweep", PlaneSweepTwoView);
   registry->Add(std::make_unique<PlaneSweepStage>());
   registry->AddCommand({"stereo-pair", "Two-view stereo on a rectified pair: LEFT RIGHT --max-disparity N --out DISP.pfm",
                         StereoPairMain});
