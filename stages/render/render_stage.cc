@@ -26,6 +26,9 @@
 //                            photos; faces no photo sees take the atlas of texture/mesh.obj (§6).
 //                            exclude_self drops the rendered view's own photo from every blend.
 //   A missing texture/mesh.obj or texture/view_maps.bin skips textured / vdtm like a missing mesh.
+//   layers                   the layered_stereo stage's sprites with depth (layers/<image>/; layers.h):
+//                            the layers_references reference views nearest in viewing direction,
+//                            each composited back to front, blended 1 / angle^2
 // Metrics per model: ms_per_frame_<name>, the mean wall time of one view's render (supersampled
 // render and downsampling, not the file writes; views run concurrently, so it compares models of
 // one run, not machines), and seconds_<name> for the whole model including its preparation.
@@ -58,6 +61,7 @@
 #include "stages/render/mesh_decimation.h"
 #include "stages/render/render.h"
 #include "stages/render/splat.h"
+#include "stages/render/layers.h"
 #include "stages/render/textured.h"
 #include "stages/render/vdtm.h"
 
@@ -67,7 +71,7 @@ namespace ibmr {
 
 namespace {
 
-enum class ModelKind { kPlane, kMesh, kSplatDepth, kSplatDepthMerged, kSplatSurfels, kTextured, kVdtm };
+enum class ModelKind { kPlane, kMesh, kSplatDepth, kSplatDepthMerged, kSplatSurfels, kTextured, kVdtm, kLayers };
 
 struct ProxySpec {
   std::string name;
@@ -126,6 +130,12 @@ ProxySpec ParseProxy(const std::string& entry, const Workspace& workspace) {
     spec.kind = ModelKind::kSplatSurfels;
     name_or(path);
     spec.path = workspace.Path("surfels/surfels.ply");
+    return spec;
+  }
+  if (path == "layers") {
+    spec.kind = ModelKind::kLayers;
+    name_or(path);
+    spec.path = workspace.Path("layers");
     return spec;
   }
   if (path == "textured" || path == "vdtm") {
@@ -236,6 +246,8 @@ class RenderStage : public Stage {
          "fills every model's holes in a second image <view>.filled.png, scored apart: plane (the plane proxy) or "
          "none",
          {}},
+        {"layers_references", ParamType::kInt, "2",
+         "layers: reference views blended per desired view (the nearest in viewing direction), in [1, 16]", {}},
         {"splat_depth_type", ParamType::kString, "geometric",
          "depth maps splat_depth draws: geometric (multi_depth), photometric (plane_sweep) or truth "
          "(ground_truth/depth); an entry splat_depth:TYPE overrides it",
@@ -304,6 +316,9 @@ class RenderStage : public Stage {
     if (look != 0 && look != 6 && look != 9) {
       return ParamError{"novel_look_at", "expected 0, 6 or 9 numbers (eye, target[, up]), got " + std::to_string(look)};
     }
+    if (params.Int("layers_references") < 1 || params.Int("layers_references") > 16) {
+      return ParamError{"layers_references", "must be in [1, 16], got " + std::to_string(params.Int("layers_references"))};
+    }
     if (params.StringList("proxies").empty()) return ParamError{"proxies", "list at least one proxy (e.g. [plane])"};
     for (const std::string& entry : params.StringList("proxies")) {
       if (entry.empty() || entry.back() == '=') return ParamError{"proxies", "empty proxy entry \"" + entry + "\""};
@@ -337,6 +352,10 @@ class RenderStage : public Stage {
       if (spec.kind == ModelKind::kSplatDepth || spec.kind == ModelKind::kSplatDepthMerged) {
         const std::string type = spec.depth_type.empty() ? context.params.String("splat_depth_type") : spec.depth_type;
         inputs.push_back(type == "truth" ? "ground_truth/depth" : "dense/stereo");
+      }
+      if (spec.kind == ModelKind::kLayers) {
+        inputs.push_back("layers");
+        continue;
       }
       if (spec.kind == ModelKind::kTextured || spec.kind == ModelKind::kVdtm) {
         // mesh.obj with its mesh.mtl and atlas pages (and view_maps.bin): the texture stage's folder.
@@ -587,6 +606,35 @@ class RenderStage : public Stage {
         throw InputError("render: plane proxy: no sparse points and the training optical axes are parallel; "
                          "list a mesh proxy instead");
       }
+      // Layers: every training view's layers/<image>/ that exists.
+      std::unique_ptr<LayersRenderer> layered;
+      if (spec.kind == ModelKind::kLayers) {
+        std::vector<LayerSet> sets;
+        try {
+          for (const std::string& name : training) {
+            const std::string folder = spec.path + "/" + name;
+            if (fs::exists(folder + "/layers.json")) sets.push_back(ReadLayerSet(folder));
+          }
+        } catch (const InputError& e) {
+          skip(e.what());
+          continue;
+        } catch (const IoError& e) {
+          skip(e.what());
+          continue;
+        }
+        if (sets.empty()) {
+          skip(spec.path + " holds no training view's layers (run the layered_stereo stage)");
+          continue;
+        }
+        Eigen::Vector3d centre = axes_point;
+        if (!sparse_points.empty()) {
+          centre.setZero();
+          for (const Eigen::Vector3d& p : sparse_points) centre += p;
+          centre /= static_cast<double>(sparse_points.size());
+        }
+        layered = std::make_unique<LayersRenderer>(std::move(sets), static_cast<int>(context.params.Int("layers_references")), centre);
+        pj["reference_views"] = layered->Sets();
+      }
       const auto start = std::chrono::steady_clock::now();
       // Splat models: the samples once, then any number of views.
       SplatCloud cloud;
@@ -619,7 +667,9 @@ class RenderStage : public Stage {
         context.metrics["prepare_seconds_" + spec.name] = stats.seconds;
         context.metrics["samples_" + spec.name] = cloud.size();
       }
-      pj["model"] = is_texture ? TexturedModelSize(spec, textured) : ModelSize(spec, layers, cloud);
+      pj["model"] = is_texture ? TexturedModelSize(spec, textured)
+                    : layered  ? LayersModelSize(spec, *layered)
+                               : ModelSize(spec, layers, cloud);
       // A model drawn from ground truth is a reference, not a reconstruction: select skips it.
       const bool splat_depth = spec.kind == ModelKind::kSplatDepth || spec.kind == ModelKind::kSplatDepthMerged;
       const std::string depth_type = spec.depth_type.empty() ? context.params.String("splat_depth_type") : spec.depth_type;
@@ -653,6 +703,11 @@ class RenderStage : public Stage {
         const auto frame_start = std::chrono::steady_clock::now();
         if (spec.kind == ModelKind::kPlane || is_mesh) {
           result = render_ulr(proxy_sources, layers, view, &plane_kind, &used_sources);
+        } else if (layered) {
+          const Camera camera = factor > 1 ? view.camera.Scaled(factor) : view.camera;
+          const RenderResult fine = layered->Render(camera, view.cam_from_world);
+          result = Downsample(fine, HitsOf(fine), factor);
+          used_sources = std::min<size_t>(layered->Sets(), static_cast<size_t>(context.params.Int("layers_references")));
         } else if (is_texture) {
           const Camera camera = factor > 1 ? view.camera.Scaled(factor) : view.camera;
           RenderResult fine;
@@ -825,6 +880,17 @@ class RenderStage : public Stage {
       default:
         return {{"kind", "depth_samples"}, {"elements", cloud.size()}, {"bytes", cloud.size() * 7}};
     }
+  }
+
+  // The layers' size: the layer count and the bytes of their files (sprites, residual depth).
+  static nlohmann::json LayersModelSize(const ProxySpec& spec, const LayersRenderer& layered) {
+    uintmax_t bytes = 0;
+    std::error_code ec;
+    for (const auto& entry : fs::recursive_directory_iterator(spec.path, ec)) {
+      const std::string name = entry.path().filename().string();
+      if (entry.is_regular_file() && name.rfind("layer_", 0) == 0) bytes += entry.file_size();
+    }
+    return {{"kind", "layers"}, {"elements", layered.Layers()}, {"reference_views", layered.Sets()}, {"bytes", bytes}};
   }
 
   // A texture model's size: its triangles, and the bytes of mesh.obj, mesh.mtl, the atlas pages

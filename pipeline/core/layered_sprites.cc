@@ -1,0 +1,253 @@
+// Layered sprites with depth: drawing, compositing and files (layered_sprites.h).
+#include "pipeline/core/layered_sprites.h"
+
+#include <tbb/parallel_for.h>
+
+#include <Eigen/Geometry>
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <filesystem>
+
+#include "pipeline/core/atomic_file.h"
+#include "pipeline/core/colmap_array_io.h"
+#include "pipeline/core/errors.h"
+#include "pipeline/core/image_io.h"
+#include "pipeline/core/rasterizer.h"
+
+namespace fs = std::filesystem;
+
+namespace ibmr {
+
+double LayerSet::PlaneDepth(size_t k, double px, double py) const {
+  // The ray X = C + z R^T K^-1 p (z the camera depth) meets n.X = d at z = (d - n.C) / (n.R^T K^-1 p).
+  const SpriteLayer& layer = layers[k];
+  const Eigen::Vector3d ray_cam = camera.CamFromImg(Eigen::Vector2d(px, py));
+  const Eigen::Matrix3d world_from_cam = cam_from_world.R().transpose();
+  const Eigen::Vector3d centre = -(world_from_cam * cam_from_world.translation);
+  const double denominator = layer.normal.dot(world_from_cam * ray_cam);
+  if (std::abs(denominator) < 1e-12) return 0;
+  const double z = (layer.offset - layer.normal.dot(centre)) / denominator;
+  return z > 0 ? z : 0;
+}
+
+double LayerSet::Depth(size_t k, int x, int y) const {
+  const double z = PlaneDepth(k, x + 0.5, y + 0.5);
+  if (z <= 0) return 0;
+  const cv::Mat& residual = layers[k].residual;
+  const double r = residual.empty() ? 0.0 : residual.at<float>(y, x);
+  return z + r > 0 ? z + r : 0;
+}
+
+namespace {
+
+// One layer as a triangle mesh in world coordinates: a vertex per sprite pixel with alpha > 0,
+// two triangles per 2x2 block whose corners are all in the sprite and whose depths agree.
+struct LayerMesh {
+  TriangleMesh mesh;
+  std::vector<Eigen::Vector4f> rgba;  // per vertex: premultiplied colour (0-255) and alpha (0-1)
+};
+
+LayerMesh BuildLayerMesh(const LayerSet& set, size_t k, double max_depth_step) {
+  const SpriteLayer& layer = set.layers[k];
+  const int width = layer.rgba.cols, height = layer.rgba.rows;
+  LayerMesh out;
+  std::vector<int> index(static_cast<size_t>(width) * height, -1);
+  std::vector<float> depth(index.size(), 0.f);
+  const Eigen::Matrix3d world_from_cam = set.cam_from_world.R().transpose();
+  const Eigen::Vector3d centre = -(world_from_cam * set.cam_from_world.translation);
+  for (int y = 0; y < height; ++y) {
+    const cv::Vec4b* row = layer.rgba.ptr<cv::Vec4b>(y);
+    for (int x = 0; x < width; ++x) {
+      if (row[x][3] == 0) continue;
+      const double z = set.Depth(k, x, y);
+      if (z <= 0) continue;
+      const Eigen::Vector3d point = centre + world_from_cam * (z * set.camera.CamFromImg(Eigen::Vector2d(x + 0.5, y + 0.5)));
+      index[static_cast<size_t>(y) * width + x] = static_cast<int>(out.mesh.vertices.size());
+      depth[static_cast<size_t>(y) * width + x] = static_cast<float>(z);
+      out.mesh.vertices.push_back(point.cast<float>());
+      const float a = row[x][3] / 255.0f;
+      out.rgba.emplace_back(a * row[x][0], a * row[x][1], a * row[x][2], a);
+    }
+  }
+  auto close = [&](float a, float b) { return std::abs(a - b) <= max_depth_step * std::min(a, b); };
+  for (int y = 0; y + 1 < height; ++y) {
+    for (int x = 0; x + 1 < width; ++x) {
+      const size_t i00 = static_cast<size_t>(y) * width + x, i10 = i00 + 1, i01 = i00 + width, i11 = i01 + 1;
+      const int a = index[i00], b = index[i10], c = index[i01], d = index[i11];
+      // Two triangles (a, c, d) and (a, d, b) when present and without a depth step.
+      if (a >= 0 && c >= 0 && d >= 0 && close(depth[i00], depth[i01]) && close(depth[i00], depth[i11])) {
+        out.mesh.faces.emplace_back(a, c, d);
+      }
+      if (a >= 0 && d >= 0 && b >= 0 && close(depth[i00], depth[i11]) && close(depth[i00], depth[i10])) {
+        out.mesh.faces.emplace_back(a, d, b);
+      }
+    }
+  }
+  return out;
+}
+
+}  // namespace
+
+RgbaImage CompositeLayers(const LayerSet& set, const Camera& camera, const Rigid3d& cam_from_world, double max_depth_step) {
+  const int width = camera.width, height = camera.height;
+  const size_t pixels = static_cast<size_t>(width) * height;
+  const size_t count = set.layers.size();
+  // Per layer, its colour, alpha and depth in the desired view.
+  std::vector<std::vector<Eigen::Vector4f>> drawn(count);
+  std::vector<std::vector<float>> depth(count);
+  for (size_t k = 0; k < count; ++k) {
+    const LayerMesh layer = BuildLayerMesh(set, k, max_depth_step);
+    drawn[k].assign(pixels, Eigen::Vector4f::Zero());
+    depth[k].assign(pixels, 0.f);
+    if (layer.mesh.faces.empty()) continue;
+    const RasterResult raster = Rasterize(layer.mesh, camera, cam_from_world);
+    tbb::parallel_for(0, height, [&](int y) {
+      for (int x = 0; x < width; ++x) {
+        const size_t i = static_cast<size_t>(y) * width + x;
+        if (raster.face_id[i] < 0) continue;
+        drawn[k][i] = InterpolateAttribute(raster, layer.mesh, layer.rgba, x, y);
+        depth[k][i] = raster.depth.At(x, y);
+      }
+    });
+  }
+  RgbaImage out;
+  out.color = cv::Mat(height, width, CV_32FC3, cv::Scalar::all(0));
+  out.alpha = cv::Mat(height, width, CV_32F, cv::Scalar::all(0));
+  tbb::parallel_for(0, height, [&](int y) {
+    std::vector<std::pair<float, int>> order;
+    order.reserve(count);
+    cv::Vec3f* color = out.color.ptr<cv::Vec3f>(y);
+    float* alpha = out.alpha.ptr<float>(y);
+    for (int x = 0; x < width; ++x) {
+      const size_t i = static_cast<size_t>(y) * width + x;
+      order.clear();
+      for (size_t k = 0; k < count; ++k) {
+        if (depth[k][i] > 0) order.emplace_back(depth[k][i], static_cast<int>(k));
+      }
+      // Back to front: the farthest first; each nearer layer goes over what is behind it.
+      std::sort(order.begin(), order.end(), [](const auto& a, const auto& b) { return a.first > b.first; });
+      Eigen::Vector4f acc = Eigen::Vector4f::Zero();
+      for (const auto& [z, k] : order) {
+        const Eigen::Vector4f& front = drawn[k][i];
+        const float a = std::clamp(front[3], 0.f, 1.f);
+        acc = front + (1.f - a) * acc;
+      }
+      color[x] = cv::Vec3f(acc[0], acc[1], acc[2]);
+      alpha[x] = std::clamp(acc[3], 0.f, 1.f);
+    }
+  });
+  return out;
+}
+
+cv::Mat CombinedDepth(const LayerSet& set) {
+  const int width = set.camera.width, height = set.camera.height;
+  cv::Mat depth(height, width, CV_32F, cv::Scalar::all(0));
+  for (int y = 0; y < height; ++y) {
+    for (int x = 0; x < width; ++x) {
+      float best = 0;
+      for (size_t k = 0; k < set.layers.size(); ++k) {
+        if (set.layers[k].rgba.at<cv::Vec4b>(y, x)[3] < 128) continue;
+        const float z = static_cast<float>(set.Depth(k, x, y));
+        if (z > 0 && (best == 0 || z < best)) best = z;
+      }
+      depth.at<float>(y, x) = best;
+    }
+  }
+  return depth;
+}
+
+namespace {
+
+FloatMap ToFloatMap(const cv::Mat& m) {
+  FloatMap map(m.cols, m.rows, 1);
+  for (int y = 0; y < m.rows; ++y)
+    for (int x = 0; x < m.cols; ++x) map.At(x, y) = m.at<float>(y, x);
+  return map;
+}
+
+cv::Mat FromFloatMap(const FloatMap& map) {
+  cv::Mat m(map.height, map.width, CV_32F);
+  for (int y = 0; y < map.height; ++y)
+    for (int x = 0; x < map.width; ++x) m.at<float>(y, x) = map.At(x, y);
+  return m;
+}
+
+}  // namespace
+
+void WriteLayerSet(const std::string& folder, const LayerSet& set) {
+  fs::create_directories(folder);
+  nlohmann::json j = set.facts.is_object() ? set.facts : nlohmann::json::object();
+  j["image"] = set.image;
+  j["width"] = set.camera.width;
+  j["height"] = set.camera.height;
+  j["camera"] = {set.camera.FocalX(), set.camera.FocalY(), set.camera.PrincipalX(), set.camera.PrincipalY()};
+  const Eigen::Quaterniond& q = set.cam_from_world.rotation;
+  j["cam_from_world"] = {{"qvec", {q.w(), q.x(), q.y(), q.z()}},
+                         {"tvec", {set.cam_from_world.translation.x(), set.cam_from_world.translation.y(),
+                                   set.cam_from_world.translation.z()}}};
+  nlohmann::json layers = nlohmann::json::array();
+  for (size_t k = 0; k < set.layers.size(); ++k) {
+    const SpriteLayer& layer = set.layers[k];
+    const std::string sprite = "layer_" + std::to_string(k) + ".png";
+    const std::string residual = "layer_" + std::to_string(k) + ".residual.bin";
+    WriteImage(folder + "/" + sprite, layer.rgba);
+    const cv::Mat r = layer.residual.empty() ? cv::Mat(layer.rgba.size(), CV_32F, cv::Scalar::all(0)) : layer.residual;
+    WriteColmapArray(folder + "/" + residual, ToFloatMap(r));
+    std::vector<cv::Mat> channels;
+    cv::split(layer.rgba, channels);
+    layers.push_back({{"normal", {layer.normal.x(), layer.normal.y(), layer.normal.z()}},
+                      {"offset", layer.offset},
+                      {"sprite", sprite},
+                      {"residual", residual},
+                      {"pixels", cv::countNonZero(channels[3])}});
+  }
+  j["layers"] = layers;
+  j["order"] = "back to front from the reference view";
+  WriteColmapArray(folder + "/depth.bin", ToFloatMap(CombinedDepth(set)));
+  WriteFileAtomic(folder + "/layers.json", j.dump(2) + "\n");
+}
+
+LayerSet ReadLayerSet(const std::string& folder) {
+  const std::string path = folder + "/layers.json";
+  if (!fs::exists(path)) throw InputError(path + ": missing; run the layered_stereo stage");
+  nlohmann::json j;
+  try {
+    j = nlohmann::json::parse(ReadFile(path));
+    LayerSet set;
+    set.image = j.at("image").get<std::string>();
+    const std::vector<double> k = j.at("camera").get<std::vector<double>>();
+    if (k.size() != 4) throw InputError(path + ": \"camera\" must be [fx, fy, cx, cy]");
+    set.camera = Camera::Pinhole(j.at("width").get<int>(), j.at("height").get<int>(), k[0], k[1], k[2], k[3]);
+    const std::vector<double> q = j.at("cam_from_world").at("qvec").get<std::vector<double>>();
+    const std::vector<double> t = j.at("cam_from_world").at("tvec").get<std::vector<double>>();
+    if (q.size() != 4 || t.size() != 3) throw InputError(path + ": cam_from_world needs qvec (4) and tvec (3)");
+    set.cam_from_world = Rigid3d(Eigen::Quaterniond(q[0], q[1], q[2], q[3]), Eigen::Vector3d(t[0], t[1], t[2]));
+    for (const auto& l : j.at("layers")) {
+      SpriteLayer layer;
+      const std::vector<double> n = l.at("normal").get<std::vector<double>>();
+      if (n.size() != 3) throw InputError(path + ": a layer's \"normal\" must have 3 numbers");
+      layer.normal = Eigen::Vector3d(n[0], n[1], n[2]).normalized();
+      layer.offset = l.at("offset").get<double>();
+      const std::string sprite = folder + "/" + l.at("sprite").get<std::string>();
+      layer.rgba = ReadImageUnchanged(sprite);
+      if (layer.rgba.type() != CV_8UC4 || layer.rgba.cols != set.camera.width || layer.rgba.rows != set.camera.height) {
+        throw InputError(sprite + ": a sprite must be 8-bit RGBA of the layers' size (" + std::to_string(set.camera.width) +
+                         "x" + std::to_string(set.camera.height) + "); rerun layered_stereo");
+      }
+      const std::string residual = folder + "/" + l.at("residual").get<std::string>();
+      const FloatMap r = ReadColmapArray(residual);
+      if (r.width != set.camera.width || r.height != set.camera.height || r.channels != 1) {
+        throw InputError(residual + ": the residual depth must be 1 channel of the sprite's size; rerun layered_stereo");
+      }
+      layer.residual = FromFloatMap(r);
+      set.layers.push_back(std::move(layer));
+    }
+    set.facts = j;
+    return set;
+  } catch (const nlohmann::json::exception& e) {
+    throw InputError(path + ": " + e.what() + "; rerun layered_stereo");
+  }
+}
+
+}  // namespace ibmr

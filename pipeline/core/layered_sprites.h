@@ -1,0 +1,81 @@
+// Layered sprites with depth: the representation of seed 000 section 4 (lines 5625-5811, Baker,
+// Szeliski & Anandan, CVPR 1998) that the layered_stereo stage writes and the `layers` renderer
+// reads, and the compositing both use (the stage to predict held-out views when it chooses the
+// layer count, the renderer to draw desired views).
+//
+// A reference view's layers: each is a world plane n.X = d, a sprite in the reference view's pixel
+// grid (colour with per-pixel alpha) and a per-pixel residual depth off the plane (the relief of
+// "cutouts with relief", seed 000 line 5940). The residual here is along the reference ray, in z:
+// a sprite pixel's point has the reference camera depth z_plane(pixel) + residual(pixel). Drawing a
+// sprite with depth in another view follows seed 000 lines 12080-12355 (plane plus parallax): each
+// sprite pixel is a vertex at its depth, neighbouring pixels make triangles (not across depth
+// steps), and the triangles are rasterized into the desired view; the layers are then composited
+// per pixel back to front by their depth in that view (McMillan's occlusion-compatible order, seed
+// 000 lines 12421-12438), with the "over" operator on premultiplied colour.
+//
+// On disk, `layers/<image>/`:
+//   layers.json             {"image", "width", "height" (the sprites' size), "camera" (PINHOLE
+//                            fx fy cx cy at that size), "cam_from_world" {"qvec" wxyz, "tvec"},
+//                            "layers": [{"normal", "offset", "sprite", "residual", "pixels"}],
+//                            plus what the stage records (the layer-count curve)}; layers are
+//                            listed back to front as the reference view sees them
+//   layer_<k>.png           RGBA sprite, straight (not premultiplied) alpha
+//   layer_<k>.residual.bin  residual depth, COLMAP array (1 channel, float)
+//   depth.bin               the front-most layer's depth per pixel (COLMAP array; 0: none), which
+//                            multi_depth and fuse read like a plane-sweep depth map
+#pragma once
+
+#include <Eigen/Core>
+#include <nlohmann/json.hpp>
+#include <opencv2/core.hpp>
+#include <string>
+#include <vector>
+
+#include "pipeline/core/camera.h"
+#include "pipeline/core/rigid3.h"
+
+namespace ibmr {
+
+struct SpriteLayer {
+  Eigen::Vector3d normal = Eigen::Vector3d::UnitZ();  // unit, world
+  double offset = 0;                                  // the plane n.X = offset
+  cv::Mat rgba;      // CV_8UC4 (B, G, R, alpha), the reference view's size; alpha 0: not in the layer
+  cv::Mat residual;  // CV_32F, depth offset along the reference ray (z units); empty: all 0
+};
+
+struct LayerSet {
+  std::string image;      // the reference view's image name
+  Camera camera;          // pinhole, the sprites' size
+  Rigid3d cam_from_world;
+  std::vector<SpriteLayer> layers;  // back to front from the reference view
+  nlohmann::json facts = nlohmann::json::object();  // extra keys for layers.json
+
+  // Depth z of layer `k` at reference pixel (x + 0.5, y + 0.5), residual included; 0 when the
+  // plane is behind the camera or parallel to the ray.
+  double Depth(size_t k, int x, int y) const;
+  // z of the plane alone along the pixel centre's ray (no residual); 0 as above.
+  double PlaneDepth(size_t k, double px, double py) const;
+};
+
+// An RGBA image with premultiplied colour, floats in [0, 1] (alpha) and [0, 255] (colour).
+struct RgbaImage {
+  cv::Mat color;  // CV_32FC3, premultiplied
+  cv::Mat alpha;  // CV_32F in [0, 1]
+};
+
+// Draws every layer of `set` in the view (camera, cam_from_world) and composites them per pixel
+// back to front by their depth there. `max_depth_step` (relative) stops triangles between sprite
+// pixels whose depths differ by more than that fraction. Returns premultiplied colour and alpha.
+RgbaImage CompositeLayers(const LayerSet& set, const Camera& camera, const Rigid3d& cam_from_world,
+                          double max_depth_step = 0.05);
+
+// Per pixel, the front-most layer's depth where its alpha is at least 0.5 (0 elsewhere): the
+// combined depth map.
+cv::Mat CombinedDepth(const LayerSet& set);
+
+// layers/<image>/ as documented above (files written atomically). Read throws InputError naming
+// the file and what is wrong.
+void WriteLayerSet(const std::string& folder, const LayerSet& set);
+LayerSet ReadLayerSet(const std::string& folder);
+
+}  // namespace ibmr

@@ -1,0 +1,424 @@
+// Steps 3-5 of layers.h: pixel assignment, sprites with residual depth, and the layer count chosen
+// by held-out prediction (seed 000 lines 5625-5811, 5906-5950).
+#include "stages/layered_stereo/layers.h"
+
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <opencv2/imgproc.hpp>
+
+namespace ibmr {
+
+bool LayeredOptions::Check(std::string* error) const {
+  auto fail = [&](const std::string& key, const std::string& range) {
+    if (error) *error = key + ": must be in " + range;
+    return false;
+  };
+  if (max_layers < 1 || max_layers > 16) return fail("max_layers", "[1, 16]");
+  if (!(plane_tolerance > 0 && plane_tolerance <= 0.2)) return fail("plane_tolerance", "(0, 0.2]");
+  if (!(min_layer_fraction > 0 && min_layer_fraction < 1)) return fail("min_layer_fraction", "(0, 1)");
+  if (ransac_iterations < 10 || ransac_iterations > 100000) return fail("ransac_iterations", "[10, 100000]");
+  if (sample_step < 1 || sample_step > 16) return fail("sample_step", "[1, 16]");
+  if (!(max_residual >= 0 && max_residual <= 0.5)) return fail("max_residual", "[0, 0.5]");
+  if (!(depth_weight >= 0 && depth_weight <= 1e6)) return fail("depth_weight", "[0, 1e6]");
+  if (!(smoothness >= 0 && smoothness <= 1e6)) return fail("smoothness", "[0, 1e6]");
+  if (icm_sweeps < 0 || icm_sweeps > 100) return fail("icm_sweeps", "[0, 100]");
+  if (!(max_cost > 0 && max_cost <= 1e6)) return fail("max_cost", "(0, 1e6]");
+  if (extend_px < 0 || extend_px > 256) return fail("extend_px", "[0, 256]");
+  if (!(count_tolerance >= 0 && count_tolerance <= 1)) return fail("count_tolerance", "[0, 1]");
+  if (choose_count != 0 && choose_count != 1) return fail("choose_count", "{0, 1}");
+  if (!(selection_scale > 0 && selection_scale <= 1)) return fail("selection_scale", "(0, 1]");
+  if (photometric_refinement != 0 && photometric_refinement != 1) return fail("photometric_refinement", "{0, 1}");
+  return true;
+}
+
+namespace {
+
+// The plane in the reference camera's frame: n_c . X_c = d_c.
+void PlaneInCamera(const WorldPlane& plane, const Rigid3d& cam_from_world, Eigen::Vector3d* n_c, double* d_c) {
+  const Eigen::Matrix3d r = cam_from_world.R();
+  const Eigen::Vector3d centre = -(r.transpose() * cam_from_world.translation);
+  *n_c = r * plane.normal;
+  *d_c = plane.offset - plane.normal.dot(centre);
+}
+
+// Reference pixel index (x, y) -> neighbour pixel index through the plane (seed 000 Eq. 7), for
+// cv::warpPerspective with WARP_INVERSE_MAP; pixel centres at +0.5 (COLMAP) on both sides.
+cv::Matx33d PlaneHomography(const LayerView& reference, const LayerView& neighbour, const WorldPlane& plane) {
+  Eigen::Vector3d n_c;
+  double d_c;
+  PlaneInCamera(plane, reference.cam_from_world, &n_c, &d_c);
+  const Eigen::Matrix3d r_rel = neighbour.cam_from_world.R() * reference.cam_from_world.R().transpose();
+  const Eigen::Vector3d t_rel = neighbour.cam_from_world.translation - r_rel * reference.cam_from_world.translation;
+  Eigen::Matrix3d to_centre = Eigen::Matrix3d::Identity(), from_centre = Eigen::Matrix3d::Identity();
+  to_centre(0, 2) = to_centre(1, 2) = 0.5;
+  from_centre(0, 2) = from_centre(1, 2) = -0.5;
+  const Eigen::Matrix3d h = from_centre * neighbour.camera.K() * (r_rel + t_rel * n_c.transpose() / d_c) *
+                            reference.camera.K().inverse() * to_centre;
+  cv::Matx33d m;
+  for (int i = 0; i < 3; ++i)
+    for (int j = 0; j < 3; ++j) m(i, j) = h(i, j);
+  return m;
+}
+
+// z of the plane along the reference pixel's ray, 0 when behind or parallel.
+cv::Mat PlaneDepthMap(const LayerView& reference, const WorldPlane& plane) {
+  Eigen::Vector3d n_c;
+  double d_c;
+  PlaneInCamera(plane, reference.cam_from_world, &n_c, &d_c);
+  cv::Mat z(reference.depth.size(), CV_32F);
+  for (int y = 0; y < z.rows; ++y) {
+    float* row = z.ptr<float>(y);
+    for (int x = 0; x < z.cols; ++x) {
+      const double denominator = n_c.dot(reference.camera.CamFromImg(Eigen::Vector2d(x + 0.5, y + 0.5)));
+      const double depth = std::abs(denominator) > 1e-12 ? d_c / denominator : 0.0;
+      row[x] = depth > 0 && std::isfinite(depth) ? static_cast<float>(depth) : 0.f;
+    }
+  }
+  return z;
+}
+
+// Per pixel, the mean absolute colour difference between the reference and the neighbour warped
+// through the plane; NaN where the neighbour does not reach.
+cv::Mat WarpDifference(const LayerView& reference, const LayerView& neighbour, const WorldPlane& plane,
+                       const cv::Mat& reference_float) {
+  cv::Mat source, warped;
+  neighbour.image.convertTo(source, CV_32FC3);
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  cv::warpPerspective(source, warped, PlaneHomography(reference, neighbour, plane), reference.image.size(),
+                      cv::INTER_LINEAR | cv::WARP_INVERSE_MAP, cv::BORDER_CONSTANT, cv::Scalar::all(nan));
+  cv::Mat difference(reference.image.size(), CV_32F);
+  for (int y = 0; y < difference.rows; ++y) {
+    const cv::Vec3f* a = reference_float.ptr<cv::Vec3f>(y);
+    const cv::Vec3f* b = warped.ptr<cv::Vec3f>(y);
+    float* out = difference.ptr<float>(y);
+    for (int x = 0; x < difference.cols; ++x) {
+      out[x] = (std::abs(a[x][0] - b[x][0]) + std::abs(a[x][1] - b[x][1]) + std::abs(a[x][2] - b[x][2])) / 3.f;
+    }
+  }
+  return difference;
+}
+
+// Data cost of every plane at every pixel (steps 3's terms before smoothing).
+std::vector<cv::Mat> DataCosts(const LayerView& reference, const std::vector<const LayerView*>& neighbours,
+                               const std::vector<WorldPlane>& planes, const LayeredOptions& options,
+                               std::vector<cv::Mat>* plane_depths) {
+  cv::Mat reference_float;
+  reference.image.convertTo(reference_float, CV_32FC3);
+  std::vector<cv::Mat> costs(planes.size());
+  plane_depths->assign(planes.size(), cv::Mat());
+  tbb::parallel_for(size_t{0}, planes.size(), [&](size_t l) {
+    (*plane_depths)[l] = PlaneDepthMap(reference, planes[l]);
+    std::vector<cv::Mat> differences;
+    for (const LayerView* n : neighbours) differences.push_back(WarpDifference(reference, *n, planes[l], reference_float));
+    cv::Mat photo(reference.image.size(), CV_32F);
+    for (int y = 0; y < photo.rows; ++y) {
+      float* out = photo.ptr<float>(y);
+      for (int x = 0; x < photo.cols; ++x) {
+        // The mean of the two best neighbours: one neighbour that an occluder hides does not veto.
+        float best = std::numeric_limits<float>::infinity(), second = best;
+        for (const cv::Mat& d : differences) {
+          const float v = d.at<float>(y, x);
+          if (!std::isfinite(v)) continue;
+          if (v < best) {
+            second = best;
+            best = v;
+          } else if (v < second) {
+            second = v;
+          }
+        }
+        out[x] = !std::isfinite(best) ? static_cast<float>(options.max_cost)
+                 : !std::isfinite(second) ? best
+                                          : 0.5f * (best + second);
+      }
+    }
+    cv::blur(photo, photo, cv::Size(5, 5));
+    const cv::Mat& plane_z = (*plane_depths)[l];
+    for (int y = 0; y < photo.rows; ++y) {
+      float* out = photo.ptr<float>(y);
+      const float* z = reference.depth.ptr<float>(y);
+      const float* zp = plane_z.ptr<float>(y);
+      for (int x = 0; x < photo.cols; ++x) {
+        if (!(zp[x] > 0)) {
+          out[x] = std::numeric_limits<float>::max() / 4;
+          continue;
+        }
+        if (z[x] > 0) {
+          const float off = std::abs(z[x] - zp[x]) / static_cast<float>(options.plane_tolerance * z[x]);
+          out[x] += static_cast<float>(options.depth_weight) * std::min(off, 3.f);
+        }
+      }
+    }
+    costs[l] = photo;
+  });
+  return costs;
+}
+
+}  // namespace
+
+namespace {
+
+// Labels from the first `count` planes' data costs: the cheapest, then ICM with the Potts term.
+cv::Mat AssignFromCosts(const LayerView& reference, const std::vector<cv::Mat>& costs, int count, const LayeredOptions& options) {
+  const int width = reference.image.cols, height = reference.image.rows;
+  cv::Mat labels(height, width, CV_32S, cv::Scalar::all(-1));
+  if (count == 0) return labels;
+  // Initial labels: the cheapest plane; empty where nothing explains the pixel and it has no depth.
+  for (int y = 0; y < height; ++y) {
+    int* row = labels.ptr<int>(y);
+    const float* z = reference.depth.ptr<float>(y);
+    for (int x = 0; x < width; ++x) {
+      int best = -1;
+      float best_cost = std::numeric_limits<float>::infinity();
+      for (int l = 0; l < count; ++l) {
+        const float c = costs[l].at<float>(y, x);
+        if (c < best_cost) best_cost = c, best = l;
+      }
+      row[x] = (best_cost <= options.max_cost || z[x] > 0) ? best : -1;
+    }
+  }
+  // ICM on data + Potts, red-black so that the result does not depend on the thread schedule.
+  for (int sweep = 0; sweep < options.icm_sweeps; ++sweep) {
+    for (int parity = 0; parity < 2; ++parity) {
+      tbb::parallel_for(0, height, [&](int y) {
+        int* row = labels.ptr<int>(y);
+        for (int x = (y + parity) % 2; x < width; x += 2) {
+          if (row[x] < 0) continue;
+          int around[4] = {x > 0 ? row[x - 1] : -2, x + 1 < width ? row[x + 1] : -2,
+                           y > 0 ? labels.ptr<int>(y - 1)[x] : -2, y + 1 < height ? labels.ptr<int>(y + 1)[x] : -2};
+          int best = row[x];
+          float best_cost = std::numeric_limits<float>::infinity();
+          for (int l = 0; l < count; ++l) {
+            float c = costs[l].at<float>(y, x);
+            for (const int a : around) c += (a >= 0 && a != l) ? static_cast<float>(options.smoothness) : 0.f;
+            if (c < best_cost) best_cost = c, best = l;
+          }
+          row[x] = best;
+        }
+      });
+    }
+  }
+  // Speckle: a pixel whose 5x5 window holds another label 13 times or more (a majority) takes it.
+  // ICM's 4-neighbour Potts term leaves isolated pixels and thin streaks; a sprite pixel without
+  // same-layer neighbours makes no triangle, so each would draw as a hole in a novel view.
+  for (int pass = 0; pass < 2; ++pass) {
+    const cv::Mat before = labels.clone();
+    tbb::parallel_for(2, height - 2, [&](int y) {
+      std::vector<int> votes(static_cast<size_t>(count) + 1);
+      for (int x = 2; x < width - 2; ++x) {
+        std::fill(votes.begin(), votes.end(), 0);
+        for (int dy = -2; dy <= 2; ++dy) {
+          const int* row = before.ptr<int>(y + dy);
+          for (int dx = -2; dx <= 2; ++dx) ++votes[static_cast<size_t>(row[x + dx] + 1)];
+        }
+        const int winner = static_cast<int>(std::max_element(votes.begin(), votes.end()) - votes.begin()) - 1;
+        if (votes[static_cast<size_t>(winner + 1)] >= 13) labels.at<int>(y, x) = winner;
+      }
+    });
+  }
+  return labels;
+}
+
+}  // namespace
+
+cv::Mat AssignPixels(const LayerView& reference, const std::vector<const LayerView*>& neighbours,
+                     const std::vector<WorldPlane>& planes, const LayeredOptions& options) {
+  std::vector<cv::Mat> plane_depths;
+  const std::vector<cv::Mat> costs = DataCosts(reference, neighbours, planes, options, &plane_depths);
+  return AssignFromCosts(reference, costs, static_cast<int>(planes.size()), options);
+}
+
+LayerSet BuildSprites(const LayerView& reference, const std::vector<const LayerView*>& neighbours,
+                      const std::vector<WorldPlane>& planes, const cv::Mat& labels, const LayeredOptions& options) {
+  const int width = reference.image.cols, height = reference.image.rows;
+  LayerSet set;
+  set.image = reference.name;
+  set.camera = reference.camera;
+  set.cam_from_world = reference.cam_from_world;
+  // Order: back to front by the median reference depth of each plane's pixels.
+  std::vector<cv::Mat> plane_z(planes.size());
+  std::vector<std::pair<double, int>> order;
+  for (size_t l = 0; l < planes.size(); ++l) {
+    plane_z[l] = PlaneDepthMap(reference, planes[l]);
+    std::vector<float> depths;
+    for (int y = 0; y < height; y += 2) {
+      for (int x = 0; x < width; x += 2) {
+        if (labels.at<int>(y, x) == static_cast<int>(l) && plane_z[l].at<float>(y, x) > 0) depths.push_back(plane_z[l].at<float>(y, x));
+      }
+    }
+    if (depths.empty()) continue;  // a plane no pixel chose makes no layer
+    std::nth_element(depths.begin(), depths.begin() + depths.size() / 2, depths.end());
+    order.emplace_back(depths[depths.size() / 2], static_cast<int>(l));
+  }
+  std::sort(order.begin(), order.end(), [](const auto& a, const auto& b) { return a.first > b.first; });
+
+  const cv::Mat kernel = cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * options.extend_px + 1, 2 * options.extend_px + 1));
+  const Eigen::Matrix3d world_from_cam = reference.cam_from_world.R().transpose();
+  const Eigen::Vector3d centre = -(world_from_cam * reference.cam_from_world.translation);
+  for (const auto& [median_depth, l] : order) {
+    SpriteLayer layer;
+    layer.normal = planes[l].normal;
+    layer.offset = planes[l].offset;
+    layer.rgba = cv::Mat(height, width, CV_8UC4, cv::Scalar::all(0));
+    layer.residual = cv::Mat(height, width, CV_32F, cv::Scalar::all(0));
+    // The layer's pixels and a seam of `kSeamPx` around them (coloured from the reference like
+    // the layer's own): where two layers meet, both cover the boundary, so that a novel view that
+    // pulls them apart shows no crack between them; the nearer one is drawn over the seam.
+    constexpr int kSeamPx = 1;
+    const cv::Mat own = labels == l;
+    cv::Mat support;
+    cv::dilate(own, support, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * kSeamPx + 1, 2 * kSeamPx + 1)));
+    support &= labels >= 0;
+    cv::Mat extended;
+    if (options.extend_px > 0) {
+      cv::dilate(support, extended, kernel);
+    } else {
+      extended = support.clone();
+    }
+    const cv::Mat& zl = plane_z[l];
+    tbb::parallel_for(0, height, [&](int y) {
+      std::vector<cv::Vec3b> seen;
+      seen.reserve(neighbours.size());
+      for (int x = 0; x < width; ++x) {
+        const float zp = zl.at<float>(y, x);
+        if (!(zp > 0)) continue;
+        if (support.at<uint8_t>(y, x)) {
+          const cv::Vec3b c = reference.image.at<cv::Vec3b>(y, x);
+          layer.rgba.at<cv::Vec4b>(y, x) = cv::Vec4b(c[0], c[1], c[2], 255);
+          const float z = reference.depth.at<float>(y, x);
+          if (z > 0 && own.at<uint8_t>(y, x)) {  // seam pixels lie on the plane
+            const float limit = static_cast<float>(options.max_residual) * zp;
+            layer.residual.at<float>(y, x) = std::clamp(z - zp, -limit, limit);
+          }
+          continue;
+        }
+        if (!extended.at<uint8_t>(y, x)) continue;
+        // Under a nearer layer in the reference: the neighbours that see the plane colour it.
+        const int other = labels.at<int>(y, x);
+        if (other < 0 || !(plane_z[other].at<float>(y, x) > 0) || plane_z[other].at<float>(y, x) >= zp) continue;
+        const Eigen::Vector3d point = centre + world_from_cam * (zp * reference.camera.CamFromImg(Eigen::Vector2d(x + 0.5, y + 0.5)));
+        seen.clear();
+        for (const LayerView* n : neighbours) {
+          const Eigen::Vector3d in_cam = n->cam_from_world * point;
+          if (in_cam.z() <= 0) continue;
+          const Eigen::Vector2d p = n->camera.ImgFromCam(in_cam);
+          const int u = static_cast<int>(std::floor(p.x())), v = static_cast<int>(std::floor(p.y()));
+          if (u < 0 || v < 0 || u >= n->image.cols || v >= n->image.rows) continue;
+          const float zn = n->depth.empty() ? 0.f : n->depth.at<float>(v, u);
+          if (zn > 0 && std::abs(zn - in_cam.z()) > 2 * options.plane_tolerance * in_cam.z()) continue;  // hidden there too
+          seen.push_back(n->image.at<cv::Vec3b>(v, u));
+        }
+        if (seen.empty()) continue;
+        cv::Vec4b out(0, 0, 0, 255);
+        for (int c = 0; c < 3; ++c) {
+          std::vector<uint8_t> values;
+          for (const auto& s : seen) values.push_back(s[c]);
+          std::nth_element(values.begin(), values.begin() + values.size() / 2, values.end());
+          out[c] = values[values.size() / 2];
+        }
+        layer.rgba.at<cv::Vec4b>(y, x) = out;
+      }
+    });
+    cv::medianBlur(layer.residual, layer.residual, 5);
+    set.layers.push_back(std::move(layer));
+  }
+  return set;
+}
+
+LayerCountCurve ChooseLayerCount(const LayerView& reference, const std::vector<const LayerView*>& neighbours,
+                                 const std::vector<WorldPlane>& planes, const LayeredOptions& options) {
+  LayerCountCurve curve;
+  curve.chosen = static_cast<int>(planes.size());
+  if (neighbours.empty() || planes.size() <= 1) return curve;
+  const size_t counts = planes.size();
+  // renders[c][j]: the model with c + 1 planes predicting neighbour j from the others. A plane's
+  // data cost does not depend on the others, so each held-out neighbour's costs serve every count.
+  std::vector<std::vector<RgbaImage>> renders(counts, std::vector<RgbaImage>(neighbours.size()));
+  for (size_t j = 0; j < neighbours.size(); ++j) {
+    std::vector<const LayerView*> others;
+    for (size_t i = 0; i < neighbours.size(); ++i) {
+      if (i != j) others.push_back(neighbours[i]);
+    }
+    std::vector<cv::Mat> plane_depths;
+    const std::vector<cv::Mat> costs = DataCosts(reference, others, planes, options, &plane_depths);
+    for (size_t c = 0; c < counts; ++c) {
+      const std::vector<WorldPlane> subset(planes.begin(), planes.begin() + static_cast<long>(c) + 1);
+      const cv::Mat labels = AssignFromCosts(reference, costs, static_cast<int>(c) + 1, options);
+      const LayerSet set = BuildSprites(reference, others, subset, labels, options);
+      renders[c][j] = CompositeLayers(set, neighbours[j]->camera, neighbours[j]->cam_from_world);
+    }
+  }
+  // The error of every count over one region per neighbour: the pixels any count covers.
+  std::vector<double> squared(counts, 0.0);
+  double pixels = 0;
+  for (size_t j = 0; j < neighbours.size(); ++j) {
+    const cv::Mat& photo = neighbours[j]->image;
+    for (int y = 0; y < photo.rows; ++y) {
+      for (int x = 0; x < photo.cols; ++x) {
+        bool covered = false;
+        for (size_t c = 0; c < counts && !covered; ++c) covered = renders[c][j].alpha.at<float>(y, x) > 0.5f;
+        if (!covered) continue;
+        pixels += 1;
+        const cv::Vec3b truth = photo.at<cv::Vec3b>(y, x);
+        for (size_t c = 0; c < counts; ++c) {
+          const cv::Vec3f predicted = renders[c][j].color.at<cv::Vec3f>(y, x);  // premultiplied: black where empty
+          for (int k = 0; k < 3; ++k) squared[c] += (truth[k] - predicted[k]) * (truth[k] - predicted[k]) / 3.0;
+        }
+      }
+    }
+  }
+  if (pixels == 0) return curve;
+  for (size_t c = 0; c < counts; ++c) curve.rms_error.push_back(std::sqrt(squared[c] / pixels));
+  const double best = *std::min_element(curve.rms_error.begin(), curve.rms_error.end());
+  for (size_t c = 0; c < counts; ++c) {
+    if (curve.rms_error[c] <= (1 + options.count_tolerance) * best) {
+      curve.chosen = static_cast<int>(c) + 1;
+      break;
+    }
+  }
+  return curve;
+}
+
+LayeredResult ReconstructLayers(const LayerView& reference, const std::vector<const LayerView*>& neighbours,
+                                const LayeredOptions& options) {
+  const auto start = std::chrono::steady_clock::now();
+  LayeredResult result;
+  result.planes = FitPlanesRansac(reference, options);
+  std::vector<const LayerView*> all = {&reference};
+  all.insert(all.end(), neighbours.begin(), neighbours.end());
+  RefinePlanes(all, options, &result.planes);
+  if (options.photometric_refinement) {
+    const cv::Mat labels = AssignPixels(reference, neighbours, result.planes, options);
+    RefinePlanesPhotometric(reference, neighbours, labels, options, &result.planes);
+  }
+  if (options.choose_count) {
+    auto scaled = [&](const LayerView& view) {
+      if (options.selection_scale >= 1) return view;
+      LayerView small;
+      small.name = view.name;
+      small.cam_from_world = view.cam_from_world;
+      small.camera = view.camera.Scaled(options.selection_scale);
+      cv::resize(view.image, small.image, cv::Size(small.camera.width, small.camera.height), 0, 0, cv::INTER_AREA);
+      cv::resize(view.depth, small.depth, small.image.size(), 0, 0, cv::INTER_NEAREST);
+      return small;
+    };
+    const LayerView small_reference = scaled(reference);
+    std::vector<LayerView> small_neighbours;
+    for (const LayerView* n : neighbours) small_neighbours.push_back(scaled(*n));
+    std::vector<const LayerView*> small_pointers;
+    for (const LayerView& n : small_neighbours) small_pointers.push_back(&n);
+    result.curve = ChooseLayerCount(small_reference, small_pointers, result.planes, options);
+  } else {
+    result.curve.chosen = static_cast<int>(result.planes.size());
+  }
+  const std::vector<WorldPlane> chosen(result.planes.begin(), result.planes.begin() + result.curve.chosen);
+  const cv::Mat labels = AssignPixels(reference, neighbours, chosen, options);
+  result.layers = BuildSprites(reference, neighbours, chosen, labels, options);
+  result.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  return result;
+}
+
+}  // namespace ibmr
