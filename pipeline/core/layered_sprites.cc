@@ -140,18 +140,21 @@ RgbaImage CompositeLayers(const LayerSet& set, const Camera& camera, const Rigid
   return out;
 }
 
-cv::Mat CombinedDepth(const LayerSet& set) {
+cv::Mat CombinedDepth(const LayerSet& set, cv::Mat* front) {
   const int width = set.camera.width, height = set.camera.height;
   cv::Mat depth(height, width, CV_32F, cv::Scalar::all(0));
+  if (front) *front = cv::Mat(height, width, CV_32S, cv::Scalar::all(-1));
   for (int y = 0; y < height; ++y) {
     for (int x = 0; x < width; ++x) {
       float best = 0;
+      int best_layer = -1;
       for (size_t k = 0; k < set.layers.size(); ++k) {
         if (set.layers[k].rgba.at<cv::Vec4b>(y, x)[3] < 128) continue;
         const float z = static_cast<float>(set.Depth(k, x, y));
-        if (z > 0 && (best == 0 || z < best)) best = z;
+        if (z > 0 && (best == 0 || z < best)) best = z, best_layer = static_cast<int>(k);
       }
       depth.at<float>(y, x) = best;
+      if (front) front->at<int>(y, x) = best_layer;
     }
   }
   return depth;

@@ -70,8 +70,8 @@ RgbaImage CompositeLayers(const LayerSet& set, const Camera& camera, const Rigid
                           double max_depth_step = 0.05);
 
 // Per pixel, the front-most layer's depth where its alpha is at least 0.5 (0 elsewhere): the
-// combined depth map.
-cv::Mat CombinedDepth(const LayerSet& set);
+// combined depth map (CV_32F). `front` (optional): that layer's index per pixel (CV_32S, -1: none).
+cv::Mat CombinedDepth(const LayerSet& set, cv::Mat* front = nullptr);
 
 // layers/<image>/ as documented above (files written atomically). Read throws InputError naming
 // the file and what is wrong.

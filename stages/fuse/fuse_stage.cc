@@ -33,7 +33,8 @@ class FuseStage : public Stage {
 
   std::vector<ParamSpec> Parameters() const override {
     return {
-        {"input_type", ParamType::kString, "geometric", "Which depth maps to fuse", {"geometric", "photometric"}},
+        {"input_type", ParamType::kString, "geometric", "Which depth maps to fuse (layered: layered_stereo's combined maps)",
+         {"geometric", "photometric", "layered"}},
         {"relative_depth_sigma", ParamType::kDouble, "0.003", "Depth std / depth of a confidence-1 sample, in (0, 0.2]"},
         {"lateral_sigma_pixels", ParamType::kDouble, "0.5", "Std across the ray in pixels of footprint, in (0, 10]"},
         {"merge_sigmas", ParamType::kDouble, "3", "Uncertainty-weighted depth distance for a merge, in (0, 100]"},
@@ -93,7 +94,8 @@ class FuseStage : public Stage {
       const std::string depth_path = workspace.DepthMapPath(name, kind);
       if (!fs::exists(depth_path)) {
         throw InputError(depth_path + ": no " + kind + " depth map for view '" + name + "'; run " +
-                         (kind == "geometric" ? "multi_depth" : "plane_sweep") + " first (or set fuse.input_type)");
+                         (kind == "geometric" ? "multi_depth" : kind == "layered" ? "layered_stereo" : "plane_sweep") +
+                         " first (or set fuse.input_type)");
       }
       view.depth = ReadColmapArray(depth_path);
       view.normals = ReadColmapArrayMatching(workspace.NormalMapPath(name, kind), view.depth, 3);

@@ -31,7 +31,7 @@ constexpr int kCensusRadiusY = 3;
 // Points of a RANSAC round scored per hypothesis, and points given to Ceres per plane, at most:
 // both are statistics of a large set, a subsample gives them to a fraction of a pixel.
 constexpr size_t kScoringPoints = 2000;
-constexpr size_t kRefinePoints = 300;
+constexpr size_t kRefinePoints = 200;
 constexpr size_t kFitPoints = 5000;  // least-squares refits in RANSAC
 // Steeper planes are not surfaces a stereo pair resolves (disparity gradient limit): rejected.
 constexpr double kMaxGradient = 1.0;
@@ -165,11 +165,14 @@ size_t MarkInliers(const DisparityPlane& plane, double tolerance, Remaining* r) 
   return count;
 }
 
-// Drops the marked points.
-void RemoveMarked(Remaining* r) {
+// Drops the marked points, and flags them in `removed` (by index into `points`).
+void RemoveMarked(Remaining* r, std::vector<uint8_t>* removed) {
   size_t kept = 0;
   for (size_t i = 0; i < r->Size(); ++i) {
-    if (r->inlier[i]) continue;
+    if (r->inlier[i]) {
+      (*removed)[r->index[i]] = 1;
+      continue;
+    }
     r->x[kept] = r->x[i], r->y[kept] = r->y[i], r->d[kept] = r->d[i], r->index[kept] = r->index[i];
     ++kept;
   }
@@ -182,13 +185,14 @@ uint32_t Below(std::mt19937& rng, size_t n) {
   return static_cast<uint32_t>((static_cast<uint64_t>(rng()) * n) >> 32);
 }
 
-// The marked points (every `step`-th of them), as indices into `points`.
+// About `at_most` of the `count` marked points, evenly spread through the remaining ones, as indices
+// into `points` (a subsample for fits: it skips whole stretches rather than testing every point).
 std::vector<int> MarkedIndices(const Remaining& r, size_t count, size_t at_most) {
   const size_t step = std::max<size_t>(1, count / at_most);
   std::vector<int> out;
-  out.reserve(std::min(count, at_most + 1));
-  for (size_t i = 0, k = 0; i < r.Size(); ++i) {
-    if (r.inlier[i] && k++ % step == 0) out.push_back(r.index[i]);
+  out.reserve(at_most + 1);
+  for (size_t i = 0; i < r.Size(); i += step) {
+    if (r.inlier[i]) out.push_back(r.index[i]);
   }
   return out;
 }
@@ -291,12 +295,9 @@ std::vector<DisparityPlane> FindPlanes(const cv::Mat& initial, const LayeredPair
     const size_t count = MarkInliers(best, tol, &remaining);
     if (count < min_support) break;
     best.support = count;
-    for (size_t i = 0; i < remaining.Size(); ++i) {
-      if (remaining.inlier[i]) removed[remaining.index[i]] = 1;
-    }
     planes.push_back(best);
     members.push_back(MarkedIndices(remaining, count, kRefinePoints));
-    RemoveMarked(&remaining);
+    RemoveMarked(&remaining, &removed);
     t_fit += since(t0);
   }
   auto t_ceres = now();
@@ -865,7 +866,7 @@ LayeredPairResult LayeredStereoPair(const cv::Mat& left_image, const cv::Mat& ri
         std::fprintf(stderr, "\n");
       }
     }
-    ApplyOcclusion(hole, zbuffer, result.planes, static_cast<float>(options.occlusion_cost), &cost);
+    if (!std::getenv("NOOCC")) ApplyOcclusion(hole, zbuffer, result.planes, static_cast<float>(options.occlusion_cost), &cost);
     AssignLabels(cost, nl, w, h, right_penalty, down_penalty, &sum, &labels);
     lap("occl+assign");
     dump_labels(labels, "labels_b" + std::to_string(pass));

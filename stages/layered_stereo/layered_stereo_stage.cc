@@ -36,7 +36,7 @@ class LayeredStereoStage : public Stage {
   std::string Summary() const override {
     return "Planar layers per view: plane, RGBA sprite, residual depth; layer count by held-out prediction (layers/)";
   }
-  std::string Version() const override { return "1"; }
+  std::string Version() const override { return "2"; }  // 2: depth_maps/<image>.layered.bin
   HoldoutRole Role() const override { return HoldoutRole::kTrainingOnly; }
   bool Shardable() const override { return true; }
   double ViewMemoryMb(const StageContext& context) const override {
@@ -106,7 +106,14 @@ class LayeredStereoStage : public Stage {
     return inputs;
   }
 
-  std::vector<std::string> Outputs(const StageContext&) const override { return {"layers"}; }
+  std::vector<std::string> Outputs(const StageContext& context) const override {
+    std::vector<std::string> outputs = {"layers"};
+    for (const std::string& name : context.TrainingImageNamesIfReadable()) {
+      outputs.push_back("dense/stereo/depth_maps/" + name + ".layered.bin");
+      outputs.push_back("dense/stereo/normal_maps/" + name + ".layered.bin");
+    }
+    return outputs;
+  }
 
   void Run(StageContext& context) const override {
     const LayeredOptions options = ToOptions(context.params);
@@ -175,6 +182,26 @@ class LayeredStereoStage : public Stage {
       result.layers.facts["neighbours"] = neighbour_names;
       result.layers.facts["seconds"] = result.seconds;
       WriteLayerSet(workspace.Path("layers/" + name), result.layers);
+      // The combined depth map beside the plane sweep's, as a third kind ("layered"), with the
+      // front layer's plane normal (camera frame, facing the camera): fuse.input_type: layered.
+      {
+        cv::Mat front;
+        const cv::Mat depth = CombinedDepth(result.layers, &front);
+        FloatMap depth_map(depth.cols, depth.rows, 1), normal_map(depth.cols, depth.rows, 3);
+        const Eigen::Matrix3d r = result.layers.cam_from_world.R();
+        for (int y = 0; y < depth.rows; ++y) {
+          for (int x = 0; x < depth.cols; ++x) {
+            depth_map.At(x, y) = depth.at<float>(y, x);
+            const int k = front.at<int>(y, x);
+            if (k < 0) continue;
+            Eigen::Vector3d n = r * result.layers.layers[k].normal;
+            if (n.dot(result.layers.camera.CamFromImg(Eigen::Vector2d(x + 0.5, y + 0.5))) > 0) n = -n;
+            for (int c = 0; c < 3; ++c) normal_map.At(x, y, c) = static_cast<float>(n[c]);
+          }
+        }
+        WriteColmapArray(workspace.DepthMapPath(name, "layered"), depth_map);
+        WriteColmapArray(workspace.NormalMapPath(name, "layered"), normal_map);
+      }
       spdlog::info("[layered_stereo] {}: {} planes found, {} layers chosen (held-out RMS by count: {}), {:.1f} s", name,
                    result.planes.size(), result.curve.chosen, nlohmann::json(result.curve.rms_error).dump(), result.seconds);
       nlohmann::json piece = {{"planes_found", result.planes.size()},
