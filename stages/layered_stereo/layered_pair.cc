@@ -14,10 +14,6 @@
 #include <cmath>
 #include <limits>
 #include <opencv2/imgproc.hpp>
-#include <opencv2/imgcodecs.hpp>  // DEBUG-TEMP
-#include <cstdio>
-#include <ctime>
-#include <cstdlib>
 #include <random>
 #include <stdexcept>
 
@@ -35,9 +31,10 @@ constexpr size_t kRefinePoints = 200;
 constexpr size_t kFitPoints = 5000;  // least-squares refits in RANSAC
 // Steeper planes are not surfaces a stereo pair resolves (disparity gradient limit): rejected.
 constexpr double kMaxGradient = 1.0;
+// Initial disparities below this are treated as holes (see ValidPoints).
 constexpr float kMinPlaneDisparity = 0.5f;
 // A pixel is occluded under a layer when the right-image pixel it maps to shows a surface this many
-// pixels of disparity nearer in the current assignment.
+// pixels of disparity nearer in the initial disparity.
 constexpr float kOcclusionMargin = 1.0f;
 constexpr int kMaxResidualSlices = 2 * 16 + 1;
 // Cost of a negative disparity (behind the cameras' baseline at infinity): the worst census cost.
@@ -50,6 +47,13 @@ struct PlanePoint {
 // std::min by value: the compiler turns it into a vector min in loops (std::min returns a
 // reference, whose select it does not if-convert).
 inline float Min(float a, float b) { return b < a ? b : a; }
+
+// std::lround without the library call (the baseline instruction set has no rounding instruction),
+// saturated far beyond any image coordinate.
+inline int RoundToInt(float v) {
+  v = std::clamp(v, -1e9f, 1e9f);
+  return static_cast<int>(v + (v >= 0.f ? 0.5f : -0.5f));
+}
 
 cv::Mat ToGray(const cv::Mat& image) {
   if (image.channels() == 1) return image;
@@ -197,25 +201,103 @@ std::vector<int> MarkedIndices(const Remaining& r, size_t count, size_t at_most)
   return out;
 }
 
-// Steps 2 and 3 on the valid pixels of `initial`: planes, largest first.
-std::vector<DisparityPlane> FindPlanes(const cv::Mat& initial, const LayeredPairOptions& options) {
-  const int w = initial.cols, h = initial.rows;
-  double t_hyp = 0, t_score = 0, t_fit = 0, t_rem = 0;  // DEBUG-TEMP
-  auto now = [] { return std::chrono::steady_clock::now(); };
-  auto since = [&](auto t0) { return std::chrono::duration<double>(now() - t0).count() * 1e3; };
-  const auto t_start = now();
+// The valid pixels of the initial disparity as points, and per pixel its point's index (-1: none).
+// Winners below kMinPlaneDisparity are left out: at disparity 0, the end of the searched range,
+// they are mostly pixels without a match (left border), not surfaces at infinity.
+std::vector<PlanePoint> ValidPoints(const cv::Mat& initial, std::vector<int>* index_of) {
   std::vector<PlanePoint> points;
-  std::vector<int> index_of(static_cast<size_t>(w) * h, -1);
-  for (int y = 0; y < h; ++y) {
+  index_of->assign(initial.total(), -1);
+  for (int y = 0; y < initial.rows; ++y) {
     const float* d = initial.ptr<float>(y);
-    for (int x = 0; x < w; ++x) {
-      // Winners at disparity 0, the end of the searched range, are mostly pixels without a match
-      // (left border), not surfaces at infinity: not evidence for a plane.
+    for (int x = 0; x < initial.cols; ++x) {
       if (!(d[x] >= kMinPlaneDisparity) || !std::isfinite(d[x])) continue;
-      index_of[static_cast<size_t>(y) * w + x] = static_cast<int>(points.size());
+      (*index_of)[static_cast<size_t>(y) * initial.cols + x] = static_cast<int>(points.size());
       points.push_back({static_cast<float>(x), static_cast<float>(y), d[x]});
     }
   }
+  return points;
+}
+
+// Up to kScoringPoints remaining points drawn at random (with replacement), padded to a multiple of 8.
+struct ScoringSample {
+  std::vector<float> x, y, d;
+};
+ScoringSample DrawScoringSample(const Remaining& remaining, std::mt19937* rng) {
+  ScoringSample sample;
+  for (size_t k = 0; k < std::min(kScoringPoints, remaining.Size()); ++k) {
+    const size_t i = Below(*rng, remaining.Size());
+    sample.x.push_back(remaining.x[i]), sample.y.push_back(remaining.y[i]), sample.d.push_back(remaining.d[i]);
+  }
+  while (sample.x.size() % 8 != 0) {
+    sample.x.push_back(sample.x.back()), sample.y.push_back(sample.y.back()), sample.d.push_back(sample.d.back());
+  }
+  return sample;
+}
+
+// options.ransac_iterations minimal samples (fewer hypotheses where a sample is degenerate): a
+// random remaining point and two more within sample_radius of it, on one surface far more often
+// than uniformly drawn ones. Sequential, so that the seed fixes the result.
+std::vector<DisparityPlane> DrawHypotheses(const std::vector<PlanePoint>& points, const std::vector<int>& index_of,
+                                           const std::vector<uint8_t>& removed, const Remaining& remaining, int w,
+                                           int h, const LayeredPairOptions& options, std::mt19937* rng) {
+  const int radius = options.sample_radius;
+  auto near_point = [&](const PlanePoint& p, int exclude) {
+    for (int attempt = 0; attempt < 16; ++attempt) {
+      const int x = static_cast<int>(p.x) + static_cast<int>(Below(*rng, 2 * radius + 1)) - radius;
+      const int y = static_cast<int>(p.y) + static_cast<int>(Below(*rng, 2 * radius + 1)) - radius;
+      if (x < 0 || y < 0 || x >= w || y >= h) continue;
+      const int i = index_of[static_cast<size_t>(y) * w + x];
+      if (i >= 0 && !removed[i] && i != exclude) return i;
+    }
+    return -1;
+  };
+  std::vector<DisparityPlane> hypotheses;
+  for (int iteration = 0; iteration < options.ransac_iterations; ++iteration) {
+    const int i0 = remaining.index[Below(*rng, remaining.Size())];
+    const int i1 = near_point(points[i0], i0);
+    const int i2 = i1 < 0 ? -1 : near_point(points[i0], i1);
+    DisparityPlane hypothesis;
+    if (i2 >= 0 && i2 != i0 && PlaneThrough(points[i0], points[i1], points[i2], &hypothesis)) {
+      hypotheses.push_back(hypothesis);
+    }
+  }
+  return hypotheses;
+}
+
+// The hypothesis with the lowest MSAC score (truncated squared residuals) on the sample; the
+// hypotheses scored in parallel, eight partial sums each (vectorised).
+DisparityPlane BestHypothesis(const std::vector<DisparityPlane>& hypotheses, const ScoringSample& sample,
+                              double tolerance) {
+  std::vector<float> scores(hypotheses.size());
+  const float t2 = static_cast<float>(tolerance * tolerance);
+  const size_t n = sample.x.size();
+  const float* sx = sample.x.data();
+  const float* sy = sample.y.data();
+  const float* sd = sample.d.data();
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, hypotheses.size(), 16), [&](const tbb::blocked_range<size_t>& range) {
+    for (size_t k = range.begin(); k < range.end(); ++k) {
+      const float a = static_cast<float>(hypotheses[k].a), b = static_cast<float>(hypotheses[k].b),
+                  c = static_cast<float>(hypotheses[k].c);
+      float partial[8] = {0, 0, 0, 0, 0, 0, 0, 0};
+      for (size_t i = 0; i < n; i += 8) {
+        for (int j = 0; j < 8; ++j) {
+          const float r = sd[i + j] - (a * sx[i + j] + b * sy[i + j] + c);
+          partial[j] += Min(r * r, t2);
+        }
+      }
+      scores[k] = ((partial[0] + partial[1]) + (partial[2] + partial[3])) +
+                  ((partial[4] + partial[5]) + (partial[6] + partial[7]));
+    }
+  });
+  return hypotheses[std::min_element(scores.begin(), scores.end()) - scores.begin()];
+}
+
+// Steps 2 and 3 on the valid pixels of `initial`: sequential RANSAC (the plane with the best score,
+// refitted by least squares to its inliers, takes them; again on the rest, until max_layers planes
+// or too few points), then each plane refined robustly. Planes largest first.
+std::vector<DisparityPlane> FindPlanes(const cv::Mat& initial, const LayeredPairOptions& options) {
+  std::vector<int> index_of;
+  const std::vector<PlanePoint> points = ValidPoints(initial, &index_of);
   if (points.size() < 3) throw std::invalid_argument("LayeredStereoPair: fewer than 3 valid initial disparities");
   const size_t min_support =
       std::max<size_t>(3, static_cast<size_t>(std::ceil(options.min_layer_fraction * points.size())));
@@ -223,71 +305,19 @@ std::vector<DisparityPlane> FindPlanes(const cv::Mat& initial, const LayeredPair
   std::mt19937 rng(options.seed);
   std::vector<uint8_t> removed(points.size(), 0);
   Remaining remaining;
-  std::vector<float> sx, sy, sd;  // the scoring subsample
-  std::vector<DisparityPlane> hypotheses;
-  std::vector<float> scores;
-  std::vector<DisparityPlane> planes;
-  std::vector<std::vector<int>> members;  // a subsample of each plane's inliers, for step 3
-  if (std::getenv("IBMR_LAYERED_DEBUG")) std::fprintf(stderr, "  points %.1f ms\n", since(t_start));
   for (size_t i = 0; i < points.size(); ++i) {
     remaining.x.push_back(points[i].x), remaining.y.push_back(points[i].y), remaining.d.push_back(points[i].d);
     remaining.index.push_back(static_cast<int>(i));
   }
-  while (static_cast<int>(planes.size()) < options.max_layers) {
-    auto t0 = now();
-    if (remaining.Size() < min_support) break;
-    sx.clear(), sy.clear(), sd.clear();
-    for (size_t k = 0; k < std::min(kScoringPoints, remaining.Size()); ++k) {
-      const size_t i = Below(rng, remaining.Size());
-      sx.push_back(remaining.x[i]), sy.push_back(remaining.y[i]), sd.push_back(remaining.d[i]);
-    }
-    while (sx.size() % 8 != 0) sx.push_back(sx.back()), sy.push_back(sy.back()), sd.push_back(sd.back());
-    // Hypotheses drawn sequentially (deterministic), scored in parallel. A second and third point
-    // near the first: on one surface far more often than uniform ones.
-    const int radius = options.sample_radius;
-    auto near_point = [&](const PlanePoint& p, int exclude) {
-      for (int attempt = 0; attempt < 16; ++attempt) {
-        const int x = static_cast<int>(p.x) + static_cast<int>(Below(rng, 2 * radius + 1)) - radius;
-        const int y = static_cast<int>(p.y) + static_cast<int>(Below(rng, 2 * radius + 1)) - radius;
-        if (x < 0 || y < 0 || x >= w || y >= h) continue;
-        const int i = index_of[static_cast<size_t>(y) * w + x];
-        if (i >= 0 && !removed[i] && i != exclude) return i;
-      }
-      return -1;
-    };
-    t_rem += since(t0); t0 = now();
-    hypotheses.clear();
-    for (int iteration = 0; iteration < options.ransac_iterations; ++iteration) {
-      const int i0 = remaining.index[Below(rng, remaining.Size())];
-      const int i1 = near_point(points[i0], i0);
-      const int i2 = i1 < 0 ? -1 : near_point(points[i0], i1);
-      DisparityPlane hypothesis;
-      if (i2 >= 0 && i2 != i0 && PlaneThrough(points[i0], points[i1], points[i2], &hypothesis)) {
-        hypotheses.push_back(hypothesis);
-      }
-    }
+  std::vector<DisparityPlane> planes;
+  std::vector<std::vector<int>> members;  // a subsample of each plane's inliers, for step 3
+  while (static_cast<int>(planes.size()) < options.max_layers && remaining.Size() >= min_support) {
+    const ScoringSample sample = DrawScoringSample(remaining, &rng);
+    const std::vector<DisparityPlane> hypotheses =
+        DrawHypotheses(points, index_of, removed, remaining, initial.cols, initial.rows, options, &rng);
     if (hypotheses.empty()) break;
-    t_hyp += since(t0); t0 = now();
-    scores.resize(hypotheses.size());
-    const float tol2 = static_cast<float>(tol * tol);
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, hypotheses.size(), 16), [&](const tbb::blocked_range<size_t>& range) {
-      for (size_t k = range.begin(); k < range.end(); ++k) {
-        const float a = static_cast<float>(hypotheses[k].a), b = static_cast<float>(hypotheses[k].b),
-                    c = static_cast<float>(hypotheses[k].c);
-        float partial[8] = {0, 0, 0, 0, 0, 0, 0, 0};  // MSAC: truncated squared residuals, 8 sums
-        for (size_t i = 0; i < sx.size(); i += 8) {
-          for (int j = 0; j < 8; ++j) {
-            const float r = sd[i + j] - (a * sx[i + j] + b * sy[i + j] + c);
-            partial[j] += std::min(r * r, tol2);
-          }
-        }
-        scores[k] = ((partial[0] + partial[1]) + (partial[2] + partial[3])) + ((partial[4] + partial[5]) + (partial[6] + partial[7]));
-      }
-    });
-    t_score += since(t0); t0 = now();
-    DisparityPlane best = hypotheses[std::min_element(scores.begin(), scores.end()) - scores.begin()];
-    // Least-squares refit on the remaining inliers (a subsample of them), twice.
-    for (int round = 0; round < 2; ++round) {
+    DisparityPlane best = BestHypothesis(hypotheses, sample, tol);
+    for (int round = 0; round < 2; ++round) {  // least-squares refits on (a subsample of) the inliers
       const size_t count = MarkInliers(best, tol, &remaining);
       if (count < 3) break;
       best = FitLeastSquares(points, MarkedIndices(remaining, count, kFitPoints));
@@ -298,16 +328,13 @@ std::vector<DisparityPlane> FindPlanes(const cv::Mat& initial, const LayeredPair
     planes.push_back(best);
     members.push_back(MarkedIndices(remaining, count, kRefinePoints));
     RemoveMarked(&remaining, &removed);
-    t_fit += since(t0);
   }
-  auto t_ceres = now();
-  // Step 3: each plane refined robustly on its inliers, the planes in parallel.
+  // Step 3, the planes in parallel.
   tbb::parallel_for(0, static_cast<int>(planes.size()), [&](int l) {
     const size_t support = planes[l].support;
     planes[l] = RefinePlane(planes[l], points, members[l], options.loss_scale);
     planes[l].support = support;
   });
-  if (std::getenv("IBMR_LAYERED_DEBUG")) std::fprintf(stderr, "  rem %.1f hyp %.1f score %.1f fit %.1f ceres %.1f\n", t_rem, t_hyp, t_score, t_fit, since(t_ceres));
   if (planes.empty()) {  // too few points for a layer of the minimum size: one plane through all
     std::vector<int> all(points.size());
     for (size_t i = 0; i < all.size(); ++i) all[i] = static_cast<int>(i);
@@ -393,7 +420,13 @@ __attribute__((target("popcnt"))) void IntegerCostsPopcnt(const uint64_t* left, 
                                                            int range, float outside, RawRowScratch* s) {
   IntegerCostsImpl(left, right, w, range, outside, s);
 }
-const bool kHavePopcnt = __builtin_cpu_supports("popcnt");
+bool HavePopcnt() {
+  static const bool have = [] {
+    __builtin_cpu_init();  // may run before libgcc's own initialisation otherwise
+    return __builtin_cpu_supports("popcnt") != 0;
+  }();
+  return have;
+}
 #endif
 void IntegerCostsPortable(const uint64_t* left, const uint64_t* right, int w, int range, float outside,
                           RawRowScratch* s) {
@@ -423,7 +456,7 @@ void RawCostRow(const MatchInput& in, const DisparityPlane& plane, int y, int ra
   const uint64_t* left = in.left.data() + static_cast<size_t>(y) * w;
   const uint64_t* right = in.right.data() + static_cast<size_t>(y) * w;
 #if defined(__x86_64__) && defined(__GNUC__)
-  if (kHavePopcnt) {
+  if (HavePopcnt()) {
     IntegerCostsPopcnt(left, right, w, range, occlusion_cost, s);
   } else {
     IntegerCostsPortable(left, right, w, range, occlusion_cost, s);
@@ -454,27 +487,20 @@ struct Prior {
   std::vector<float> disparity, weight;
 };
 
-// Costs of one layer at every pixel i = y * width + x: the census cost over the (2r+1)^2 window
-// following the plane, minimised over the residual (plus residual_penalty |residual|), plus the
-// prior initial_weight * min(|d - initial d|, initial_truncation), written to cost[i]; the disparity
-// at the minimum (plane + residual, + parabola sub-pixel) to disparity[i]. Row by row in passes
-// over x that the compiler vectorises, except the census lookups.
-void LayerCosts(const MatchInput& in, const DisparityPlane& plane, const LayeredPairOptions& options,
-                const Prior& prior, LayerScratch* scratch, float* cost, float* disparity) {
-  const int w = in.width, h = in.height, range = options.residual_range, n = 2 * range + 1;
+// Raw costs of one layer (RawCostRow) summed over 2r+1 pixels along each row, border replicated:
+// scratch->hsum, one image per residual.
+void RowWindowSums(const MatchInput& in, const DisparityPlane& plane, const LayeredPairOptions& options,
+                   LayerScratch* scratch) {
+  const int w = in.width, h = in.height, n = 2 * options.residual_range + 1;
   const int r = options.window_radius, padded = w + 2 * r;
   const size_t image = static_cast<size_t>(w) * h;
   scratch->raw.resize(static_cast<size_t>(n) * padded);
   scratch->hsum.resize(n * image);
-  scratch->vsum.resize(static_cast<size_t>(n) * w);
-  scratch->best.resize(w);
-  scratch->best_k.resize(w);
-  const float occlusion = static_cast<float>(options.occlusion_cost);
-  // Raw costs, then window sums along each row.
   float* rows[kMaxResidualSlices];
   for (int k = 0; k < n; ++k) rows[k] = scratch->raw.data() + static_cast<size_t>(k) * padded + r;
   for (int y = 0; y < h; ++y) {
-    RawCostRow(in, plane, y, range, occlusion, &scratch->raw_row, rows);
+    RawCostRow(in, plane, y, options.residual_range, static_cast<float>(options.occlusion_cost), &scratch->raw_row,
+               rows);
     for (int k = 0; k < n; ++k) {
       float* row = rows[k];
       for (int j = 1; j <= r; ++j) row[-j] = row[0], row[w - 1 + j] = row[w - 1];
@@ -486,28 +512,62 @@ void LayerCosts(const MatchInput& in, const DisparityPlane& plane, const Layered
       }
     }
   }
-  // Window sums along columns (running, border rows replicated), and per output row the residual
-  // with the lowest cost.
-  const float scale = 1.f / ((2 * r + 1) * (2 * r + 1));
-  const float penalty = static_cast<float>(options.residual_penalty);
-  const float truncation = static_cast<float>(options.initial_truncation);
-  auto hsum_row = [&](int k, int y) { return scratch->hsum.data() + k * image + static_cast<size_t>(std::clamp(y, 0, h - 1)) * w; };
+}
+
+// Sub-pixel residual: where residual k is the best (best_k[x] == k), d[x] += the offset of the
+// parabola's vertex through the costs c0, c1, c2 of residuals k - 1, k, k + 1, within half a pixel.
+// Computed at every x and kept by a select, so that the loop is vectorised.
+void AddParabolaOffsets(const float* __restrict c0, const float* __restrict c1, const float* __restrict c2,
+                        const float* __restrict best_k, int k, int w, float* __restrict d) {
+  const float kf = static_cast<float>(k);
+  for (int x = 0; x < w; ++x) {
+    const float curvature = c0[x] - 2.f * c1[x] + c2[x];
+    const bool convex = curvature > 1e-6f;
+    const float denominator = convex ? curvature : 1.f;  // (a variable: inline, it stops vectorisation)
+    const float offset = 0.5f * (c0[x] - c2[x]) / denominator;
+    const float clamped = Min(0.5f, -Min(0.5f, -offset));
+    d[x] += (best_k[x] == kf) & convex ? clamped : 0.f;  // & not &&: no branch
+  }
+}
+
+// Costs of one layer at every pixel i = y * width + x: the census cost over the (2r+1)^2 window
+// following the plane, minimised over the residual (plus residual_penalty |residual|), plus the
+// prior initial_weight * min(|d - initial d|, initial_truncation), written to cost[i]; the disparity
+// at the minimum (plane + residual, + parabola sub-pixel) to disparity[i]. Row by row in passes
+// over x that the compiler vectorises, except the census lookups.
+void LayerCosts(const MatchInput& in, const DisparityPlane& plane, const LayeredPairOptions& options,
+                const Prior& prior, LayerScratch* scratch, float* cost, float* disparity) {
+  const int w = in.width, h = in.height, range = options.residual_range, n = 2 * range + 1;
+  const int r = options.window_radius;
+  const size_t image = static_cast<size_t>(w) * h;
+  RowWindowSums(in, plane, options, scratch);
+  scratch->vsum.resize(static_cast<size_t>(n) * w);
+  scratch->best.resize(w);
+  scratch->best_k.resize(w);
+  // Column sums of the row sums, running down the image (border rows replicated).
+  auto hsum_row = [&](int k, int y) {
+    return scratch->hsum.data() + k * image + static_cast<size_t>(std::clamp(y, 0, h - 1)) * w;
+  };
+  auto vsum_row = [&](int k) { return scratch->vsum.data() + static_cast<size_t>(k) * w; };
   for (int k = 0; k < n; ++k) {
-    float* v = scratch->vsum.data() + static_cast<size_t>(k) * w;
+    float* v = vsum_row(k);
     std::fill(v, v + w, 0.f);
     for (int j = -r; j <= r; ++j) {
       const float* src = hsum_row(k, j);
       for (int x = 0; x < w; ++x) v[x] += src[x];
     }
   }
+  const float scale = 1.f / ((2 * r + 1) * (2 * r + 1));
+  const float penalty = static_cast<float>(options.residual_penalty);
+  const float truncation = static_cast<float>(options.initial_truncation);
   float* __restrict best = scratch->best.data();
   float* __restrict best_k = scratch->best_k.data();
   for (int y = 0; y < h; ++y) {
-    const float* centre = scratch->vsum.data() + static_cast<size_t>(range) * w;
+    const float* centre = vsum_row(range);
     for (int x = 0; x < w; ++x) best[x] = centre[x] * scale, best_k[x] = static_cast<float>(range);
     for (int k = 0; k < n; ++k) {
       if (k == range) continue;
-      const float* v = scratch->vsum.data() + static_cast<size_t>(k) * w;
+      const float* v = vsum_row(k);
       const float extra = penalty * std::abs(k - range), kf = static_cast<float>(k);
       for (int x = 0; x < w; ++x) {
         const float c = v[x] * scale + extra;
@@ -519,28 +579,19 @@ void LayerCosts(const MatchInput& in, const DisparityPlane& plane, const Layered
     float* __restrict d = disparity + row;
     const float e0 = static_cast<float>(plane.Disparity(0, y)), a = static_cast<float>(plane.a);
     for (int x = 0; x < w; ++x) d[x] = e0 + a * x + (best_k[x] - range);
-    if (options.subpixel && range > 0) {
-      for (int x = 0; x < w; ++x) {
-        const int k = static_cast<int>(best_k[x]);
-        if (k == 0 || k == n - 1) continue;
-        const float c0 = scratch->vsum[static_cast<size_t>(k - 1) * w + x], c1 = scratch->vsum[static_cast<size_t>(k) * w + x],
-                    c2 = scratch->vsum[static_cast<size_t>(k + 1) * w + x];
-        const float curvature = c0 - 2.f * c1 + c2;
-        if (curvature > 1e-6f) d[x] += std::clamp(0.5f * (c0 - c2) / curvature, -0.5f, 0.5f);
-      }
+    for (int k = 1; options.subpixel && k + 1 < n; ++k) {
+      AddParabolaOffsets(vsum_row(k - 1), vsum_row(k), vsum_row(k + 1), best_k, k, w, d);
     }
     const float* __restrict init = prior.disparity.data() + row;
     const float* __restrict weight = prior.weight.data() + row;
     float* __restrict out = cost + row;
     for (int x = 0; x < w; ++x) out[x] = best[x] + weight[x] * Min(std::fabs(init[x] - d[x]), truncation);
-    // Next row's column sums.
-    if (y + 1 < h) {
-      for (int k = 0; k < n; ++k) {
-        float* __restrict v = scratch->vsum.data() + static_cast<size_t>(k) * w;
-        const float* __restrict add = hsum_row(k, y + 1 + r);
-        const float* __restrict sub = hsum_row(k, y - r);
-        for (int x = 0; x < w; ++x) v[x] += add[x] - sub[x];
-      }
+    if (y + 1 == h) break;
+    for (int k = 0; k < n; ++k) {  // the next row's column sums
+      float* __restrict v = vsum_row(k);
+      const float* __restrict add = hsum_row(k, y + 1 + r);
+      const float* __restrict sub = hsum_row(k, y - r);
+      for (int x = 0; x < w; ++x) v[x] += add[x] - sub[x];
     }
   }
 }
@@ -622,10 +673,15 @@ void AssignLabels(const std::vector<float>& cost, int num_labels, int w, int h, 
   // added to it and to the horizontal sums, and the label with the lowest total.
   labels->create(h, w, CV_32S);
   constexpr int kColumns = 16;
+  // A block's downward paths (h * 16 * layers floats) in a buffer per thread: allocated per block,
+  // they would be mapped and faulted in afresh each time.
+  tbb::enumerable_thread_specific<std::vector<float>> buffers;
   tbb::parallel_for(0, (w + kColumns - 1) / kColumns, [&](int block) {
     const int x0 = block * kColumns, x1 = std::min(w, x0 + kColumns), bw = x1 - x0;
     const size_t row_size = static_cast<size_t>(bw) * nl;
-    std::vector<float> downward(static_cast<size_t>(h) * row_size), path(2 * row_size);
+    std::vector<float>& downward = buffers.local();
+    downward.resize(static_cast<size_t>(h) * kColumns * nl);
+    std::vector<float> path(2 * row_size);
     for (int x = x0; x < x1; ++x) std::copy(c + x * nl, c + (x + 1) * nl, downward.data() + (x - x0) * nl);
     for (int y = 1; y < h; ++y) {
       const size_t edge_row = static_cast<size_t>(y - 1) * w;
@@ -679,8 +735,8 @@ cv::Mat RightZBuffer(const cv::Mat& disparity, const std::vector<uint8_t>& hole)
       if (x + 1 < w && !invalid[x + 1] && std::fabs(d[x + 1] - d[x]) < 1.f) {
         lo = std::min(lo, x + 1 - d[x + 1]), hi = std::max(hi, x + 1 - d[x + 1]), dmin = std::min(d[x], d[x + 1]);
       }
-      const int first = std::max(0, static_cast<int>(std::lround(lo)));
-      const int last = std::min(w - 1, static_cast<int>(std::lround(hi)));
+      const int first = std::max(0, RoundToInt(lo));
+      const int last = std::min(w - 1, RoundToInt(hi));
       for (int xr = first; xr <= last; ++xr) z[xr] = std::max(z[xr], dmin);
     }
   });
@@ -701,7 +757,7 @@ void ApplyOcclusion(const std::vector<uint8_t>& hole, const cv::Mat& zbuffer, co
       if (!hole[i]) continue;
       for (int l = 0; l < nl; ++l) {
         const float d = static_cast<float>(planes[l].Disparity(x, y));
-        const int xr = static_cast<int>(std::lround(x - d));
+        const int xr = RoundToInt(x - d);
         if (xr >= 0 && xr < w && z[xr] > d + kOcclusionMargin) (*cost)[i * nl + l] = occlusion_cost;
       }
     }
@@ -768,147 +824,149 @@ bool LayeredPairOptions::Check(std::string* error) const {
   return true;
 }
 
+namespace {
+
+void CheckInputs(const cv::Mat& left, const cv::Mat& right, const cv::Mat& initial_disparity, int max_disparity,
+                 const LayeredPairOptions& options) {
+  std::string error;
+  if (!options.Check(&error)) throw std::invalid_argument("LayeredStereoPair: " + error);
+  if (left.empty() || left.size() != right.size() || left.type() != right.type() || left.depth() != CV_8U) {
+    throw std::invalid_argument("LayeredStereoPair: left and right must be 8-bit images of one size and type");
+  }
+  if (initial_disparity.size() != left.size() || initial_disparity.type() != CV_32F) {
+    throw std::invalid_argument("LayeredStereoPair: the initial disparity must be CV_32F of the images' size");
+  }
+  if (max_disparity < 1) throw std::invalid_argument("LayeredStereoPair: max_disparity must be >= 1");
+}
+
+// Pixels without an initial disparity (<= 0, NaN, or a winner at the range's end; see FindPlanes).
+std::vector<uint8_t> Holes(const cv::Mat& initial) {
+  std::vector<uint8_t> hole(initial.total());
+  for (int y = 0; y < initial.rows; ++y) {
+    const float* d = initial.ptr<float>(y);
+    for (int x = 0; x < initial.cols; ++x) {
+      hole[static_cast<size_t>(y) * initial.cols + x] = !(d[x] >= kMinPlaneDisparity) || !std::isfinite(d[x]);
+    }
+  }
+  return hole;
+}
+
+Prior MakePrior(const cv::Mat& initial, const std::vector<uint8_t>& hole, double weight) {
+  Prior prior;
+  prior.disparity.resize(hole.size());
+  prior.weight.resize(hole.size());
+  for (int y = 0; y < initial.rows; ++y) {
+    const float* d = initial.ptr<float>(y);
+    for (int x = 0; x < initial.cols; ++x) {
+      const size_t i = static_cast<size_t>(y) * initial.cols + x;
+      prior.disparity[i] = hole[i] ? 0.f : d[x];
+      prior.weight[i] = hole[i] ? 0.f : static_cast<float>(weight);
+    }
+  }
+  return prior;
+}
+
+// Step 4's data costs of every layer: `cost` pixel-major (cost[i * layers + l], for the assignment),
+// `disparity` layer-major (disparity[l * pixels + i]). The layers are computed in parallel, each
+// into its own layer-major slice (no two tasks write one cache line), then transposed.
+void AllLayerCosts(const MatchInput& match, const std::vector<DisparityPlane>& planes, const Prior& prior,
+                   const LayeredPairOptions& options, tbb::enumerable_thread_specific<LayerScratch>* scratch,
+                   std::vector<float>* layer_cost, std::vector<float>* cost, std::vector<float>* disparity) {
+  const size_t n = static_cast<size_t>(match.width) * match.height;
+  const int nl = static_cast<int>(planes.size());
+  layer_cost->resize(n * nl);
+  disparity->resize(n * nl);
+  tbb::parallel_for(0, nl, [&](int l) {
+    LayerCosts(match, planes[l], options, prior, &scratch->local(), layer_cost->data() + l * n,
+               disparity->data() + l * n);
+  });
+  cost->resize(n * nl);
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 4096), [&](const tbb::blocked_range<size_t>& pixels) {
+    for (size_t i = pixels.begin(); i < pixels.end(); ++i) {
+      for (int l = 0; l < nl; ++l) (*cost)[i * nl + l] = (*layer_cost)[l * n + i];
+    }
+  });
+}
+
+// Step 5's output: per pixel the disparity of its layer (plane + residual); the plane alone where the
+// pixel is occluded under it (no match to refine by). Counts each layer's pixels into `support`.
+cv::Mat OutputDisparity(const cv::Mat& labels, const std::vector<DisparityPlane>& planes,
+                        const std::vector<float>& disparity, const std::vector<uint8_t>& hole, const cv::Mat& zbuffer,
+                        int max_disparity, std::vector<size_t>* support) {
+  const int w = labels.cols, h = labels.rows;
+  const size_t n = static_cast<size_t>(w) * h;
+  cv::Mat out(h, w, CV_32F);
+  support->assign(planes.size(), 0);
+  for (int y = 0; y < h; ++y) {
+    const int* label = labels.ptr<int>(y);
+    const float* z = zbuffer.ptr<float>(y);
+    float* row = out.ptr<float>(y);
+    for (int x = 0; x < w; ++x) {
+      const size_t i = static_cast<size_t>(y) * w + x;
+      const float plane = static_cast<float>(planes[label[x]].Disparity(x, y));
+      const int xr = RoundToInt(x - plane);
+      const bool occluded = xr < 0 || xr >= w || (hole[i] && z[xr] > plane + kOcclusionMargin);
+      const float d = occluded ? plane : disparity[label[x] * n + i];
+      // Disparity 0 is an answer, but "<= 0" means none in the output (as plane_sweep's).
+      row[x] = std::clamp(d, 1e-3f, static_cast<float>(std::max(1, max_disparity - 1)));
+      ++(*support)[label[x]];
+    }
+  }
+  return out;
+}
+
+// Drops the layers no pixel chose and renumbers the labels; support = pixels assigned.
+void DropUnusedLayers(const std::vector<size_t>& support, std::vector<DisparityPlane>* planes, cv::Mat* labels) {
+  std::vector<int> renumber(planes->size(), -1);
+  std::vector<DisparityPlane> kept;
+  for (size_t l = 0; l < planes->size(); ++l) {
+    if (support[l] == 0) continue;
+    renumber[l] = static_cast<int>(kept.size());
+    kept.push_back((*planes)[l]);
+    kept.back().support = support[l];
+  }
+  for (int y = 0; y < labels->rows; ++y) {
+    int* label = labels->ptr<int>(y);
+    for (int x = 0; x < labels->cols; ++x) label[x] = renumber[label[x]];
+  }
+  *planes = std::move(kept);
+}
+
+}  // namespace
+
 LayeredPairResult LayeredStereoPair(const cv::Mat& left_image, const cv::Mat& right_image,
                                     const cv::Mat& initial_disparity, int max_disparity,
                                     const LayeredPairOptions& options) {
   const auto start = std::chrono::steady_clock::now();
-  std::string error;
-  if (!options.Check(&error)) throw std::invalid_argument("LayeredStereoPair: " + error);
-  if (left_image.empty() || left_image.size() != right_image.size() || left_image.type() != right_image.type() ||
-      left_image.depth() != CV_8U) {
-    throw std::invalid_argument("LayeredStereoPair: left and right must be 8-bit images of one size and type");
-  }
-  if (initial_disparity.size() != left_image.size() || initial_disparity.type() != CV_32F) {
-    throw std::invalid_argument("LayeredStereoPair: the initial disparity must be CV_32F of the images' size");
-  }
-  if (max_disparity < 1) throw std::invalid_argument("LayeredStereoPair: max_disparity must be >= 1");
+  CheckInputs(left_image, right_image, initial_disparity, max_disparity, options);
   const int w = left_image.cols, h = left_image.rows;
-  const size_t n = static_cast<size_t>(w) * h;
   LayeredPairResult result;
-  const char* debug = std::getenv("IBMR_LAYERED_DEBUG");  // DEBUG-TEMP
-  auto lap = [t = std::chrono::steady_clock::now(), c = std::clock(), debug](const char* what) mutable {
-    if (!debug) return;
-    const auto now = std::chrono::steady_clock::now();
-    const auto cnow = std::clock();
-    std::fprintf(stderr, "  %s %.1f ms cpu %.1f ms\n", what, std::chrono::duration<double>(now - t).count() * 1e3, (cnow - c) * 1e3 / CLOCKS_PER_SEC);
-    t = now, c = cnow;
-  };
-  result.planes = FindPlanes(initial_disparity, options);
-  lap("ransac");
-  auto dump_planes = [&](const char* what) {
-    if (!debug) return;
-    std::fprintf(stderr, "%s:\n", what);
-    for (const auto& p : result.planes) std::fprintf(stderr, "  a %.5f b %.5f c %.3f support %zu\n", p.a, p.b, p.c, p.support);
-  };
-  auto dump_labels = [&](const cv::Mat& labels, const std::string& name) {
-    if (!debug) return;
-    cv::Mat vis(labels.size(), CV_8UC3);
-    for (int y = 0; y < labels.rows; ++y) for (int x = 0; x < labels.cols; ++x) {
-      const int l = labels.at<int>(y, x);
-      vis.at<cv::Vec3b>(y, x) = cv::Vec3b((l * 97) % 256, (l * 53 + 80) % 256, (l * 151 + 40) % 256);
-    }
-    cv::imwrite(std::string(debug) + "/" + name + ".png", vis);
-  };
-  if (debug) cv::imwrite(std::string(debug) + "/initial.pfm", initial_disparity);
-  dump_planes("ransac");
+  result.planes = FindPlanes(initial_disparity, options);  // steps 2 and 3
 
   MatchInput match;
   match.width = w, match.height = h;
   match.left = Census(ToGray(left_image));
   match.right = Census(ToGray(right_image));
-  lap("census");
-  std::vector<uint8_t> hole(n);
-  for (int y = 0; y < h; ++y) {
-    const float* d = initial_disparity.ptr<float>(y);
-    for (int x = 0; x < w; ++x) hole[static_cast<size_t>(y) * w + x] = !(d[x] >= kMinPlaneDisparity) || !std::isfinite(d[x]);
-  }
-  Prior prior;
-  prior.disparity.resize(n);
-  prior.weight.resize(n);
-  for (int y = 0; y < h; ++y) {
-    const float* d = initial_disparity.ptr<float>(y);
-    for (int x = 0; x < w; ++x) {
-      const size_t i = static_cast<size_t>(y) * w + x;
-      prior.disparity[i] = hole[i] ? 0.f : d[x];
-      prior.weight[i] = hole[i] ? 0.f : static_cast<float>(options.initial_weight);
-    }
-  }
+  const std::vector<uint8_t> hole = Holes(initial_disparity);
+  const Prior prior = MakePrior(initial_disparity, hole, options.initial_weight);
+  const cv::Mat zbuffer = RightZBuffer(initial_disparity, hole);
   std::vector<float> right_penalty, down_penalty;
   EdgePenalties(left_image, options, &right_penalty, &down_penalty);
-  lap("census+edges");
 
-  std::vector<float> layer_cost, cost, disparity, sum;
-  cv::Mat labels;
-  const cv::Mat zbuffer = RightZBuffer(initial_disparity, hole);
+  std::vector<float> layer_cost, cost, disparity;
   tbb::enumerable_thread_specific<LayerScratch> scratch;
-  for (int pass = 0; pass <= options.refinement_passes; ++pass) {
-    const int nl = static_cast<int>(result.planes.size());
-    // Layer-major while computing (no two tasks write one cache line), pixel-major for the assignment.
-    layer_cost.resize(n * nl);
-    disparity.resize(n * nl);
-    tbb::parallel_for(0, nl, [&](int l) {
-      LayerCosts(match, result.planes[l], options, prior, &scratch.local(), layer_cost.data() + l * n, disparity.data() + l * n);
-    });
-    lap("layer costs only");
-    cost.resize(n * nl);
-    tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 4096), [&](const tbb::blocked_range<size_t>& pixels) {
-      for (size_t i = pixels.begin(); i < pixels.end(); ++i) {
-        for (int l = 0; l < nl; ++l) cost[i * nl + l] = layer_cost[l * n + i];
-      }
-    });
-    lap("layer costs");
-    if (debug) {
-      const int pts[][2] = {{100, 300}, {60, 280}, {120, 250}, {350, 300}, {300, 80}, {250,60}};
-      for (auto& p : pts) {
-        const size_t i = static_cast<size_t>(p[1]) * w + p[0];
-        std::fprintf(stderr, "px %d %d init %.2f:", p[0], p[1], initial_disparity.at<float>(p[1], p[0]));
-        for (int l = 0; l < nl; ++l) std::fprintf(stderr, " [%.2f %.2f]", cost[i * nl + l], disparity[l * n + i]);
-        std::fprintf(stderr, "\n");
-      }
-    }
-    if (!std::getenv("NOOCC")) ApplyOcclusion(hole, zbuffer, result.planes, static_cast<float>(options.occlusion_cost), &cost);
-    AssignLabels(cost, nl, w, h, right_penalty, down_penalty, &sum, &labels);
-    lap("occl+assign");
-    dump_labels(labels, "labels_b" + std::to_string(pass));
+  cv::Mat labels;
+  for (int pass = 0; pass <= options.refinement_passes; ++pass) {  // step 4 (and 5's refits)
+    AllLayerCosts(match, result.planes, prior, options, &scratch, &layer_cost, &cost, &disparity);
+    ApplyOcclusion(hole, zbuffer, result.planes, static_cast<float>(options.occlusion_cost), &cost);
+    // The layer-major costs are spent: their memory holds the assignment's sums (no fresh pages).
+    AssignLabels(cost, static_cast<int>(result.planes.size()), w, h, right_penalty, down_penalty, &layer_cost,
+                 &labels);
     if (pass < options.refinement_passes) RefitPlanes(labels, disparity, hole, options, &result.planes);
-    lap("occlusion+assign+refit");
-    dump_planes("refit");
   }
-
-  // Output: plane + residual; where the pixel is occluded under its layer, the plane alone.
-  const int nl = static_cast<int>(result.planes.size());
-  result.disparity.create(h, w, CV_32F);
-  std::vector<size_t> support(nl, 0);
-  for (int y = 0; y < h; ++y) {
-    const int* label = labels.ptr<int>(y);
-    const float* z = zbuffer.ptr<float>(y);
-    float* out = result.disparity.ptr<float>(y);
-    for (int x = 0; x < w; ++x) {
-      const size_t i = static_cast<size_t>(y) * w + x;
-      const float plane = static_cast<float>(result.planes[label[x]].Disparity(x, y));
-      float d = disparity[label[x] * n + i];
-      const int xr = static_cast<int>(std::lround(x - plane));
-      const bool occluded = xr < 0 || xr >= w || (hole[i] && z[xr] > plane + kOcclusionMargin);
-      if (occluded) d = plane;
-      // Disparity 0 is an answer, but "<= 0" means none in the output (as plane_sweep).
-      out[x] = std::clamp(d, 1e-3f, static_cast<float>(std::max(1, max_disparity - 1)));
-      ++support[label[x]];
-    }
-  }
-  // Layers no pixel chose are dropped; labels renumbered.
-  std::vector<int> renumber(nl, -1);
-  std::vector<DisparityPlane> kept;
-  for (int l = 0; l < nl; ++l) {
-    if (support[l] == 0) continue;
-    renumber[l] = static_cast<int>(kept.size());
-    kept.push_back(result.planes[l]);
-    kept.back().support = support[l];
-  }
-  for (int y = 0; y < h; ++y) {
-    int* label = labels.ptr<int>(y);
-    for (int x = 0; x < w; ++x) label[x] = renumber[label[x]];
-  }
-  result.planes = std::move(kept);
+  std::vector<size_t> support;
+  result.disparity = OutputDisparity(labels, result.planes, disparity, hole, zbuffer, max_disparity, &support);
+  DropUnusedLayers(support, &result.planes, &labels);
   result.labels = labels;
   result.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   return result;
