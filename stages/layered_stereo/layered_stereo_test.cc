@@ -197,6 +197,22 @@ TEST_F(TwoPlanes, TheLayersPredictAHeldOutViewAndAlphaStaysInRange) {
   EXPECT_GT(covered_seen, static_cast<size_t>(0.995 * seen_columns * kHeight));
 }
 
+// Planes tilted by 1 degree and moved out by 2% return to the truth by photo-consistency alone.
+TEST_F(TwoPlanes, PhotometricRefinementReturnsPerturbedPlanes) {
+  std::vector<WorldPlane> planes = {TrueBackground(), TrueForeground()};
+  const cv::Mat labels = AssignPixels(reference, pointers, planes, LayeredOptions());
+  for (WorldPlane& p : planes) {
+    p.normal = (p.normal + Eigen::Vector3d(0.015, -0.01, 0)).normalized();
+    p.offset *= 1.02;
+  }
+  RefinePlanesPhotometric(reference, pointers, labels, LayeredOptions(), &planes);
+  EXPECT_LT(AngleDeg(planes[0].normal, TrueBackground().normal), 0.1);
+  EXPECT_NEAR(planes[0].offset, TrueBackground().offset, 0.001 * TrueBackground().offset);
+  // The foreground square is small (48 x 48 pixels): looser.
+  EXPECT_LT(AngleDeg(planes[1].normal, TrueForeground().normal), 1.0);
+  EXPECT_NEAR(planes[1].offset, TrueForeground().offset, 0.01 * TrueForeground().offset);
+}
+
 // Two hand-made fronto-parallel layers, red at z = 4 and green at z = 2; seen from the front the
 // green one is on top, seen from behind (a camera at z = 6 looking back) the red one is.
 TEST(CompositeLayers, OrderIsBackToFrontForAnyDesiredView) {
