@@ -282,6 +282,8 @@ LayerSet BuildSprites(const LayerView& reference, const std::vector<const LayerV
     tbb::parallel_for(0, height, [&](int y) {
       std::vector<cv::Vec3b> seen;
       seen.reserve(neighbours.size());
+      std::vector<uint8_t> values;  // one channel of `seen`, for its median
+      values.reserve(neighbours.size());
       for (int x = 0; x < width; ++x) {
         const float zp = zl.at<float>(y, x);
         if (!(zp > 0)) continue;
@@ -314,7 +316,7 @@ LayerSet BuildSprites(const LayerView& reference, const std::vector<const LayerV
         if (seen.empty()) continue;
         cv::Vec4b out(0, 0, 0, 255);
         for (int c = 0; c < 3; ++c) {
-          std::vector<uint8_t> values;
+          values.clear();
           for (const auto& s : seen) values.push_back(s[c]);
           std::nth_element(values.begin(), values.begin() + values.size() / 2, values.end());
           out[c] = values[values.size() / 2];
