@@ -231,18 +231,21 @@ cv::Mat AssignPixels(const LayerView& reference, const std::vector<const LayerVi
   return AssignFromCosts(reference, costs, static_cast<int>(planes.size()), options);
 }
 
-LayerSet BuildSprites(const LayerView& reference, const std::vector<const LayerView*>& neighbours,
-                      const std::vector<WorldPlane>& planes, const cv::Mat& labels, const LayeredOptions& options) {
+namespace {
+
+// BuildSprites with each plane's depth map along the reference's rays given (`plane_z[l]`, at
+// least as many as planes): the count selection draws many models from the same planes.
+LayerSet SpritesFromPlaneDepths(const LayerView& reference, const std::vector<const LayerView*>& neighbours,
+                                const std::vector<WorldPlane>& planes, const std::vector<cv::Mat>& plane_z,
+                                const cv::Mat& labels, const LayeredOptions& options) {
   const int width = reference.image.cols, height = reference.image.rows;
   LayerSet set;
   set.image = reference.name;
   set.camera = reference.camera;
   set.cam_from_world = reference.cam_from_world;
   // Order: back to front by the median reference depth of each plane's pixels.
-  std::vector<cv::Mat> plane_z(planes.size());
   std::vector<std::pair<double, int>> order;
   for (size_t l = 0; l < planes.size(); ++l) {
-    plane_z[l] = PlaneDepthMap(reference, planes[l]);
     std::vector<float> depths;
     for (int y = 0; y < height; y += 2) {
       for (int x = 0; x < width; x += 2) {
@@ -330,6 +333,15 @@ LayerSet BuildSprites(const LayerView& reference, const std::vector<const LayerV
   return set;
 }
 
+}  // namespace
+
+LayerSet BuildSprites(const LayerView& reference, const std::vector<const LayerView*>& neighbours,
+                      const std::vector<WorldPlane>& planes, const cv::Mat& labels, const LayeredOptions& options) {
+  std::vector<cv::Mat> plane_z;
+  for (const WorldPlane& plane : planes) plane_z.push_back(PlaneDepthMap(reference, plane));
+  return SpritesFromPlaneDepths(reference, neighbours, planes, plane_z, labels, options);
+}
+
 LayerCountCurve ChooseLayerCount(const LayerView& reference, const std::vector<const LayerView*>& neighbours,
                                  const std::vector<WorldPlane>& planes, const LayeredOptions& options) {
   LayerCountCurve curve;
@@ -339,6 +351,8 @@ LayerCountCurve ChooseLayerCount(const LayerView& reference, const std::vector<c
   // renders[c][j]: the model with c + 1 planes predicting neighbour j from the others. A plane's
   // data cost does not depend on the others, so each held-out neighbour's costs serve every count.
   std::vector<std::vector<RgbaImage>> renders(counts, std::vector<RgbaImage>(neighbours.size()));
+  std::vector<cv::Mat> plane_z;
+  for (const WorldPlane& plane : planes) plane_z.push_back(PlaneDepthMap(reference, plane));
   for (size_t j = 0; j < neighbours.size(); ++j) {
     std::vector<const LayerView*> others;
     for (size_t i = 0; i < neighbours.size(); ++i) {
@@ -349,7 +363,7 @@ LayerCountCurve ChooseLayerCount(const LayerView& reference, const std::vector<c
     for (size_t c = 0; c < counts; ++c) {
       const std::vector<WorldPlane> subset(planes.begin(), planes.begin() + static_cast<long>(c) + 1);
       const cv::Mat labels = AssignFromCosts(reference, costs, static_cast<int>(c) + 1, options);
-      const LayerSet set = BuildSprites(reference, others, subset, labels, options);
+      const LayerSet set = SpritesFromPlaneDepths(reference, others, subset, plane_z, labels, options);
       renders[c][j] = CompositeLayers(set, neighbours[j]->camera, neighbours[j]->cam_from_world);
     }
   }
