@@ -36,7 +36,7 @@ class LayeredStereoStage : public Stage {
   std::string Summary() const override {
     return "Planar layers per view: plane, RGBA sprite, residual depth; layer count by held-out prediction (layers/)";
   }
-  std::string Version() const override { return "2"; }  // 2: depth_maps/<image>.layered.bin
+  std::string Version() const override { return "3"; }  // 2: depth_maps/<image>.layered.bin; 3: planes fitted along the rays, away from depth edges
   HoldoutRole Role() const override { return HoldoutRole::kTrainingOnly; }
   bool Shardable() const override { return true; }
   double ViewMemoryMb(const StageContext& context) const override {
@@ -64,6 +64,7 @@ class LayeredStereoStage : public Stage {
         {"min_layer_fraction", ParamType::kDouble, num(d.min_layer_fraction), "A plane needs this fraction of the view's depth samples, (0, 1)"},
         {"ransac_iterations", ParamType::kInt, std::to_string(d.ransac_iterations), "RANSAC hypotheses per plane, [10, 100000]"},
         {"sample_step", ParamType::kInt, std::to_string(d.sample_step), "Depth samples every this many pixels for plane fitting, [1, 16]"},
+        {"edge_margin_px", ParamType::kInt, std::to_string(d.edge_margin_px), "Plane fits use samples at least this many pixels from a depth discontinuity, [0, 64]"},
         {"max_residual", ParamType::kDouble, num(d.max_residual), "Residual depth at most this fraction of the plane's depth, [0, 0.5]"},
         {"depth_weight", ParamType::kDouble, num(d.depth_weight), "Assignment cost of a depth one tolerance off the plane, grey levels"},
         {"smoothness", ParamType::kDouble, num(d.smoothness), "Potts cost between 4-neighbours in different layers, grey levels"},
@@ -216,48 +217,60 @@ class LayeredStereoStage : public Stage {
           truth_view.depth = cv::Mat(true_depth.height, true_depth.width, CV_32F);
           for (int y = 0; y < true_depth.height; ++y)
             for (int x = 0; x < true_depth.width; ++x) truth_view.depth.at<float>(y, x) = true_depth.At(x, y);
-          const std::vector<TruthPlane> visible = VisibleTruthPlanes(truth, truth_view, options.min_layer_fraction);
+          const std::vector<TruthPlane> visible =
+              VisibleTruthPlanes(truth, truth_view, options.min_layer_fraction, reference.depth);
           const Eigen::Vector3d centre = CentreOf(reference_image);
-          // Per visible true plane, the nearest layer (recovered: within 1 degree and 1% of the
-          // camera's distance to it); layers near no true plane (within 5 degrees and 5%) are
-          // the curved objects' approximations, counted apart.
+          // Per visible true plane, the nearest layer: found when within 5 degrees and 5% of the
+          // camera's distance to the plane, recovered when within 1 degree and 1%. Layers near
+          // no true plane are the curved objects' approximations, counted apart. Planes that the
+          // depth map covers on at least half their pixels are the ones the layers can find.
           double worst_angle = 0, worst_offset = 0;
-          size_t recovered = 0;
+          size_t recovered = 0, found = 0, with_depth = 0;
           nlohmann::json errors = nlohmann::json::array();
           std::vector<TruthPlane> as_truth;  // the layers, to find the nearest layer of a true plane
           for (const SpriteLayer& layer : result.layers.layers) as_truth.push_back({{layer.normal, layer.offset, 0}, 0});
+          auto near_enough = [](const PlaneError& e, double degrees, double relative) {
+            return e.truth >= 0 && e.angle_deg <= degrees && e.offset_relative <= relative;
+          };
           for (const TruthPlane& t : visible) {
+            with_depth += t.depth_coverage >= 0.5;
+            nlohmann::json entry = {{"pixel_fraction", t.pixel_fraction}, {"depth_coverage", t.depth_coverage}};
             const PlaneError e = NearestTruthPlane(t.plane, as_truth, centre);
-            if (e.truth < 0) continue;
             // Relative to the camera's distance to the true plane, like NearestTruthPlane's.
-            const PlaneError back = NearestTruthPlane(as_truth[e.truth].plane, {t}, centre);
-            worst_angle = std::max(worst_angle, back.angle_deg);
-            worst_offset = std::max(worst_offset, back.offset_relative);
-            recovered += back.angle_deg <= 1.0 && back.offset_relative <= 0.01;
-            errors.push_back({{"pixel_fraction", t.pixel_fraction}, {"layer", e.truth}, {"angle_deg", back.angle_deg},
-                              {"offset_relative", back.offset_relative}});
+            const PlaneError back = e.truth < 0 ? PlaneError() : NearestTruthPlane(as_truth[e.truth].plane, {t}, centre);
+            if (near_enough(back, 5.0, 0.05)) {
+              ++found;
+              worst_angle = std::max(worst_angle, back.angle_deg);
+              worst_offset = std::max(worst_offset, back.offset_relative);
+              recovered += near_enough(back, 1.0, 0.01);
+              entry.update({{"layer", e.truth}, {"angle_deg", back.angle_deg}, {"offset_relative", back.offset_relative}});
+            } else {
+              entry["layer"] = nullptr;  // not found
+            }
+            errors.push_back(entry);
           }
           size_t unmatched = 0;
-          for (const TruthPlane& layer : as_truth) {
-            const PlaneError e = NearestTruthPlane(layer.plane, visible, centre);
-            unmatched += e.truth < 0 || e.angle_deg > 5 || e.offset_relative > 0.05;
-          }
+          for (const TruthPlane& layer : as_truth) unmatched += !near_enough(NearestTruthPlane(layer.plane, visible, centre), 5.0, 0.05);
           piece["truth_visible_planes"] = visible.size();
+          piece["truth_planes_with_depth"] = with_depth;
           piece["truth_plane_errors"] = errors;
+          piece["truth_found_planes"] = found;
           piece["truth_recovered_planes"] = recovered;
           piece["layers_off_true_planes"] = unmatched;
           piece["truth_worst_angle_deg"] = worst_angle;
           piece["truth_worst_offset_relative"] = worst_offset;
-          spdlog::info("[layered_stereo] {}: {} true planes cover >= {:.0f}% of the view each, {} recovered within 1 deg and 1%; "
-                       "worst {:.2f} deg, {:.2f}%; {} layers on no true plane", name, visible.size(), 100 * options.min_layer_fraction,
-                       recovered, worst_angle, 100 * worst_offset, unmatched);
+          spdlog::info("[layered_stereo] {}: {} true planes cover >= {:.0f}% of the view each ({} with depth on half their pixels); "
+                       "{} found, {} within 1 deg and 1%, worst {:.2f} deg, {:.2f}%; {} layers on no true plane",
+                       name, visible.size(), 100 * options.min_layer_fraction, with_depth, found, recovered, worst_angle,
+                       100 * worst_offset, unmatched);
         }
       }
       return piece;
     });
     nlohmann::json per_view = nlohmann::json::object();
     double layers = 0, seconds = 0, worst_angle = 0, worst_offset = 0;
-    size_t with_truth = 0, count_matches = 0, truth_planes = 0, recovered = 0;
+    size_t with_truth = 0, count_matches = 0, count_matches_with_depth = 0, truth_planes = 0, with_depth = 0, found = 0,
+           recovered = 0;
     for (const auto& [name, piece] : summary.pieces) {
       per_view[name] = piece;
       layers += piece.value("layers", 0);
@@ -265,7 +278,10 @@ class LayeredStereoStage : public Stage {
       if (piece.contains("truth_visible_planes")) {
         ++with_truth;
         count_matches += piece.value("truth_visible_planes", 0) == piece.value("layers", -1);
+        count_matches_with_depth += piece.value("truth_planes_with_depth", 0) == piece.value("layers", -1);
         truth_planes += piece.value("truth_visible_planes", 0);
+        with_depth += piece.value("truth_planes_with_depth", 0);
+        found += piece.value("truth_found_planes", 0);
         recovered += piece.value("truth_recovered_planes", 0);
         worst_angle = std::max(worst_angle, piece.value("truth_worst_angle_deg", 0.0));
         worst_offset = std::max(worst_offset, piece.value("truth_worst_offset_relative", 0.0));
@@ -274,9 +290,12 @@ class LayeredStereoStage : public Stage {
     if (with_truth > 0) {
       context.metrics["truth_views"] = with_truth;
       context.metrics["truth_count_matches"] = count_matches;
+      context.metrics["truth_count_matches_planes_with_depth"] = count_matches_with_depth;
       context.metrics["truth_visible_planes"] = truth_planes;
+      context.metrics["truth_planes_with_depth"] = with_depth;
+      context.metrics["truth_found_planes"] = found;
       context.metrics["truth_recovered_planes"] = recovered;
-      context.metrics["truth_worst_angle_deg"] = worst_angle;
+      context.metrics["truth_worst_angle_deg"] = worst_angle;  // over the found planes
       context.metrics["truth_worst_offset_relative"] = worst_offset;
     }
     nlohmann::json& m = context.metrics;
@@ -294,6 +313,7 @@ class LayeredStereoStage : public Stage {
     o.min_layer_fraction = params.Double("min_layer_fraction");
     o.ransac_iterations = static_cast<int>(params.Int("ransac_iterations"));
     o.sample_step = static_cast<int>(params.Int("sample_step"));
+    o.edge_margin_px = static_cast<int>(params.Int("edge_margin_px"));
     o.max_residual = params.Double("max_residual");
     o.depth_weight = params.Double("depth_weight");
     o.smoothness = params.Double("smoothness");

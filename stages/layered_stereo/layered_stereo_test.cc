@@ -91,6 +91,8 @@ TEST(LayeredOptions, DefaultsAreValidAndEachRangeIsChecked) {
       {"min_layer_fraction", [](LayeredOptions* o) { o->min_layer_fraction = 1; }},
       {"ransac_iterations", [](LayeredOptions* o) { o->ransac_iterations = 5; }},
       {"sample_step", [](LayeredOptions* o) { o->sample_step = 0; }},
+      {"edge_margin_px", [](LayeredOptions* o) { o->edge_margin_px = -1; }},
+      {"edge_margin_px", [](LayeredOptions* o) { o->edge_margin_px = 65; }},
       {"max_residual", [](LayeredOptions* o) { o->max_residual = -0.1; }},
       {"depth_weight", [](LayeredOptions* o) { o->depth_weight = NAN; }},
       {"smoothness", [](LayeredOptions* o) { o->smoothness = -1; }},

@@ -22,6 +22,7 @@ bool LayeredOptions::Check(std::string* error) const {
   if (!(min_layer_fraction > 0 && min_layer_fraction < 1)) return fail("min_layer_fraction", "(0, 1)");
   if (ransac_iterations < 10 || ransac_iterations > 100000) return fail("ransac_iterations", "[10, 100000]");
   if (sample_step < 1 || sample_step > 16) return fail("sample_step", "[1, 16]");
+  if (edge_margin_px < 0 || edge_margin_px > 64) return fail("edge_margin_px", "[0, 64]");
   if (!(max_residual >= 0 && max_residual <= 0.5)) return fail("max_residual", "[0, 0.5]");
   if (!(depth_weight >= 0 && depth_weight <= 1e6)) return fail("depth_weight", "[0, 1e6]");
   if (!(smoothness >= 0 && smoothness <= 1e6)) return fail("smoothness", "[0, 1e6]");

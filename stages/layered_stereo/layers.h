@@ -4,8 +4,9 @@
 // plane equation, a colour sprite with alpha, and a per-pixel residual depth off the plane. Steps:
 //  1. Initial layers: planes fitted to the reference view's depth map (plane_sweep's, made
 //     consistent by multi_depth) by sequential RANSAC, largest first (FitPlanesRansac).
-//  2. Each plane refined across the views (RefinePlanes): Ceres, a robust (Cauchy) point-to-plane
-//     fit to the depth samples of the reference and its neighbours that lie near it; the paper
+//  2. Each plane refined across the views (RefinePlanes): Ceres, a robust (Cauchy) fit of the
+//     relative depth difference along each ray, over the depth samples of the reference and its
+//     neighbours that lie near the plane and away from depth discontinuities; the paper
 //     estimates planes from the views' homographies (lines 5705-5716) and suggests optimising the
 //     plane directly (line 5716): optionally (photometric_refinement), after a first assignment
 //     (step 3) each plane is then refined by the photo-consistency of its own pixels across the
@@ -46,6 +47,11 @@ struct LayeredOptions {
   double min_layer_fraction = 0.02; // a plane needs this fraction of the view's depth samples, (0, 1)
   int ransac_iterations = 400;      // hypotheses per plane, in [10, 100000]
   int sample_step = 2;              // RANSAC and refinement use every this-many-th pixel, in [1, 16]
+  // Plane fits use only samples at least this far from a depth discontinuity (a jump of 3 plane
+  // tolerances, or a pixel without depth), pixels, in [0, 64]: stereo pulls a surface's depth
+  // toward the nearer surface beside it, and next to the floor and the objects that bias tilted
+  // the synthetic room's back wall by 0.8 degrees. A plane with fewer such samples uses them all.
+  int edge_margin_px = 6;
   double max_residual = 0.03;       // residual depth at most this fraction of the plane's depth, [0, 0.5]
   double depth_weight = 20.0;       // cost of a pixel's depth one tolerance off the plane, grey levels, >= 0
   double smoothness = 6.0;          // Potts cost between 4-neighbours of different layers, grey levels, >= 0
@@ -73,6 +79,9 @@ struct WorldPlane {
   Eigen::Vector3d normal = Eigen::Vector3d::UnitZ();  // unit
   double offset = 0;                                  // n.X = offset
   size_t support = 0;                                 // inlier samples when found
+  // Found as one connected surface (true), or as a plane through scattered surfaces at about the
+  // same depth once no connected one was large enough (false; refined over all its samples).
+  bool connected = true;
 };
 
 // Step 1. Planes largest first; at most max_layers, each with at least min_layer_fraction of the

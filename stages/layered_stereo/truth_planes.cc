@@ -9,7 +9,9 @@
 
 namespace ibmr {
 
-std::vector<TruthPlane> VisibleTruthPlanes(const TriangleMesh& truth, const LayerView& view, double min_fraction) {
+std::vector<TruthPlane> VisibleTruthPlanes(const TriangleMesh& truth, const LayerView& view, double min_fraction,
+                                           const cv::Mat& estimated_depth) {
+  const bool has_estimate = estimated_depth.size() == view.depth.size() && estimated_depth.type() == CV_32F;
   Eigen::Vector3f lo, hi;
   if (!truth.Bounds(&lo, &hi)) return {};
   const double scale = (hi - lo).norm();
@@ -34,7 +36,7 @@ std::vector<TruthPlane> VisibleTruthPlanes(const TriangleMesh& truth, const Laye
   for (const auto& [key, value] : groups) largest.emplace_back(value.second, value.first);
   std::sort(largest.begin(), largest.end(), [](const auto& a, const auto& b) { return a.first > b.first; });
   if (largest.size() > 64) largest.resize(64);
-  std::vector<size_t> pixels(largest.size(), 0);
+  std::vector<size_t> pixels(largest.size(), 0), estimated(largest.size(), 0);
   size_t with_depth = 0;
   const Eigen::Matrix3d world_from_cam = view.cam_from_world.R().transpose();
   const Eigen::Vector3d centre = -(world_from_cam * view.cam_from_world.translation);
@@ -47,6 +49,7 @@ std::vector<TruthPlane> VisibleTruthPlanes(const TriangleMesh& truth, const Laye
       for (size_t k = 0; k < largest.size(); ++k) {
         if (std::abs(largest[k].second.normal.dot(p) - largest[k].second.offset) <= 1e-3 * z) {
           ++pixels[k];
+          estimated[k] += has_estimate && estimated_depth.at<float>(y, x) > 0;
           break;
         }
       }
@@ -55,7 +58,8 @@ std::vector<TruthPlane> VisibleTruthPlanes(const TriangleMesh& truth, const Laye
   std::vector<TruthPlane> visible;
   for (size_t k = 0; k < largest.size(); ++k) {
     const double fraction = with_depth ? static_cast<double>(pixels[k]) / with_depth : 0.0;
-    if (fraction >= min_fraction) visible.push_back({largest[k].second, fraction});
+    const double coverage = pixels[k] ? static_cast<double>(estimated[k]) / pixels[k] : 0.0;
+    if (fraction >= min_fraction) visible.push_back({largest[k].second, fraction, coverage});
   }
   std::sort(visible.begin(), visible.end(), [](const auto& a, const auto& b) { return a.pixel_fraction > b.pixel_fraction; });
   return visible;

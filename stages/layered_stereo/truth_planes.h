@@ -13,12 +13,16 @@ namespace ibmr {
 struct TruthPlane {
   WorldPlane plane;
   double pixel_fraction = 0;  // of the view's pixels with true depth
+  double depth_coverage = 0;  // of its pixels, those where the estimated depth map has a value
 };
 
 // The true mesh's faces grouped by the plane they lie in (normal to 1e-3, offset to 1e-3 of the
 // scene size); those on which at least `min_fraction` of the view's true-depth pixels lie (within
-// 0.1% of their depth), largest first. `view.depth` must be the true depth.
-std::vector<TruthPlane> VisibleTruthPlanes(const TriangleMesh& truth, const LayerView& view, double min_fraction);
+// 0.1% of their depth), largest first. `view.depth` must be the true depth; `estimated_depth`
+// (same size, or empty) is the depth the layers were fitted to, for `depth_coverage`: a plane the
+// stereo left without depth cannot become a layer.
+std::vector<TruthPlane> VisibleTruthPlanes(const TriangleMesh& truth, const LayerView& view, double min_fraction,
+                                           const cv::Mat& estimated_depth = cv::Mat());
 
 struct PlaneError {
   int truth = -1;          // index into the truth planes; -1: none
