@@ -64,6 +64,7 @@ class LayeredStereoStage : public Stage {
         {"min_layer_fraction", ParamType::kDouble, num(d.min_layer_fraction), "A plane needs this fraction of the view's depth samples, (0, 1)"},
         {"ransac_iterations", ParamType::kInt, std::to_string(d.ransac_iterations), "RANSAC hypotheses per plane, [10, 100000]"},
         {"sample_step", ParamType::kInt, std::to_string(d.sample_step), "Depth samples every this many pixels for plane fitting, [1, 16]"},
+        {"residual_steps", ParamType::kInt, std::to_string(d.residual_steps), "Residual depth by a plane sweep of this many (odd) offsets around each layer's plane; 0: from the depth map"},
         {"edge_margin_px", ParamType::kInt, std::to_string(d.edge_margin_px), "Plane fits use samples at least this many pixels from a depth discontinuity, [0, 64]"},
         {"max_residual", ParamType::kDouble, num(d.max_residual), "Residual depth at most this fraction of the plane's depth, [0, 0.5]"},
         {"depth_weight", ParamType::kDouble, num(d.depth_weight), "Assignment cost of a depth one tolerance off the plane, grey levels"},
@@ -314,6 +315,7 @@ class LayeredStereoStage : public Stage {
     o.ransac_iterations = static_cast<int>(params.Int("ransac_iterations"));
     o.sample_step = static_cast<int>(params.Int("sample_step"));
     o.edge_margin_px = static_cast<int>(params.Int("edge_margin_px"));
+    o.residual_steps = static_cast<int>(params.Int("residual_steps"));
     o.max_residual = params.Double("max_residual");
     o.depth_weight = params.Double("depth_weight");
     o.smoothness = params.Double("smoothness");

@@ -103,6 +103,9 @@ TEST(LayeredOptions, DefaultsAreValidAndEachRangeIsChecked) {
       {"choose_count", [](LayeredOptions* o) { o->choose_count = 3; }},
       {"selection_scale", [](LayeredOptions* o) { o->selection_scale = 0; }},
       {"photometric_refinement", [](LayeredOptions* o) { o->photometric_refinement = 2; }},
+      {"residual_steps", [](LayeredOptions* o) { o->residual_steps = 4; }},
+      {"residual_steps", [](LayeredOptions* o) { o->residual_steps = 1; }},
+      {"residual_steps", [](LayeredOptions* o) { o->residual_steps = 131; }},
   };
   for (const auto& [key, breaks] : cases) {
     LayeredOptions options;
@@ -213,6 +216,40 @@ TEST_F(TwoPlanes, PhotometricRefinementReturnsPerturbedPlanes) {
   // The foreground square is small (48 x 48 pixels): looser.
   EXPECT_LT(AngleDeg(planes[1].normal, TrueForeground().normal), 1.0);
   EXPECT_NEAR(planes[1].offset, TrueForeground().offset, 0.01 * TrueForeground().offset);
+}
+
+// Where the depth map has no value, the residual comes from a plane sweep around the layer's
+// plane: with the foreground's plane moved 1.5% too far and the reference's depth cleared, the
+// layer's depth (plane + residual) returns to the true depth; without the sweep it stays 1.5% off.
+TEST_F(TwoPlanes, TheResidualSweepRecoversDepthOffThePlaneWhereTheDepthMapHasNone) {
+  const cv::Mat true_depth = reference.depth.clone();
+  WorldPlane moved = TrueForeground();
+  moved.offset *= 1.015;
+  const std::vector<WorldPlane> planes = {TrueBackground(), moved};
+  const cv::Mat labels = AssignPixels(reference, pointers, planes, LayeredOptions());
+  reference.depth.setTo(0);
+  auto median_error = [&](int steps) {
+    LayeredOptions options;
+    options.residual_steps = steps;
+    const LayerSet set = BuildSprites(reference, pointers, planes, labels, options);
+    std::vector<double> errors;
+    for (size_t k = 0; k < set.layers.size(); ++k) {
+      if (std::abs(set.layers[k].offset - moved.offset) > 1e-9) continue;
+      for (int y = 0; y < kHeight; ++y) {
+        for (int x = 0; x < kWidth; ++x) {
+          const float z = true_depth.at<float>(y, x);
+          if (labels.at<int>(y, x) != 1 || !(z > 0) || z > 3.5) continue;  // the foreground's own pixels
+          errors.push_back(set.Depth(k, x, y) / z - 1);
+        }
+      }
+    }
+    EXPECT_GT(errors.size(), 1000u);
+    if (errors.empty()) return 1.0;
+    std::nth_element(errors.begin(), errors.begin() + errors.size() / 2, errors.end());
+    return errors[errors.size() / 2];
+  };
+  EXPECT_NEAR(median_error(0), 0.015, 0.002);
+  EXPECT_NEAR(median_error(13), 0.0, 0.002);
 }
 
 // Two hand-made fronto-parallel layers, red at z = 4 and green at z = 2; seen from the front the

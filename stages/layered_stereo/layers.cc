@@ -23,6 +23,9 @@ bool LayeredOptions::Check(std::string* error) const {
   if (ransac_iterations < 10 || ransac_iterations > 100000) return fail("ransac_iterations", "[10, 100000]");
   if (sample_step < 1 || sample_step > 16) return fail("sample_step", "[1, 16]");
   if (edge_margin_px < 0 || edge_margin_px > 64) return fail("edge_margin_px", "[0, 64]");
+  if (residual_steps != 0 && (residual_steps < 3 || residual_steps > 129 || residual_steps % 2 == 0)) {
+    return fail("residual_steps", "0 or odd in [3, 129]");
+  }
   if (!(max_residual >= 0 && max_residual <= 0.5)) return fail("max_residual", "[0, 0.5]");
   if (!(depth_weight >= 0 && depth_weight <= 1e6)) return fail("depth_weight", "[0, 1e6]");
   if (!(smoothness >= 0 && smoothness <= 1e6)) return fail("smoothness", "[0, 1e6]");
@@ -103,6 +106,35 @@ cv::Mat WarpDifference(const LayerView& reference, const LayerView& neighbour, c
   return difference;
 }
 
+// Per pixel, how well the neighbours warped through a plane agree with the reference: the mean of
+// the two best neighbours' colour differences (one neighbour that an occluder hides does not veto),
+// max_cost where none reaches, box-filtered 5x5.
+cv::Mat PhotoCost(const LayerView& reference, const std::vector<const LayerView*>& neighbours, const WorldPlane& plane,
+                  const cv::Mat& reference_float, const LayeredOptions& options) {
+  std::vector<cv::Mat> differences;
+  for (const LayerView* n : neighbours) differences.push_back(WarpDifference(reference, *n, plane, reference_float));
+  cv::Mat photo(reference.image.size(), CV_32F);
+  for (int y = 0; y < photo.rows; ++y) {
+    float* out = photo.ptr<float>(y);
+    for (int x = 0; x < photo.cols; ++x) {
+      float best = std::numeric_limits<float>::infinity(), second = best;
+      for (const cv::Mat& d : differences) {
+        const float v = d.at<float>(y, x);
+        if (!std::isfinite(v)) continue;
+        if (v < best) {
+          second = best;
+          best = v;
+        } else if (v < second) {
+          second = v;
+        }
+      }
+      out[x] = !std::isfinite(best) ? static_cast<float>(options.max_cost) : !std::isfinite(second) ? best : 0.5f * (best + second);
+    }
+  }
+  cv::blur(photo, photo, cv::Size(5, 5));
+  return photo;
+}
+
 // Data cost of every plane at every pixel (steps 3's terms before smoothing).
 std::vector<cv::Mat> DataCosts(const LayerView& reference, const std::vector<const LayerView*>& neighbours,
                                const std::vector<WorldPlane>& planes, const LayeredOptions& options,
@@ -113,30 +145,7 @@ std::vector<cv::Mat> DataCosts(const LayerView& reference, const std::vector<con
   plane_depths->assign(planes.size(), cv::Mat());
   tbb::parallel_for(size_t{0}, planes.size(), [&](size_t l) {
     (*plane_depths)[l] = PlaneDepthMap(reference, planes[l]);
-    std::vector<cv::Mat> differences;
-    for (const LayerView* n : neighbours) differences.push_back(WarpDifference(reference, *n, planes[l], reference_float));
-    cv::Mat photo(reference.image.size(), CV_32F);
-    for (int y = 0; y < photo.rows; ++y) {
-      float* out = photo.ptr<float>(y);
-      for (int x = 0; x < photo.cols; ++x) {
-        // The mean of the two best neighbours: one neighbour that an occluder hides does not veto.
-        float best = std::numeric_limits<float>::infinity(), second = best;
-        for (const cv::Mat& d : differences) {
-          const float v = d.at<float>(y, x);
-          if (!std::isfinite(v)) continue;
-          if (v < best) {
-            second = best;
-            best = v;
-          } else if (v < second) {
-            second = v;
-          }
-        }
-        out[x] = !std::isfinite(best) ? static_cast<float>(options.max_cost)
-                 : !std::isfinite(second) ? best
-                                          : 0.5f * (best + second);
-      }
-    }
-    cv::blur(photo, photo, cv::Size(5, 5));
+    cv::Mat photo = PhotoCost(reference, neighbours, planes[l], reference_float, options);
     const cv::Mat& plane_z = (*plane_depths)[l];
     for (int y = 0; y < photo.rows; ++y) {
       float* out = photo.ptr<float>(y);
@@ -156,6 +165,48 @@ std::vector<cv::Mat> DataCosts(const LayerView& reference, const std::vector<con
     costs[l] = photo;
   });
   return costs;
+}
+
+// Step 4's residual depth by stereo in the plane-stabilised frame (seed 000 Eq. 8 and the lines
+// after it: "almost any stereo algorithm ... preferable to use one favoring small disparities ...
+// a simple plane-sweep"). A residual displaces a pixel along its ray by a fraction delta of the
+// plane's depth; the points of one delta form the plane scaled about the reference's centre, a
+// plane parallel to the layer's, so each hypothesis is again a homography warp (PhotoCost). Per
+// pixel of the layer: the cheapest of `residual_steps` deltas spread over [-max_residual,
+// max_residual], refined by a parabola through its neighbours; NaN where no neighbour reaches
+// or the minimum lies on the range's end (no evidence of a surface inside it).
+cv::Mat SweepResidual(const LayerView& reference, const std::vector<const LayerView*>& neighbours, const WorldPlane& plane,
+                      const cv::Mat& own, const cv::Mat& reference_float, const LayeredOptions& options) {
+  const int steps = options.residual_steps;
+  const Eigen::Vector3d centre = -(reference.cam_from_world.R().transpose() * reference.cam_from_world.translation);
+  const double plane_from_centre = plane.offset - plane.normal.dot(centre);
+  auto delta_of = [&](double k) { return options.max_residual * (2.0 * k / (steps - 1) - 1.0); };
+  std::vector<cv::Mat> costs(static_cast<size_t>(steps));
+  for (int k = 0; k < steps; ++k) {
+    WorldPlane scaled = plane;
+    scaled.offset = plane.normal.dot(centre) + (1 + delta_of(k)) * plane_from_centre;
+    costs[static_cast<size_t>(k)] = PhotoCost(reference, neighbours, scaled, reference_float, options);
+  }
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  cv::Mat delta(reference.image.size(), CV_32F, cv::Scalar::all(nan));
+  for (int y = 0; y < delta.rows; ++y) {
+    const uint8_t* mine = own.ptr<uint8_t>(y);
+    float* out = delta.ptr<float>(y);
+    for (int x = 0; x < delta.cols; ++x) {
+      if (!mine[x]) continue;
+      int best = 0;
+      for (int k = 1; k < steps; ++k) {
+        if (costs[static_cast<size_t>(k)].at<float>(y, x) < costs[static_cast<size_t>(best)].at<float>(y, x)) best = k;
+      }
+      const float c0 = costs[static_cast<size_t>(best)].at<float>(y, x);
+      if (best == 0 || best == steps - 1 || !(c0 < options.max_cost)) continue;
+      const float cm = costs[static_cast<size_t>(best - 1)].at<float>(y, x), cp = costs[static_cast<size_t>(best + 1)].at<float>(y, x);
+      const float curvature = cm + cp - 2 * c0;
+      const float shift = curvature > 0 ? std::clamp(0.5f * (cm - cp) / curvature, -0.5f, 0.5f) : 0.f;
+      out[x] = static_cast<float>(delta_of(best + shift));
+    }
+  }
+  return delta;
 }
 
 }  // namespace
@@ -236,9 +287,11 @@ namespace {
 
 // BuildSprites with each plane's depth map along the reference's rays given (`plane_z[l]`, at
 // least as many as planes): the count selection draws many models from the same planes.
+// `swept`: per plane, the relative residual of SweepResidual (empty: residuals from the depth map).
 LayerSet SpritesFromPlaneDepths(const LayerView& reference, const std::vector<const LayerView*>& neighbours,
                                 const std::vector<WorldPlane>& planes, const std::vector<cv::Mat>& plane_z,
-                                const cv::Mat& labels, const LayeredOptions& options) {
+                                const cv::Mat& labels, const LayeredOptions& options,
+                                const std::vector<cv::Mat>& swept = {}) {
   const int width = reference.image.cols, height = reference.image.rows;
   LayerSet set;
   set.image = reference.name;
@@ -294,10 +347,14 @@ LayerSet SpritesFromPlaneDepths(const LayerView& reference, const std::vector<co
         if (support.at<uint8_t>(y, x)) {
           const cv::Vec3b c = reference.image.at<cv::Vec3b>(y, x);
           layer.rgba.at<cv::Vec4b>(y, x) = cv::Vec4b(c[0], c[1], c[2], 255);
+          const float limit = static_cast<float>(options.max_residual) * zp;
           const float z = reference.depth.at<float>(y, x);
-          if (z > 0 && own.at<uint8_t>(y, x)) {  // seam pixels lie on the plane
-            const float limit = static_cast<float>(options.max_residual) * zp;
+          if (!own.at<uint8_t>(y, x)) continue;  // seam pixels lie on the plane
+          if (z > 0) {
             layer.residual.at<float>(y, x) = std::clamp(z - zp, -limit, limit);
+          } else if (!swept.empty()) {
+            const float delta = swept[static_cast<size_t>(l)].at<float>(y, x);
+            if (std::isfinite(delta)) layer.residual.at<float>(y, x) = std::clamp(delta * zp, -limit, limit);
           }
           continue;
         }
@@ -340,7 +397,16 @@ LayerSet BuildSprites(const LayerView& reference, const std::vector<const LayerV
                       const std::vector<WorldPlane>& planes, const cv::Mat& labels, const LayeredOptions& options) {
   std::vector<cv::Mat> plane_z;
   for (const WorldPlane& plane : planes) plane_z.push_back(PlaneDepthMap(reference, plane));
-  return SpritesFromPlaneDepths(reference, neighbours, planes, plane_z, labels, options);
+  std::vector<cv::Mat> swept;
+  if (options.residual_steps > 0 && !neighbours.empty()) {
+    cv::Mat reference_float;
+    reference.image.convertTo(reference_float, CV_32FC3);
+    swept.resize(planes.size());
+    tbb::parallel_for(size_t{0}, planes.size(), [&](size_t l) {
+      swept[l] = SweepResidual(reference, neighbours, planes[l], labels == static_cast<int>(l), reference_float, options);
+    });
+  }
+  return SpritesFromPlaneDepths(reference, neighbours, planes, plane_z, labels, options, swept);
 }
 
 LayerCountCurve ChooseLayerCount(const LayerView& reference, const std::vector<const LayerView*>& neighbours,

@@ -53,6 +53,9 @@ struct LayeredOptions {
   // the synthetic room's back wall by 0.8 degrees. A plane with fewer such samples uses them all.
   int edge_margin_px = 6;
   double max_residual = 0.03;       // residual depth at most this fraction of the plane's depth, [0, 0.5]
+  // Residual depth by a plane sweep around each layer's plane with this many (odd) offsets over
+  // [-max_residual, max_residual], in [3, 129]; 0: the depth map's offset from the plane.
+  int residual_steps = 0;
   double depth_weight = 20.0;       // cost of a pixel's depth one tolerance off the plane, grey levels, >= 0
   double smoothness = 6.0;          // Potts cost between 4-neighbours of different layers, grey levels, >= 0
   int icm_sweeps = 5;               // in [0, 100]
