@@ -181,29 +181,44 @@ cv::Mat SweepResidual(const LayerView& reference, const std::vector<const LayerV
   const Eigen::Vector3d centre = -(reference.cam_from_world.R().transpose() * reference.cam_from_world.translation);
   const double plane_from_centre = plane.offset - plane.normal.dot(centre);
   auto delta_of = [&](double k) { return options.max_residual * (2.0 * k / (steps - 1) - 1.0); };
-  std::vector<cv::Mat> costs(static_cast<size_t>(steps));
+  // A running minimum over the offsets: per pixel the cheapest cost, its offset and the costs of
+  // the offsets either side of it, so that only one cost map is held at a time.
+  const float inf = std::numeric_limits<float>::infinity(), nan = std::numeric_limits<float>::quiet_NaN();
+  const cv::Size size = reference.image.size();
+  cv::Mat best_cost(size, CV_32F, cv::Scalar::all(inf)), below(size, CV_32F, cv::Scalar::all(nan)),
+      above(size, CV_32F, cv::Scalar::all(nan)), best(size, CV_32S, cv::Scalar::all(-1)), previous;
   for (int k = 0; k < steps; ++k) {
     WorldPlane scaled = plane;
     scaled.offset = plane.normal.dot(centre) + (1 + delta_of(k)) * plane_from_centre;
-    costs[static_cast<size_t>(k)] = PhotoCost(reference, neighbours, scaled, reference_float, options);
-  }
-  const float nan = std::numeric_limits<float>::quiet_NaN();
-  cv::Mat delta(reference.image.size(), CV_32F, cv::Scalar::all(nan));
-  for (int y = 0; y < delta.rows; ++y) {
-    const uint8_t* mine = own.ptr<uint8_t>(y);
-    float* out = delta.ptr<float>(y);
-    for (int x = 0; x < delta.cols; ++x) {
-      if (!mine[x]) continue;
-      int best = 0;
-      for (int k = 1; k < steps; ++k) {
-        if (costs[static_cast<size_t>(k)].at<float>(y, x) < costs[static_cast<size_t>(best)].at<float>(y, x)) best = k;
+    const cv::Mat cost = PhotoCost(reference, neighbours, scaled, reference_float, options);
+    for (int y = 0; y < size.height; ++y) {
+      const uint8_t* mine = own.ptr<uint8_t>(y);
+      const float* c = cost.ptr<float>(y);
+      float *low = best_cost.ptr<float>(y), *before = below.ptr<float>(y), *after = above.ptr<float>(y);
+      int* at = best.ptr<int>(y);
+      for (int x = 0; x < size.width; ++x) {
+        if (!mine[x]) continue;
+        if (c[x] < low[x]) {
+          low[x] = c[x];
+          at[x] = k;
+          before[x] = k > 0 ? previous.at<float>(y, x) : nan;
+          after[x] = nan;
+        } else if (at[x] == k - 1) {
+          after[x] = c[x];
+        }
       }
-      const float c0 = costs[static_cast<size_t>(best)].at<float>(y, x);
-      if (best == 0 || best == steps - 1 || !(c0 < options.max_cost)) continue;
-      const float cm = costs[static_cast<size_t>(best - 1)].at<float>(y, x), cp = costs[static_cast<size_t>(best + 1)].at<float>(y, x);
+    }
+    previous = cost;
+  }
+  cv::Mat delta(size, CV_32F, cv::Scalar::all(nan));
+  for (int y = 0; y < size.height; ++y) {
+    for (int x = 0; x < size.width; ++x) {
+      const int k = best.at<int>(y, x);
+      const float c0 = best_cost.at<float>(y, x), cm = below.at<float>(y, x), cp = above.at<float>(y, x);
+      if (k <= 0 || k >= steps - 1 || !(c0 < options.max_cost)) continue;
       const float curvature = cm + cp - 2 * c0;
       const float shift = curvature > 0 ? std::clamp(0.5f * (cm - cp) / curvature, -0.5f, 0.5f) : 0.f;
-      out[x] = static_cast<float>(delta_of(best + shift));
+      delta.at<float>(y, x) = static_cast<float>(delta_of(k + shift));
     }
   }
   return delta;

@@ -47,14 +47,15 @@ struct LayeredOptions {
   double min_layer_fraction = 0.02; // a plane needs this fraction of the view's depth samples, (0, 1)
   int ransac_iterations = 400;      // hypotheses per plane, in [10, 100000]
   int sample_step = 2;              // RANSAC and refinement use every this-many-th pixel, in [1, 16]
-  // Plane fits use only samples at least this far from a depth discontinuity (a jump of 3 plane
-  // tolerances, or a pixel without depth), pixels, in [0, 64]: stereo pulls a surface's depth
+  // Plane fits use only samples at least this far from a depth discontinuity (a step of 6 plane
+  // tolerances in inverse depth, or a pixel without depth), pixels, in [0, 64]: stereo pulls a surface's depth
   // toward the nearer surface beside it, and next to the floor and the objects that bias tilted
   // the synthetic room's back wall by 0.8 degrees. A plane with fewer such samples uses them all.
   int edge_margin_px = 6;
   double max_residual = 0.03;       // residual depth at most this fraction of the plane's depth, [0, 0.5]
-  // Residual depth by a plane sweep around each layer's plane with this many (odd) offsets over
-  // [-max_residual, max_residual], in [3, 129]; 0: the depth map's offset from the plane.
+  // Residual depth, where the depth map has none, by a plane sweep around each layer's plane with
+  // this many (odd) offsets over [-max_residual, max_residual], in [3, 129]; 0: none. Only the
+  // sprites written out use it, not the count selection's models.
   int residual_steps = 0;
   double depth_weight = 20.0;       // cost of a pixel's depth one tolerance off the plane, grey levels, >= 0
   double smoothness = 6.0;          // Potts cost between 4-neighbours of different layers, grey levels, >= 0

@@ -27,10 +27,12 @@ struct Sample {
 };
 
 // Distance of each pixel to the nearest depth discontinuity: a pixel whose inverse depth departs
-// from the mean of its two neighbours (along x or along y) by more than `jump` of itself, or next
-// to a pixel without depth (the image border counts as one). Inverse depth is linear in the image on any plane, so a floor seen at
-// a grazing angle (its depth changing by several percent a pixel) is smooth by this test, and only
-// a step or a crease is an edge.
+// from the mean of its two neighbours (along x or along y) by more than `jump` of itself (a step
+// of 2 * jump between two pixels), or next to a pixel without depth (the image border counts as
+// one). Inverse depth is linear in the image on any plane, so a floor seen at a grazing angle (its
+// depth changing by several percent a pixel) is smooth by this test; a step is an edge, and so is
+// a sharp crease, but not one as gentle as a floor meeting a far wall (a slope change of 2% of
+// the inverse depth a pixel in the synthetic room).
 cv::Mat DistanceToDepthEdges(const cv::Mat& depth, double jump) {
   cv::Mat smooth(depth.size(), CV_8U, cv::Scalar(0));
   auto inverse = [&](int y, int x) {
@@ -42,7 +44,7 @@ cv::Mat DistanceToDepthEdges(const cv::Mat& depth, double jump) {
       const double w = inverse(y, x), left = inverse(y, x - 1), right = inverse(y, x + 1), up = inverse(y - 1, x),
                    down = inverse(y + 1, x);
       if (!(w > 0 && left > 0 && right > 0 && up > 0 && down > 0)) continue;
-      smooth.at<uchar>(y, x) = std::abs(left + right - 2 * w) <= 2 * jump * w && std::abs(up + down - 2 * w) <= 2 * jump * w;
+      smooth.at<uchar>(y, x) = std::abs(0.5 * (left + right) - w) <= jump * w && std::abs(0.5 * (up + down) - w) <= jump * w;
     }
   }
   cv::Mat distance;
@@ -142,6 +144,8 @@ struct PlaneResidual {
   template <typename T>
   bool operator()(const T* const plane, T* residual) const {
     const T along = plane[0] * T(sample.ray.x()) + plane[1] * T(sample.ray.y()) + plane[2] * T(sample.ray.z());
+    // A step that turns the plane edge-on to this ray is no plane for it: Ceres rejects the step.
+    if (ceres::abs(along) < T(1e-12 * sample.ray.norm())) return false;
     const T off = plane[0] * T(sample.point.x()) + plane[1] * T(sample.point.y()) + plane[2] * T(sample.point.z()) - plane[3];
     residual[0] = off / along * T(inverse_tolerance);
     return true;
@@ -179,9 +183,11 @@ std::vector<WorldPlane> FitPlanesRansac(const LayerView& reference, const Layere
   std::mt19937 rng(seed);
   // Hypotheses are scored by their largest connected region of inliers (on a grid of two sampling
   // steps), not by all inliers: a plane through two surfaces at about the same depth (a box's face
-  // and an object's front beside it) gathers the most inliers, but fits neither. When no region is
-  // large enough any more, the rest is scored by all inliers: such a plane still serves as a layer
-  // for the scattered surfaces it passes through (the count selection decides whether it stays).
+  // and an object's front beside it) gathers the most inliers, but fits neither. The winner is
+  // refitted to its largest region and kept when that plane has min_support inliers in the whole
+  // view. Once the best region's plane has fewer, the rest is scored by all inliers: such a plane
+  // still serves as a layer for the scattered surfaces it passes through (the count selection
+  // decides whether it stays).
   const int cell = 2 * options.sample_step;
   cv::Mat mask(reference.depth.rows / cell + 1, reference.depth.cols / cell + 1, CV_8U);
   // One round of sequential RANSAC: the best hypothesis, refitted, and its inlier count.

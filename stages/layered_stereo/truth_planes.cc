@@ -58,7 +58,10 @@ std::vector<TruthPlane> VisibleTruthPlanes(const TriangleMesh& truth, const Laye
   std::vector<TruthPlane> visible;
   for (size_t k = 0; k < largest.size(); ++k) {
     const double fraction = with_depth ? static_cast<double>(pixels[k]) / with_depth : 0.0;
-    const double coverage = pixels[k] ? static_cast<double>(estimated[k]) / pixels[k] : 0.0;
+    // Without an estimated depth map the coverage is unknown (NaN), not 0.
+    const double coverage = !has_estimate ? std::numeric_limits<double>::quiet_NaN()
+                            : pixels[k]   ? static_cast<double>(estimated[k]) / pixels[k]
+                                          : 0.0;
     if (fraction >= min_fraction) visible.push_back({largest[k].second, fraction, coverage});
   }
   std::sort(visible.begin(), visible.end(), [](const auto& a, const auto& b) { return a.pixel_fraction > b.pixel_fraction; });

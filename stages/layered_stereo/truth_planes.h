@@ -13,7 +13,7 @@ namespace ibmr {
 struct TruthPlane {
   WorldPlane plane;
   double pixel_fraction = 0;  // of the view's pixels with true depth
-  double depth_coverage = 0;  // of its pixels, those where the estimated depth map has a value
+  double depth_coverage = 0;  // of its pixels, those where the estimated depth map has a value (NaN: none given)
 };
 
 // The true mesh's faces grouped by the plane they lie in (normal to 1e-3, offset to 1e-3 of the
