@@ -218,7 +218,13 @@ TEST_F(WorkflowEngines, SlurmExecutorAndSnakemakeClusterModeEqualALocalRun) {
   for (int i = 0; i < 3000 && !fs::exists(log + ".exit"); ++i) std::this_thread::sleep_for(std::chrono::milliseconds(100));
   ASSERT_TRUE(fs::exists(log + ".exit")) << ReadText(log);
   ASSERT_EQ(ReadText(log + ".exit"), "0\n") << ReadText(log);
-  EXPECT_NE(ReadText(log).find("submitting them again"), std::string::npos) << ReadText(log);
+  // The runner saw the cancelled task: either its view was left undone and is submitted again, or
+  // (cancelled after it wrote its outputs) the merge that waited on the array lost its dependency
+  // and is submitted again.
+  const std::string text = ReadText(log);
+  EXPECT_TRUE(text.find("submitting them again") != std::string::npos ||
+              text.find("merge did not finish; submitting it again") != std::string::npos)
+      << text;
   ExpectSameWorkspace(reference_, ws);
 
   // Snakemake submitting each rule with sbatch.
