@@ -351,6 +351,7 @@ LayerSet SpritesFromPlaneDepths(const LayerView& reference, const std::vector<co
       extended = support.clone();
     }
     const cv::Mat& zl = plane_z[l];
+    const size_t layer_index = static_cast<size_t>(l);  // lambdas may not capture structured bindings (clang)
     tbb::parallel_for(0, height, [&](int y) {
       std::vector<cv::Vec3b> seen;
       seen.reserve(neighbours.size());
@@ -368,7 +369,7 @@ LayerSet SpritesFromPlaneDepths(const LayerView& reference, const std::vector<co
           if (z > 0) {
             layer.residual.at<float>(y, x) = std::clamp(z - zp, -limit, limit);
           } else if (!swept.empty()) {
-            const float delta = swept[static_cast<size_t>(l)].at<float>(y, x);
+            const float delta = swept[layer_index].at<float>(y, x);
             if (std::isfinite(delta)) layer.residual.at<float>(y, x) = std::clamp(delta * zp, -limit, limit);
           }
           continue;
