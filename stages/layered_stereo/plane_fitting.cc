@@ -113,6 +113,19 @@ std::vector<const Sample*> FitSamples(const std::vector<Sample>& samples, const 
   return interior.size() >= min_interior ? interior : all;
 }
 
+// The label of the largest 8-connected component of a non-zero mask (0 when there is none), the
+// labels and, when asked, its area in cells.
+int LargestComponent(const cv::Mat& mask, cv::Mat* labels, int* area) {
+  cv::Mat stats, centroids;
+  const int count = cv::connectedComponentsWithStats(mask, *labels, stats, centroids, 8, CV_32S);
+  int largest = 0, largest_area = 0;
+  for (int label = 1; label < count; ++label) {
+    if (stats.at<int>(label, cv::CC_STAT_AREA) > largest_area) largest_area = stats.at<int>(label, cv::CC_STAT_AREA), largest = label;
+  }
+  if (area) *area = largest_area;
+  return largest;
+}
+
 // The largest 8-connected region (on the sampling grid of `step` pixels) of samples on a plane.
 // Two surfaces apart in the image that a plane crosses within the tolerance (a box's face and the
 // front of an object beside it at the same depth) are not one plane: fitted together, the plane
@@ -123,12 +136,8 @@ std::vector<const Sample*> LargestRegion(const std::vector<const Sample*>& on_pl
   for (const Sample* s : on_plane) cols = std::max(cols, s->x / step + 1), rows = std::max(rows, s->y / step + 1);
   cv::Mat mask(rows, cols, CV_8U, cv::Scalar(0));
   for (const Sample* s : on_plane) mask.at<uchar>(s->y / step, s->x / step) = 255;
-  cv::Mat labels, stats, centroids;
-  const int count = cv::connectedComponentsWithStats(mask, labels, stats, centroids, 8, CV_32S);
-  int largest = 0, largest_area = 0;
-  for (int label = 1; label < count; ++label) {
-    if (stats.at<int>(label, cv::CC_STAT_AREA) > largest_area) largest_area = stats.at<int>(label, cv::CC_STAT_AREA), largest = label;
-  }
+  cv::Mat labels;
+  const int largest = LargestComponent(mask, &labels, nullptr);
   std::vector<const Sample*> region;
   for (const Sample* s : on_plane) {
     if (labels.at<int>(s->y / step, s->x / step) == largest) region.push_back(s);
@@ -166,11 +175,10 @@ size_t RegionSupport(const std::vector<Sample>& samples, const std::vector<size_
     ++inliers;
   }
   if (inliers == 0) return 0;
-  cv::Mat labels, stats, centroids;
-  const int count = cv::connectedComponentsWithStats(*mask, labels, stats, centroids, 8, CV_32S);
-  int largest = 0;
-  for (int label = 1; label < count; ++label) largest = std::max(largest, stats.at<int>(label, cv::CC_STAT_AREA));
-  return static_cast<size_t>(largest);
+  cv::Mat labels;
+  int area = 0;
+  LargestComponent(*mask, &labels, &area);
+  return static_cast<size_t>(area);
 }
 
 }  // namespace
