@@ -14,7 +14,12 @@ scripts/install_packages.sh clang-14 libclang-rt-14-dev
 ROOT="$(pwd)"
 OUT="$ROOT/build-fuzz"
 CC=clang-14 CXX=clang++-14 cmake -S . -B "$OUT" -G Ninja -DIBMR_FUZZ=ON -DCMAKE_BUILD_TYPE=RelWithDebInfo >/dev/null
-cmake --build "$OUT" --target fuzz_all -j "$(nproc)" | grep -vE '^\[[0-9]+/[0-9]+\] ' || true
+if ! cmake --build "$OUT" --target fuzz_all -j "$(nproc)" >"$OUT/build.log" 2>&1; then
+  grep -E 'error|Error' "$OUT/build.log" | head -20 || true
+  echo "fuzz: the harnesses did not build with clang-14 (log: $OUT/build.log); no harness ran"
+  exit 1
+fi
+grep -vE '^\[[0-9]+/[0-9]+\] ' "$OUT/build.log" || true
 
 # Seeds: the data sets' own files and what the project writes (a demo workspace).
 SEEDS="$OUT/seeds"
