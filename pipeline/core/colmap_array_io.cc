@@ -3,9 +3,13 @@
 // copied as one block.
 #include "pipeline/core/colmap_array_io.h"
 
+#include <algorithm>
 #include <cctype>
+#include <cerrno>
+#include <cstdio>
 #include <cstring>
 #include <filesystem>
+#include <memory>
 
 #include "pipeline/core/atomic_file.h"
 #include "pipeline/core/errors.h"
@@ -36,7 +40,15 @@ bool ParseField(const std::string& bytes, size_t* pos, long long* value) {
 }  // namespace
 
 FloatMap ReadColmapArray(const std::string& path) {
-  const std::string bytes = ReadFile(path);
+  // The header from the first bytes, then the payload read straight into the map (not through a
+  // string of the whole file and a copy: multi_depth and fuse read dozens of maps a view).
+  std::unique_ptr<std::FILE, int (*)(std::FILE*)> file(std::fopen(path.c_str(), "rb"), &std::fclose);
+  if (!file) throw IoError("cannot read " + path + ": " + std::strerror(errno));
+  std::error_code ec;
+  const size_t file_size = static_cast<size_t>(std::filesystem::file_size(path, ec));
+  if (ec) throw IoError("cannot read " + path + ": " + ec.message());
+  std::string bytes(std::min<size_t>(file_size, 64), '\0');
+  if (std::fread(bytes.data(), 1, bytes.size(), file.get()) != bytes.size()) throw IoError("cannot read " + path + ": short read");
   size_t pos = 0;
   long long width = 0, height = 0, channels = 0;
   if (!ParseField(bytes, &pos, &width) || !ParseField(bytes, &pos, &height) || !ParseField(bytes, &pos, &channels)) {
@@ -47,7 +59,7 @@ FloatMap ReadColmapArray(const std::string& path) {
                   std::to_string(channels) + "; every dimension must be in [1, " + std::to_string(kMaxDim) + "]");
   }
   const size_t count = static_cast<size_t>(width) * height * channels;
-  const size_t payload = bytes.size() - pos;
+  const size_t payload = file_size - pos;
   if (payload != count * sizeof(float)) {
     throw IoError(path + ": header says " + std::to_string(width) + "&" + std::to_string(height) + "&" +
                   std::to_string(channels) + "& (" + std::to_string(count * sizeof(float)) +
@@ -55,7 +67,10 @@ FloatMap ReadColmapArray(const std::string& path) {
                   " bytes after the header (truncated or not a COLMAP array)");
   }
   FloatMap map(static_cast<int>(width), static_cast<int>(height), static_cast<int>(channels));
-  std::memcpy(map.data.data(), bytes.data() + pos, payload);
+  if (std::fseek(file.get(), static_cast<long>(pos), SEEK_SET) != 0 ||
+      std::fread(map.data.data(), 1, payload, file.get()) != payload) {
+    throw IoError(path + ": cannot read its " + std::to_string(payload) + " bytes of float32 (file changed while reading?)");
+  }
   return map;
 }
 
