@@ -251,6 +251,43 @@ PlaneSweepResult PlaneSweep(const SweepView& reference, const std::vector<SweepV
       if (last < 0 || first > np - 1) ranges.first[i] = 1, ranges.last[i] = 0;  // outside the swept range
     }
   }
+  // Texture factor: where the reference has no contrast over the census window, no cost curve
+  // can be trusted (untextured surfaces, black backgrounds), however it looks.
+  cv::Mat texture(h, w, CV_32F, cv::Scalar(1.f));
+  if (options.texture_scale > 0) {
+    cv::Mat f, mean, mean_sq;
+    reference.gray.convertTo(f, CV_32F);
+    const cv::Size window(2 * options.census_radius_x + 1, 2 * options.census_radius_y + 1);
+    cv::boxFilter(f, mean, CV_32F, window, cv::Point(-1, -1), true, cv::BORDER_REFLECT);
+    cv::boxFilter(f.mul(f), mean_sq, CV_32F, window, cv::Point(-1, -1), true, cv::BORDER_REFLECT);
+    for (int y = 0; y < h; ++y)
+      for (int x = 0; x < w; ++x) {
+        const float var = std::max(0.f, mean_sq.at<float>(y, x) - mean.at<float>(y, x) * mean.at<float>(y, x));
+        texture.at<float>(y, x) = std::min(1.f, std::sqrt(var) / static_cast<float>(options.texture_scale));
+      }
+  }
+  // A pixel whose texture factor is below the confidence threshold cannot keep a depth, whatever
+  // its cost curve. Where the whole census window around it is like that too, it is not matched
+  // (its curve is flat, neutral in the semi-global passes); nearer to texture its curve still
+  // supports its textured neighbours along the paths. On templeRing the black background is two
+  // thirds of every view.
+  if (options.texture_scale > 0 && options.confidence_threshold > 0) {
+    if (ranges.first.empty()) {
+      ranges.first.assign(static_cast<size_t>(w) * h, 0);
+      ranges.last.assign(ranges.first.size(), static_cast<uint16_t>(np - 1));
+    }
+    cv::Mat untextured = texture < options.confidence_threshold;
+    cv::erode(untextured, untextured,
+              cv::getStructuringElement(cv::MORPH_RECT, cv::Size(6 * options.census_radius_x + 1, 6 * options.census_radius_y + 1)));
+    for (int y = 0; y < h; ++y) {
+      const uchar* t = untextured.ptr<uchar>(y);
+      for (int x = 0; x < w; ++x) {
+        if (!t[x]) continue;
+        const size_t i = static_cast<size_t>(y) * w + x;
+        ranges.first[i] = 1, ranges.last[i] = 0;
+      }
+    }
+  }
   // Bands of rows (one: the whole image), each matched with context rows around it.
   PlaneSweepResult result;
   result.bands = SweepBands(w, h, options);
@@ -289,21 +326,6 @@ PlaneSweepResult PlaneSweep(const SweepView& reference, const std::vector<SweepV
   }
   result.depth = DepthMap(w, h, 1, 0.f);
   result.confidence = FloatMap(w, h, 1, 0.f);
-  // Texture factor: where the reference has no contrast over the census window, no cost curve
-  // can be trusted (untextured surfaces, black backgrounds), however it looks.
-  cv::Mat texture(h, w, CV_32F, cv::Scalar(1.f));
-  if (options.texture_scale > 0) {
-    cv::Mat f, mean, mean_sq;
-    reference.gray.convertTo(f, CV_32F);
-    const cv::Size window(2 * options.census_radius_x + 1, 2 * options.census_radius_y + 1);
-    cv::boxFilter(f, mean, CV_32F, window, cv::Point(-1, -1), true, cv::BORDER_REFLECT);
-    cv::boxFilter(f.mul(f), mean_sq, CV_32F, window, cv::Point(-1, -1), true, cv::BORDER_REFLECT);
-    for (int y = 0; y < h; ++y)
-      for (int x = 0; x < w; ++x) {
-        const float var = std::max(0.f, mean_sq.at<float>(y, x) - mean.at<float>(y, x) * mean.at<float>(y, x));
-        texture.at<float>(y, x) = std::min(1.f, std::sqrt(var) / static_cast<float>(options.texture_scale));
-      }
-  }
   size_t valid = 0;
   for (int y = 0; y < h; ++y) {
     const float* plane = winner_plane.ptr<float>(y);

@@ -95,7 +95,7 @@ class PlaneSweepStage : public Stage {
   }
   // 2: hull bounds that reach the camera are not used; 3: fixed-point bilinear census weights (1/256 px),
   // per-pixel near bounds from hull/hull.ply
-  std::string Version() const override { return "3"; }
+  std::string Version() const override { return "4"; }  // 4: pixels too untextured to keep a depth are not matched
   HoldoutRole Role() const override { return HoldoutRole::kTrainingOnly; }
   bool Shardable() const override { return true; }
   double ViewMemoryMb(const StageContext& context) const override {
