@@ -217,6 +217,7 @@ PlaneSweepResult PlaneSweep(const SweepView& reference, const std::vector<SweepV
   for (const SweepView& view : neighbours) {
     sweep::Neighbour n;
     n.gray = view.gray;
+    n.census = view.census;
     const Rigid3d src_from_ref = view.cam_from_world.Compose(world_from_ref);
     const Eigen::Matrix3d k = view.camera.K();
     const Eigen::Matrix3d a = k * src_from_ref.R() * k_ref_inv;
@@ -315,7 +316,8 @@ PlaneSweepResult PlaneSweep(const SweepView& reference, const std::vector<SweepV
     }
     sweep::CostVolume& volume = buffers->volume;
     result.evaluations += sweep::BuildCostVolume(band_gray, band_neighbours, engine, &volume,
-                                                 band_ranges.first.empty() ? nullptr : &band_ranges);
+                                                 band_ranges.first.empty() ? nullptr : &band_ranges,
+                                                 result.bands == 1 ? reference.census.get() : nullptr);
     sweep::Aggregated& aggregated = buffers->aggregated;
     sweep::Aggregate(volume, band_gray, engine, &aggregated);
     result.volume_bytes = std::max(result.volume_bytes, (volume.data.size() + volume.scratch.size() +

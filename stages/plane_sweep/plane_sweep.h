@@ -14,6 +14,7 @@
 
 #include <Eigen/Core>
 #include <cstdint>
+#include <memory>
 #include <opencv2/core.hpp>
 #include <string>
 #include <vector>
@@ -84,6 +85,9 @@ struct SweepView {
   cv::Mat gray;          // CV_8UC1, undistorted
   Camera camera;         // without distortion (PINHOLE or SIMPLE_PINHOLE)
   Rigid3d cam_from_world;
+  // Optional: sweep::CensusTransform(gray) with the options' census radii, which a caller that
+  // matches each view against several references computes once (null: PlaneSweep computes it).
+  std::shared_ptr<const std::vector<uint64_t>> census;
 };
 
 // Context rows a band of a banded sweep matches beyond its own rows, above and below, so that its

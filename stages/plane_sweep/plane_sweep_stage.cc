@@ -8,6 +8,7 @@
 // Also registers `ibmr stereo-pair LEFT RIGHT --max-disparity N --out DISP.pfm` (two-view mode).
 // Method: seed 000 lines 3659-3760, 5300-5525, 4352-4453 (see plane_sweep.h).
 #include <spdlog/spdlog.h>
+#include <tbb/task_arena.h>
 #include <sys/resource.h>
 #include <tbb/parallel_for.h>
 
@@ -30,6 +31,7 @@
 #include "pipeline/core/ply_io.h"
 #include "pipeline/core/rasterizer.h"
 #include "pipeline/core/stage_api.h"
+#include "pipeline/core/view_cache.h"
 #include "pipeline/core/two_view_methods.h"
 #include "stages/plane_sweep/plane_sweep.h"
 #include "stages/plane_sweep/sweep_engine.h"
@@ -108,12 +110,13 @@ class PlaneSweepStage : public Stage {
     const double pixels = size.Pixels();
     const PlaneSweepOptions o = ToOptions(context.params);
     // The cost volumes (data, box scratch, two aggregation sums: 16 bits per pixel and plane) of
-    // the largest band, the images and maps of the whole view, and the program itself (100 MB).
-    // 640x480 with 128 planes: 420 MB estimated, 384 MB measured.
+    // the largest band, the images and maps of the whole view, the census codes of the reference
+    // and its neighbours and as many more kept in the cache (8 bytes a pixel each), and the
+    // program itself (100 MB). 640x480 with 128 planes: 420 MB estimated, 384 MB measured.
     const int bands = SweepBands(size.width, size.height, o);
     const int band_rows = bands == 1 ? size.height : (size.height + bands - 1) / bands + 2 * kBandContextRows;
     const double bytes = SweepVolumeBytesPerRow(size.width, o.num_planes) * std::min(size.height, band_rows) +
-                         SweepFixedBytesPerPixel(o.num_neighbors) * pixels;
+                         SweepFixedBytesPerPixel(o.num_neighbors) * pixels + 2.0 * 8.0 * (o.num_neighbors + 1) * pixels;
     return pixels > 0 ? bytes / 1048576.0 + 100.0 : 0.0;
   }
 
@@ -223,6 +226,16 @@ class PlaneSweepStage : public Stage {
     for (const char* dir : {"depth_maps", "normal_maps", "confidence_maps"})
       fs::create_directories(context.workspace.Path(std::string("dense/stereo/") + dir));
 
+    // Census codes of the views a reference is matched against: each view serves as a neighbour
+    // of several references, so its codes stay in a cache sized for the views in flight.
+    const size_t in_flight = static_cast<size_t>(std::max(1, tbb::this_task_arena::max_concurrency()));
+    ViewCache<std::vector<uint64_t>> census((static_cast<size_t>(options.num_neighbors) + 1) * (in_flight + 1),
+                                            [&](const std::string& other) {
+                                              const size_t i = std::find(names.begin(), names.end(), other) - names.begin();
+                                              return sweep::CensusTransform(view(i).gray, options.census_radius_x,
+                                                                            options.census_radius_y);
+                                            });
+    const bool census_cost = context.params.String("cost") == "census";
     std::atomic<int64_t> evaluations_here{0};  // this run's own work, for its speed
     const PerViewSummary summary = ForEachView(context, "plane_sweep", names, [&](const std::string& name) {
       const int index = static_cast<int>(std::find(names.begin(), names.end(), name) - names.begin());
@@ -242,7 +255,12 @@ class PlaneSweepStage : public Stage {
         result.confidence = FloatMap(result.depth.width, result.depth.height, 1, 0.f);
       } else {
         std::vector<SweepView> neighbours;
-        for (int j : chosen) neighbours.push_back(view(j));
+        for (int j : chosen) {
+          neighbours.push_back(view(j));
+          if (census_cost) neighbours.back().census = census.Get(names[j]);
+        }
+        SweepView reference = key;
+        if (census_cost) reference.census = census.Get(name);
         PlaneSweepOptions view_options = options;
         view_options.best_k = std::min<int>(options.best_k, static_cast<int>(neighbours.size()));
         PixelDepthBounds bounds;
@@ -255,7 +273,7 @@ class PlaneSweepStage : public Stage {
           raster.near_z = 0.5 * near;
           bounds.near = Rasterize(hull, key.camera, key.cam_from_world, raster).depth;
         }
-        result = PlaneSweep(key, neighbours, near, far, view_options, per_pixel ? &bounds : nullptr);
+        result = PlaneSweep(reference, neighbours, near, far, view_options, per_pixel ? &bounds : nullptr);
       }
       WriteColmapArray(context.workspace.DepthMapPath(name, "photometric"), result.depth);
       WriteColmapArray(context.workspace.NormalMapPath(name, "photometric"), result.normals);

@@ -105,8 +105,9 @@ const char* IsaName(Isa isa) {
 #endif
 
 int64_t BuildCostVolume(const cv::Mat& reference_gray, const std::vector<Neighbour>& neighbours,
-                        const EngineOptions& options, CostVolume* volume, const PlaneRanges* ranges) {
-  IBMR_SWEEP_DISPATCH(BuildCostVolume(reference_gray, neighbours, options, volume, ranges));
+                        const EngineOptions& options, CostVolume* volume, const PlaneRanges* ranges,
+                        const std::vector<uint64_t>* reference_census) {
+  IBMR_SWEEP_DISPATCH(BuildCostVolume(reference_gray, neighbours, options, volume, ranges, reference_census));
 }
 
 void Aggregate(const CostVolume& volume, const cv::Mat& reference_gray, const EngineOptions& options,

@@ -57,6 +57,9 @@ struct CostVolume {
 struct Neighbour {
   cv::Mat gray;  // CV_8UC1
   std::vector<Eigen::Matrix3d> homographies;
+  // Optional: CensusTransform(gray, census_radius_x, census_radius_y) computed by the caller, who
+  // matches each view against several references and so transforms it once (null: computed here).
+  std::shared_ptr<const std::vector<uint64_t>> census;
 };
 
 // Per-pixel plane ranges (row-major, one entry per reference pixel): the pixel's surface lies on
@@ -72,8 +75,10 @@ struct PlaneRanges {
 // Fills the matching-cost volume (reusing `volume`'s buffers when large enough): costs of all
 // neighbours per plane, best-k combined; `ranges` (optional) limits the planes per pixel. Returns
 // the number of plane-pixel-neighbour evaluations done.
+// `reference_census` (optional) is CensusTransform(reference_gray) like Neighbour::census.
 int64_t BuildCostVolume(const cv::Mat& reference_gray, const std::vector<Neighbour>& neighbours,
-                        const EngineOptions& options, CostVolume* volume, const PlaneRanges* ranges = nullptr);
+                        const EngineOptions& options, CostVolume* volume, const PlaneRanges* ranges = nullptr,
+                        const std::vector<uint64_t>* reference_census = nullptr);
 
 // Aggregated volume: the sum over paths (or the data cost itself without semi-global).
 struct Aggregated {

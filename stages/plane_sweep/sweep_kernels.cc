@@ -689,7 +689,7 @@ void CensusCosts(uint64_t code, const uint64_t* src, int sw, const Taps& taps, i
 // Census costs of all neighbours, pixel by pixel (planes contiguous), combined by best-k: the
 // mean of the k smallest costs per plane. With `ranges`, only the blocks of 16 planes that meet a
 // pixel's range are evaluated (the rest is left for ApplyRanges). Returns the evaluations done.
-int64_t BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector<std::vector<uint64_t>>& src,
+int64_t BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector<const std::vector<uint64_t>*>& src,
                           const std::vector<Neighbour>& neighbours, int k, const PlaneRanges* ranges, CostVolume* v) {
   const int w = v->width, h = v->height, np = v->planes, n = v->stride;
   const int nn = static_cast<int>(neighbours.size());
@@ -757,14 +757,14 @@ int64_t BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector<st
             const uint64_t code = ref[static_cast<size_t>(y) * w + x];
             uint16_t* c = chunk_costs.data() + (static_cast<size_t>(j) * nn + i) * n;
             if (shifts) {
-              ShiftCensusCosts(code, src[i].data(), shift[i].data(), disparity_order[i], p0, std::min(p1, np), x, y, sw, sh, c);
+              ShiftCensusCosts(code, src[i]->data(), shift[i].data(), disparity_order[i], p0, std::min(p1, np), x, y, sw, sh, c);
             } else {
               if (affine[i]) {
                 ComputeAffineTaps(family[i], p0, p1, x + 0.5f, y + 0.5f, sw, sh, &taps);
               } else {
                 ComputeTaps(hom[i].data(), n, p0, p1, x + 0.5f, y + 0.5f, sw, sh, &taps);
               }
-              CensusCosts(code, src[i].data(), sw, taps, p0, p1, c);
+              CensusCosts(code, src[i]->data(), sw, taps, p0, p1, c);
             }
           }
         }
@@ -878,7 +878,7 @@ std::vector<uint64_t> CensusTransform(const cv::Mat& gray, int rx, int ry) {
 }
 
 int64_t BuildCostVolume(const cv::Mat& ref, const std::vector<Neighbour>& neighbours, const EngineOptions& o,
-                        CostVolume* volume, const PlaneRanges* ranges) {
+                        CostVolume* volume, const PlaneRanges* ranges, const std::vector<uint64_t>* reference_census) {
   const int w = ref.cols, h = ref.rows;
   const int planes = static_cast<int>(neighbours.front().homographies.size());
   const int nn = static_cast<int>(neighbours.size());
@@ -893,12 +893,25 @@ int64_t BuildCostVolume(const cv::Mat& ref, const std::vector<Neighbour>& neighb
     });
   }
 
-  std::vector<uint64_t> ref_census;
-  std::vector<std::vector<uint64_t>> src_census(nn);
+  std::vector<uint64_t> ref_census;  // when not given
+  std::vector<std::vector<uint64_t>> own_census(nn);
+  std::vector<const std::vector<uint64_t>*> src_census(nn);
   cv::Mat ref_mean, ref_var;
+  const size_t pixels = static_cast<size_t>(w) * h;
   if (o.cost == Cost::kCensus) {
-    ref_census = CensusTransform(ref, o.census_radius_x, o.census_radius_y);
-    for (int i = 0; i < nn; ++i) src_census[i] = CensusTransform(neighbours[i].gray, o.census_radius_x, o.census_radius_y);
+    if (reference_census == nullptr || reference_census->size() != pixels) {
+      ref_census = CensusTransform(ref, o.census_radius_x, o.census_radius_y);
+      reference_census = &ref_census;
+    }
+    for (int i = 0; i < nn; ++i) {
+      const std::vector<uint64_t>* given = neighbours[i].census.get();
+      if (given != nullptr && given->size() == static_cast<size_t>(neighbours[i].gray.cols) * neighbours[i].gray.rows) {
+        src_census[i] = given;
+      } else {
+        own_census[i] = CensusTransform(neighbours[i].gray, o.census_radius_x, o.census_radius_y);
+        src_census[i] = &own_census[i];
+      }
+    }
   } else if (o.cost == Cost::kZncc) {
     cv::Mat f;
     ref.convertTo(f, CV_32F);
@@ -909,7 +922,7 @@ int64_t BuildCostVolume(const cv::Mat& ref, const std::vector<Neighbour>& neighb
   }
   const int k = std::min(o.best_k, nn);
   if (o.cost == Cost::kCensus) {
-    const int64_t evaluations = BuildCensusVolume(ref_census, src_census, neighbours, k, ranges, volume);
+    const int64_t evaluations = BuildCensusVolume(*reference_census, src_census, neighbours, k, ranges, volume);
     if (ranges != nullptr) ApplyRanges(*ranges, volume);
     BoxFilterVolume(volume, o.window_radius);
     return evaluations;

@@ -7,7 +7,8 @@
 
 #define IBMR_SWEEP_KERNEL_DECLARATIONS                                                                         \
   int64_t BuildCostVolume(const cv::Mat& reference_gray, const std::vector<Neighbour>& neighbours,              \
-                          const EngineOptions& options, CostVolume* volume, const PlaneRanges* ranges);                                   \
+                          const EngineOptions& options, CostVolume* volume, const PlaneRanges* ranges,          \
+                          const std::vector<uint64_t>* reference_census);                                      \
   void Aggregate(const CostVolume& volume, const cv::Mat& reference_gray, const EngineOptions& options,         \
                  Aggregated* out);                                                                            \
   Winners WinnerTakeAll(const Aggregated& aggregated, const CostVolume* data_cost, double confidence_scale,     \
