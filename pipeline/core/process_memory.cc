@@ -1,6 +1,8 @@
 // Memory readings from /proc (see process_memory.h).
 #include "pipeline/core/process_memory.h"
 
+#include <malloc.h>
+
 #include <algorithm>
 #include <fstream>
 #include <string>
@@ -20,6 +22,11 @@ double KilobyteLineMb(const char* file, const std::string& name) {
 }
 
 }  // namespace
+
+void ConfigureHeap() {
+  mallopt(M_MMAP_THRESHOLD, 1 << 20);
+  mallopt(M_TOP_PAD, 64 << 20);
+}
 
 double ResidentMemoryMb() { return KilobyteLineMb("/proc/self/status", "VmRSS:"); }
 

@@ -1,6 +1,5 @@
 // The ibmr command line: run a config, list stages, show what is stale. Thin: parses
 // arguments, sets up logging, and calls the runner.
-#include <malloc.h>
 #include <CLI/CLI.hpp>
 #include <spdlog/sinks/basic_file_sink.h>
 #include <spdlog/sinks/stdout_color_sinks.h>
@@ -13,6 +12,7 @@
 #include <sstream>
 
 #include "pipeline/core/errors.h"
+#include "pipeline/core/process_memory.h"
 #include "pipeline/runner/builtin_stages.h"
 #include "pipeline/runner/config.h"
 #include "pipeline/runner/runner.h"
@@ -55,12 +55,7 @@ void SetUpLogging(const std::string& workspace) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  // Large buffers (a view's maps, a cost volume band, a render target) go to their own mappings
-  // and back to the system when freed. glibc otherwise raises this threshold to the largest block
-  // freed so far (up to 32 MB), after which such buffers come from the heap arenas and stay
-  // resident after being freed: the full-size castle's render peaked 800 MB higher after other
-  // stages ran in the same process than alone.
-  mallopt(M_MMAP_THRESHOLD, 1 << 20);
+  ibmr::ConfigureHeap();  // see process_memory.h
   CLI::App app{"ibmr: photographs to 3D models and image-based renderings, stage by stage"};
   app.require_subcommand(1);
 

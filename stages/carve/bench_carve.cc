@@ -11,6 +11,7 @@
 #include <iostream>
 #include <nlohmann/json.hpp>
 
+#include "pipeline/core/process_memory.h"
 #include "stages/carve/carve.h"
 #include "stages/synth/synth.h"
 
@@ -25,6 +26,7 @@ double PeakResidentMb() {
 }  // namespace
 
 int main(int argc, char** argv) {
+  ibmr::ConfigureHeap();  // as ibmr does (pipeline/core/process_memory.h)
   using namespace ibmr;
   if (argc > 1 && argv[1][0] == '-') {
     std::cout << "usage: bench_carve [OUT.json [MAX_LEVEL (9)]]   levels 5..MAX_LEVEL on the synthetic ring\n";

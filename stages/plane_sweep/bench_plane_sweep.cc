@@ -21,6 +21,7 @@
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
 
+#include "pipeline/core/process_memory.h"
 #include "pipeline/core/atomic_file.h"
 #include "pipeline/core/colmap_array_io.h"
 #include "pipeline/core/stage_api.h"
@@ -189,6 +190,7 @@ nlohmann::json MachineLimit(int threads) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  ibmr::ConfigureHeap();  // as ibmr does (pipeline/core/process_memory.h)
   std::string out = "bench_plane_sweep.json", only, work = (fs::temp_directory_path() / "ibmr_bench_plane_sweep").string();
   int threads = 2;
   double threshold = -1;

@@ -25,6 +25,7 @@
 #include <opencv2/imgcodecs.hpp>
 #include <thread>
 
+#include "pipeline/core/process_memory.h"
 #include "pipeline/core/atomic_file.h"
 #include "pipeline/core/image_io.h"
 #include "pipeline/core/two_view_methods.h"
@@ -81,6 +82,7 @@ double Median(std::vector<double> v) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  ibmr::ConfigureHeap();  // as ibmr does (pipeline/core/process_memory.h)
   std::string data = std::string(IBMR_SHARED_DIR) + "/datasets/middlebury_stereo_classic";
   std::string out = "bench_stereo_pair.json";
   int repeat = 5, threads = 2;
