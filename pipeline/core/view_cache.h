@@ -7,6 +7,9 @@
 // first one's copy is kept.
 #pragma once
 
+#include <tbb/task_arena.h>
+
+#include <algorithm>
 #include <cstddef>
 #include <functional>
 #include <list>
@@ -16,6 +19,13 @@
 #include <utility>
 
 namespace ibmr {
+
+// The capacity that keeps every view in flight supplied: each of the threads' views asks for
+// `views_per_task` views (itself and its neighbours), and as many again stay for the next ones.
+inline size_t CapacityForViewsInFlight(int views_per_task) {
+  const size_t threads = static_cast<size_t>(std::max(1, tbb::this_task_arena::max_concurrency()));
+  return static_cast<size_t>(std::max(1, views_per_task)) * (threads + 1);
+}
 
 template <typename T>
 class ViewCache {

@@ -6,9 +6,6 @@
 // with true depth that are within 1% of it, before and after.
 #include <spdlog/spdlog.h>
 
-#include <tbb/task_arena.h>
-
-#include <algorithm>
 #include <filesystem>
 #include <memory>
 
@@ -140,8 +137,7 @@ class MultiDepthStage : public Stage {
 
     // Neighbours' maps (depth and confidence) stay loaded while the views in flight may ask for them
     // again: a view's neighbours are mostly the previous view's.
-    const size_t in_flight = static_cast<size_t>(std::max(1, tbb::this_task_arena::max_concurrency()));
-    ViewCache<DepthView> neighbor_maps((static_cast<size_t>(options.max_neighbors) + 1) * (in_flight + 1),
+    ViewCache<DepthView> neighbor_maps(CapacityForViewsInFlight(options.max_neighbors + 1),
                                        [&](const std::string& other) {
                                          return LoadView(workspace, model, *model.FindImage(other), /*with_normals=*/false);
                                        });

@@ -8,7 +8,6 @@
 // Also registers `ibmr stereo-pair LEFT RIGHT --max-disparity N --out DISP.pfm` (two-view mode).
 // Method: seed 000 lines 3659-3760, 5300-5525, 4352-4453 (see plane_sweep.h).
 #include <spdlog/spdlog.h>
-#include <tbb/task_arena.h>
 #include <sys/resource.h>
 #include <tbb/parallel_for.h>
 
@@ -228,8 +227,7 @@ class PlaneSweepStage : public Stage {
 
     // Census codes of the views a reference is matched against: each view serves as a neighbour
     // of several references, so its codes stay in a cache sized for the views in flight.
-    const size_t in_flight = static_cast<size_t>(std::max(1, tbb::this_task_arena::max_concurrency()));
-    ViewCache<std::vector<uint64_t>> census((static_cast<size_t>(options.num_neighbors) + 1) * (in_flight + 1),
+    ViewCache<std::vector<uint64_t>> census(CapacityForViewsInFlight(options.num_neighbors + 1),
                                             [&](const std::string& other) {
                                               const size_t i = std::find(names.begin(), names.end(), other) - names.begin();
                                               return sweep::CensusTransform(view(i).gray, options.census_radius_x,
