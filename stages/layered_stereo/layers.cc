@@ -196,12 +196,13 @@ cv::Mat SweepResidual(const LayerView& reference, const std::vector<const LayerV
       const float* c = cost.ptr<float>(y);
       float *low = best_cost.ptr<float>(y), *before = below.ptr<float>(y), *after = above.ptr<float>(y);
       int* at = best.ptr<int>(y);
+      const float* earlier = k > 0 ? previous.ptr<float>(y) : nullptr;
       for (int x = 0; x < size.width; ++x) {
         if (!mine[x]) continue;
         if (c[x] < low[x]) {
           low[x] = c[x];
           at[x] = k;
-          before[x] = k > 0 ? previous.at<float>(y, x) : nan;
+          before[x] = earlier ? earlier[x] : nan;
           after[x] = nan;
         } else if (at[x] == k - 1) {
           after[x] = c[x];
