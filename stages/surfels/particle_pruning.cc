@@ -135,7 +135,9 @@ std::vector<int> FreeSpaceViolations(const std::vector<Eigen::Vector3f>& positio
   return violations;
 }
 
-std::vector<int> OffSilhouette(const std::vector<Eigen::Vector3f>& positions, const std::vector<SurfelView>& views) {
+std::vector<int> OffSilhouette(const std::vector<Eigen::Vector3f>& positions, const std::vector<Color3u8>& colors,
+                               const std::vector<SurfelView>& views, int color_tolerance) {
+  const bool by_colour = color_tolerance > 0 && colors.size() == positions.size();
   std::vector<int> off(positions.size(), 0);
   tbb::parallel_for(size_t{0}, positions.size(), [&](size_t i) {
     for (const SurfelView& view : views) {
@@ -145,7 +147,14 @@ std::vector<int> OffSilhouette(const std::vector<Eigen::Vector3f>& positions, co
       if (!ProjectToView(view, positions[i], &pixel, &z)) continue;
       const int x = std::min(static_cast<int>(pixel.x() * view.mask.cols / view.camera.width), view.mask.cols - 1);
       const int y = std::min(static_cast<int>(pixel.y() * view.mask.rows / view.camera.height), view.mask.rows - 1);
-      off[i] += view.mask.at<uint8_t>(y, x) == 0;
+      if (view.mask.at<uint8_t>(y, x) != 0) continue;
+      if (by_colour && !view.image.empty()) {
+        const cv::Vec3b bgr = view.image.at<cv::Vec3b>(y * view.image.rows / view.mask.rows, x * view.image.cols / view.mask.cols);
+        const Color3u8& rgb = colors[i];
+        const int difference = std::max({std::abs(bgr[2] - rgb[0]), std::abs(bgr[1] - rgb[1]), std::abs(bgr[0] - rgb[2])});
+        if (difference <= color_tolerance) continue;  // the photo shows the particle's colour there
+      }
+      ++off[i];
     }
   });
   return off;

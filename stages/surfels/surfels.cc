@@ -86,6 +86,9 @@ bool SurfelOptions::Check(std::string* error) const {
   if (free_space_views < 1 || free_space_views > 1000) return fail(Range("free_space_views", "[1, 1000]"));
   if (!(free_space_margin > 0 && free_space_margin <= 1000)) return fail(Range("free_space_margin", "(0, 1000]"));
   if (silhouette_views < 0 || silhouette_views > 1000) return fail(Range("silhouette_views", "[0, 1000]"));
+  if (silhouette_color_tolerance < 0 || silhouette_color_tolerance > 255) {
+    return fail(Range("silhouette_color_tolerance", "[0, 255]"));
+  }
   if (!(max_edge >= 1 && max_edge <= 20)) return fail(Range("max_edge", "[1, 20]"));
   if (max_hole_edges < 0 || max_hole_edges > 1000) return fail(Range("max_hole_edges", "[0, 1000]"));
   if (min_component_faces < 0 || min_component_faces > 1000000) return fail(Range("min_component_faces", "[0, 1e6]"));
@@ -261,7 +264,7 @@ SurfelResult ReconstructSurfels(const PointCloud& input, const std::vector<Surfe
     for (size_t i = 0; i < remove.size(); ++i) remove[i] = violations[i] >= options.free_space_views;
     stats.removed_free_space += RemoveFlagged(remove, &particles);
     if (options.silhouette_views > 0) {
-      const std::vector<int> off = OffSilhouette(particles.positions, views);
+      const std::vector<int> off = OffSilhouette(particles.positions, particles.colors, views, options.silhouette_color_tolerance);
       std::vector<char> outside(off.size());
       for (size_t i = 0; i < off.size(); ++i) outside[i] = off[i] >= options.silhouette_views;
       stats.removed_off_silhouette += RemoveFlagged(outside, &particles);

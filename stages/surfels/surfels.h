@@ -62,6 +62,10 @@ struct SurfelOptions {
   int min_neighbours = 3;          // particles within 2.5 spacings needed to keep a particle, in [0, 100]
   int free_space_views = 2;        // delete a particle that this many depth maps see through, in [1, 1000]
   int silhouette_views = 0;        // delete a particle that lands on this many views' background (masks); 0: off, in [0, 1000]
+  int silhouette_color_tolerance = 0;  // ... counting only views whose photo there differs from the particle's
+                                   // colour by more than this (largest channel, grey levels): a dark
+                                   // backdrop the masks leave out matches its own colour; 0: every
+                                   // background landing counts, in [0, 255]
   double free_space_margin = 3.0;  // "see through": the map's depth exceeds the particle's by this many
                                    // spacings and by 0.5% of the depth, in (0, 1000]
   double max_edge = 4.0;           // longest triangle edge, spacings, in [1, 20]
@@ -79,6 +83,7 @@ struct SurfelView {
   Rigid3d cam_from_world;
   DepthMap depth;  // z depth, any resolution (scaled to the camera); empty: no free-space test
   cv::Mat mask;    // CV_8UC1 silhouette (0 background), camera size; empty: no silhouette test
+  cv::Mat image;   // CV_8UC3 BGR photo, the mask's size; empty: no colour check on the background
 };
 
 struct SurfelStats {
@@ -141,13 +146,19 @@ std::vector<int> FreeSpaceViolations(const std::vector<Eigen::Vector3f>& positio
                                      const std::vector<SurfelView>& views, double spacing, double margin_spacings);
 
 // Per particle, in how many views with a mask it projects onto the background (nearest pixel).
-std::vector<int> OffSilhouette(const std::vector<Eigen::Vector3f>& positions, const std::vector<SurfelView>& views);
+// With colours and color_tolerance > 0, a view with a photo counts only where the photo's pixel
+// differs from the particle's colour (RGB) by more than color_tolerance in some channel: a floater
+// the stereo pushed off a bright edge lands on black, while the dark cloth behind an object, which
+// the masks' threshold leaves out, lands on pixels of its own colour and is not evidence against it.
+std::vector<int> OffSilhouette(const std::vector<Eigen::Vector3f>& positions, const std::vector<Color3u8>& colors,
+                               const std::vector<SurfelView>& views, int color_tolerance);
 
 // Coefficient of variation (std / mean) of each particle's nearest-neighbour distance.
 double NearestNeighbourSpread(const std::vector<Eigen::Vector3f>& positions);
 
 // surfel_mesh.cc (CGAL): the advancing-front triangulation with edges at most `max_edge_length`,
-// faces turned to agree with the particles' normals; the mesh's vertices are the particles.
+// faces turned to agree with the particles' normals; the mesh's vertices are the particles. Large
+// clouds are triangulated in overlapping slabs, in parallel (see surfel_mesh.cc).
 TriangleMesh TriangulateParticles(const PointCloud& particles, double max_edge_length);
 // mesh_cleaning.cc: per face, an id of the connected piece it belongs to (faces sharing a vertex).
 std::vector<int> ConnectedPieces(const TriangleMesh& mesh);

@@ -76,6 +76,9 @@ class SurfelsStage : public Stage {
         {"free_space_views", ParamType::kInt, std::to_string(d.free_space_views), "Delete particles that this many depth maps see through, [1, 1000]"},
         {"free_space_margin", ParamType::kDouble, num(d.free_space_margin), "See-through margin, spacings (and 0.5% of depth), (0, 1000]"},
         {"silhouette_views", ParamType::kInt, std::to_string(d.silhouette_views), "Delete particles on this many views' background (masks/); 0: off, [0, 1000]"},
+        {"silhouette_color_tolerance", ParamType::kInt, std::to_string(d.silhouette_color_tolerance),
+         "With silhouette_views: a background landing counts only where the photo differs from the particle's colour "
+         "by more than this (grey levels, largest channel); keeps a dark backdrop the masks leave out; 0: every landing counts, [0, 255]"},
         {"free_space_maps", ParamType::kString, "geometric", "Depth maps for the free-space test", {"geometric", "photometric", "none"}},
         {"max_edge", ParamType::kDouble, num(d.max_edge), "Longest triangle edge, spacings, [1, 20]"},
         {"max_hole_edges", ParamType::kInt, std::to_string(d.max_hole_edges), "Close mesh holes bounded by at most this many edges, [0, 1000]"},
@@ -105,6 +108,7 @@ class SurfelsStage : public Stage {
     }
     if (context.params.Bool("use_hull")) inputs.push_back(kHull);  // optional
     if (context.params.Int("silhouette_views") > 0) inputs.push_back("masks");
+    if (context.params.Int("silhouette_views") > 0 && context.params.Int("silhouette_color_tolerance") > 0) inputs.push_back("images");
     inputs.push_back("ground_truth/mesh.ply");                      // metrics only
     return inputs;
   }
@@ -144,6 +148,9 @@ class SurfelsStage : public Stage {
           view.mask = ReadImageUnchanged(mask_path);
           if (view.mask.type() != CV_8UC1) {
             throw InputError(mask_path + ": not an 8-bit one-channel mask; re-run silhouettes (or set surfels.silhouette_views: 0)");
+          }
+          if (options.silhouette_color_tolerance > 0) {
+            view.image = ReadImageColor(workspace.ImagesDir() + "/" + name);  // throws naming the file
           }
         }
       }
@@ -246,6 +253,7 @@ class SurfelsStage : public Stage {
     o.free_space_views = static_cast<int>(params.Int("free_space_views"));
     o.free_space_margin = params.Double("free_space_margin");
     o.silhouette_views = static_cast<int>(params.Int("silhouette_views"));
+    o.silhouette_color_tolerance = static_cast<int>(std::clamp<int64_t>(params.Int("silhouette_color_tolerance"), -1, 256));
     o.max_edge = params.Double("max_edge");
     o.max_hole_edges = static_cast<int>(params.Int("max_hole_edges"));
     o.min_component_faces = static_cast<int>(params.Int("min_component_faces"));

@@ -117,6 +117,7 @@ TEST(SurfelOptions, RejectsInvalidRanges) {
       {"min_support_fraction", [](SurfelOptions* o) { o->min_support_fraction = 1.5; }},
       {"free_space_views", [](SurfelOptions* o) { o->free_space_views = 0; }},
       {"silhouette_views", [](SurfelOptions* o) { o->silhouette_views = -1; }},
+      {"silhouette_color_tolerance", [](SurfelOptions* o) { o->silhouette_color_tolerance = 256; }},
       {"free_space_margin", [](SurfelOptions* o) { o->free_space_margin = 0; }},
       {"max_edge", [](SurfelOptions* o) { o->max_edge = 0.5; }},
       {"max_particles", [](SurfelOptions* o) { o->max_particles = 10; }},
@@ -270,9 +271,9 @@ TEST(Surfels, NoisyPlaneConvergesToThePlane) {
   EXPECT_EQ(missed, 0) << "of " << probes << " probes";
 }
 
-TEST(SurfelMesh, SampledSphereIsAClosedManifold) {
+void ExpectClosedOutwardSphere(int n) {
+  SCOPED_TRACE(std::to_string(n) + " particles");
   PointCloud points;
-  const int n = 3000;
   for (int i = 0; i < n; ++i) {  // Fibonacci sphere: even spacing ~ sqrt(4 pi / n)
     const double z = 1 - 2 * (i + 0.5) / n, r = std::sqrt(1 - z * z), phi = i * M_PI * (3 - std::sqrt(5.0));
     points.positions.emplace_back(r * std::cos(phi), r * std::sin(phi), z);
@@ -287,6 +288,12 @@ TEST(SurfelMesh, SampledSphereIsAClosedManifold) {
     const Eigen::Vector3f normal = (mesh.vertices[f[1]] - mesh.vertices[f[0]]).cross(mesh.vertices[f[2]] - mesh.vertices[f[0]]);
     ASSERT_GT(normal.dot(mesh.vertices[f[0]]), 0);
   }
+}
+
+TEST(SurfelMesh, SampledSphereIsAClosedManifold) {
+  ExpectClosedOutwardSphere(3000);
+  // Triangulated in slabs (one front per slab, see TriangulateParticles): the cuts leave no seam.
+  ExpectClosedOutwardSphere(40000);
 }
 
 // Leaves the heap fragmented: `count` small blocks allocated and every other one freed, so that what
@@ -509,6 +516,20 @@ TEST(Surfels, ParticlesOnTheBackgroundOfMasksAreRemoved) {
   const SurfelResult kept = ReconstructSurfels(data, {view}, nullptr, options);
   EXPECT_GT(kept.stats.removed_off_silhouette, all.surfels.size() / 3);
   for (const auto& p : kept.surfels.positions) ASSERT_LT(p.x(), 0.03f) << p.transpose();
+
+  // The particles are grey (90): on a photo of black background they are floaters and go; where
+  // the photo shows their own grey (a dark backdrop the mask's threshold left out) they stay.
+  options.silhouette_color_tolerance = 25;
+  view.image = cv::Mat(200, 200, CV_8UC3, cv::Scalar(0, 0, 0));
+  const SurfelResult on_black = ReconstructSurfels(data, {view}, nullptr, options);
+  EXPECT_EQ(on_black.stats.removed_off_silhouette, kept.stats.removed_off_silhouette);
+  view.image.setTo(cv::Scalar(100, 80, 95));  // BGR, within 25 of grey 90 in every channel
+  const SurfelResult on_backdrop = ReconstructSurfels(data, {view}, nullptr, options);
+  EXPECT_EQ(on_backdrop.stats.removed_off_silhouette, 0u);
+  EXPECT_EQ(on_backdrop.surfels.size(), all.surfels.size());
+  view.image.setTo(cv::Scalar(90, 90, 130));  // red off by 40: not the particles' colour
+  EXPECT_EQ(ReconstructSurfels(data, {view}, nullptr, options).stats.removed_off_silhouette,
+            kept.stats.removed_off_silhouette);
 }
 
 TEST(Surfels, TheHullBoundsTheSurface) {
