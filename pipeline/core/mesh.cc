@@ -35,6 +35,38 @@ bool TriangleMesh::Bounds(Eigen::Vector3f* min, Eigen::Vector3f* max) const {
   return true;
 }
 
+size_t TriangleMesh::DropNonFiniteVertices() {
+  std::vector<int> renumbered(vertices.size(), -1);
+  size_t kept = 0;
+  for (size_t v = 0; v < vertices.size(); ++v) {
+    if (!vertices[v].allFinite()) continue;
+    renumbered[v] = static_cast<int>(kept);
+    vertices[kept] = vertices[v];
+    if (!normals.empty() && normals.size() == vertices.size()) normals[kept] = normals[v];
+    if (!colors.empty() && colors.size() == vertices.size()) colors[kept] = colors[v];
+    ++kept;
+  }
+  const size_t dropped = vertices.size() - kept;
+  if (dropped == 0) return 0;
+  if (normals.size() == vertices.size()) normals.resize(kept);
+  if (colors.size() == vertices.size()) colors.resize(kept);
+  vertices.resize(kept);
+  size_t faces_kept = 0;
+  for (const Eigen::Vector3i& face : faces) {
+    Eigen::Vector3i mapped;
+    bool usable = true;
+    for (int k = 0; k < 3 && usable; ++k) {
+      const int index = face[k];
+      const bool in_range = index >= 0 && static_cast<size_t>(index) < renumbered.size();
+      usable = !in_range || renumbered[index] >= 0;
+      mapped[k] = in_range ? renumbered[index] : index;  // out of range stays so, for Validate to name
+    }
+    if (usable) faces[faces_kept++] = mapped;
+  }
+  faces.resize(faces_kept);
+  return dropped;
+}
+
 std::string TriangleMesh::Validate() const {
   const size_t n = vertices.size();
   if (!normals.empty() && normals.size() != n) {

@@ -35,6 +35,10 @@ struct TriangleMesh {
   bool Bounds(Eigen::Vector3f* min, Eigen::Vector3f* max) const;
   // Empty when valid; otherwise names the first face with an index out of range, etc.
   std::string Validate() const;
+  // Removes the vertices with a NaN or infinite coordinate and every face that uses one (the others
+  // are renumbered); returns how many vertices went. Screened Poisson meshers now and then emit such
+  // a vertex in an empty corner of their octree.
+  size_t DropNonFiniteVertices();
 };
 
 }  // namespace ibmr

@@ -5,6 +5,8 @@
 // skipping everything else. Polygons with more than three corners are split into a fan.
 #include "pipeline/core/ply_io.h"
 
+#include <spdlog/spdlog.h>
+
 #include <algorithm>
 #include <cmath>
 #include <cstdlib>
@@ -502,6 +504,11 @@ TriangleMesh ReadMeshPly(const std::string& path) {
   mesh.colors = std::move(contents.colors);
   mesh.faces = std::move(contents.faces);
   mesh.comments = std::move(contents.comments);
+  const size_t faces = mesh.faces.size();
+  if (const size_t dropped = mesh.DropNonFiniteVertices()) {
+    spdlog::warn("{}: {} vertices with a NaN or infinite coordinate and the {} faces using them are left out", path,
+                 dropped, faces - mesh.faces.size());
+  }
   const std::string problem = mesh.Validate();
   if (!problem.empty()) throw IoError(path + ": " + problem);
   return mesh;

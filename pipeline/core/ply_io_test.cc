@@ -97,6 +97,25 @@ TEST(PlyIo, MeshRoundTripAndHeaderBytes) {
   EXPECT_EQ(back.comments, mesh.comments);
 }
 
+// A NaN vertex (as Poisson meshers sometimes write) goes with its faces; the rest is renumbered.
+TEST(PlyIo, AMeshLosesItsNonFiniteVerticesAndTheirFaces) {
+  const std::string path = (MakeTestDir("nan_vertex") / "mesh.ply").string();
+  WriteFileAtomic(path,
+                  "ply\nformat ascii 1.0\nelement vertex 5\n"
+                  "property float x\nproperty float y\nproperty float z\n"
+                  "property uchar red\nproperty uchar green\nproperty uchar blue\n"
+                  "element face 3\nproperty list uchar int vertex_indices\nend_header\n"
+                  "0 0 0 1 1 1\n1 0 0 2 2 2\nnan 0 0 3 3 3\n1 1 0 4 4 4\n0 1 inf 5 5 5\n"
+                  "3 0 1 3\n3 0 2 3\n3 1 3 4\n");
+  const TriangleMesh mesh = ReadMeshPly(path);
+  ASSERT_EQ(mesh.vertices.size(), 3u);
+  EXPECT_EQ(mesh.vertices[2], Eigen::Vector3f(1, 1, 0));
+  EXPECT_EQ(mesh.colors[2], Color3u8(4, 4, 4));
+  ASSERT_EQ(mesh.faces.size(), 1u);
+  EXPECT_EQ(mesh.faces[0], Eigen::Vector3i(0, 1, 2));
+  EXPECT_EQ(mesh.Validate(), "");
+}
+
 TEST(PlyIo, ReadsHandWrittenAscii) {
   const std::string path = (MakeTestDir("ascii") / "quad.ply").string();
   WriteFileAtomic(path,
