@@ -36,20 +36,22 @@ bool TriangleMesh::Bounds(Eigen::Vector3f* min, Eigen::Vector3f* max) const {
 }
 
 size_t TriangleMesh::DropNonFiniteVertices() {
+  // Attributes of another length are left as they are, for Validate to name.
+  const bool with_normals = normals.size() == vertices.size(), with_colors = colors.size() == vertices.size();
   std::vector<int> renumbered(vertices.size(), -1);
   size_t kept = 0;
   for (size_t v = 0; v < vertices.size(); ++v) {
     if (!vertices[v].allFinite()) continue;
     renumbered[v] = static_cast<int>(kept);
     vertices[kept] = vertices[v];
-    if (!normals.empty() && normals.size() == vertices.size()) normals[kept] = normals[v];
-    if (!colors.empty() && colors.size() == vertices.size()) colors[kept] = colors[v];
+    if (with_normals) normals[kept] = normals[v];
+    if (with_colors) colors[kept] = colors[v];
     ++kept;
   }
   const size_t dropped = vertices.size() - kept;
   if (dropped == 0) return 0;
-  if (normals.size() == vertices.size()) normals.resize(kept);
-  if (colors.size() == vertices.size()) colors.resize(kept);
+  if (with_normals) normals.resize(kept);
+  if (with_colors) colors.resize(kept);
   vertices.resize(kept);
   size_t faces_kept = 0;
   for (const Eigen::Vector3i& face : faces) {

@@ -160,9 +160,9 @@ void OrientPieces(const PointCloud& particles, TriangleMesh* mesh_pointer) {
 }
 
 // What CGAL::advancing_front_surface_reconstruction does, on the time-stamped triangulation of the
-// particles `group` lists (default radius ratio bound 5 and beta 0.52): facets as particle indices.
-std::vector<std::array<std::size_t, 3>> FrontFacets(const std::vector<Eigen::Vector3f>& positions,
-                                                   const std::vector<uint32_t>& group, double max_edge_length) {
+// particles `group` lists (default radius ratio bound 5 and beta 0.52): faces as particle indices.
+std::vector<Eigen::Vector3i> FrontFaces(const std::vector<Eigen::Vector3f>& positions, const std::vector<uint32_t>& group,
+                                        double max_edge_length) {
   std::vector<std::pair<Point, std::size_t>> points;
   points.reserve(group.size());
   for (size_t k = 0; k < group.size(); ++k) {
@@ -175,10 +175,10 @@ std::vector<std::array<std::size_t, 3>> FrontFacets(const std::vector<Eigen::Vec
       delaunay, EdgeBound{max_edge_length * max_edge_length});
   front.run();
   CGAL::write_triple_indices(std::back_inserter(facets), front);
-  for (auto& f : facets) {
-    for (std::size_t& v : f) v = group[v];
-  }
-  return facets;
+  std::vector<Eigen::Vector3i> faces;
+  faces.reserve(facets.size());
+  for (const auto& f : facets) faces.emplace_back(static_cast<int>(group[f[0]]), static_cast<int>(group[f[1]]), static_cast<int>(group[f[2]]));
+  return faces;
 }
 
 }  // namespace
@@ -189,17 +189,16 @@ TriangleMesh TriangulateParticles(const PointCloud& particles, double max_edge_l
   mesh.normals = particles.normals;
   mesh.colors = particles.colors;
   if (particles.size() < 3) return mesh;
-  std::vector<std::array<std::size_t, 3>> facets;
   const size_t n = particles.size();
   const int slabs = static_cast<int>(std::clamp<size_t>(n / kParticlesPerSlab, 1, 64));
   if (slabs == 1) {
     std::vector<uint32_t> all(n);
     std::iota(all.begin(), all.end(), 0u);
-    facets = FrontFacets(particles.positions, all, max_edge_length);
+    mesh.faces = FrontFaces(particles.positions, all, max_edge_length);
   } else {
     // Slabs across the longest side of the particles' box, of equal counts; each is triangulated
-    // with its neighbours' particles within `overlap` of it and keeps the facets whose centroid lies
-    // in it.
+    // with its neighbours' particles within `overlap` of it and keeps the faces whose centroid lies
+    // in it, turned by its own pieces' votes (fronts orient independently).
     Eigen::Vector3f lo = particles.positions[0], hi = lo;
     for (const auto& p : particles.positions) lo = lo.cwiseMin(p), hi = hi.cwiseMax(p);
     int axis = 0;
@@ -213,42 +212,39 @@ TriangleMesh TriangulateParticles(const PointCloud& particles, double max_edge_l
     cuts.back() = std::numeric_limits<float>::infinity();
     for (int k = 1; k < slabs; ++k) cuts[k] = sorted[n * k / slabs];
     const float overlap = static_cast<float>(kSlabOverlapEdges * max_edge_length);
-    std::vector<std::vector<std::array<std::size_t, 3>>> per_slab(slabs);
+    std::vector<std::vector<Eigen::Vector3i>> per_slab(slabs);
     tbb::parallel_for(0, slabs, [&](int k) {
       std::vector<uint32_t> group;
       for (uint32_t i = 0; i < n; ++i) {
         if (along[i] >= cuts[k] - overlap && along[i] < cuts[k + 1] + overlap) group.push_back(i);
       }
-      TriangleMesh slab;  // its faces turned by its own pieces' votes: fronts orient independently
+      TriangleMesh slab;
       slab.vertices = particles.positions;
-      for (const auto& f : FrontFacets(particles.positions, group, max_edge_length)) {
+      for (const Eigen::Vector3i& f : FrontFaces(particles.positions, group, max_edge_length)) {
         const float centroid = (along[f[0]] + along[f[1]] + along[f[2]]) / 3.f;
-        if (centroid >= cuts[k] && centroid < cuts[k + 1]) {
-          slab.faces.emplace_back(static_cast<int>(f[0]), static_cast<int>(f[1]), static_cast<int>(f[2]));
-        }
+        if (centroid >= cuts[k] && centroid < cuts[k + 1]) slab.faces.push_back(f);
       }
       if (!particles.normals.empty()) OrientPieces(particles, &slab);
-      for (const Eigen::Vector3i& f : slab.faces) per_slab[k].push_back({size_t(f[0]), size_t(f[1]), size_t(f[2])});
+      per_slab[k] = std::move(slab.faces);
     });
     // Where two slabs' fronts chose differently at a cut, an edge can end up with more than two
     // faces: the later slabs' faces on it go (in slab order), and the opening left is a hole that
     // FillSmallHoles may close.
-    std::map<std::pair<std::size_t, std::size_t>, int> edge_faces;
+    std::map<std::pair<int, int>, int> edge_faces;
+    auto edge = [](const Eigen::Vector3i& f, int e) { return std::minmax(f[e], f[(e + 1) % 3]); };
     for (const auto& slab : per_slab) {
-      for (const auto& f : slab) {
+      for (const Eigen::Vector3i& f : slab) {
         bool fits = true;
         for (int e = 0; e < 3 && fits; ++e) {
-          const auto it = edge_faces.find(std::minmax(f[e], f[(e + 1) % 3]));
+          const auto it = edge_faces.find(edge(f, e));
           fits = it == edge_faces.end() || it->second < 2;
         }
         if (!fits) continue;
-        for (int e = 0; e < 3; ++e) ++edge_faces[std::minmax(f[e], f[(e + 1) % 3])];
-        facets.push_back(f);
+        for (int e = 0; e < 3; ++e) ++edge_faces[edge(f, e)];
+        mesh.faces.push_back(f);
       }
     }
   }
-  mesh.faces.reserve(facets.size());
-  for (const auto& f : facets) mesh.faces.emplace_back(static_cast<int>(f[0]), static_cast<int>(f[1]), static_cast<int>(f[2]));
   if (!particles.normals.empty()) OrientPieces(particles, &mesh);
   // A canonical order, after the orientation is settled (each face rotated to start at its smallest
   // index, then sorted), so that the faces do not depend on the order CGAL emits them in.
