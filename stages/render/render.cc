@@ -10,6 +10,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <opencv2/imgproc.hpp>
 
 #include "pipeline/core/rasterizer.h"
 
@@ -85,6 +86,10 @@ bool RenderOptions::Check(std::string* error) const {
     *error = "visibility_epsilon: must be in (0, 1), got " + std::to_string(visibility_epsilon);
     return false;
   }
+  if (proxy_extend_px < 0 || proxy_extend_px > 16) {
+    *error = "proxy_extend_px: must be in [0, 16], got " + std::to_string(proxy_extend_px);
+    return false;
+  }
   return true;
 }
 
@@ -146,7 +151,8 @@ DepthMap MeshDepth(const TriangleMesh& mesh, const Camera& camera, const Rigid3d
   return Rasterize(mesh, camera, cam_from_world).depth;
 }
 
-DepthMap MeshDepth(const std::vector<const TriangleMesh*>& layers, const Camera& camera, const Rigid3d& cam_from_world) {
+DepthMap MeshDepth(const std::vector<const TriangleMesh*>& layers, const Camera& camera, const Rigid3d& cam_from_world,
+                   int extend_px) {
   DepthMap depth;
   for (const TriangleMesh* mesh : layers) {
     const DepthMap next = MeshDepth(*mesh, camera, cam_from_world);
@@ -158,12 +164,41 @@ DepthMap MeshDepth(const std::vector<const TriangleMesh*>& layers, const Camera&
       if (!IsValidDepth(depth.data[i])) depth.data[i] = next.data[i];
     }
   }
+  ExtendIntoHoles(&depth, extend_px);
   return depth;
 }
 
+void ExtendIntoHoles(DepthMap* depth, int radius) {
+  if (radius <= 0 || depth->Empty()) return;
+  const int w = depth->width, h = depth->height;
+  // Holes as +infinity, so that a 3x3 erosion (minimum) gives each pixel its front-most neighbour.
+  cv::Mat current(h, w, CV_32F), eroded;
+  for (int y = 0; y < h; ++y) {
+    float* row = current.ptr<float>(y);
+    for (int x = 0; x < w; ++x) {
+      const float d = depth->At(x, y);
+      row[x] = IsValidDepth(d) ? d : std::numeric_limits<float>::infinity();
+    }
+  }
+  const cv::Mat kernel = cv::getStructuringElement(cv::MORPH_RECT, cv::Size(3, 3));
+  for (int step = 0; step < radius; ++step) {
+    cv::erode(current, eroded, kernel, cv::Point(-1, -1), 1, cv::BORDER_CONSTANT,
+              cv::Scalar(std::numeric_limits<float>::infinity()));
+    const cv::Mat holes = current == std::numeric_limits<float>::infinity();
+    if (cv::countNonZero(holes) == 0) break;
+    eroded.copyTo(current, holes);  // covered pixels keep their own depth
+  }
+  for (int y = 0; y < h; ++y) {
+    const float* row = current.ptr<float>(y);
+    for (int x = 0; x < w; ++x) {
+      if (std::isfinite(row[x])) depth->At(x, y) = row[x];
+    }
+  }
+}
+
 ProxySurface MeshSurface(const std::vector<const TriangleMesh*>& layers, const Camera& camera,
-                         const Rigid3d& cam_from_world) {
-  return SurfaceFromDepth(MeshDepth(layers, camera, cam_from_world), camera, cam_from_world);
+                         const Rigid3d& cam_from_world, int extend_px) {
+  return SurfaceFromDepth(MeshDepth(layers, camera, cam_from_world, extend_px), camera, cam_from_world);
 }
 
 bool PlaneAtMeanInverseDepth(const std::vector<Eigen::Vector3d>& points, const Rigid3d& desired_cam_from_world,

@@ -49,6 +49,10 @@ struct RenderOptions {
   double max_penalty = 3.14159265358979;  // penalty of a missing camera; caps the threshold, > 0
                                    // (default: the largest angle penalty, pi radians)
   double visibility_epsilon = 0.01;  // relative depth tolerance of the visibility test, in (0, 1)
+  // Mesh proxies: uncovered pixels within this many pixels of the mesh's image take the depth of
+  // the nearest covered one (ExtendIntoHoles), in the desired view (times the supersampling) and
+  // in each source's visibility map; 0 (default): the mesh as rasterized. In [0, 16].
+  int proxy_extend_px = 0;
 
   // False with `error` starting with the YAML key when a value is out of range.
   bool Check(std::string* error) const;
@@ -88,10 +92,22 @@ ProxySurface MeshSurface(const TriangleMesh& mesh, const Camera& camera, const R
 // The proxy mesh's z depth from a source camera (0 where not covered), for the visibility test.
 DepthMap MeshDepth(const TriangleMesh& mesh, const Camera& camera, const Rigid3d& cam_from_world);
 // A proxy with fallbacks: each pixel takes the first hit of the first mesh in `layers` that covers
-// it (e.g. a surface reconstruction that leaves holes, then the visual hull that encloses it).
-DepthMap MeshDepth(const std::vector<const TriangleMesh*>& layers, const Camera& camera, const Rigid3d& cam_from_world);
+// it (e.g. a surface reconstruction that leaves holes, then the visual hull that encloses it);
+// `extend_px` > 0 then extends it into the holes near it (ExtendIntoHoles).
+DepthMap MeshDepth(const std::vector<const TriangleMesh*>& layers, const Camera& camera, const Rigid3d& cam_from_world,
+                   int extend_px = 0);
+// Extends a proxy's depth map into its holes by `radius` pixels: `radius` times, every pixel
+// without a depth next to one with a depth (8-neighbourhood) takes the nearest such depth (the
+// front-most where several touch it), so a hole pixel gets the depth of a covered pixel at most
+// `radius` away and a hole wider than 2 * radius stays open in its middle. A surface meshed from
+// particles stops about one particle spacing short of the object's outline and leaves pinholes
+// between its pieces; the photographs' colours there are still the object's (or the
+// background's, beyond the outline: a point at the edge's depth projects beside the object in the
+// sources too). On templeRing (surfel mesh, 2x supersampling) the held-out photo PSNR with holes
+// black rises from 25.61 dB (0) to 26.20 (1 px), 26.21 (2), 26.23 (3), 26.39 (5).
+void ExtendIntoHoles(DepthMap* depth, int radius);
 ProxySurface MeshSurface(const std::vector<const TriangleMesh*>& layers, const Camera& camera,
-                         const Rigid3d& cam_from_world);
+                         const Rigid3d& cam_from_world, int extend_px = 0);
 
 // Plane facing the desired camera (normal = its viewing direction) at 1 / mean(1/z) of the points
 // in front of it. Returns false when no point is in front.

@@ -240,6 +240,10 @@ class RenderStage : public Stage {
         {"max_penalty", ParamType::kDouble, "3.14159265358979",
          "penalty of a missing camera when fewer than k are usable; caps the threshold, > 0", {}},
         {"visibility_epsilon", ParamType::kDouble, "0.01", "relative depth tolerance of visibility, in (0, 1)", {}},
+        {"proxy_extend_px", ParamType::kInt, "0",
+         "mesh proxies: holes within this many pixels of the mesh take the nearest covered depth (desired view and "
+         "sources' visibility), in [0, 16]",
+         {}},
         {"supersample", ParamType::kInt, "1",
          "sub-samples per pixel side, box-filtered (anti-aliased silhouettes), in [1, 4]", {}},
         {"background", ParamType::kString, "plane",
@@ -479,7 +483,7 @@ class RenderStage : public Stage {
         }
         surface = PlaneSurface(plane, camera, view.cam_from_world);
       } else {
-        surface = MeshSurface(layers, camera, view.cam_from_world);
+        surface = MeshSurface(layers, camera, view.cam_from_world, options.proxy_extend_px * factor);
       }
       const UlrRenderer renderer(used, options);
       return Downsample(renderer.Render(camera, view.cam_from_world, surface), surface, factor);
@@ -681,7 +685,8 @@ class RenderStage : public Stage {
       std::vector<SourceView> proxy_sources = sources;  // shares pixels; depth maps per proxy
       if (is_mesh) {
         tbb::parallel_for(size_t{0}, proxy_sources.size(), [&](size_t i) {
-          proxy_sources[i].proxy_depth = MeshDepth(layers, proxy_sources[i].camera, proxy_sources[i].cam_from_world);
+          proxy_sources[i].proxy_depth =
+              MeshDepth(layers, proxy_sources[i].camera, proxy_sources[i].cam_from_world, options.proxy_extend_px);
         });
       }
       const SplatOptions splat_options = ToSplatOptions(context.params);
@@ -947,6 +952,7 @@ class RenderStage : public Stage {
     options.fov_margin = params.Double("fov_margin");
     options.max_penalty = params.Double("max_penalty");
     options.visibility_epsilon = params.Double("visibility_epsilon");
+    options.proxy_extend_px = static_cast<int>(params.Int("proxy_extend_px"));
     return options;
   }
 };

@@ -122,6 +122,47 @@ TEST(RenderOptions, RejectsBadValues) {
   o = RenderOptions();
   o.max_penalty = 0;
   expect_key(o, "max_penalty");
+  o = RenderOptions();
+  o.proxy_extend_px = 17;
+  expect_key(o, "proxy_extend_px");
+  o.proxy_extend_px = -1;
+  expect_key(o, "proxy_extend_px");
+}
+
+// Two surfaces side by side (depth 2 on the left, 5 on the right) with a one-pixel gap between
+// them, a hole column of 9 pixels in the left one and a ring of holes around both: extended by 2
+// pixels, covered pixels keep their depths, a hole pixel takes the depth of the nearest covered
+// one (the front one where both touch it), the wide hole's middle stays open, and so does every
+// pixel more than 2 pixels from the surfaces.
+TEST(ExtendIntoHoles, HolesNearTheMeshTakeTheNearestDepthAndWideOnesStayOpen) {
+  DepthMap depth(40, 20, 1, 0.f);
+  for (int y = 5; y < 15; ++y) {
+    for (int x = 5; x < 20; ++x) depth.At(x, y) = 2.f;
+    for (int x = 21; x < 35; ++x) depth.At(x, y) = 5.f;
+    for (int x = 8; x < 17; ++x) depth.At(x, y) = 0.f;  // a hole 9 pixels wide
+  }
+  const DepthMap before = depth;
+  ExtendIntoHoles(&depth, 2);
+  for (int y = 0; y < 20; ++y) {
+    for (int x = 0; x < 40; ++x) {
+      if (IsValidDepth(before.At(x, y))) {
+        EXPECT_EQ(depth.At(x, y), before.At(x, y)) << x << "," << y;
+      }
+    }
+  }
+  EXPECT_EQ(depth.At(20, 10), 2.f);  // between the surfaces: the front one
+  EXPECT_EQ(depth.At(36, 10), 5.f);  // two pixels beyond the right edge
+  EXPECT_FALSE(IsValidDepth(depth.At(37, 10)));
+  EXPECT_EQ(depth.At(6, 3), 2.f);    // above the left surface
+  EXPECT_FALSE(IsValidDepth(depth.At(6, 2)));
+  EXPECT_EQ(depth.At(9, 10), 2.f);   // inside the wide hole, near its sides
+  EXPECT_EQ(depth.At(15, 10), 2.f);
+  EXPECT_FALSE(IsValidDepth(depth.At(12, 10)));  // its middle stays open
+  EXPECT_EQ(depth.At(3, 3), 2.f);    // diagonal neighbours count
+  EXPECT_FALSE(IsValidDepth(depth.At(2, 2)));
+  DepthMap untouched = before;
+  ExtendIntoHoles(&untouched, 0);
+  EXPECT_EQ(untouched.data, before.data);
 }
 
 TEST(Ulr, EpipoleConsistencyReproducesSourceImageExactly) {
