@@ -19,6 +19,8 @@
 #include <opencv2/core.hpp>
 #include <vector>
 
+#include "pipeline/core/large_buffer.h"
+
 namespace ibmr {
 namespace sweep {
 
@@ -44,8 +46,8 @@ struct EngineOptions {
 // Cost volume: layout [y][x][plane], `stride` >= planes (multiple of 16, padding at kMaxCost).
 struct CostVolume {
   int width = 0, height = 0, planes = 0, stride = 0;
-  std::vector<uint16_t> data;
-  std::vector<uint16_t> scratch;  // box-filter buffer (kept to reuse its pages)
+  LargeBuffer<uint16_t> data;
+  LargeBuffer<uint16_t> scratch;  // box-filter buffer (kept to reuse its pages)
   uint16_t* At(int x, int y) { return data.data() + (static_cast<size_t>(y) * width + x) * stride; }
   const uint16_t* At(int x, int y) const {
     return data.data() + (static_cast<size_t>(y) * width + x) * stride;
@@ -83,7 +85,7 @@ int64_t BuildCostVolume(const cv::Mat& reference_gray, const std::vector<Neighbo
 // Aggregated volume: the sum over paths (or the data cost itself without semi-global).
 struct Aggregated {
   int width = 0, height = 0, planes = 0, stride = 0;
-  std::vector<uint16_t> a, b;  // two partial sums (forward and backward passes); b may be empty
+  LargeBuffer<uint16_t> a, b;  // two partial sums (forward and backward passes); b may be empty
   uint16_t Sum(size_t pixel, int plane) const {
     const size_t i = pixel * stride + plane;
     return b.empty() ? a[i] : static_cast<uint16_t>(a[i] + b[i]);

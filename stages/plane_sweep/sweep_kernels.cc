@@ -237,7 +237,7 @@ void FillP2Table(const EngineOptions& o, int16_t table[256]) {
 // One pass over the image in scan order `s` (+1: top-left to bottom-right; -1: reverse) along the
 // paths arriving from the previous pixel and, when `diagonals`, the previous row's three pixels
 // (else only the one above).
-void SgmPassPerPath(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, int s, std::vector<uint16_t>* out) {
+void SgmPassPerPath(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, int s, LargeBuffer<uint16_t>* out) {
   const int w = v.width, h = v.height, n = v.stride, ps = n + 2;
   const bool diagonals = o.paths == 8;
   out->resize(v.data.size());  // every entry is assigned by the row path first
@@ -323,7 +323,7 @@ inline void PathSteps(const uint16_t* __restrict c, int n, const int16_t* const*
 // paths arriving from the previous pixel and, when `diagonals`, the previous row's three pixels
 // (else only the one above); `out` receives the sum of those paths.
 template <int kRowPaths>
-void SgmPassFused(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, int s, std::vector<uint16_t>* out) {
+void SgmPassFused(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, int s, LargeBuffer<uint16_t>* out) {
   constexpr int K = 1 + kRowPaths;  // the row path, then the paths from the previous row
   const int w = v.width, h = v.height, n = v.stride, ps = n + 2;
   out->resize(v.data.size());  // every entry is assigned
@@ -379,7 +379,7 @@ void SgmPassFused(const CostVolume& v, const cv::Mat& gray, const EngineOptions&
 // and stepping the paths together wins (venus 2 threads: 13.0 ms against 14.3); with many (a
 // multi-view sweep's 128) one loop per path vectorises better (templeRing plane_sweep: 13.3 s
 // against 14.7). Both give the same sums.
-void SgmPass(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, int s, std::vector<uint16_t>* out) {
+void SgmPass(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, int s, LargeBuffer<uint16_t>* out) {
   if (v.stride > 64) {
     SgmPassPerPath(v, gray, o, s, out);
   } else if (o.paths == 8) {
@@ -393,7 +393,7 @@ void SgmPass(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, i
 void BoxFilterVolume(CostVolume* v, int r) {
   if (r <= 0) return;
   const int w = v->width, h = v->height, n = v->stride;
-  std::vector<uint16_t>& horizontal = v->scratch;
+  LargeBuffer<uint16_t>& horizontal = v->scratch;
   horizontal.resize(v->data.size());
   // Horizontal sums (at most 31 costs of 1023: 16 bits suffice), each pixel's from its left
   // neighbour's: out(x) = out(x - 1) + in(x + r) - in(x - r - 1).
