@@ -121,12 +121,15 @@ namespace ibmr {
 
 namespace {
 
-// Facets with an edge longer than `bound` get the infinite priority (never used).
 // Particles per slab when the particles are triangulated in slabs (see TriangulateParticles), and
 // the slabs' overlap, in edge bounds.
 constexpr size_t kParticlesPerSlab = 12500;
 constexpr double kSlabOverlapEdges = 3.0;
 
+// Edge k of a face (from corner k to the next) as an undirected key: smaller index first.
+std::pair<int, int> UndirectedEdge(const Eigen::Vector3i& face, int k) { return std::minmax(face[k], face[(k + 1) % 3]); }
+
+// Facets with an edge longer than `bound` get the infinite priority (never used).
 struct EdgeBound {
   double bound_squared;
   template <typename AdvancingFront, typename CellHandle>
@@ -231,16 +234,15 @@ TriangleMesh TriangulateParticles(const PointCloud& particles, double max_edge_l
     // faces: the later slabs' faces on it go (in slab order), and the opening left is a hole that
     // FillSmallHoles may close.
     std::map<std::pair<int, int>, int> edge_faces;
-    auto edge = [](const Eigen::Vector3i& f, int e) { return std::minmax(f[e], f[(e + 1) % 3]); };
     for (const auto& slab : per_slab) {
       for (const Eigen::Vector3i& f : slab) {
         bool fits = true;
         for (int e = 0; e < 3 && fits; ++e) {
-          const auto it = edge_faces.find(edge(f, e));
+          const auto it = edge_faces.find(UndirectedEdge(f, e));
           fits = it == edge_faces.end() || it->second < 2;
         }
         if (!fits) continue;
-        for (int e = 0; e < 3; ++e) ++edge_faces[edge(f, e)];
+        for (int e = 0; e < 3; ++e) ++edge_faces[UndirectedEdge(f, e)];
         mesh.faces.push_back(f);
       }
     }
@@ -265,7 +267,7 @@ std::vector<char> InsideClosedMesh(const TriangleMesh& mesh, const std::vector<E
   // and the majority of three rays below outvotes the one that does.
   std::map<std::pair<int, int>, int> edge_faces;
   for (const auto& f : mesh.faces) {
-    for (int k = 0; k < 3; ++k) ++edge_faces[{std::min(f[k], f[(k + 1) % 3]), std::max(f[k], f[(k + 1) % 3])}];
+    for (int k = 0; k < 3; ++k) ++edge_faces[UndirectedEdge(f, k)];
   }
   size_t odd = 0;
   for (const auto& [edge, count] : edge_faces) odd += count % 2;

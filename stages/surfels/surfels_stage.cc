@@ -107,8 +107,10 @@ class SurfelsStage : public Stage {
       for (const std::string& name : names) inputs.push_back("dense/stereo/depth_maps/" + name + "." + kind + ".bin");
     }
     if (context.params.Bool("use_hull")) inputs.push_back(kHull);  // optional
-    if (context.params.Int("silhouette_views") > 0) inputs.push_back("masks");
-    if (context.params.Int("silhouette_views") > 0 && context.params.Int("silhouette_color_tolerance") > 0) inputs.push_back("images");
+    if (context.params.Int("silhouette_views") > 0) {
+      inputs.push_back("masks");
+      if (context.params.Int("silhouette_color_tolerance") > 0) inputs.push_back("images");  // the colour check
+    }
     inputs.push_back("ground_truth/mesh.ply");                      // metrics only
     return inputs;
   }
