@@ -319,7 +319,7 @@ PlaneSweepResult PlaneSweep(const SweepView& reference, const std::vector<SweepV
                                                  band_ranges.first.empty() ? nullptr : &band_ranges,
                                                  result.bands == 1 ? reference.census.get() : nullptr);
     sweep::Aggregated& aggregated = buffers->aggregated;
-    sweep::Aggregate(volume, band_gray, engine, &aggregated);
+    sweep::Aggregate(volume, band_gray, engine, &aggregated, /*one_buffer=*/true);
     result.volume_bytes = std::max(result.volume_bytes, (volume.data.size() + volume.scratch.size() +
                                                          aggregated.a.size() + aggregated.b.size()) * sizeof(uint16_t));
     const sweep::Winners winners = sweep::WinnerTakeAll(aggregated, &volume, options.confidence_scale);

@@ -328,6 +328,40 @@ TEST(SweepEngine, VectorisedAndPortableBuildsAreBitIdentical) {
   sweep::SetIsa(sweep::BestIsa());
 }
 
+// One buffer (the backward pass adding into the forward pass's sums, as the multi-view stage
+// aggregates) and two (the passes at once) give the same sums, with few planes (the paths stepped
+// together) and many (one loop per path), on every build.
+TEST(SweepEngine, OneBufferAggregationEqualsTwo) {
+  const int w = 23, h = 17;
+  cv::Mat gray(h, w, CV_8UC1);
+  cv::RNG rng(3);
+  rng.fill(gray, cv::RNG::UNIFORM, 0, 256);
+  for (int planes : {21, 100}) {
+    sweep::CostVolume volume;
+    volume.width = w, volume.height = h, volume.planes = planes, volume.stride = (planes + 15) / 16 * 16;
+    volume.data.resize(static_cast<size_t>(w) * h * volume.stride);
+    for (uint16_t& c : volume.data) c = static_cast<uint16_t>(rng.uniform(0, static_cast<int>(sweep::kMaxCost) + 1));
+    for (sweep::Isa isa : {sweep::Isa::kPortable, sweep::Isa::kAvx2, sweep::Isa::kAvx512}) {
+      if (!sweep::SetIsa(isa)) continue;
+      SCOPED_TRACE(std::string(sweep::IsaName(isa)) + ", planes " + std::to_string(planes));
+      for (int paths : {4, 8}) {
+        sweep::EngineOptions options;
+        options.paths = paths;
+        sweep::Aggregated two, one;
+        sweep::Aggregate(volume, gray, options, &two);
+        sweep::Aggregate(volume, gray, options, &one, /*one_buffer=*/true);
+        ASSERT_FALSE(two.b.empty());
+        ASSERT_TRUE(one.b.empty());
+        size_t differ = 0;
+        for (size_t pixel = 0; pixel < static_cast<size_t>(w) * h; ++pixel)
+          for (int d = 0; d < planes; ++d) differ += one.Sum(pixel, d) != two.Sum(pixel, d);
+        EXPECT_EQ(differ, 0u) << paths << " paths";
+      }
+    }
+  }
+  sweep::SetIsa(sweep::BestIsa());
+}
+
 // The census codes of every build against the definition: bit set where the window's pixel
 // (borders clamped) is darker than the centre, offsets in row-major order, the centre skipped;
 // a window of more than 64 offsets (11x9) keeps the last 64.

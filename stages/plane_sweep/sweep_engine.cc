@@ -111,8 +111,8 @@ int64_t BuildCostVolume(const cv::Mat& reference_gray, const std::vector<Neighbo
 }
 
 void Aggregate(const CostVolume& volume, const cv::Mat& reference_gray, const EngineOptions& options,
-               Aggregated* out) {
-  IBMR_SWEEP_DISPATCH(Aggregate(volume, reference_gray, options, out));
+               Aggregated* out, bool one_buffer) {
+  IBMR_SWEEP_DISPATCH(Aggregate(volume, reference_gray, options, one_buffer, out));
 }
 
 Winners WinnerTakeAll(const Aggregated& aggregated, const CostVolume* data_cost, double confidence_scale,

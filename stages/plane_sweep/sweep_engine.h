@@ -92,7 +92,12 @@ struct Aggregated {
   }
 };
 // `out` may hold buffers of an earlier call: they are reused (no new pages to fault in).
-void Aggregate(const CostVolume& volume, const cv::Mat& reference_gray, const EngineOptions& options, Aggregated* out);
+// The forward and backward passes run at once into `a` and `b`, or, with `one_buffer`, one after
+// the other into `a` alone (the backward pass adds to it): half the memory, for callers that
+// already keep the cores busy with several sweeps (the multi-view stage), where the second
+// volume's first touch cost more than the lost overlap.
+void Aggregate(const CostVolume& volume, const cv::Mat& reference_gray, const EngineOptions& options, Aggregated* out,
+               bool one_buffer = false);
 
 // Per-pixel winner: plane index with sub-pixel offset (-1 where undefined), and certainty in
 // [0, 1] from the data-cost curve (how far the winner's matching cost lies below the curve's mean).

@@ -11,7 +11,9 @@
 //    method costs more shuffles than POPCNT costs cycles on 64-bit codes);
 //  * `avx512`: the same source under `#pragma GCC target` for AVX-512 (F, BW, DQ, VL, VPOPCNTDQ),
 //    where the compiler vectorises the 16-bit semi-global and box loops over 32 lanes and the
-//    census cost uses the explicit gather + VPOPCNTQ kernel below.
+//    census cost uses the explicit VPOPCNTQ kernels below: a lane per reference pixel for warped
+//    neighbours (codes fetched by contiguous loads and permutes, BestKCostsAcrossPixels), a lane
+//    per plane with gathers otherwise.
 // sweep_engine.cc picks one at run time. The pragma (not -march on the command line) keeps
 // the AVX-512 code inside this file's own functions: template code from headers (std::vector,
 // TBB) is compiled for the baseline, so the linker cannot hand an AVX-512 copy of it to the
@@ -237,10 +239,11 @@ void FillP2Table(const EngineOptions& o, int16_t table[256]) {
 // One pass over the image in scan order `s` (+1: top-left to bottom-right; -1: reverse) along the
 // paths arriving from the previous pixel and, when `diagonals`, the previous row's three pixels
 // (else only the one above).
-void SgmPassPerPath(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, int s, LargeBuffer<uint16_t>* out) {
+void SgmPassPerPath(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, int s, bool accumulate,
+                    LargeBuffer<uint16_t>* out) {
   const int w = v.width, h = v.height, n = v.stride, ps = n + 2;
   const bool diagonals = o.paths == 8;
-  out->resize(v.data.size());  // every entry is assigned by the row path first
+  if (!accumulate) out->resize(v.data.size());  // every entry is assigned by the row path first
   const int ndir = diagonals ? 3 : 1;  // row paths: from (x - s, y - s), (x, y - s), (x + s, y - s)
   std::vector<int16_t> prev_row(static_cast<size_t>(ndir) * w * ps, kSentinel), cur_row(prev_row.size(), kSentinel);
   std::vector<int16_t> prev_min(static_cast<size_t>(ndir) * w, 0), cur_min(prev_min.size(), 0);
@@ -260,9 +263,11 @@ void SgmPassPerPath(const CostVolume& v, const cv::Mat& gray, const EngineOption
       uint16_t* sum = out->data() + (static_cast<size_t>(y) * w + x) * n;
       // From the previous pixel on the row.
       if (xi == 0) {
-        left_min = PathStart<true>(c, n, left_cur.data() + 1, sum);
+        left_min = accumulate ? PathStart<false>(c, n, left_cur.data() + 1, sum) : PathStart<true>(c, n, left_cur.data() + 1, sum);
       } else {
-        left_min = PathStep<true>(c, left.data() + 1, left_min, p1, p2_for(g[x], g[x - s]), n, left_cur.data() + 1, sum);
+        const int16_t p2 = p2_for(g[x], g[x - s]);
+        left_min = accumulate ? PathStep<false>(c, left.data() + 1, left_min, p1, p2, n, left_cur.data() + 1, sum)
+                              : PathStep<true>(c, left.data() + 1, left_min, p1, p2, n, left_cur.data() + 1, sum);
       }
       std::swap(left, left_cur);
       // From the previous row.
@@ -286,11 +291,11 @@ void SgmPassPerPath(const CostVolume& v, const cv::Mat& gray, const EngineOption
 
 // One pixel's semi-global step along K paths at once:
 //   L_k(p,d) = C(p,d) + min(L_k(p-r_k,d), L_k(p-r_k,d+-1) + P1, min L_k(p-r_k) + P2_k) - min L_k(p-r_k),
-// and sum[d] = sum over k of L_k(p,d). `prev[k]` is path k's previous pixel (padded by one entry
-// on each side); a path that starts here reads the zero row with min 0, which makes L = C.
+// and sum[d] = sum over k of L_k(p,d) (or, kAccumulate, sum[d] plus that). `prev[k]` is path
+// k's previous pixel (padded by one entry on each side); a path that starts here reads the zero row with min 0, which makes L = C.
 // `cur[k]` receives L_k, `min_out[k]` its minimum. Signed 16-bit lanes: all values stay below 2^15
 // (the sums wrap as uint16, like the volume they are added into, in any order).
-template <int K>
+template <int K, bool kAccumulate>
 inline void PathSteps(const uint16_t* __restrict c, int n, const int16_t* const* prev, const int16_t* min_prev,
                       const int16_t* p2, int16_t p1, int16_t* const* cur, int16_t* min_out, uint16_t* __restrict sum) {
   int16_t mp2[K], m[K];
@@ -314,7 +319,7 @@ inline void PathSteps(const uint16_t* __restrict c, int n, const int16_t* const*
       m[k] = std::min(m[k], l);
       total = static_cast<uint16_t>(total + l);
     }
-    sum[d] = total;
+    sum[d] = kAccumulate ? static_cast<uint16_t>(sum[d] + total) : total;
   }
   for (int k = 0; k < K; ++k) min_out[k] = m[k];
 }
@@ -323,13 +328,16 @@ inline void PathSteps(const uint16_t* __restrict c, int n, const int16_t* const*
 // paths arriving from the previous pixel and, when `diagonals`, the previous row's three pixels
 // (else only the one above); `out` receives the sum of those paths.
 template <int kRowPaths>
-void SgmPassFused(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, int s, LargeBuffer<uint16_t>* out) {
+void SgmPassFused(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, int s, bool accumulate,
+                  LargeBuffer<uint16_t>* out) {
   constexpr int K = 1 + kRowPaths;  // the row path, then the paths from the previous row
   const int w = v.width, h = v.height, n = v.stride, ps = n + 2;
-  out->resize(v.data.size());  // every entry is assigned
-  std::vector<int16_t> prev_row(static_cast<size_t>(kRowPaths) * w * ps, kSentinel), cur_row(prev_row.size(), kSentinel);
-  std::vector<int16_t> prev_min(static_cast<size_t>(kRowPaths) * w, 0), cur_min(prev_min.size(), 0);
-  std::vector<int16_t> left(ps, kSentinel), left_cur(ps, kSentinel);
+  if (!accumulate) out->resize(v.data.size());  // every entry is assigned
+  // Two of each (previous and current), swapped as pointers.
+  const size_t row_size = static_cast<size_t>(kRowPaths) * w * ps, min_size = static_cast<size_t>(kRowPaths) * w;
+  std::vector<int16_t> rows(2 * row_size, kSentinel), mins(2 * min_size, 0), lefts(2 * static_cast<size_t>(ps), kSentinel);
+  int16_t *prev_row = rows.data(), *cur_row = prev_row + row_size, *prev_min = mins.data(), *cur_min = prev_min + min_size;
+  int16_t *left = lefts.data(), *left_cur = left + ps;
   const std::vector<int16_t> start(ps, 0);  // the previous pixel of a path that starts: L = C
   const int16_t p1 = static_cast<int16_t>(o.p1);
   int16_t p2_table[256];
@@ -345,27 +353,31 @@ void SgmPassFused(const CostVolume& v, const cv::Mat& gray, const EngineOptions&
     for (int xi = 0; xi < w; ++xi) {
       const int x = s > 0 ? xi : w - 1 - xi;
       // From the previous pixel on the row.
-      prev[0] = xi == 0 ? start.data() + 1 : left.data() + 1;
+      prev[0] = xi == 0 ? start.data() + 1 : left + 1;
       min_prev[0] = xi == 0 ? 0 : left_min;
       p2[0] = xi == 0 ? 0 : p2_table[std::abs(g[x] - g[x - s])];
-      cur[0] = left_cur.data() + 1;
+      cur[0] = left_cur + 1;
       // From the previous row: (x - s, y - s), (x, y - s), (x + s, y - s), or only (x, y - s).
       for (int k = 0; k < kRowPaths; ++k) {
         const int dx = kRowPaths == 3 ? (k - 1) * s : 0;
         const int xs = x + dx;
-        cur[1 + k] = cur_row.data() + (static_cast<size_t>(k) * w + x) * ps + 1;
+        cur[1 + k] = cur_row + (static_cast<size_t>(k) * w + x) * ps + 1;
         if (yi == 0 || xs < 0 || xs >= w) {
           prev[1 + k] = start.data() + 1;
           min_prev[1 + k] = 0;
           p2[1 + k] = 0;
         } else {
-          prev[1 + k] = prev_row.data() + (static_cast<size_t>(k) * w + xs) * ps + 1;
+          prev[1 + k] = prev_row + (static_cast<size_t>(k) * w + xs) * ps + 1;
           min_prev[1 + k] = prev_min[static_cast<size_t>(k) * w + xs];
           p2[1 + k] = p2_table[std::abs(g[x] - gp[xs])];
         }
       }
-      PathSteps<K>(v.At(x, y), n, prev, min_prev, p2, p1, cur, min_out,
-                   out->data() + (static_cast<size_t>(y) * w + x) * n);
+      uint16_t* sum = out->data() + (static_cast<size_t>(y) * w + x) * n;
+      if (accumulate) {  // the same every pixel: a branch the predictor always gets right
+        PathSteps<K, true>(v.At(x, y), n, prev, min_prev, p2, p1, cur, min_out, sum);
+      } else {
+        PathSteps<K, false>(v.At(x, y), n, prev, min_prev, p2, p1, cur, min_out, sum);
+      }
       left_min = min_out[0];
       std::swap(left, left_cur);
       for (int k = 0; k < kRowPaths; ++k) cur_min[static_cast<size_t>(k) * w + x] = min_out[1 + k];
@@ -375,17 +387,17 @@ void SgmPassFused(const CostVolume& v, const cv::Mat& gray, const EngineOptions&
   }
 }
 
-// One semi-global pass. With few planes (two-view pairs: 16-64) the per-pixel overhead dominates
-// and stepping the paths together wins (venus 2 threads: 13.0 ms against 14.3); with many (a
-// multi-view sweep's 128) one loop per path vectorises better (templeRing plane_sweep: 13.3 s
-// against 14.7). Both give the same sums.
-void SgmPass(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, int s, LargeBuffer<uint16_t>* out) {
+// One semi-global pass, into `out` or (`accumulate`) added to it. With few planes (two-view pairs:
+// 16-64) the per-pixel overhead dominates and stepping the paths together wins (venus 2 threads:
+// 13.0 ms against 14.3); with many (a multi-view sweep's 128) one loop per path vectorises better
+// (templeRing plane_sweep: 13.3 s against 14.7). Both give the same sums.
+void SgmPass(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, int s, bool accumulate, LargeBuffer<uint16_t>* out) {
   if (v.stride > 64) {
-    SgmPassPerPath(v, gray, o, s, out);
+    SgmPassPerPath(v, gray, o, s, accumulate, out);
   } else if (o.paths == 8) {
-    SgmPassFused<3>(v, gray, o, s, out);
+    SgmPassFused<3>(v, gray, o, s, accumulate, out);
   } else {
-    SgmPassFused<1>(v, gray, o, s, out);
+    SgmPassFused<1>(v, gray, o, s, accumulate, out);
   }
 }
 
@@ -471,19 +483,36 @@ inline void StoreTap(float z, float u, float v, float max_u, float max_v, int sw
 }
 
 #if IBMR_SWEEP_AVX512
-// StoreTap for planes p..p+15, the same operations lane by lane.
-inline void StoreTaps16(__m512 z, __m512 u, __m512 v, float max_u, float max_v, int sw, int p, Taps* taps) {
+// StoreTap's steps for 16 lanes (16 planes of a pixel, or one plane of 16 pixels), kept in registers.
+struct LaneTaps {
+  __m512i index, wx, wy;
+  __m512i column, row;  // of the top-left code (0 outside)
+  __mmask16 inside;
+};
+inline LaneTaps TapsOf(__m512 z, __m512 u, __m512 v, float max_u, float max_v, int sw) {
   const __m512 half = _mm512_set1_ps(0.5f), zero = _mm512_setzero_ps(), one = _mm512_set1_ps(static_cast<float>(kWeightOne));
-  const __mmask16 inside = _mm512_cmp_ps_mask(z, zero, _CMP_GT_OQ) & _mm512_cmp_ps_mask(u, zero, _CMP_GE_OQ) &
-                           _mm512_cmp_ps_mask(v, zero, _CMP_GE_OQ) & _mm512_cmp_ps_mask(u, _mm512_set1_ps(max_u), _CMP_LT_OQ) &
-                           _mm512_cmp_ps_mask(v, _mm512_set1_ps(max_v), _CMP_LT_OQ);
-  const __m512 uc = _mm512_maskz_mov_ps(inside, u), vc = _mm512_maskz_mov_ps(inside, v);
+  LaneTaps t;
+  t.inside = _mm512_cmp_ps_mask(z, zero, _CMP_GT_OQ) & _mm512_cmp_ps_mask(u, zero, _CMP_GE_OQ) &
+             _mm512_cmp_ps_mask(v, zero, _CMP_GE_OQ) & _mm512_cmp_ps_mask(u, _mm512_set1_ps(max_u), _CMP_LT_OQ) &
+             _mm512_cmp_ps_mask(v, _mm512_set1_ps(max_v), _CMP_LT_OQ);
+  const __m512 uc = _mm512_maskz_mov_ps(t.inside, u), vc = _mm512_maskz_mov_ps(t.inside, v);
   const __m512i x0 = _mm512_cvttps_epi32(uc), y0 = _mm512_cvttps_epi32(vc);
   const __m512 ax = _mm512_sub_ps(uc, _mm512_cvtepi32_ps(x0)), ay = _mm512_sub_ps(vc, _mm512_cvtepi32_ps(y0));
-  _mm512_storeu_si512(taps->wx.data() + p, _mm512_cvttps_epi32(_mm512_add_ps(_mm512_mul_ps(ax, one), half)));
-  _mm512_storeu_si512(taps->wy.data() + p, _mm512_cvttps_epi32(_mm512_add_ps(_mm512_mul_ps(ay, one), half)));
+  t.wx = _mm512_cvttps_epi32(_mm512_add_ps(_mm512_mul_ps(ax, one), half));
+  t.wy = _mm512_cvttps_epi32(_mm512_add_ps(_mm512_mul_ps(ay, one), half));
   const __m512i at = _mm512_add_epi32(_mm512_mullo_epi32(y0, _mm512_set1_epi32(sw)), x0);
-  _mm512_storeu_si512(taps->index.data() + p, _mm512_mask_blend_epi32(inside, _mm512_set1_epi32(-1), at));
+  t.index = _mm512_mask_blend_epi32(t.inside, _mm512_set1_epi32(-1), at);
+  t.column = x0;
+  t.row = y0;
+  return t;
+}
+
+// StoreTap for planes p..p+15, the same operations lane by lane.
+inline void StoreTaps16(__m512 z, __m512 u, __m512 v, float max_u, float max_v, int sw, int p, Taps* taps) {
+  const LaneTaps t = TapsOf(z, u, v, max_u, max_v, sw);
+  _mm512_storeu_si512(taps->wx.data() + p, t.wx);
+  _mm512_storeu_si512(taps->wy.data() + p, t.wy);
+  _mm512_storeu_si512(taps->index.data() + p, t.index);
 }
 #elif IBMR_SWEEP_AVX2
 // StoreTap for planes p..p+7, the same operations lane by lane (the masks are all-ones lanes).
@@ -636,6 +665,167 @@ void ComputeAffineTaps(const AffineFamily& f, int p0, int p1, float xc, float yc
 #endif
 }
 
+#if IBMR_SWEEP_AVX512
+// The bilinear census cost of 16 lanes from the Hamming distances to the four codes around the
+// correspondence (CensusCosts' formula), kOutsideCost where not `valid`, as 16 x uint16.
+inline __m256i BilinearCost(__m512i d00, __m512i d01, __m512i d10, __m512i d11, __m512i wx, __m512i wy, __mmask16 valid) {
+  const __m512i round = _mm512_set1_epi32(1 << (2 * kWeightShift - 5)), outside = _mm512_set1_epi32(kOutsideCost);
+  const __m512i top = _mm512_add_epi32(_mm512_slli_epi32(d00, kWeightShift), _mm512_mullo_epi32(_mm512_sub_epi32(d01, d00), wx));
+  const __m512i bottom = _mm512_add_epi32(_mm512_slli_epi32(d10, kWeightShift), _mm512_mullo_epi32(_mm512_sub_epi32(d11, d10), wx));
+  const __m512i sum = _mm512_add_epi32(_mm512_slli_epi32(top, kWeightShift), _mm512_mullo_epi32(_mm512_sub_epi32(bottom, top), wy));
+  const __m512i cost = _mm512_mask_blend_epi32(valid, outside, _mm512_srai_epi32(_mm512_add_epi32(sum, round), 2 * kWeightShift - 4));
+  return _mm512_cvtepi32_epi16(cost);
+}
+
+// Hamming distances between 8 reference codes (one a lane) and the codes at index, index + 1,
+// index + sw and index + sw + 1 of 8 of the 16 lanes of `t` (lanes first..first+7, first 0 or 8),
+// as 8 x int32 each (any value in lanes not `valid`). One plane maps neighbouring reference pixels
+// to nearby codes: when the 8 top-left codes lie within 15 columns and two rows of each other,
+// contiguous loads of 16 codes from the rows involved (three at most) and in-register permutes
+// fetch them, else gathers do. (Epipolar lines that are not horizontal cross rows often: on the
+// Middlebury temple ring, half of the groups of 8 span two rows.)
+inline void HalfDistances(__m512i codes, const LaneTaps& t, __mmask16 valid, int first, const uint64_t* src, int sw,
+                          int sh, __m256i d[4]) {
+  const __mmask16 lanes = valid & static_cast<__mmask16>(0xFF << first);
+  const __mmask8 valid8 = static_cast<__mmask8>(lanes >> first);
+  if (valid8 == 0) {
+    for (int k = 0; k < 4; ++k) d[k] = _mm256_setzero_si256();
+    return;
+  }
+  auto half = [&](__m512i v) { return first == 0 ? _mm512_castsi512_si256(v) : _mm512_extracti64x4_epi64(v, 1); };
+  auto count = [&](__m512i c) { return _mm512_cvtepi64_epi32(_mm512_popcnt_epi64(_mm512_xor_si512(c, codes))); };
+  // The window starts at the lesser of the first and last lanes' column and row (a homography
+  // maps a run of pixels to a run of codes in order, increasing or decreasing); every lane must
+  // then lie within 15 columns and 2 rows of it. The loads reach column x_min + 15 of row y_min + 2
+  // (codes past a row's end are never picked).
+  const __m256i column = half(t.column), row = half(t.row);
+  const int x_min = std::min(_mm256_cvtsi256_si32(column), _mm256_extract_epi32(column, 7));
+  const int y_min = std::min(_mm256_cvtsi256_si32(row), _mm256_extract_epi32(row, 7));
+  const __mmask8 near = _mm256_cmple_epu32_mask(_mm256_sub_epi32(column, _mm256_set1_epi32(x_min)), _mm256_set1_epi32(14)) &
+                        _mm256_cmple_epu32_mask(_mm256_sub_epi32(row, _mm256_set1_epi32(y_min)), _mm256_set1_epi32(1));
+  if (valid8 == 0xFF && near == 0xFF && static_cast<size_t>(y_min + 2) * sw + x_min + 16 <= static_cast<size_t>(sw) * sh) {
+    const __m512i at = _mm512_cvtepi32_epi64(_mm256_sub_epi32(column, _mm256_set1_epi32(x_min)));
+    const __m512i right = _mm512_add_epi64(at, _mm512_set1_epi64(1));
+    const uint64_t* r = src + static_cast<size_t>(y_min) * sw + x_min;
+    const __m512i a0 = _mm512_loadu_si512(r), a1 = _mm512_loadu_si512(r + 8);
+    const __m512i b0 = _mm512_loadu_si512(r + sw), b1 = _mm512_loadu_si512(r + sw + 8);
+    __m512i top = _mm512_permutex2var_epi64(a0, at, a1), top_right = _mm512_permutex2var_epi64(a0, right, a1);
+    __m512i low = _mm512_permutex2var_epi64(b0, at, b1), low_right = _mm512_permutex2var_epi64(b0, right, b1);
+    // Lanes on the second row take it as their top and the third as their bottom (no branch: which
+    // lanes do is as good as random from one plane to the next).
+    const __mmask8 second = _mm256_cmpgt_epi32_mask(row, _mm256_set1_epi32(y_min));
+    const __m512i c0 = _mm512_loadu_si512(r + 2 * static_cast<size_t>(sw)), c1 = _mm512_loadu_si512(r + 2 * static_cast<size_t>(sw) + 8);
+    top = _mm512_mask_mov_epi64(top, second, low);
+    top_right = _mm512_mask_mov_epi64(top_right, second, low_right);
+    low = _mm512_mask_mov_epi64(low, second, _mm512_permutex2var_epi64(c0, at, c1));
+    low_right = _mm512_mask_mov_epi64(low_right, second, _mm512_permutex2var_epi64(c0, right, c1));
+    d[0] = count(top);
+    d[1] = count(top_right);
+    d[2] = count(low);
+    d[3] = count(low_right);
+    return;
+  }
+  const int offsets[4] = {0, 1, sw, sw + 1};
+  for (int k = 0; k < 4; ++k) {
+    const __m256i at = _mm256_add_epi32(half(t.index), _mm256_set1_epi32(offsets[k]));
+    d[k] = count(_mm512_mask_i32gather_epi64(_mm512_setzero_si512(), valid8, at, src, 8));
+  }
+}
+
+inline __m512i Join(__m256i low, __m256i high) { return _mm512_inserti64x4(_mm512_castsi256_si512(low), high, 1); }
+
+// A neighbour as BestKCostsAcrossPixels reads it: its codes, and its homographies, either an
+// affine family or rows of n planes.
+struct LaneNeighbour {
+  const uint64_t* codes = nullptr;
+  int width = 0, height = 0;
+  const AffineFamily* family = nullptr;
+  const float* hom = nullptr;
+};
+
+// Best-k census costs of 16 consecutive reference pixels x0..x0+15 of row y (the first `count` of
+// them exist) for planes p0..p1-1, vectorised over the pixels (a lane per pixel): out[p * 16 + j]
+// for pixel x0 + j is the mean of the k lowest of the nn neighbours' costs (nn <= 16). The
+// projections take the same float steps as ComputeAffineTaps / ComputeTaps, each cost is
+// CensusCosts' integer formula, and the k lowest and their mean are the same integers as
+// BestKMean's, lane by lane: the results are identical to the other builds'. The neighbours'
+// costs of a plane never leave the registers.
+void BestKCostsAcrossPixels(const uint64_t* ref_codes, int count, const LaneNeighbour* neighbours, int nn, int k, int n, int p0,
+                            int p1, int x0, int y, uint16_t* out) {
+  const __mmask16 exist = static_cast<__mmask16>((1u << count) - 1);
+  const __m512i codes_lo = _mm512_maskz_loadu_epi64(static_cast<__mmask8>(exist), ref_codes);
+  const __m512i codes_hi = _mm512_maskz_loadu_epi64(static_cast<__mmask8>(exist >> 8), ref_codes + 8);
+  const __m512i lanes = _mm512_set_epi32(15, 14, 13, 12, 11, 10, 9, 8, 7, 6, 5, 4, 3, 2, 1, 0);
+  const __m512 half = _mm512_set1_ps(0.5f);
+  const __m512 xc = _mm512_add_ps(_mm512_cvtepi32_ps(_mm512_add_epi32(_mm512_set1_epi32(x0), lanes)), half);
+  const __m512 yc = _mm512_set1_ps(static_cast<float>(y) + 0.5f);
+  // (m[e] xc + m[e+1] yc) + m[e+2], per lane, as the scalar expressions group it.
+  auto image = [&](const float* m, int e) {
+    return _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(_mm512_set1_ps(m[e]), xc), _mm512_mul_ps(_mm512_set1_ps(m[e + 1]), yc)),
+                         _mm512_set1_ps(m[e + 2]));
+  };
+  // Per affine neighbour and pixel lane: the image under H_0 and its change per plane.
+  struct Affine {
+    __m512 u0, du, v0, dv, z0, dz;
+  } affine[16];
+  for (int i = 0; i < nn; ++i) {
+    const AffineFamily* f = neighbours[i].family;
+    if (f == nullptr) continue;
+    affine[i] = {image(f->base, 0), image(f->step, 0), image(f->base, 3), image(f->step, 3), image(f->base, 6), image(f->step, 6)};
+  }
+  const int k_shift = (k & (k - 1)) == 0 ? __builtin_ctz(k) : -1;
+  const __m512 k_float = _mm512_set1_ps(static_cast<float>(k));
+  for (int p = p0; p < p1; ++p) {
+    const __m512 pf = _mm512_set1_ps(static_cast<float>(p));
+    __m256i best[16];
+    for (int q = 0; q < k; ++q) best[q] = _mm256_set1_epi16(-1);
+    __m256i total = _mm256_setzero_si256();
+    for (int i = 0; i < nn; ++i) {
+      const LaneNeighbour& g = neighbours[i];
+      __m512 z, u, v;
+      if (g.family != nullptr) {
+        const Affine& a = affine[i];
+        z = _mm512_add_ps(a.z0, _mm512_mul_ps(pf, a.dz));
+        u = _mm512_sub_ps(_mm512_div_ps(_mm512_add_ps(a.u0, _mm512_mul_ps(pf, a.du)), z), half);
+        v = _mm512_sub_ps(_mm512_div_ps(_mm512_add_ps(a.v0, _mm512_mul_ps(pf, a.dv)), z), half);
+      } else {
+        float m[9];
+        for (int e = 0; e < 9; ++e) m[e] = g.hom[static_cast<size_t>(e) * n + p];
+        z = image(m, 6);
+        u = _mm512_sub_ps(_mm512_div_ps(image(m, 0), z), half);
+        v = _mm512_sub_ps(_mm512_div_ps(image(m, 3), z), half);
+      }
+      const LaneTaps t = TapsOf(z, u, v, static_cast<float>(g.width - 1), static_cast<float>(g.height - 1), g.width);
+      const __mmask16 valid = t.inside & exist;
+      __m256i lo[4], hi[4];
+      HalfDistances(codes_lo, t, valid, 0, g.codes, g.width, g.height, lo);
+      HalfDistances(codes_hi, t, valid, 8, g.codes, g.width, g.height, hi);
+      __m256i cost = BilinearCost(Join(lo[0], hi[0]), Join(lo[1], hi[1]), Join(lo[2], hi[2]), Join(lo[3], hi[3]), t.wx, t.wy, valid);
+      if (k == nn) {
+        total = _mm256_add_epi16(total, cost);  // at most 16 costs of 1024: no overflow
+        continue;
+      }
+      for (int q = 0; q < k; ++q) {  // insertion: best[] stays sorted, the larger value moves on
+        const __m256i lower = _mm256_min_epu16(best[q], cost);
+        cost = _mm256_max_epu16(best[q], cost);
+        best[q] = lower;
+      }
+    }
+    if (k != nn) {
+      for (int q = 0; q < k; ++q) total = _mm256_add_epi16(total, best[q]);
+    }
+    __m256i mean;
+    if (k_shift >= 0) {
+      mean = _mm256_srli_epi16(total, k_shift);
+    } else {  // a float quotient of integers below 2^24 truncates to the integer quotient
+      const __m512 quotient = _mm512_div_ps(_mm512_cvtepi32_ps(_mm512_cvtepu16_epi32(total)), k_float);
+      mean = _mm512_cvtepi32_epi16(_mm512_cvttps_epi32(quotient));
+    }
+    _mm256_storeu_si256(reinterpret_cast<__m256i*>(out + static_cast<size_t>(p) * 16), mean);
+  }
+}
+#endif
+
 // Census cost of every plane: Hamming distances between the reference code and the four codes
 // around the correspondence, interpolated bilinearly (a cost curve smooth in the plane index, for
 // sub-pixel accuracy), 16 units per bit: ((h00 (1-ax) + h01 ax)(1-ay) + (h10 (1-ax) + h11 ax) ay)
@@ -644,7 +834,6 @@ void CensusCosts(uint64_t code, const uint64_t* src, int sw, const Taps& taps, i
 #if IBMR_SWEEP_AVX512
   const __m512i code_v = _mm512_set1_epi64(static_cast<long long>(code));
   const __m512i zero = _mm512_setzero_si512();
-  const __m512i round = _mm512_set1_epi32(1 << (2 * kWeightShift - 5)), outside = _mm512_set1_epi32(kOutsideCost);
   // Hamming distances of 16 lanes at index + offset, as 16 x int32.
   auto distances = [&](__m512i index, __mmask16 valid, int offset) {
     const __m512i at = _mm512_add_epi32(index, _mm512_set1_epi32(offset));
@@ -661,11 +850,7 @@ void CensusCosts(uint64_t code, const uint64_t* src, int sw, const Taps& taps, i
     const __m512i wx = _mm512_loadu_si512(taps.wx.data() + p), wy = _mm512_loadu_si512(taps.wy.data() + p);
     const __m512i d00 = distances(index, valid, 0), d01 = distances(index, valid, 1);
     const __m512i d10 = distances(index, valid, sw), d11 = distances(index, valid, sw + 1);
-    const __m512i top = _mm512_add_epi32(_mm512_slli_epi32(d00, kWeightShift), _mm512_mullo_epi32(_mm512_sub_epi32(d01, d00), wx));
-    const __m512i bottom = _mm512_add_epi32(_mm512_slli_epi32(d10, kWeightShift), _mm512_mullo_epi32(_mm512_sub_epi32(d11, d10), wx));
-    const __m512i sum = _mm512_add_epi32(_mm512_slli_epi32(top, kWeightShift), _mm512_mullo_epi32(_mm512_sub_epi32(bottom, top), wy));
-    const __m512i cost = _mm512_mask_blend_epi32(valid, outside, _mm512_srai_epi32(_mm512_add_epi32(sum, round), 2 * kWeightShift - 4));
-    _mm256_storeu_si256(reinterpret_cast<__m256i*>(out + p), _mm512_cvtepi32_epi16(cost));
+    _mm256_storeu_si256(reinterpret_cast<__m256i*>(out + p), BilinearCost(d00, d01, d10, d11, wx, wy, valid));
   }
 #else
   for (int p = p0; p < p1; ++p) {
@@ -686,9 +871,46 @@ void CensusCosts(uint64_t code, const uint64_t* src, int sw, const Taps& taps, i
 #endif
 }
 
-// Census costs of all neighbours, pixel by pixel (planes contiguous), combined by best-k: the
-// mean of the k smallest costs per plane. With `ranges`, only the blocks of 16 planes that meet a
-// pixel's range are evaluated (the rest is left for ApplyRanges). Returns the evaluations done.
+// The mean of the k smallest of nn costs, entry by entry: neighbour i's costs at costs + i * stride
+// (overwritten), entries [begin, end), into out[begin, end). `best` holds k * stride entries.
+// k == nn is the plain mean; otherwise an insertion network keeps the k smallest (it vectorises
+// over the entries).
+void BestKMean(uint16_t* __restrict costs, size_t stride, int nn, int k, int k_shift, size_t begin, size_t end,
+               uint16_t* __restrict best, uint16_t* __restrict out) {
+  if (nn == 1) {
+    std::copy(costs + begin, costs + end, out + begin);
+    return;
+  }
+  if (k == nn) {
+    for (size_t e = begin; e < end; ++e) {
+      uint32_t sum = 0;
+      for (int i = 0; i < nn; ++i) sum += costs[i * stride + e];
+      out[e] = static_cast<uint16_t>(sum / nn);
+    }
+    return;
+  }
+  for (int q = 0; q < k; ++q) std::fill(best + q * stride + begin, best + q * stride + end, static_cast<uint16_t>(0xFFFF));
+  for (int i = 0; i < nn; ++i) {
+    uint16_t* c = costs + i * stride;  // the value being inserted
+    for (int q = 0; q < k; ++q) {
+      uint16_t* b = best + q * stride;
+      for (size_t e = begin; e < end; ++e) {
+        const uint16_t lo = std::min(b[e], c[e]);
+        c[e] = std::max(b[e], c[e]);
+        b[e] = lo;
+      }
+    }
+  }
+  for (size_t e = begin; e < end; ++e) {
+    uint32_t sum = 0;
+    for (int q = 0; q < k; ++q) sum += best[q * stride + e];
+    out[e] = static_cast<uint16_t>(k_shift >= 0 ? sum >> k_shift : sum / k);
+  }
+}
+
+// Census costs of all neighbours, combined by best-k: the mean of the k smallest costs per plane.
+// With `ranges`, only the blocks of 16 planes that meet a pixel's range are evaluated (the rest
+// is left for ApplyRanges). Returns the evaluations done (counted per pixel over its own blocks).
 int64_t BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector<const std::vector<uint64_t>*>& src,
                           const std::vector<Neighbour>& neighbours, int k, const PlaneRanges* ranges, CostVolume* v) {
   const int w = v->width, h = v->height, np = v->planes, n = v->stride;
@@ -715,22 +937,41 @@ int64_t BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector<co
     affine[i] = !all_shifts && FindAffineFamily(neighbours[i].homographies, &family[i]);
   }
   const int k_shift = (k & (k - 1)) == 0 ? __builtin_ctz(k) : -1;  // a power-of-two k divides by a shift
+  // The AVX-512 build evaluates warped neighbours a lane per pixel (CensusCostsAcrossPixels), 16
+  // pixels of a row for one plane at a time: their codes are fetched by contiguous loads where the
+  // other builds gather them plane by plane. Rectified pairs (shifts) keep the plane-major kernel.
+  bool across_pixels = IBMR_SWEEP_AVX512 != 0 && nn <= 16;
+  for (int i = 0; i < nn; ++i) across_pixels &= shift[i].empty();
   tbb::enumerable_thread_specific<int64_t> evaluations(0);
   // Pixels in chunks of kChunk along a row, each neighbour in turn over the chunk: the codes one
   // neighbour's correspondences read for a chunk stay in the first-level cache (pixel by pixel
   // with every neighbour inside, the four neighbours' paths together overflowed it).
   constexpr int kChunk = 16;
   tbb::parallel_for(tbb::blocked_range<int>(0, h, 4), [&](const tbb::blocked_range<int>& rows) {
-    std::vector<uint16_t> chunk_costs(static_cast<size_t>(kChunk) * nn * n, kMaxCost);
-    std::vector<uint16_t> best(static_cast<size_t>(k) * n);
+    // Per neighbour, n planes of kChunk pixels, [j][i][p]; across pixels, only the combined costs,
+    // [p][j] in `lane_mean`.
+    std::vector<uint16_t> chunk_costs(across_pixels ? 0 : static_cast<size_t>(kChunk) * nn * n, kMaxCost);
+    std::vector<uint16_t> best(across_pixels ? 0 : static_cast<size_t>(k) * n);
+    std::vector<uint16_t> lane_mean(across_pixels ? static_cast<size_t>(n) * kChunk : 0);
+#if IBMR_SWEEP_AVX512
+    std::vector<LaneNeighbour> lane_neighbours(across_pixels ? nn : 0);
+    for (size_t i = 0; i < lane_neighbours.size(); ++i) {
+      lane_neighbours[i].codes = src[i]->data();
+      lane_neighbours[i].width = neighbours[i].gray.cols;
+      lane_neighbours[i].height = neighbours[i].gray.rows;
+      lane_neighbours[i].family = affine[i] ? &family[i] : nullptr;
+      lane_neighbours[i].hom = hom[i].data();
+    }
+#endif
     std::array<int, kChunk> chunk_p0{}, chunk_p1{};
     std::array<bool, kChunk> chunk_live{};
     Taps taps;
-    taps.Resize(n);
+    if (!across_pixels) taps.Resize(n);
     int64_t& done = evaluations.local();
     for (int y = rows.begin(); y < rows.end(); ++y) {
       for (int x0 = 0; x0 < w; x0 += kChunk) {
         const int count = std::min(kChunk, w - x0);
+        int union_p0 = n, union_p1 = 0;  // the blocks any live pixel of the chunk needs
         for (int j = 0; j < count; ++j) {
           const size_t pixel = static_cast<size_t>(y) * w + x0 + j;
           int p0 = 0, p1 = n;  // blocks of 16 planes evaluated
@@ -746,8 +987,25 @@ int64_t BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector<co
           }
           chunk_p0[j] = p0;
           chunk_p1[j] = p1;
+          union_p0 = std::min(union_p0, p0);
+          union_p1 = std::max(union_p1, p1);
           done += static_cast<int64_t>(std::min(p1, np) - p0) * nn;
         }
+        if (union_p0 >= union_p1) continue;  // no live pixel
+#if IBMR_SWEEP_AVX512
+        if (across_pixels) {
+          const int p_end = std::min(union_p1, np);
+          BestKCostsAcrossPixels(ref.data() + static_cast<size_t>(y) * w + x0, count, lane_neighbours.data(), nn, k, n, union_p0,
+                                 p_end, x0, y, lane_mean.data());
+          for (int j = 0; j < count; ++j) {
+            if (!chunk_live[j]) continue;
+            uint16_t* out = v->At(x0 + j, y);
+            const uint16_t* mean = lane_mean.data() + j;
+            for (int p = chunk_p0[j], end = std::min(chunk_p1[j], np); p < end; ++p) out[p] = mean[static_cast<size_t>(p) * kChunk];
+          }
+          continue;
+        }
+#endif
         for (int i = 0; i < nn; ++i) {
           const int sw = neighbours[i].gray.cols, sh = neighbours[i].gray.rows;
           const bool shifts = !shift[i].empty();
@@ -770,39 +1028,8 @@ int64_t BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector<co
         }
         for (int j = 0; j < count; ++j) {
           if (!chunk_live[j]) continue;
-          const int p0 = chunk_p0[j], p1 = chunk_p1[j], p_end = std::min(p1, np);
-          uint16_t* costs = chunk_costs.data() + static_cast<size_t>(j) * nn * n;
-          uint16_t* out = v->At(x0 + j, y);
-          if (nn == 1) {
-            std::copy(costs + p0, costs + p_end, out + p0);
-            continue;
-          }
-          if (k == nn) {
-            for (int p = p0; p < p_end; ++p) {
-              uint32_t sum = 0;
-              for (int i = 0; i < nn; ++i) sum += costs[static_cast<size_t>(i) * n + p];
-              out[p] = static_cast<uint16_t>(sum / nn);
-            }
-            continue;
-          }
-          // k smallest per plane by an insertion network (vectorises over planes).
-          std::fill(best.begin(), best.end(), static_cast<uint16_t>(0xFFFF));
-          for (int i = 0; i < nn; ++i) {
-            uint16_t* c = costs + static_cast<size_t>(i) * n;  // the value being inserted
-            for (int q = 0; q < k; ++q) {
-              uint16_t* b = best.data() + static_cast<size_t>(q) * n;
-              for (int p = p0; p < p1; ++p) {
-                const uint16_t lo = std::min(b[p], c[p]);
-                c[p] = std::max(b[p], c[p]);
-                b[p] = lo;
-              }
-            }
-          }
-          for (int p = p0; p < p_end; ++p) {
-            uint32_t sum = 0;
-            for (int q = 0; q < k; ++q) sum += best[static_cast<size_t>(q) * n + p];
-            out[p] = static_cast<uint16_t>(k_shift >= 0 ? sum >> k_shift : sum / k);
-          }
+          BestKMean(chunk_costs.data() + static_cast<size_t>(j) * nn * n, n, nn, k, k_shift, chunk_p0[j],
+                    std::min(chunk_p1[j], np), best.data(), v->At(x0 + j, y));
         }
       }
     }
@@ -983,7 +1210,7 @@ int64_t BuildCostVolume(const cv::Mat& ref, const std::vector<Neighbour>& neighb
   return static_cast<int64_t>(planes) * w * h * nn;
 }
 
-void Aggregate(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, Aggregated* out) {
+void Aggregate(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, bool one_buffer, Aggregated* out) {
   Aggregated& result = *out;
   result.width = v.width;
   result.height = v.height;
@@ -994,7 +1221,13 @@ void Aggregate(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o,
     result.b.clear();
     return;
   }
-  tbb::parallel_invoke([&] { SgmPass(v, gray, o, +1, &result.a); }, [&] { SgmPass(v, gray, o, -1, &result.b); });
+  if (one_buffer) {
+    SgmPass(v, gray, o, +1, false, &result.a);
+    SgmPass(v, gray, o, -1, true, &result.a);
+    LargeBuffer<uint16_t>().swap(result.b);  // pages a concurrent call may have left
+    return;
+  }
+  tbb::parallel_invoke([&] { SgmPass(v, gray, o, +1, false, &result.a); }, [&] { SgmPass(v, gray, o, -1, false, &result.b); });
 }
 
 Winners WinnerTakeAll(const Aggregated& ag, const CostVolume* data, double confidence_scale, bool right_winners) {

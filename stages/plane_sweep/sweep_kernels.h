@@ -10,7 +10,7 @@
                           const EngineOptions& options, CostVolume* volume, const PlaneRanges* ranges,          \
                           const std::vector<uint64_t>* reference_census);                                      \
   void Aggregate(const CostVolume& volume, const cv::Mat& reference_gray, const EngineOptions& options,         \
-                 Aggregated* out);                                                                            \
+                 bool one_buffer, Aggregated* out);                                                           \
   Winners WinnerTakeAll(const Aggregated& aggregated, const CostVolume* data_cost, double confidence_scale,     \
                         bool right_winners);                                                                   \
   std::vector<uint64_t> CensusTransform(const cv::Mat& gray, int radius_x, int radius_y);
