@@ -192,7 +192,7 @@ double SweepFixedBytesPerPixel(int num_neighbors) {
 
 double SweepVolumeBytesPerRow(int width, int num_planes) {
   const int stride = (num_planes + 15) / 16 * 16;
-  return 4.0 * width * stride * sizeof(uint16_t);
+  return 2.0 * width * stride * sizeof(uint16_t);
 }
 
 int SweepBands(int width, int height, const PlaneSweepOptions& options) {
@@ -320,8 +320,8 @@ PlaneSweepResult PlaneSweep(const SweepView& reference, const std::vector<SweepV
                                                  result.bands == 1 ? reference.census.get() : nullptr);
     sweep::Aggregated& aggregated = buffers->aggregated;
     sweep::Aggregate(volume, band_gray, engine, &aggregated, /*one_buffer=*/true);
-    result.volume_bytes = std::max(result.volume_bytes, (volume.data.size() + volume.scratch.size() +
-                                                         aggregated.a.size() + aggregated.b.size()) * sizeof(uint16_t));
+    result.volume_bytes = std::max(result.volume_bytes,
+                                   (volume.data.size() + aggregated.a.size() + aggregated.b.size()) * sizeof(uint16_t));
     const sweep::Winners winners = sweep::WinnerTakeAll(aggregated, &volume, options.confidence_scale);
     winners.plane.rowRange(y0 - c0, y1 - c0).copyTo(winner_plane.rowRange(y0, y1));
     winners.confidence.rowRange(y0 - c0, y1 - c0).copyTo(winner_confidence.rowRange(y0, y1));

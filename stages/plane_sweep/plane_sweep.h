@@ -97,8 +97,9 @@ constexpr int kBandContextRows = 48;
 // Bytes of one view's sweep besides its cost volumes, per reference pixel: the grey images of the
 // view and its neighbours, winners, texture factor, plane ranges and the three output maps.
 double SweepFixedBytesPerPixel(int num_neighbors);
-// Bytes of the cost volumes (data, box scratch, two aggregation sums; 16 bits per plane, planes
-// padded to 16) per reference row of width `width`.
+// Bytes of the cost volumes (the data cost and the semi-global sums, which the box filter and the
+// two passes update in place; 16 bits per plane, planes padded to 16) per reference row of width
+// `width`.
 double SweepVolumeBytesPerRow(int width, int num_planes);
 // Bands of rows a sweep of a width x height reference takes within options.max_view_memory_mb
 // (1: the whole image at once).

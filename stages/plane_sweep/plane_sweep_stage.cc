@@ -108,10 +108,11 @@ class PlaneSweepStage : public Stage {
     }
     const double pixels = size.Pixels();
     const PlaneSweepOptions o = ToOptions(context.params);
-    // The cost volumes (data, box scratch, two aggregation sums: 16 bits per pixel and plane) of
+    // The cost volumes (the data cost and the semi-global sums: 16 bits per pixel and plane) of
     // the largest band, the images and maps of the whole view, the census codes of the reference
     // and its neighbours and as many more kept in the cache (8 bytes a pixel each), and the
-    // program itself (100 MB). 640x480 with 128 planes: 420 MB estimated, 384 MB measured.
+    // program itself (100 MB). 640x480 with 128 planes: 289 MB estimated; templeRing's stage, two
+    // views in flight, peaked at 460 MB.
     const int bands = SweepBands(size.width, size.height, o);
     const int band_rows = bands == 1 ? size.height : (size.height + bands - 1) / bands + 2 * kBandContextRows;
     const double bytes = SweepVolumeBytesPerRow(size.width, o.num_planes) * std::min(size.height, band_rows) +

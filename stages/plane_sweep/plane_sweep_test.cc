@@ -328,6 +328,47 @@ TEST(SweepEngine, VectorisedAndPortableBuildsAreBitIdentical) {
   sweep::SetIsa(sweep::BestIsa());
 }
 
+// The box aggregation (in place, in bands of rows that share their edge rows) against its
+// definition: the mean of the unfiltered costs over the window clipped to the image, rounded by
+// the engine's fixed-point reciprocal. Tall enough for several bands, radii up to 3.
+TEST(SweepEngine, BoxAggregationIsTheClippedWindowMean) {
+  const int w = 37, h = 141, planes = 20;
+  cv::Mat ref(h, w, CV_8UC1), other(h, w, CV_8UC1);
+  cv::RNG rng(4);
+  rng.fill(ref, cv::RNG::UNIFORM, 0, 256);
+  rng.fill(other, cv::RNG::UNIFORM, 0, 256);
+  sweep::Neighbour neighbour;
+  neighbour.gray = other;
+  for (int p = 0; p < planes; ++p) {
+    Eigen::Matrix3d m = Eigen::Matrix3d::Identity();
+    m(0, 2) = 0.37 * p - 3, m(1, 2) = 0.11 * p;
+    neighbour.homographies.push_back(m);
+  }
+  sweep::EngineOptions options;
+  options.window_radius = 0;
+  sweep::CostVolume raw;
+  sweep::BuildCostVolume(ref, {neighbour}, options, &raw);
+  for (int r : {1, 2, 3}) {
+    options.window_radius = r;
+    sweep::CostVolume box;
+    sweep::BuildCostVolume(ref, {neighbour}, options, &box);
+    size_t differ = 0;
+    for (int y = 0; y < h; ++y) {
+      for (int x = 0; x < w; ++x) {
+        const int x0 = std::max(0, x - r), x1 = std::min(w - 1, x + r), y0 = std::max(0, y - r), y1 = std::min(h - 1, y + r);
+        const uint32_t area = static_cast<uint32_t>((x1 - x0 + 1) * (y1 - y0 + 1));
+        for (int d = 0; d < planes; ++d) {
+          uint32_t sum = 0;
+          for (int yy = y0; yy <= y1; ++yy)
+            for (int xx = x0; xx <= x1; ++xx) sum += raw.At(xx, yy)[d];
+          differ += box.At(x, y)[d] != static_cast<uint16_t>((sum * ((1u << 16) / area + 1)) >> 16);
+        }
+      }
+    }
+    EXPECT_EQ(differ, 0u) << "radius " << r;
+  }
+}
+
 // One buffer (the backward pass adding into the forward pass's sums, as the multi-view stage
 // aggregates) and two (the passes at once) give the same sums, with few planes (the paths stepped
 // together) and many (one loop per path), on every build.

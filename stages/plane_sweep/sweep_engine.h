@@ -47,7 +47,6 @@ struct EngineOptions {
 struct CostVolume {
   int width = 0, height = 0, planes = 0, stride = 0;
   LargeBuffer<uint16_t> data;
-  LargeBuffer<uint16_t> scratch;  // box-filter buffer (kept to reuse its pages)
   uint16_t* At(int x, int y) { return data.data() + (static_cast<size_t>(y) * width + x) * stride; }
   const uint16_t* At(int x, int y) const {
     return data.data() + (static_cast<size_t>(y) * width + x) * stride;

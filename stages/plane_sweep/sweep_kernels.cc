@@ -401,17 +401,20 @@ void SgmPass(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, i
   }
 }
 
-// Box mean of the volume over (2r+1)^2 pixels per plane, borders clipped; in place.
+// Box mean of the volume over (2r+1)^2 pixels per plane, borders clipped; in place, in bands of
+// rows (one task each) swept top to bottom. A row's horizontal sums go into a ring of the last
+// 2r + 2 rows and a running vertical sum; a row is overwritten once its own sums are in the ring,
+// and only the rows below it are still read. The r rows above and below a band belong to its
+// neighbours, which overwrite them: their horizontal sums are taken before any band starts. So
+// the filter needs no second volume (a volume's first touch costs more than the filter itself).
 void BoxFilterVolume(CostVolume* v, int r) {
   if (r <= 0) return;
   const int w = v->width, h = v->height, n = v->stride;
-  LargeBuffer<uint16_t>& horizontal = v->scratch;
-  horizontal.resize(v->data.size());
-  // Horizontal sums (at most 31 costs of 1023: 16 bits suffice), each pixel's from its left
-  // neighbour's: out(x) = out(x - 1) + in(x + r) - in(x - r - 1).
-  tbb::parallel_for(0, h, [&](int y) {
+  const size_t row = static_cast<size_t>(w) * n;
+  // Horizontal sums of row y (at most 31 costs of 1023: 16 bits suffice), each pixel's from its
+  // left neighbour's: out(x) = out(x - 1) + in(x + r) - in(x - r - 1).
+  auto horizontal = [&](int y, uint16_t* __restrict out) {
     const uint16_t* in = v->At(0, y);
-    uint16_t* out = horizontal.data() + static_cast<size_t>(y) * w * n;
     std::fill(out, out + n, static_cast<uint16_t>(0));
     for (int x = 0; x <= std::min(r, w - 1); ++x) {
       const uint16_t* add = in + static_cast<size_t>(x) * n;
@@ -425,22 +428,49 @@ void BoxFilterVolume(CostVolume* v, int r) {
       const uint16_t keep_add = x + r < w ? 0xFFFF : 0, keep_sub = x - r - 1 >= 0 ? 0xFFFF : 0;
       for (int d = 0; d < n; ++d) o[d] = static_cast<uint16_t>(left[d] + (add[d] & keep_add) - (sub[d] & keep_sub));
     }
+  };
+  const int band_rows = std::max(16, std::min(64, (h + 7) / 8));
+  const int bands = (h + band_rows - 1) / band_rows;
+  // Per band, the horizontal sums of the r rows above it and the r rows below it.
+  std::vector<std::vector<uint16_t>> halo(bands);
+  auto halo_row = [&](int band, int y) {
+    const int first = band * band_rows;
+    const int slot = y < first ? y - (first - r) : r + (y - (first + band_rows));
+    return halo[band].data() + static_cast<size_t>(slot) * row;
+  };
+  tbb::parallel_for(0, bands, [&](int band) {
+    const int first = band * band_rows, end = std::min(h, first + band_rows);
+    halo[band].resize(2 * static_cast<size_t>(r) * row);
+    for (int y = std::max(0, first - r); y < first; ++y) horizontal(y, halo_row(band, y));
+    for (int y = end; y < std::min(h, end + r); ++y) horizontal(y, halo_row(band, y));
   });
-  const size_t row = static_cast<size_t>(w) * n;
-  tbb::parallel_for(tbb::blocked_range<int>(0, h, 16), [&](const tbb::blocked_range<int>& rows) {
+  tbb::parallel_for(0, bands, [&](int band) {
+    const int first = band * band_rows, end = std::min(h, first + band_rows);
+    const int ring_rows = 2 * r + 2;
+    std::vector<uint16_t> ring(static_cast<size_t>(ring_rows) * row);
     std::vector<uint32_t> acc(row, 0u);
-    const int first = rows.begin();
+    // Row y's horizontal sums, made (from the band's own rows, still unfiltered) or taken (halo).
+    auto take = [&](int y) {
+      uint16_t* slot = ring.data() + static_cast<size_t>(y % ring_rows) * row;
+      if (y < first || y >= end) {
+        const uint16_t* saved = halo_row(band, y);
+        std::copy(saved, saved + row, slot);
+      } else {
+        horizontal(y, slot);
+      }
+      return slot;
+    };
     for (int yy = std::max(0, first - r); yy <= std::min(h - 1, first + r - 1); ++yy) {
-      const uint16_t* in = horizontal.data() + yy * row;
+      const uint16_t* in = take(yy);
       for (size_t i = 0; i < row; ++i) acc[i] += in[i];
     }
-    for (int y = first; y < rows.end(); ++y) {
+    for (int y = first; y < end; ++y) {
       if (y + r < h) {
-        const uint16_t* in = horizontal.data() + (y + r) * row;
+        const uint16_t* in = take(y + r);
         for (size_t i = 0; i < row; ++i) acc[i] += in[i];
       }
-      if (y - r - 1 >= std::max(0, first - r)) {  // rows before the block's window were never added
-        const uint16_t* in = horizontal.data() + (y - r - 1) * row;
+      if (y - r - 1 >= std::max(0, first - r)) {  // rows before the band's window were never added
+        const uint16_t* in = ring.data() + static_cast<size_t>((y - r - 1) % ring_rows) * row;
         for (size_t i = 0; i < row; ++i) acc[i] -= in[i];
       }
       const int ny = std::min(h - 1, y + r) - std::max(0, y - r) + 1;
