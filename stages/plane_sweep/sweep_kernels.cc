@@ -238,7 +238,7 @@ void FillP2Table(const EngineOptions& o, int16_t table[256]) {
 
 // One pass over the image in scan order `s` (+1: top-left to bottom-right; -1: reverse) along the
 // paths arriving from the previous pixel and, when `diagonals`, the previous row's three pixels
-// (else only the one above).
+// (else only the one above); `out` receives their sum or, `accumulate`, has it added.
 void SgmPassPerPath(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, int s, bool accumulate,
                     LargeBuffer<uint16_t>* out) {
   const int w = v.width, h = v.height, n = v.stride, ps = n + 2;
@@ -292,7 +292,8 @@ void SgmPassPerPath(const CostVolume& v, const cv::Mat& gray, const EngineOption
 // One pixel's semi-global step along K paths at once:
 //   L_k(p,d) = C(p,d) + min(L_k(p-r_k,d), L_k(p-r_k,d+-1) + P1, min L_k(p-r_k) + P2_k) - min L_k(p-r_k),
 // and sum[d] = sum over k of L_k(p,d) (or, kAccumulate, sum[d] plus that). `prev[k]` is path
-// k's previous pixel (padded by one entry on each side); a path that starts here reads the zero row with min 0, which makes L = C.
+// k's previous pixel (padded by one entry on each side); a path that starts here reads the zero
+// row with min 0, which makes L = C.
 // `cur[k]` receives L_k, `min_out[k]` its minimum. Signed 16-bit lanes: all values stay below 2^15
 // (the sums wrap as uint16, like the volume they are added into, in any order).
 template <int K, bool kAccumulate>
@@ -326,14 +327,15 @@ inline void PathSteps(const uint16_t* __restrict c, int n, const int16_t* const*
 
 // One pass over the image in scan order `s` (+1: top-left to bottom-right; -1: reverse) along the
 // paths arriving from the previous pixel and, when `diagonals`, the previous row's three pixels
-// (else only the one above); `out` receives the sum of those paths.
+// (else only the one above); `out` receives the sum of those paths or, `accumulate`, has it added.
 template <int kRowPaths>
 void SgmPassFused(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, int s, bool accumulate,
                   LargeBuffer<uint16_t>* out) {
   constexpr int K = 1 + kRowPaths;  // the row path, then the paths from the previous row
   const int w = v.width, h = v.height, n = v.stride, ps = n + 2;
   if (!accumulate) out->resize(v.data.size());  // every entry is assigned
-  // Two of each (previous and current), swapped as pointers.
+  // Two of each (previous and current), swapped as pointers (swapping the vectors themselves made
+  // GCC 12 warn, falsely, of freeing a pointer into the middle of a block).
   const size_t row_size = static_cast<size_t>(kRowPaths) * w * ps, min_size = static_cast<size_t>(kRowPaths) * w;
   std::vector<int16_t> rows(2 * row_size, kSentinel), mins(2 * min_size, 0), lefts(2 * static_cast<size_t>(ps), kSentinel);
   int16_t *prev_row = rows.data(), *cur_row = prev_row + row_size, *prev_min = mins.data(), *cur_min = prev_min + min_size;
