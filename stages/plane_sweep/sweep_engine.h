@@ -84,7 +84,9 @@ int64_t BuildCostVolume(const cv::Mat& reference_gray, const std::vector<Neighbo
 // Aggregated volume: the sum over paths (or the data cost itself without semi-global).
 struct Aggregated {
   int width = 0, height = 0, planes = 0, stride = 0;
-  LargeBuffer<uint16_t> a, b;  // two partial sums (forward and backward passes); b may be empty
+  // The forward and backward passes' partial sums; with b empty, a holds the whole sum (one
+  // buffer, or no semi-global aggregation).
+  LargeBuffer<uint16_t> a, b;
   uint16_t Sum(size_t pixel, int plane) const {
     const size_t i = pixel * stride + plane;
     return b.empty() ? a[i] : static_cast<uint16_t>(a[i] + b[i]);
@@ -92,9 +94,9 @@ struct Aggregated {
 };
 // `out` may hold buffers of an earlier call: they are reused (no new pages to fault in).
 // The forward and backward passes run at once into `a` and `b`, or, with `one_buffer`, one after
-// the other into `a` alone (the backward pass adds to it): half the memory, for callers that
-// already keep the cores busy with several sweeps (the multi-view stage), where the second
-// volume's first touch cost more than the lost overlap.
+// the other into `a` alone (the backward pass adds to it): half the memory and half the pages to
+// fault in, for callers that already keep the cores busy with several sweeps (the multi-view
+// stage), which lose nothing by running the passes one after the other.
 void Aggregate(const CostVolume& volume, const cv::Mat& reference_gray, const EngineOptions& options, Aggregated* out,
                bool one_buffer = false);
 

@@ -777,13 +777,14 @@ struct LaneNeighbour {
 
 // Best-k census costs of 16 consecutive reference pixels x0..x0+15 of row y (the first `count` of
 // them exist) for planes p0..p1-1, vectorised over the pixels (a lane per pixel): out[p * 16 + j]
-// for pixel x0 + j is the mean of the k lowest of the nn neighbours' costs (nn <= 16). The
+// for pixel x0 + j is the mean of the k lowest of the nn neighbours' costs (nn <= 16; k_shift:
+// log2 k when k is a power of two, else -1). The
 // projections take the same float steps as ComputeAffineTaps / ComputeTaps, each cost is
 // CensusCosts' integer formula, and the k lowest and their mean are the same integers as
 // BestKMean's, lane by lane: the results are identical to the other builds'. The neighbours'
 // costs of a plane never leave the registers.
-void BestKCostsAcrossPixels(const uint64_t* ref_codes, int count, const LaneNeighbour* neighbours, int nn, int k, int n, int p0,
-                            int p1, int x0, int y, uint16_t* out) {
+void BestKCostsAcrossPixels(const uint64_t* ref_codes, int count, const LaneNeighbour* neighbours, int nn, int k, int k_shift,
+                            int n, int p0, int p1, int x0, int y, uint16_t* out) {
   const __mmask16 exist = static_cast<__mmask16>((1u << count) - 1);
   const __m512i codes_lo = _mm512_maskz_loadu_epi64(static_cast<__mmask8>(exist), ref_codes);
   const __m512i codes_hi = _mm512_maskz_loadu_epi64(static_cast<__mmask8>(exist >> 8), ref_codes + 8);
@@ -805,7 +806,6 @@ void BestKCostsAcrossPixels(const uint64_t* ref_codes, int count, const LaneNeig
     if (f == nullptr) continue;
     affine[i] = {image(f->base, 0), image(f->step, 0), image(f->base, 3), image(f->step, 3), image(f->base, 6), image(f->step, 6)};
   }
-  const int k_shift = (k & (k - 1)) == 0 ? __builtin_ctz(k) : -1;
   const __m512 k_float = _mm512_set1_ps(static_cast<float>(k));
   for (int p = p0; p < p1; ++p) {
     const __m512 pf = _mm512_set1_ps(static_cast<float>(p));
@@ -969,15 +969,23 @@ int64_t BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector<co
     affine[i] = !all_shifts && FindAffineFamily(neighbours[i].homographies, &family[i]);
   }
   const int k_shift = (k & (k - 1)) == 0 ? __builtin_ctz(k) : -1;  // a power-of-two k divides by a shift
-  // The AVX-512 build evaluates warped neighbours a lane per pixel (CensusCostsAcrossPixels), 16
+  // The AVX-512 build evaluates warped neighbours a lane per pixel (BestKCostsAcrossPixels), 16
   // pixels of a row for one plane at a time: their codes are fetched by contiguous loads where the
   // other builds gather them plane by plane. Rectified pairs (shifts) keep the plane-major kernel.
   bool across_pixels = IBMR_SWEEP_AVX512 != 0 && nn <= 16;
   for (int i = 0; i < nn; ++i) across_pixels &= shift[i].empty();
+#if IBMR_SWEEP_AVX512
+  std::vector<LaneNeighbour> lane_neighbours(across_pixels ? nn : 0);
+  for (size_t i = 0; i < lane_neighbours.size(); ++i) {
+    lane_neighbours[i] = {src[i]->data(), neighbours[i].gray.cols, neighbours[i].gray.rows, affine[i] ? &family[i] : nullptr,
+                          hom[i].data()};
+  }
+#endif
   tbb::enumerable_thread_specific<int64_t> evaluations(0);
-  // Pixels in chunks of kChunk along a row, each neighbour in turn over the chunk: the codes one
-  // neighbour's correspondences read for a chunk stay in the first-level cache (pixel by pixel
-  // with every neighbour inside, the four neighbours' paths together overflowed it).
+  // Pixels in chunks of kChunk along a row. The plane-major kernel takes each neighbour in turn
+  // over the chunk: the codes one neighbour's correspondences read for a chunk stay in the
+  // first-level cache (pixel by pixel with every neighbour inside, the four neighbours' paths
+  // together overflowed it). The lane kernel takes the chunk's 16 pixels at once.
   constexpr int kChunk = 16;
   tbb::parallel_for(tbb::blocked_range<int>(0, h, 4), [&](const tbb::blocked_range<int>& rows) {
     // Per neighbour, n planes of kChunk pixels, [j][i][p]; across pixels, only the combined costs,
@@ -985,16 +993,6 @@ int64_t BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector<co
     std::vector<uint16_t> chunk_costs(across_pixels ? 0 : static_cast<size_t>(kChunk) * nn * n, kMaxCost);
     std::vector<uint16_t> best(across_pixels ? 0 : static_cast<size_t>(k) * n);
     std::vector<uint16_t> lane_mean(across_pixels ? static_cast<size_t>(n) * kChunk : 0);
-#if IBMR_SWEEP_AVX512
-    std::vector<LaneNeighbour> lane_neighbours(across_pixels ? nn : 0);
-    for (size_t i = 0; i < lane_neighbours.size(); ++i) {
-      lane_neighbours[i].codes = src[i]->data();
-      lane_neighbours[i].width = neighbours[i].gray.cols;
-      lane_neighbours[i].height = neighbours[i].gray.rows;
-      lane_neighbours[i].family = affine[i] ? &family[i] : nullptr;
-      lane_neighbours[i].hom = hom[i].data();
-    }
-#endif
     std::array<int, kChunk> chunk_p0{}, chunk_p1{};
     std::array<bool, kChunk> chunk_live{};
     Taps taps;
@@ -1027,8 +1025,8 @@ int64_t BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector<co
 #if IBMR_SWEEP_AVX512
         if (across_pixels) {
           const int p_end = std::min(union_p1, np);
-          BestKCostsAcrossPixels(ref.data() + static_cast<size_t>(y) * w + x0, count, lane_neighbours.data(), nn, k, n, union_p0,
-                                 p_end, x0, y, lane_mean.data());
+          BestKCostsAcrossPixels(ref.data() + static_cast<size_t>(y) * w + x0, count, lane_neighbours.data(), nn, k, k_shift, n,
+                                 union_p0, p_end, x0, y, lane_mean.data());
           for (int j = 0; j < count; ++j) {
             if (!chunk_live[j]) continue;
             uint16_t* out = v->At(x0 + j, y);
