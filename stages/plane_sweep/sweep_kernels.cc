@@ -711,21 +711,23 @@ inline __m256i BilinearCost(__m512i d00, __m512i d01, __m512i d10, __m512i d11, 
 
 // Hamming distances between 8 reference codes (one a lane) and the codes at index, index + 1,
 // index + sw and index + sw + 1 of 8 of the 16 lanes of `t` (lanes first..first+7, first 0 or 8),
-// as 8 x int32 each (any value in lanes not `valid`). One plane maps neighbouring reference pixels
-// to nearby codes: when the 8 top-left codes lie within 15 columns and two rows of each other,
-// contiguous loads of 16 codes from the rows involved (three at most) and in-register permutes
-// fetch them, else gathers do. (Epipolar lines that are not horizontal cross rows often: on the
-// Middlebury temple ring, half of the groups of 8 span two rows.)
+// as 8 x int64 each (any value in lanes not `valid`; Join packs two halves into 16 x int32, one
+// permute where narrowing each half took two instructions and joining them a third). One plane
+// maps neighbouring reference pixels to nearby codes: when the 8 top-left codes lie within 15
+// columns and two rows of each other, contiguous loads of 16 codes from the rows involved (three
+// at most) and in-register permutes fetch them, else gathers do. (Epipolar lines that are not
+// horizontal cross rows often: on the Middlebury temple ring, half of the groups of 8 span two
+// rows.) `window` (optional) receives the first code of the loads, null when gathers fetched them.
 inline void HalfDistances(__m512i codes, const LaneTaps& t, __mmask16 valid, int first, const uint64_t* src, int sw,
-                          int sh, __m256i d[4]) {
+                          int sh, __m512i d[4], const uint64_t** window = nullptr) {
   const __mmask16 lanes = valid & static_cast<__mmask16>(0xFF << first);
   const __mmask8 valid8 = static_cast<__mmask8>(lanes >> first);
   if (valid8 == 0) {
-    for (int k = 0; k < 4; ++k) d[k] = _mm256_setzero_si256();
+    for (int k = 0; k < 4; ++k) d[k] = _mm512_setzero_si512();
     return;
   }
   auto half = [&](__m512i v) { return first == 0 ? _mm512_castsi512_si256(v) : _mm512_extracti64x4_epi64(v, 1); };
-  auto count = [&](__m512i c) { return _mm512_cvtepi64_epi32(_mm512_popcnt_epi64(_mm512_xor_si512(c, codes))); };
+  auto count = [&](__m512i c) { return _mm512_popcnt_epi64(_mm512_xor_si512(c, codes)); };
   // The window starts at the lesser of the first and last lanes' column and row (a homography
   // maps a run of pixels to a run of codes in order, increasing or decreasing); every lane must
   // then lie within 15 columns and 2 rows of it. The loads reach column x_min + 15 of row y_min + 2
@@ -739,6 +741,7 @@ inline void HalfDistances(__m512i codes, const LaneTaps& t, __mmask16 valid, int
     const __m512i at = _mm512_cvtepi32_epi64(_mm256_sub_epi32(column, _mm256_set1_epi32(x_min)));
     const __m512i right = _mm512_add_epi64(at, _mm512_set1_epi64(1));
     const uint64_t* r = src + static_cast<size_t>(y_min) * sw + x_min;
+    if (window != nullptr) *window = r;
     const __m512i a0 = _mm512_loadu_si512(r), a1 = _mm512_loadu_si512(r + 8);
     const __m512i b0 = _mm512_loadu_si512(r + sw), b1 = _mm512_loadu_si512(r + sw + 8);
     __m512i top = _mm512_permutex2var_epi64(a0, at, a1), top_right = _mm512_permutex2var_epi64(a0, right, a1);
@@ -764,7 +767,11 @@ inline void HalfDistances(__m512i codes, const LaneTaps& t, __mmask16 valid, int
   }
 }
 
-inline __m512i Join(__m256i low, __m256i high) { return _mm512_inserti64x4(_mm512_castsi256_si512(low), high, 1); }
+// The low halves of the 64-bit lanes of `low` and `high` as 16 x int32 (lanes 0-7 from `low`).
+inline __m512i Join(__m512i low, __m512i high) {
+  const __m512i even = _mm512_set_epi32(30, 28, 26, 24, 22, 20, 18, 16, 14, 12, 10, 8, 6, 4, 2, 0);
+  return _mm512_permutex2var_epi32(low, even, high);
+}
 
 // A neighbour as BestKCostsAcrossPixels reads it: its codes, and its homographies, either an
 // affine family or rows of n planes.
@@ -807,6 +814,15 @@ void BestKCostsAcrossPixels(const uint64_t* ref_codes, int count, const LaneNeig
     affine[i] = {image(f->base, 0), image(f->step, 0), image(f->base, 3), image(f->step, 3), image(f->base, 6), image(f->step, 6)};
   }
   const __m512 k_float = _mm512_set1_ps(static_cast<float>(k));
+  // Prefetching: one plane moves the 16 pixels' window of codes along the epipolar line by about
+  // as much as the last did, often by a row (for nearly vertical lines), which the hardware
+  // prefetchers do not foresee as the neighbours take turns. Each neighbour's window of the next
+  // plane is fetched ahead (three rows of 24 codes), from its last two windows.
+  ptrdiff_t previous[16], codes_size[16];
+  for (int i = 0; i < nn; ++i) {
+    previous[i] = -1;
+    codes_size[i] = static_cast<ptrdiff_t>(neighbours[i].width) * neighbours[i].height;
+  }
   for (int p = p0; p < p1; ++p) {
     const __m512 pf = _mm512_set1_ps(static_cast<float>(p));
     __m256i best[16];
@@ -829,8 +845,22 @@ void BestKCostsAcrossPixels(const uint64_t* ref_codes, int count, const LaneNeig
       }
       const LaneTaps t = TapsOf(z, u, v, static_cast<float>(g.width - 1), static_cast<float>(g.height - 1), g.width);
       const __mmask16 valid = t.inside & exist;
-      __m256i lo[4], hi[4];
-      HalfDistances(codes_lo, t, valid, 0, g.codes, g.width, g.height, lo);
+      __m512i lo[4], hi[4];
+      const uint64_t* window = nullptr;
+      HalfDistances(codes_lo, t, valid, 0, g.codes, g.width, g.height, lo, &window);
+      if (window != nullptr) {
+        // The window of the next plane: where this one moved from the last, once more.
+        const ptrdiff_t at = window - g.codes, ahead = at + (at - previous[i]);
+        if (previous[i] >= 0 && ahead >= 0 && ahead + 2 * static_cast<ptrdiff_t>(g.width) + 24 <= codes_size[i]) {
+          for (int row = 0; row < 3; ++row) {
+            const char* line = reinterpret_cast<const char*>(g.codes + ahead + static_cast<ptrdiff_t>(row) * g.width);
+            _mm_prefetch(line, _MM_HINT_T0);
+            _mm_prefetch(line + 64, _MM_HINT_T0);
+            _mm_prefetch(line + 128, _MM_HINT_T0);
+          }
+        }
+        previous[i] = at;
+      }
       HalfDistances(codes_hi, t, valid, 8, g.codes, g.width, g.height, hi);
       __m256i cost = BilinearCost(Join(lo[0], hi[0]), Join(lo[1], hi[1]), Join(lo[2], hi[2]), Join(lo[3], hi[3]), t.wx, t.wy, valid);
       if (k == nn) {
