@@ -790,8 +790,11 @@ struct LaneNeighbour {
 // CensusCosts' integer formula, and the k lowest and their mean are the same integers as
 // BestKMean's, lane by lane: the results are identical to the other builds'. The neighbours'
 // costs of a plane never leave the registers.
-void BestKCostsAcrossPixels(const uint64_t* ref_codes, int count, const LaneNeighbour* neighbours, int nn, int k, int k_shift,
+// K > 0: k == K, known at compile time, so that best[] lives in registers (K == 0: any k).
+template <int K>
+void BestKCostsAcrossPixels(const uint64_t* ref_codes, int count, const LaneNeighbour* neighbours, int nn, int k_any, int k_shift,
                             int n, int p0, int p1, int x0, int y, uint16_t* out) {
+  const int k = K > 0 ? K : k_any;
   const __mmask16 exist = static_cast<__mmask16>((1u << count) - 1);
   const __m512i codes_lo = _mm512_maskz_loadu_epi64(static_cast<__mmask8>(exist), ref_codes);
   const __m512i codes_hi = _mm512_maskz_loadu_epi64(static_cast<__mmask8>(exist >> 8), ref_codes + 8);
@@ -1055,8 +1058,9 @@ int64_t BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector<co
 #if IBMR_SWEEP_AVX512
         if (across_pixels) {
           const int p_end = std::min(union_p1, np);
-          BestKCostsAcrossPixels(ref.data() + static_cast<size_t>(y) * w + x0, count, lane_neighbours.data(), nn, k, k_shift, n,
-                                 union_p0, p_end, x0, y, lane_mean.data());
+          auto* kernel = k == 1 ? &BestKCostsAcrossPixels<1> : k == 2 ? &BestKCostsAcrossPixels<2> : k == 3 ? &BestKCostsAcrossPixels<3> : &BestKCostsAcrossPixels<0>;
+          kernel(ref.data() + static_cast<size_t>(y) * w + x0, count, lane_neighbours.data(), nn, k, k_shift, n, union_p0, p_end, x0, y,
+                 lane_mean.data());
           for (int j = 0; j < count; ++j) {
             if (!chunk_live[j]) continue;
             uint16_t* out = v->At(x0 + j, y);
