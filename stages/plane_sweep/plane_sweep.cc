@@ -261,11 +261,12 @@ PlaneSweepResult PlaneSweep(const SweepView& reference, const std::vector<SweepV
     const cv::Size window(2 * options.census_radius_x + 1, 2 * options.census_radius_y + 1);
     cv::boxFilter(f, mean, CV_32F, window, cv::Point(-1, -1), true, cv::BORDER_REFLECT);
     cv::boxFilter(f.mul(f), mean_sq, CV_32F, window, cv::Point(-1, -1), true, cv::BORDER_REFLECT);
-    for (int y = 0; y < h; ++y)
-      for (int x = 0; x < w; ++x) {
-        const float var = std::max(0.f, mean_sq.at<float>(y, x) - mean.at<float>(y, x) * mean.at<float>(y, x));
-        texture.at<float>(y, x) = std::min(1.f, std::sqrt(var) / static_cast<float>(options.texture_scale));
-      }
+    const float scale = static_cast<float>(options.texture_scale);
+    for (int y = 0; y < h; ++y) {
+      const float *m = mean.ptr<float>(y), *m2 = mean_sq.ptr<float>(y);
+      float* t = texture.ptr<float>(y);
+      for (int x = 0; x < w; ++x) t[x] = std::min(1.f, std::sqrt(std::max(0.f, m2[x] - m[x] * m[x])) / scale);
+    }
   }
   // A pixel whose texture factor is below the confidence threshold cannot keep a depth, whatever
   // its cost curve. Where the whole census window around it is like that too, it is not matched
@@ -332,8 +333,9 @@ PlaneSweepResult PlaneSweep(const SweepView& reference, const std::vector<SweepV
   for (int y = 0; y < h; ++y) {
     const float* plane = winner_plane.ptr<float>(y);
     const float* conf = winner_confidence.ptr<float>(y);
+    const float* texture_row = texture.ptr<float>(y);
     for (int x = 0; x < w; ++x) {
-      const float confidence = conf[x] * texture.at<float>(y, x);
+      const float confidence = conf[x] * texture_row[x];
       result.confidence.At(x, y) = confidence;
       if (plane[x] < 0 || confidence < options.confidence_threshold) continue;
       if (!ranges.first.empty()) {  // smoothing can carry a winner out of the pixel's bounds: no surface there
