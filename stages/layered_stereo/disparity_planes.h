@@ -33,7 +33,8 @@ std::vector<DisparityPlane> FindPlanes(const cv::Mat& initial, const LayeredPair
 void RefitPlanes(const cv::Mat& labels, const std::vector<float>& disparity, const std::vector<uint8_t>& hole,
                  const LayeredPairOptions& options, std::vector<DisparityPlane>* planes);
 
-// Pixels without an initial disparity (<= 0, NaN, or a winner at the range's end; see FindPlanes).
+// Pixels without an initial disparity: below 0.5 (a winner at the searched range's end), NaN or
+// infinite (see ValidPoints in disparity_planes.cc).
 std::vector<uint8_t> Holes(const cv::Mat& initial);
 
 }  // namespace layered_internal

@@ -1,5 +1,7 @@
 // Step 4's data costs of the two-view layered method (layer_costs.h): census codes, raw costs of a
-// row along a layer's plane, window sums, the residual minimum with its sub-pixel offset.
+// row along a layer's plane, window sums, the residual minimum with its sub-pixel offset. Follows
+// seed 000 lines 5625-5811 (Szeliski, BMVC'99, section 4: each layer's match cost through its
+// plane, plus a residual depth) and 3798-3846 (slides "Layered Stereo").
 #include "stages/layered_stereo/layer_costs.h"
 
 #include <tbb/blocked_range.h>

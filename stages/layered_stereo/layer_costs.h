@@ -26,14 +26,14 @@ struct MatchInput {
   std::vector<uint64_t> left, right;  // census codes
 };
 
-// Row buffers of RawCostRow.
+// Row buffers of RawCostRow (in layer_costs.cc).
 struct RawRowScratch {
   std::vector<int32_t> floor;   // floor of the plane's disparity
   std::vector<float> fraction;  // the disparity minus its floor
   std::vector<float> integer;   // (2R + 2) rows: costs at the integer disparities floor - R + k
 };
 
-// Per-task working memory of LayerCosts, reused from layer to layer.
+// Per-task working memory of LayerCosts (in layer_costs.cc), reused from layer to layer.
 struct LayerScratch {
   std::vector<float> raw;   // per residual, one row of raw costs with r replicated values each side
   std::vector<float> hsum;  // per residual, an image of window sums along rows
@@ -42,7 +42,7 @@ struct LayerScratch {
   RawRowScratch raw_row;
 };
 
-// What LayerCosts needs besides the images: the initial disparity as a prior (0 at holes) and its
+// What LayerCosts (in layer_costs.cc) needs besides the images: the initial disparity as a prior (0 at holes) and its
 // weight per pixel (options.initial_weight, 0 at holes).
 struct Prior {
   std::vector<float> disparity, weight;

@@ -1,5 +1,7 @@
 // Step 4's assignment of the two-view layered method (layer_labels.h): Potts penalties, semi-global
-// aggregation over the labels, the right view's z-buffer and the occlusion costs.
+// aggregation over the labels, the right view's z-buffer and the occlusion costs. Follows seed 000
+// lines 5625-5811 (Szeliski, BMVC'99, section 4: boolean pixel assignments B_kl) and 3798-3846
+// (slides "Layered Stereo": occluded regions).
 #include "stages/layered_stereo/layer_labels.h"
 
 #include <tbb/enumerable_thread_specific.h>

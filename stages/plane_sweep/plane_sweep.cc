@@ -263,9 +263,12 @@ PlaneSweepResult PlaneSweep(const SweepView& reference, const std::vector<SweepV
     cv::boxFilter(f.mul(f), mean_sq, CV_32F, window, cv::Point(-1, -1), true, cv::BORDER_REFLECT);
     const float scale = static_cast<float>(options.texture_scale);
     for (int y = 0; y < h; ++y) {
-      const float *m = mean.ptr<float>(y), *m2 = mean_sq.ptr<float>(y);
-      float* t = texture.ptr<float>(y);
-      for (int x = 0; x < w; ++x) t[x] = std::min(1.f, std::sqrt(std::max(0.f, m2[x] - m[x] * m[x])) / scale);
+      const float *mean_row = mean.ptr<float>(y), *mean_sq_row = mean_sq.ptr<float>(y);
+      float* texture_row = texture.ptr<float>(y);
+      for (int x = 0; x < w; ++x) {
+        const float variance = std::max(0.f, mean_sq_row[x] - mean_row[x] * mean_row[x]);
+        texture_row[x] = std::min(1.f, std::sqrt(variance) / scale);
+      }
     }
   }
   // A pixel whose texture factor is below the confidence threshold cannot keep a depth, whatever

@@ -29,6 +29,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstddef>
 #include <limits>
 #include <opencv2/imgproc.hpp>
 
@@ -711,13 +712,14 @@ inline __m256i BilinearCost(__m512i d00, __m512i d01, __m512i d10, __m512i d11, 
 
 // Hamming distances between 8 reference codes (one a lane) and the codes at index, index + 1,
 // index + sw and index + sw + 1 of 8 of the 16 lanes of `t` (lanes first..first+7, first 0 or 8),
-// as 8 x int64 each (any value in lanes not `valid`; Join packs two halves into 16 x int32, one
-// permute where narrowing each half took two instructions and joining them a third). One plane
+// as 8 x int64 each (any value in lanes not `valid`; Join packs two halves into 16 x int32 with one
+// permute). One plane
 // maps neighbouring reference pixels to nearby codes: when the 8 top-left codes lie within 15
 // columns and two rows of each other, contiguous loads of 16 codes from the rows involved (three
 // at most) and in-register permutes fetch them, else gathers do. (Epipolar lines that are not
 // horizontal cross rows often: on the Middlebury temple ring, half of the groups of 8 span two
-// rows.) `window` (optional) receives the first code of the loads, null when gathers fetched them.
+// rows.) `window` (optional) receives the first code of the loads; it is left as it was when
+// gathers fetched them.
 inline void HalfDistances(__m512i codes, const LaneTaps& t, __mmask16 valid, int first, const uint64_t* src, int sw,
                           int sh, __m512i d[4], const uint64_t** window = nullptr) {
   const __mmask16 lanes = valid & static_cast<__mmask16>(0xFF << first);
@@ -789,12 +791,12 @@ struct LaneNeighbour {
 // projections take the same float steps as ComputeAffineTaps / ComputeTaps, each cost is
 // CensusCosts' integer formula, and the k lowest and their mean are the same integers as
 // BestKMean's, lane by lane: the results are identical to the other builds'. The neighbours'
-// costs of a plane never leave the registers.
-// K > 0: k == K, known at compile time, so that best[] lives in registers (K == 0: any k).
+// costs of a plane never leave the registers. K: k fixed at compile time (1-3), so that the k
+// lowest stay in registers; K == 0: k = runtime_k.
 template <int K>
-void BestKCostsAcrossPixels(const uint64_t* ref_codes, int count, const LaneNeighbour* neighbours, int nn, int k_any, int k_shift,
-                            int n, int p0, int p1, int x0, int y, uint16_t* out) {
-  const int k = K > 0 ? K : k_any;
+void BestKCostsAcrossPixels(const uint64_t* ref_codes, int count, const LaneNeighbour* neighbours, int nn, int runtime_k,
+                            int k_shift, int n, int p0, int p1, int x0, int y, uint16_t* out) {
+  const int k = K > 0 ? K : runtime_k;
   const __mmask16 exist = static_cast<__mmask16>((1u << count) - 1);
   const __m512i codes_lo = _mm512_maskz_loadu_epi64(static_cast<__mmask8>(exist), ref_codes);
   const __m512i codes_hi = _mm512_maskz_loadu_epi64(static_cast<__mmask8>(exist >> 8), ref_codes + 8);
@@ -820,11 +822,13 @@ void BestKCostsAcrossPixels(const uint64_t* ref_codes, int count, const LaneNeig
   // Prefetching: one plane moves the 16 pixels' window of codes along the epipolar line by about
   // as much as the last did, often by a row (for nearly vertical lines), which the hardware
   // prefetchers do not foresee as the neighbours take turns. Each neighbour's window of the next
-  // plane is fetched ahead (three rows of 24 codes), from its last two windows.
-  ptrdiff_t previous[16], codes_size[16];
+  // plane is fetched ahead, extrapolated from the low half's last two windows: three cache lines
+  // on each of three rows (the low half's 16 codes at any alignment and most of the high half's).
+  // -1: no window of the last plane (its loads were gathers).
+  ptrdiff_t previous_window[16], code_count[16];
   for (int i = 0; i < nn; ++i) {
-    previous[i] = -1;
-    codes_size[i] = static_cast<ptrdiff_t>(neighbours[i].width) * neighbours[i].height;
+    previous_window[i] = -1;
+    code_count[i] = static_cast<ptrdiff_t>(neighbours[i].width) * neighbours[i].height;
   }
   for (int p = p0; p < p1; ++p) {
     const __m512 pf = _mm512_set1_ps(static_cast<float>(p));
@@ -851,18 +855,21 @@ void BestKCostsAcrossPixels(const uint64_t* ref_codes, int count, const LaneNeig
       __m512i lo[4], hi[4];
       const uint64_t* window = nullptr;
       HalfDistances(codes_lo, t, valid, 0, g.codes, g.width, g.height, lo, &window);
-      if (window != nullptr) {
-        // The window of the next plane: where this one moved from the last, once more.
-        const ptrdiff_t at = window - g.codes, ahead = at + (at - previous[i]);
-        if (previous[i] >= 0 && ahead >= 0 && ahead + 2 * static_cast<ptrdiff_t>(g.width) + 24 <= codes_size[i]) {
+      if (window == nullptr) {
+        previous_window[i] = -1;
+      } else {
+        // The window of the next plane: where this one moved from the last, once more. The last
+        // line fetched starts 16 codes past the third row's start and holds 8 codes.
+        const ptrdiff_t window_offset = window - g.codes, predicted = window_offset + (window_offset - previous_window[i]);
+        if (previous_window[i] >= 0 && predicted >= 0 && predicted + 2 * static_cast<ptrdiff_t>(g.width) + 24 <= code_count[i]) {
           for (int row = 0; row < 3; ++row) {
-            const char* line = reinterpret_cast<const char*>(g.codes + ahead + static_cast<ptrdiff_t>(row) * g.width);
+            const char* line = reinterpret_cast<const char*>(g.codes + predicted + static_cast<ptrdiff_t>(row) * g.width);
             _mm_prefetch(line, _MM_HINT_T0);
             _mm_prefetch(line + 64, _MM_HINT_T0);
             _mm_prefetch(line + 128, _MM_HINT_T0);
           }
         }
-        previous[i] = at;
+        previous_window[i] = window_offset;
       }
       HalfDistances(codes_hi, t, valid, 8, g.codes, g.width, g.height, hi);
       __m256i cost = BilinearCost(Join(lo[0], hi[0]), Join(lo[1], hi[1]), Join(lo[2], hi[2]), Join(lo[3], hi[3]), t.wx, t.wy, valid);
@@ -1008,6 +1015,10 @@ int64_t BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector<co
   bool across_pixels = IBMR_SWEEP_AVX512 != 0 && nn <= 16;
   for (int i = 0; i < nn; ++i) across_pixels &= shift[i].empty();
 #if IBMR_SWEEP_AVX512
+  auto* const lane_kernel = k == 1   ? &BestKCostsAcrossPixels<1>
+                            : k == 2 ? &BestKCostsAcrossPixels<2>
+                            : k == 3 ? &BestKCostsAcrossPixels<3>
+                                     : &BestKCostsAcrossPixels<0>;
   std::vector<LaneNeighbour> lane_neighbours(across_pixels ? nn : 0);
   for (size_t i = 0; i < lane_neighbours.size(); ++i) {
     lane_neighbours[i] = {src[i]->data(), neighbours[i].gray.cols, neighbours[i].gray.rows, affine[i] ? &family[i] : nullptr,
@@ -1058,9 +1069,8 @@ int64_t BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector<co
 #if IBMR_SWEEP_AVX512
         if (across_pixels) {
           const int p_end = std::min(union_p1, np);
-          auto* kernel = k == 1 ? &BestKCostsAcrossPixels<1> : k == 2 ? &BestKCostsAcrossPixels<2> : k == 3 ? &BestKCostsAcrossPixels<3> : &BestKCostsAcrossPixels<0>;
-          kernel(ref.data() + static_cast<size_t>(y) * w + x0, count, lane_neighbours.data(), nn, k, k_shift, n, union_p0, p_end, x0, y,
-                 lane_mean.data());
+          lane_kernel(ref.data() + static_cast<size_t>(y) * w + x0, count, lane_neighbours.data(), nn, k, k_shift, n, union_p0,
+                      p_end, x0, y, lane_mean.data());
           for (int j = 0; j < count; ++j) {
             if (!chunk_live[j]) continue;
             uint16_t* out = v->At(x0 + j, y);
