@@ -1,6 +1,7 @@
 // Two-view layered stereo (layered_pair.h): option checks, the steps in order (disparity planes:
 // disparity_planes.h; costs per layer: layer_costs.h; Potts assignment with occlusion reasoning:
 // layer_labels.h), step 5's output disparity, and the two-view method "layered" with its options.
+// Follows seed 000 lines 5625-5811 and 3798-3846, as layered_pair.h details.
 #include "stages/layered_stereo/layered_pair.h"
 
 #include <tbb/enumerable_thread_specific.h>
