@@ -20,9 +20,6 @@
 namespace ibmr {
 namespace layered_internal {
 
-// Steeper planes are not surfaces a stereo pair resolves (disparity gradient limit): rejected.
-constexpr double kMaxGradient = 1.0;
-
 // Steps 2 and 3 on the valid pixels of `initial`: sequential RANSAC (the plane with the best score,
 // refitted by least squares to its inliers, takes them; again on the rest, until max_layers planes
 // or too few points), then each plane refined robustly. Planes largest first.

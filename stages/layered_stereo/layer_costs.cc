@@ -12,7 +12,6 @@
 #include <cmath>
 #include <opencv2/imgproc.hpp>
 
-#include "stages/layered_stereo/disparity_planes.h"
 #include "stages/layered_stereo/layered_pair_internal.h"
 
 namespace ibmr {

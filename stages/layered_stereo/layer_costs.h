@@ -42,8 +42,8 @@ struct LayerScratch {
   RawRowScratch raw_row;
 };
 
-// What LayerCosts (in layer_costs.cc) needs besides the images: the initial disparity as a prior (0 at holes) and its
-// weight per pixel (options.initial_weight, 0 at holes).
+// What LayerCosts (in layer_costs.cc) needs besides the images: the initial disparity as a prior
+// (0 at holes) and its weight per pixel (options.initial_weight, 0 at holes).
 struct Prior {
   std::vector<float> disparity, weight;
 };

@@ -713,10 +713,9 @@ inline __m256i BilinearCost(__m512i d00, __m512i d01, __m512i d10, __m512i d11, 
 // Hamming distances between 8 reference codes (one a lane) and the codes at index, index + 1,
 // index + sw and index + sw + 1 of 8 of the 16 lanes of `t` (lanes first..first+7, first 0 or 8),
 // as 8 x int64 each (any value in lanes not `valid`; Join packs two halves into 16 x int32 with one
-// permute). One plane
-// maps neighbouring reference pixels to nearby codes: when the 8 top-left codes lie within 15
-// columns and two rows of each other, contiguous loads of 16 codes from the rows involved (three
-// at most) and in-register permutes fetch them, else gathers do. (Epipolar lines that are not
+// permute). One plane maps neighbouring reference pixels to nearby codes: when the 8 top-left codes
+// lie within 15 columns and two rows of each other, contiguous loads of 16 codes from the rows
+// involved (three at most) and in-register permutes fetch them, else gathers do. (Epipolar lines that are not
 // horizontal cross rows often: on the Middlebury temple ring, half of the groups of 8 span two
 // rows.) `window` (optional) receives the first code of the loads; it is left as it was when
 // gathers fetched them.
