@@ -403,6 +403,57 @@ TEST(SweepEngine, OneBufferAggregationEqualsTwo) {
   sweep::SetIsa(sweep::BestIsa());
 }
 
+// Pixels marked unmatched (an empty plane range) carry the paths like any other, but their sums are
+// not kept and they get no winner: the matched pixels' sums and winners are those of the same
+// volume with every pixel matched, on every build, in one buffer and two.
+TEST(SweepEngine, UnmatchedPixelsLeaveTheMatchedSumsAndHaveNoWinner) {
+  const int w = 23, h = 17;
+  cv::Mat gray(h, w, CV_8UC1);
+  cv::RNG rng(5);
+  rng.fill(gray, cv::RNG::UNIFORM, 0, 256);
+  for (int planes : {21, 100}) {
+    sweep::CostVolume all;
+    all.width = w, all.height = h, all.planes = planes, all.stride = (planes + 15) / 16 * 16;
+    all.data.resize(static_cast<size_t>(w) * h * all.stride);
+    for (uint16_t& c : all.data) c = static_cast<uint16_t>(rng.uniform(0, static_cast<int>(sweep::kMaxCost) + 1));
+    sweep::CostVolume some = all;
+    some.unmatched.resize(static_cast<size_t>(w) * h);
+    size_t unmatched = 0;
+    for (uint8_t& u : some.unmatched) unmatched += u = rng.uniform(0, 10) < 3;
+    ASSERT_GT(unmatched, 0u);
+    for (sweep::Isa isa : {sweep::Isa::kPortable, sweep::Isa::kAvx2, sweep::Isa::kAvx512}) {
+      if (!sweep::SetIsa(isa)) continue;
+      for (bool one_buffer : {false, true}) {
+        SCOPED_TRACE(std::string(sweep::IsaName(isa)) + ", planes " + std::to_string(planes) + (one_buffer ? ", one buffer" : ""));
+        sweep::EngineOptions options;
+        sweep::Aggregated expected, got;
+        sweep::Aggregate(all, gray, options, &expected, one_buffer);
+        sweep::Aggregate(some, gray, options, &got, one_buffer);
+        size_t differ = 0;
+        for (size_t pixel = 0; pixel < static_cast<size_t>(w) * h; ++pixel) {
+          if (!some.Matched(pixel)) continue;
+          for (int d = 0; d < planes; ++d) differ += got.Sum(pixel, d) != expected.Sum(pixel, d);
+        }
+        EXPECT_EQ(differ, 0u);
+        const sweep::Winners want = sweep::WinnerTakeAll(expected, &all, 3.0), have = sweep::WinnerTakeAll(got, &some, 3.0);
+        for (int y = 0; y < h; ++y) {
+          for (int x = 0; x < w; ++x) {
+            const size_t pixel = static_cast<size_t>(y) * w + x;
+            if (some.Matched(pixel)) {
+              EXPECT_EQ(have.plane.at<float>(y, x), want.plane.at<float>(y, x));
+              EXPECT_EQ(have.confidence.at<float>(y, x), want.confidence.at<float>(y, x));
+            } else {
+              EXPECT_EQ(have.plane.at<float>(y, x), -1.f);
+              EXPECT_EQ(have.confidence.at<float>(y, x), 0.f);
+            }
+          }
+        }
+      }
+    }
+  }
+  sweep::SetIsa(sweep::BestIsa());
+}
+
 // The census codes of every build against the definition: bit set where the window's pixel
 // (borders clamped) is darker than the centre, offsets in row-major order, the centre skipped;
 // a window of more than 64 offsets (11x9) keeps the last 64.

@@ -47,6 +47,11 @@ struct EngineOptions {
 struct CostVolume {
   int width = 0, height = 0, planes = 0, stride = 0;
   LargeBuffer<uint16_t> data;
+  // Per pixel (row-major), 1 where the pixel is not matched (its plane range is empty, see
+  // PlaneRanges); empty: every pixel is. BuildCostVolume sets it. Such a pixel's costs still carry
+  // the semi-global paths across it, but its own path sums are not kept and it has no winner.
+  std::vector<uint8_t> unmatched;
+  bool Matched(size_t pixel) const { return unmatched.empty() || unmatched[pixel] == 0; }
   uint16_t* At(int x, int y) { return data.data() + (static_cast<size_t>(y) * width + x) * stride; }
   const uint16_t* At(int x, int y) const {
     return data.data() + (static_cast<size_t>(y) * width + x) * stride;
@@ -87,12 +92,15 @@ struct Aggregated {
   // The forward and backward passes' partial sums; with b empty, a holds the whole sum (one
   // buffer, or no semi-global aggregation).
   LargeBuffer<uint16_t> a, b;
+  std::vector<uint8_t> unmatched;  // the volume's: these pixels' sums are unspecified
   uint16_t Sum(size_t pixel, int plane) const {
     const size_t i = pixel * stride + plane;
     return b.empty() ? a[i] : static_cast<uint16_t>(a[i] + b[i]);
   }
 };
-// `out` may hold buffers of an earlier call: they are reused (no new pages to fault in).
+// `out` may hold buffers of an earlier call: they are reused (no new pages to fault in). The sums
+// of pixels the volume marks unmatched are left unspecified (neither read nor written: most of a
+// view where the scene's bounds leave its background unmatched).
 // The forward and backward passes run at once into `a` and `b`, or, with `one_buffer`, one after
 // the other into `a` alone (the backward pass adds to it): half the memory and half the pages to
 // fault in, for callers that already keep the cores busy with several sweeps (the multi-view
@@ -100,8 +108,9 @@ struct Aggregated {
 void Aggregate(const CostVolume& volume, const cv::Mat& reference_gray, const EngineOptions& options, Aggregated* out,
                bool one_buffer = false);
 
-// Per-pixel winner: plane index with sub-pixel offset (-1 where undefined), and certainty in
-// [0, 1] from the data-cost curve (how far the winner's matching cost lies below the curve's mean).
+// Per-pixel winner: plane index with sub-pixel offset (-1 where undefined, as at unmatched pixels),
+// and certainty in [0, 1] from the data-cost curve (how far the winner's matching cost lies below
+// the curve's mean; 0 at unmatched pixels).
 // Two-view only, `right`: the winner of each right-view pixel from the same aggregated volume
 // (plane = disparity: right pixel xr matches left pixel xr + d), integer disparities, -1 where
 // undefined; found in the same pass over the volume.

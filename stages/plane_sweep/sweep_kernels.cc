@@ -244,11 +244,12 @@ void SgmPassPerPath(const CostVolume& v, const cv::Mat& gray, const EngineOption
                     LargeBuffer<uint16_t>* out) {
   const int w = v.width, h = v.height, n = v.stride, ps = n + 2;
   const bool diagonals = o.paths == 8;
-  if (!accumulate) out->resize(v.data.size());  // every entry is assigned by the row path first
+  if (!accumulate) out->resize(v.data.size());  // a matched pixel's entries are assigned by the row path first
   const int ndir = diagonals ? 3 : 1;  // row paths: from (x - s, y - s), (x, y - s), (x + s, y - s)
   std::vector<int16_t> prev_row(static_cast<size_t>(ndir) * w * ps, kSentinel), cur_row(prev_row.size(), kSentinel);
   std::vector<int16_t> prev_min(static_cast<size_t>(ndir) * w, 0), cur_min(prev_min.size(), 0);
   std::vector<int16_t> left(ps, kSentinel), left_cur(ps, kSentinel);
+  std::vector<uint16_t> discarded(n);  // the sums of unmatched pixels, which no one reads
   const int16_t p1 = static_cast<int16_t>(o.p1);
   int16_t p2_table[256];
   FillP2Table(o, p2_table);
@@ -261,7 +262,8 @@ void SgmPassPerPath(const CostVolume& v, const cv::Mat& gray, const EngineOption
     for (int xi = 0; xi < w; ++xi) {
       const int x = s > 0 ? xi : w - 1 - xi;
       const uint16_t* c = v.At(x, y);
-      uint16_t* sum = out->data() + (static_cast<size_t>(y) * w + x) * n;
+      const size_t pixel = static_cast<size_t>(y) * w + x;
+      uint16_t* sum = v.Matched(pixel) ? out->data() + pixel * n : discarded.data();
       // From the previous pixel on the row.
       if (xi == 0) {
         left_min = accumulate ? PathStart<false>(c, n, left_cur.data() + 1, sum) : PathStart<true>(c, n, left_cur.data() + 1, sum);
@@ -334,7 +336,7 @@ void SgmPassFused(const CostVolume& v, const cv::Mat& gray, const EngineOptions&
                   LargeBuffer<uint16_t>* out) {
   constexpr int K = 1 + kRowPaths;  // the row path, then the paths from the previous row
   const int w = v.width, h = v.height, n = v.stride, ps = n + 2;
-  if (!accumulate) out->resize(v.data.size());  // every entry is assigned
+  if (!accumulate) out->resize(v.data.size());  // every matched pixel's entries are assigned
   // Two of each (previous and current), swapped as pointers (swapping the vectors themselves made
   // GCC 12 warn, falsely, of freeing a pointer into the middle of a block).
   const size_t row_size = static_cast<size_t>(kRowPaths) * w * ps, min_size = static_cast<size_t>(kRowPaths) * w;
@@ -342,6 +344,7 @@ void SgmPassFused(const CostVolume& v, const cv::Mat& gray, const EngineOptions&
   int16_t *prev_row = rows.data(), *cur_row = prev_row + row_size, *prev_min = mins.data(), *cur_min = prev_min + min_size;
   int16_t *left = lefts.data(), *left_cur = left + ps;
   const std::vector<int16_t> start(ps, 0);  // the previous pixel of a path that starts: L = C
+  std::vector<uint16_t> discarded(n);         // the sums of unmatched pixels, which no one reads
   const int16_t p1 = static_cast<int16_t>(o.p1);
   int16_t p2_table[256];
   FillP2Table(o, p2_table);
@@ -375,7 +378,8 @@ void SgmPassFused(const CostVolume& v, const cv::Mat& gray, const EngineOptions&
           p2[1 + k] = p2_table[std::abs(g[x] - gp[xs])];
         }
       }
-      uint16_t* sum = out->data() + (static_cast<size_t>(y) * w + x) * n;
+      const size_t pixel = static_cast<size_t>(y) * w + x;
+      uint16_t* sum = v.Matched(pixel) ? out->data() + pixel * n : discarded.data();
       if (accumulate) {  // the same every pixel: a branch the predictor always gets right
         PathSteps<K, true>(v.At(x, y), n, prev, min_prev, p2, p1, cur, min_out, sum);
       } else {
@@ -1111,9 +1115,10 @@ int64_t BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector<co
 }
 
 // Planes outside each pixel's range take the mean of its in-range costs; an unmatched pixel
-// (empty range) gets a flat curve.
+// (empty range) gets a flat curve and is marked in `unmatched`.
 void ApplyRanges(const PlaneRanges& ranges, CostVolume* v) {
   const int w = v->width, np = v->planes;
+  v->unmatched.assign(static_cast<size_t>(w) * v->height, 0);
   tbb::parallel_for(0, v->height, [&](int y) {
     for (int x = 0; x < w; ++x) {
       const size_t pixel = static_cast<size_t>(y) * w + x;
@@ -1121,6 +1126,7 @@ void ApplyRanges(const PlaneRanges& ranges, CostVolume* v) {
       uint16_t* c = v->At(x, y);
       if (first > last) {
         std::fill(c, c + np, kOutsideCost);
+        v->unmatched[pixel] = 1;
         continue;
       }
       uint32_t sum = 0;
@@ -1204,6 +1210,7 @@ int64_t BuildCostVolume(const cv::Mat& ref, const std::vector<Neighbour>& neighb
   volume->planes = planes;
   volume->stride = RoundUp16(planes);
   volume->data.resize(static_cast<size_t>(w) * h * volume->stride);
+  volume->unmatched.clear();  // every pixel, unless ApplyRanges marks some
   if (volume->stride > planes) {
     tbb::parallel_for(0, h, [&](int y) {
       for (int x = 0; x < w; ++x) std::fill(volume->At(x, y) + planes, volume->At(x, y) + volume->stride, kMaxCost);
@@ -1289,6 +1296,7 @@ void Aggregate(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o,
   result.height = v.height;
   result.planes = v.planes;
   result.stride = v.stride;
+  result.unmatched = v.unmatched;
   if (!o.semi_global) {
     result.a = v.data;
     result.b.clear();
@@ -1319,6 +1327,7 @@ Winners WinnerTakeAll(const Aggregated& ag, const CostVolume* data, double confi
     float* conf = out.confidence.ptr<float>(y);
     for (int x = 0; x < w; ++x) {
       const size_t pixel = static_cast<size_t>(y) * w + x;
+      if (!ag.unmatched.empty() && ag.unmatched[pixel]) continue;  // no winner, certainty 0
       const uint16_t* a = ag.a.data() + pixel * stride;
       // The sum and its minimum in one vectorised pass, then the first plane at the minimum.
       uint16_t lowest = 0xFFFF;
