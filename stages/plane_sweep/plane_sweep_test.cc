@@ -369,6 +369,15 @@ TEST(SweepEngine, BoxAggregationIsTheClippedWindowMean) {
   }
 }
 
+// A w x h volume of `planes` uniformly random costs in [0, kMaxCost] (padding planes too).
+sweep::CostVolume RandomCostVolume(int w, int h, int planes, cv::RNG* rng) {
+  sweep::CostVolume volume;
+  volume.width = w, volume.height = h, volume.planes = planes, volume.stride = (planes + 15) / 16 * 16;
+  volume.data.resize(static_cast<size_t>(w) * h * volume.stride);
+  for (uint16_t& c : volume.data) c = static_cast<uint16_t>(rng->uniform(0, static_cast<int>(sweep::kMaxCost) + 1));
+  return volume;
+}
+
 // One buffer (the backward pass adding into the forward pass's sums, as the multi-view stage
 // aggregates) and two (the passes at once) give the same sums, with few planes (the paths stepped
 // together) and many (one loop per path), on every build.
@@ -378,10 +387,7 @@ TEST(SweepEngine, OneBufferAggregationEqualsTwo) {
   cv::RNG rng(3);
   rng.fill(gray, cv::RNG::UNIFORM, 0, 256);
   for (int planes : {21, 100}) {
-    sweep::CostVolume volume;
-    volume.width = w, volume.height = h, volume.planes = planes, volume.stride = (planes + 15) / 16 * 16;
-    volume.data.resize(static_cast<size_t>(w) * h * volume.stride);
-    for (uint16_t& c : volume.data) c = static_cast<uint16_t>(rng.uniform(0, static_cast<int>(sweep::kMaxCost) + 1));
+    const sweep::CostVolume volume = RandomCostVolume(w, h, planes, &rng);
     for (sweep::Isa isa : {sweep::Isa::kPortable, sweep::Isa::kAvx2, sweep::Isa::kAvx512}) {
       if (!sweep::SetIsa(isa)) continue;
       SCOPED_TRACE(std::string(sweep::IsaName(isa)) + ", planes " + std::to_string(planes));
@@ -412,10 +418,7 @@ TEST(SweepEngine, UnmatchedPixelsLeaveTheMatchedSumsAndHaveNoWinner) {
   cv::RNG rng(5);
   rng.fill(gray, cv::RNG::UNIFORM, 0, 256);
   for (int planes : {21, 100}) {
-    sweep::CostVolume all;
-    all.width = w, all.height = h, all.planes = planes, all.stride = (planes + 15) / 16 * 16;
-    all.data.resize(static_cast<size_t>(w) * h * all.stride);
-    for (uint16_t& c : all.data) c = static_cast<uint16_t>(rng.uniform(0, static_cast<int>(sweep::kMaxCost) + 1));
+    const sweep::CostVolume all = RandomCostVolume(w, h, planes, &rng);
     sweep::CostVolume some = all;
     some.unmatched.resize(static_cast<size_t>(w) * h);
     size_t unmatched = 0;
