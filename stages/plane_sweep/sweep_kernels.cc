@@ -418,10 +418,36 @@ void BoxFilterVolume(CostVolume* v, int r) {
   if (r <= 0) return;
   const int w = v->width, h = v->height, n = v->stride;
   const size_t row = static_cast<size_t>(w) * n;
-  // Horizontal sums of row y (at most 31 costs of 1023: 16 bits suffice), each pixel's from its
-  // left neighbour's: out(x) = out(x - 1) + in(x + r) - in(x - r - 1).
+  // Horizontal sums of row y (at most 31 costs of 1023: 16 bits suffice). For r <= 2 each pixel's
+  // sum is added up directly from its (clipped) window. For wider windows each pixel's sum comes
+  // from its left neighbour's: out(x) = out(x - 1) + in(x + r) - in(x - r - 1). That chain runs
+  // through memory: with few planes (a two-view pair's 16) the load of out(x - 1) waits on the
+  // store just made, which the AVX-512 build could not forward (the box filter took 2.8 times
+  // the portable build's samples on tsukuba). The sums are the same integers either way.
   auto horizontal = [&](int y, uint16_t* __restrict out) {
     const uint16_t* in = v->At(0, y);
+    if (r <= 2) {
+      for (int x = 0; x < w; ++x) {
+        uint16_t* __restrict o = out + static_cast<size_t>(x) * n;
+        const uint16_t* __restrict c = in + static_cast<size_t>(x) * n;
+        if (x >= r && x + r < w) {  // the whole window: one pass over the planes
+          if (r == 1) {
+            for (int d = 0; d < n; ++d) o[d] = static_cast<uint16_t>(c[d - n] + c[d] + c[d + n]);
+          } else {
+            for (int d = 0; d < n; ++d) o[d] = static_cast<uint16_t>(c[d - 2 * n] + c[d - n] + c[d] + c[d + n] + c[d + 2 * n]);
+          }
+          continue;
+        }
+        const int x0 = std::max(0, x - r), x1 = std::min(w - 1, x + r);  // clipped at the borders
+        const uint16_t* __restrict first = in + static_cast<size_t>(x0) * n;
+        std::copy(first, first + n, o);
+        for (int xx = x0 + 1; xx <= x1; ++xx) {
+          const uint16_t* __restrict add = in + static_cast<size_t>(xx) * n;
+          for (int d = 0; d < n; ++d) o[d] = static_cast<uint16_t>(o[d] + add[d]);
+        }
+      }
+      return;
+    }
     std::fill(out, out + n, static_cast<uint16_t>(0));
     for (int x = 0; x <= std::min(r, w - 1); ++x) {
       const uint16_t* add = in + static_cast<size_t>(x) * n;
