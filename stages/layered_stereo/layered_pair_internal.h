@@ -1,7 +1,7 @@
 // Small helpers shared by the files of the two-view layered method (layered_pair.h;
 // disparity_planes.cc, layer_costs.cc, layer_labels.cc, layered_pair.cc): the steepest plane that
-// plane fitting and the layer costs accept, a float minimum the compiler vectorises and a rounding without the
-// library call. Internal to the layered_stereo stage; follows no seed-paper section.
+// plane fitting and the layer costs accept, a float minimum the compiler vectorises and a rounding
+// without the library call. Internal to the layered_stereo stage; follows no seed-paper section.
 #pragma once
 
 #include <algorithm>

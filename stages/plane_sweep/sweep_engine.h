@@ -93,6 +93,7 @@ struct Aggregated {
   // buffer, or no semi-global aggregation).
   LargeBuffer<uint16_t> a, b;
   std::vector<uint8_t> unmatched;  // the volume's: these pixels' sums are unspecified
+  bool Matched(size_t pixel) const { return unmatched.empty() || unmatched[pixel] == 0; }
   uint16_t Sum(size_t pixel, int plane) const {
     const size_t i = pixel * stride + plane;
     return b.empty() ? a[i] : static_cast<uint16_t>(a[i] + b[i]);

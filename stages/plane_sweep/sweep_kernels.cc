@@ -244,7 +244,8 @@ void SgmPassPerPath(const CostVolume& v, const cv::Mat& gray, const EngineOption
                     LargeBuffer<uint16_t>* out) {
   const int w = v.width, h = v.height, n = v.stride, ps = n + 2;
   const bool diagonals = o.paths == 8;
-  if (!accumulate) out->resize(v.data.size());  // a matched pixel's entries are assigned by the row path first
+  // A matched pixel's entries are assigned by the row path first.
+  if (!accumulate) out->resize(v.data.size());
   const int ndir = diagonals ? 3 : 1;  // row paths: from (x - s, y - s), (x, y - s), (x + s, y - s)
   std::vector<int16_t> prev_row(static_cast<size_t>(ndir) * w * ps, kSentinel), cur_row(prev_row.size(), kSentinel);
   std::vector<int16_t> prev_min(static_cast<size_t>(ndir) * w, 0), cur_min(prev_min.size(), 0);
@@ -434,7 +435,8 @@ void BoxFilterVolume(CostVolume* v, int r) {
           if (r == 1) {
             for (int d = 0; d < n; ++d) o[d] = static_cast<uint16_t>(c[d - n] + c[d] + c[d + n]);
           } else {
-            for (int d = 0; d < n; ++d) o[d] = static_cast<uint16_t>(c[d - 2 * n] + c[d - n] + c[d] + c[d + n] + c[d + 2 * n]);
+            for (int d = 0; d < n; ++d)
+              o[d] = static_cast<uint16_t>(c[d - 2 * n] + c[d - n] + c[d] + c[d + n] + c[d + 2 * n]);
           }
           continue;
         }
@@ -745,9 +747,9 @@ inline __m256i BilinearCost(__m512i d00, __m512i d01, __m512i d10, __m512i d11, 
 // as 8 x int64 each (any value in lanes not `valid`; Join packs two halves into 16 x int32 with one
 // permute). One plane maps neighbouring reference pixels to nearby codes: when the 8 top-left codes
 // lie within 15 columns and two rows of each other, contiguous loads of 16 codes from the rows
-// involved (three at most) and in-register permutes fetch them, else gathers do. (Epipolar lines that are not
-// horizontal cross rows often: on the Middlebury temple ring, half of the groups of 8 span two
-// rows.) `window` (optional) receives the first code of the loads; it is left as it was when
+// involved (three at most) and in-register permutes fetch them, else gathers do. (Epipolar lines
+// that are not horizontal cross rows often: on the Middlebury temple ring, half of the groups of 8
+// span two rows.) `window` (optional) receives the first code of the loads; it is left as it was when
 // gathers fetched them.
 inline void HalfDistances(__m512i codes, const LaneTaps& t, __mmask16 valid, int first, const uint64_t* src, int sw,
                           int sh, __m512i d[4], const uint64_t** window = nullptr) {
@@ -1353,7 +1355,7 @@ Winners WinnerTakeAll(const Aggregated& ag, const CostVolume* data, double confi
     float* conf = out.confidence.ptr<float>(y);
     for (int x = 0; x < w; ++x) {
       const size_t pixel = static_cast<size_t>(y) * w + x;
-      if (!ag.unmatched.empty() && ag.unmatched[pixel]) continue;  // no winner, certainty 0
+      if (!ag.Matched(pixel)) continue;  // no winner, certainty 0
       const uint16_t* a = ag.a.data() + pixel * stride;
       // The sum and its minimum in one vectorised pass, then the first plane at the minimum.
       uint16_t lowest = 0xFFFF;
