@@ -2,12 +2,13 @@
 // layered_stereo stage's two-view layered method on every pair of middlebury_stereo_classic, in the
 // same run, on the same machine; writes JSON with bad-1.0 and bad-2.0 over pixels with known ground
 // truth (missing output counted as bad), the unfilled fraction, the time (median of repeated runs),
-// ratios to SGBM, the plane-pixel-neighbour cost evaluations per second, and the portable build's
-// time with a check that its disparities are the same. A pair "dominates SGBM" when its bad-1 and
-// its time are both at or below SGBM's. Method: see plane_sweep.h (seed 000 lines 5300-5525,
-// 4352-4453). The layered method (stages/layered_stereo/layered_pair.h, seed 000 lines 5625-5811)
-// starts from this stage's disparity through the two-view registry, which this program fills
-// itself; its time includes that initial disparity, and its record the layers (planes) it kept.
+// ratios to SGBM (the median of the repeats' ratios, SGBM and this stage run by turns), the
+// plane-pixel-neighbour cost evaluations per second, and the portable build's time with a check
+// that its disparities are the same. A pair "dominates SGBM" when its bad-1 and its time are both
+// at or below SGBM's. Method: see plane_sweep.h (seed 000 lines 5300-5525, 4352-4453). The layered
+// method (stages/layered_stereo/layered_pair.h, seed 000 lines 5625-5811) starts from this stage's
+// disparity through the two-view registry, which this program fills itself; its time includes that
+// initial disparity, and its record the layers (planes) it kept.
 //
 // Usage: bench_stereo_pair [--data DIR] [--out FILE.json] [--repeat N] [--threads N] [--p1 N] [--p2 N]
 //        [--p2-gamma G] [--window-radius R] [--median-radius R] [--sgm-paths 4|8]
@@ -171,23 +172,23 @@ int main(int argc, char** argv) {
       std::cerr << data << ": cannot read pair " << pair.name << " (is ../shared/datasets present?)\n";
       return 1;
     }
-    // SGBM.
+    // SGBM and ours, run by turns: a slow spell of the machine (a shared virtual machine has them
+    // for seconds) then falls on both, not on whichever ran during it. Each repeat gives the
+    // ratio of its two times; the record holds the median time of each and the median ratio.
     cv::Ptr<cv::StereoSGBM> sgbm = cv::StereoSGBM::create(0, pair.max_disparity, 5, 8 * 25, 32 * 25);
     cv::Mat raw, sgbm_disparity;
-    std::vector<double> sgbm_times, our_times;
-    for (int r = 0; r < repeat; ++r) {
-      const auto t0 = std::chrono::steady_clock::now();
-      sgbm->compute(left, right, raw);
-      sgbm_times.push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
-    }
-    raw.convertTo(sgbm_disparity, CV_32F, 1.0 / 16.0);
-    // Ours.
+    std::vector<double> sgbm_times, our_times, ratios;
     ibmr::StereoPairResult ours;
     for (int r = 0; r < repeat; ++r) {
-      const auto t0 = std::chrono::steady_clock::now();
+      auto t0 = std::chrono::steady_clock::now();
+      sgbm->compute(left, right, raw);
+      sgbm_times.push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+      t0 = std::chrono::steady_clock::now();
       ours = ibmr::StereoPair(left, right, pair.max_disparity, options);
       our_times.push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+      ratios.push_back(our_times.back() / sgbm_times.back());
     }
+    raw.convertTo(sgbm_disparity, CV_32F, 1.0 / 16.0);
     // The portable build of the engine on the same pair: its time, and the same disparities.
     std::vector<double> portable_times;
     bool identical = true;
@@ -215,8 +216,8 @@ int main(int argc, char** argv) {
     const Score s = Evaluate(sgbm_disparity, gt, pair.gt_scale);
     const Score o = Evaluate(ours.disparity, gt, pair.gt_scale);
     const Score ls = Evaluate(layered.disparity, gt, pair.gt_scale);
-    const double ts = Median(sgbm_times), to = Median(our_times), tl = Median(layered_times);
-    const bool ok = o.bad1 <= s.bad1 && to <= ts;  // more accurate and no slower: dominates SGBM
+    const double ts = Median(sgbm_times), to = Median(our_times), tl = Median(layered_times), ratio = Median(ratios);
+    const bool ok = o.bad1 <= s.bad1 && ratio <= 1;  // more accurate and no slower: dominates SGBM
     all_ok &= ok;
     report["pairs"][pair.name] = {
         {"width", left.cols}, {"height", left.rows}, {"max_disparity", pair.max_disparity},
@@ -231,10 +232,11 @@ int main(int argc, char** argv) {
                      {"layers", layered.facts["layers"]}, {"planes", layered.facts["planes"]},
                      {"bad1_ratio_to_sgbm", ls.bad1 / s.bad1}, {"time_ratio_to_sgbm", tl / ts},
                      {"dominates_sgbm", ls.bad1 <= s.bad1 && tl <= ts}}},
-        {"bad1_ratio_to_sgbm", o.bad1 / s.bad1}, {"time_ratio_to_sgbm", to / ts}, {"dominates_sgbm", ok}};
+        {"bad1_ratio_to_sgbm", o.bad1 / s.bad1}, {"time_ratio_to_sgbm", ratio},
+        {"time_ratio_of_medians", to / ts}, {"dominates_sgbm", ok}};
     std::cout << pair.name << ": SGBM bad1 " << s.bad1 << "% " << ts * 1e3 << " ms | plane_sweep bad1 " << o.bad1
               << "% bad2 " << o.bad2 << "% unfilled " << o.unfilled << " " << to * 1e3 << " ms ("
-              << to / ts << "x) " << ours.evaluations / to / 1e6 << " M eval/s | layered bad1 " << ls.bad1 << "% bad2 "
+              << ratio << "x) " << ours.evaluations / to / 1e6 << " M eval/s | layered bad1 " << ls.bad1 << "% bad2 "
               << ls.bad2 << "% " << tl * 1e3 << " ms (" << tl / ts << "x) " << layered.facts["layers"] << " layers\n";
   }
   report["all_pairs_dominate_sgbm"] = all_ok;
