@@ -420,7 +420,7 @@ void ApplyOverride(const std::string& assignment, const StageRegistry& registry,
   const size_t eq = assignment.find('=');
   const size_t dot = assignment.find('.');
   if (eq == std::string::npos || dot == std::string::npos || dot > eq) {
-    throw ConfigError("--set " + assignment + ": expected stage.key=value, e.g. --set plane_sweep.planes=128");
+    throw ConfigError("--set " + assignment + ": expected stage.key=value, e.g. --set plane_sweep.num_planes=128");
   }
   const std::string stage_name = assignment.substr(0, dot);
   const std::string key = assignment.substr(dot + 1, eq - dot - 1);
