@@ -242,7 +242,25 @@ int EditDistance(const std::string& a, const std::string& b) {
   return row[b.size()];
 }
 
-std::string ExpandVariables(const std::string& text) {
+// Whether `position` of `text` lies in a YAML comment: after a '#' that starts its line or follows
+// a blank, outside quotes, on the same line.
+static bool InComment(const std::string& text, size_t position) {
+  const size_t line_start = text.rfind('\n', position == 0 ? 0 : position - 1);
+  char quote = 0;
+  for (size_t i = line_start == std::string::npos ? 0 : line_start + 1; i < position; ++i) {
+    const char c = text[i];
+    if (quote) {
+      if (c == quote) quote = 0;
+    } else if (c == '"' || c == '\'') {
+      quote = c;
+    } else if (c == '#' && (i == 0 || text[i - 1] == ' ' || text[i - 1] == '\t' || text[i - 1] == '\n')) {
+      return true;
+    }
+  }
+  return false;
+}
+
+std::string ExpandVariables(const std::string& text, const std::string& file) {
   static const std::regex pattern(R"(\$\{([A-Za-z_][A-Za-z0-9_]*)(:-([^}]*))?\})");
   std::string out;
   auto begin = std::sregex_iterator(text.begin(), text.end(), pattern);
@@ -250,7 +268,14 @@ std::string ExpandVariables(const std::string& text) {
   for (auto it = begin; it != std::sregex_iterator(); ++it) {
     const std::smatch& m = *it;
     out += text.substr(last, m.position(0) - last);
-    const char* env = std::getenv(m[1].str().c_str());
+    const std::string name = m[1].str();
+    const char* env = std::getenv(name.c_str());
+    if (!(env && *env) && !m[2].matched && !InComment(text, m.position(0))) {
+      // No value and no default: the YAML would read null, and a stage fail late on a path "null".
+      const int line = 1 + static_cast<int>(std::count(text.begin(), text.begin() + m.position(0), '\n'));
+      throw ConfigError(Where(file, line, "", "${" + name + "} is " + (env ? "empty" : "not set") + ": set it (" + name +
+                                                  "=...) or give a default as ${" + name + ":-...}"));
+    }
     out += (env && *env) ? std::string(env) : m[3].str();
     last = m.position(0) + m.length(0);
   }
@@ -384,7 +409,7 @@ Config LoadConfig(const std::string& path, const StageRegistry& registry) {
 
   YAML::Node root;
   try {
-    root = YAML::Load(ExpandVariables(text.str()));
+    root = YAML::Load(ExpandVariables(text.str(), path));
   } catch (const YAML::ParserException& e) {
     throw ConfigError(Where(path, e.mark.line + 1, "", "YAML syntax error: " + e.msg));
   }

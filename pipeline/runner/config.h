@@ -1,7 +1,8 @@
 // The run configuration (YAML): workspace, named inputs, holdout policy and the ordered stages
 // with their parameters. Paths are relative to the config file; ${VAR:-default} expands from
-// the environment. Every error names the file, the line and the key, says what was expected,
-// and suggests the nearest valid key for a misspelt one.
+// the environment (a ${VAR} without default that is not set is an error). Every error names the
+// file, the line and the key, says what was expected, and suggests the nearest valid key for a
+// misspelt one.
 //
 //   workspace: ${IBMR_WORKSPACE:-../workspaces/demo}
 //   inputs:            # named paths stages may read (import's default source is inputs.images)
@@ -95,8 +96,10 @@ struct Config {
   const StageConfig* FindStage(const std::string& name) const;
 };
 
-// Expands ${VAR} and ${VAR:-default} from the environment in `text`.
-std::string ExpandVariables(const std::string& text);
+// Expands ${VAR} and ${VAR:-default} from the environment in `text` (an empty VAR counts as unset).
+// Throws ConfigError naming `file` and the line for a ${VAR} without default whose VAR is unset or
+// empty (outside comments).
+std::string ExpandVariables(const std::string& text, const std::string& file = "config");
 // Edit distance between two keys, for "did you mean" suggestions.
 int EditDistance(const std::string& a, const std::string& b);
 

@@ -98,6 +98,22 @@ TEST_F(ConfigTest, ExpandsVariablesWithDefaults) {
   EXPECT_EQ(config.workspace, (dir_ / "w2").string());
 }
 
+TEST_F(ConfigTest, UnsetVariableWithoutDefaultNamesFileLineAndVariable) {
+  ::unsetenv("IBMR_TEST_UNSET");
+  // Was: expanded to nothing, read as null, and a stage failed late on a path ".../null".
+  std::string error = ErrorOf("workspace: ws\n# ${IBMR_TEST_UNSET} in a comment is ignored\ninputs:\n"
+                              "  images: ${IBMR_TEST_UNSET}   # required\nstages:\n  - produce\n");
+  EXPECT_NE(error.find("c.yaml:4: ${IBMR_TEST_UNSET} is not set"), std::string::npos) << error;
+  EXPECT_NE(error.find("IBMR_TEST_UNSET=..."), std::string::npos) << error;
+  EXPECT_NE(error.find("${IBMR_TEST_UNSET:-...}"), std::string::npos) << error;
+  ::setenv("IBMR_TEST_EMPTY", "", 1);
+  error = ErrorOf("workspace: ${IBMR_TEST_EMPTY}\nstages:\n  - produce\n");
+  EXPECT_NE(error.find("c.yaml:1: ${IBMR_TEST_EMPTY} is empty"), std::string::npos) << error;
+  // An empty default is a default.
+  EXPECT_EQ(ErrorOf("workspace: ws${IBMR_TEST_UNSET:-}\nstages:\n  - produce\n"), "");
+  EXPECT_THROW(ExpandVariables("a: ${IBMR_TEST_UNSET}\n", "x.yaml"), ConfigError);
+}
+
 TEST_F(ConfigTest, HoldoutSelectsEveryNthAndNamed) {
   const Config config = LoadConfig(Write("workspace: ws\nholdout:\n  every: 3\n  images: [z.png]\nstages:\n  - produce\n"),
                                    registry_);
