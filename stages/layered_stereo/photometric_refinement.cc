@@ -4,7 +4,9 @@
 // mapped into each neighbour through the plane's homography (Eq. 7), should have the neighbour's
 // grey level there. Ceres, with bicubic interpolation of the neighbours' images and a Huber loss;
 // the plane is parametrised as u = n_c / d_c in the reference camera (n_c . X = d_c), so that a
-// pixel's point is r / (u . r) for its ray r, without a gauge freedom.
+// pixel's point is r / (u . r) for its ray r, without a gauge freedom. A pixel counts where the
+// depth maps show the plane alone 2 pixels around it, in the reference and where it lands in the
+// neighbour: an outline mixes the colours of both sides, which pulled small planes off.
 #include <ceres/ceres.h>
 #include <ceres/cubic_interpolation.h>
 
@@ -52,6 +54,21 @@ struct PhotoResidual {
   const Interpolator* image;
 };
 
+// Whether every depth in the (2r+1)^2 window around (x, y) lies within `tolerance` of `z` (relative):
+// the pixel and its surroundings show one surface at that depth, with no hole and no other surface
+// near enough to bleed into its colour (a rendered or photographed edge mixes both sides over a
+// pixel or two, and the interpolation reaches two more).
+bool OneSurfaceAround(const cv::Mat& depth, int x, int y, int r, double z, double tolerance) {
+  if (x - r < 0 || y - r < 0 || x + r >= depth.cols || y + r >= depth.rows) return false;
+  for (int yy = y - r; yy <= y + r; ++yy) {
+    const float* row = depth.ptr<float>(yy);
+    for (int xx = x - r; xx <= x + r; ++xx) {
+      if (!(row[xx] > 0) || std::abs(row[xx] - z) > tolerance * z) return false;
+    }
+  }
+  return true;
+}
+
 std::vector<double> Grey(const cv::Mat& bgr) {
   cv::Mat grey;
   cv::cvtColor(bgr, grey, cv::COLOR_BGR2GRAY);
@@ -60,6 +77,9 @@ std::vector<double> Grey(const cv::Mat& bgr) {
     for (int x = 0; x < grey.cols; ++x) values[static_cast<size_t>(y) * grey.cols + x] = grey.at<uint8_t>(y, x);
   return values;
 }
+
+// The window around a pixel, in both views, that must show the plane alone (OneSurfaceAround).
+constexpr int kMargin = 2;
 
 }  // namespace
 
@@ -93,7 +113,10 @@ void RefinePlanesPhotometric(const LayerView& reference, const std::vector<const
       for (int x = 2; x < width - 2; x += options.sample_step) {
         if (labels.at<int>(y, x) != static_cast<int>(l)) continue;
         const float g = std::hypot(gx.at<float>(y, x), gy.at<float>(y, x)) / 8.0f;  // Sobel's scale: 8
-        if (g >= 8.0f) pixels.emplace_back(x, y);
+        if (g < 8.0f) continue;
+        const double along = Eigen::Vector3d(u[0], u[1], u[2]).dot(reference.camera.CamFromImg(Eigen::Vector2d(x + 0.5, y + 0.5)));
+        if (!(along > 0) || !OneSurfaceAround(reference.depth, x, y, kMargin, 1.0 / along, 2 * options.plane_tolerance)) continue;
+        pixels.emplace_back(x, y);
       }
     }
     if (pixels.size() < 50) continue;
@@ -116,8 +139,8 @@ void RefinePlanesPhotometric(const LayerView& reference, const std::vector<const
         if (in_neighbour.z() <= 0) continue;
         const Eigen::Vector2d p = n.camera.ImgFromCam(in_neighbour);
         if (p.x() < 3 || p.y() < 3 || p.x() > n.image.cols - 3 || p.y() > n.image.rows - 3) continue;
-        const float zn = n.depth.empty() ? 0.f : n.depth.at<float>(static_cast<int>(p.y()), static_cast<int>(p.x()));
-        if (zn > 0 && zn < in_neighbour.z() * (1 - 2 * options.plane_tolerance)) continue;
+        if (!OneSurfaceAround(n.depth, static_cast<int>(p.x()), static_cast<int>(p.y()), kMargin, in_neighbour.z(),
+                              2 * options.plane_tolerance)) continue;
         problem.AddResidualBlock(new ceres::AutoDiffCostFunction<PhotoResidual, 1, 3>(new PhotoResidual(
                                      ray, grey.at<uint8_t>(y, x), r_rel, t_rel, k, interpolators[j].get())),
                                  new ceres::HuberLoss(10.0), u);
