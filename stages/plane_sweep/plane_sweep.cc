@@ -133,6 +133,10 @@ bool PlaneSweepOptions::Check(std::string* error) const {
 
 StereoPairResult StereoPair(const cv::Mat& left_image, const cv::Mat& right_image, int max_disparity,
                             const PlaneSweepOptions& options) {
+  if (max_disparity < 1) throw std::invalid_argument("StereoPair: max_disparity must be at least 1, got " + std::to_string(max_disparity));
+  if (left_image.empty() || left_image.size() != right_image.size()) {
+    throw std::invalid_argument("StereoPair: a rectified pair needs two non-empty images of one size");
+  }
   const auto start = std::chrono::steady_clock::now();
   const cv::Mat left = ToGray(left_image), right = ToGray(right_image);
   sweep::Neighbour neighbour;
@@ -272,10 +276,11 @@ PlaneSweepResult PlaneSweep(const SweepView& reference, const std::vector<SweepV
     }
   }
   // A pixel whose texture factor is below the confidence threshold cannot keep a depth, whatever
-  // its cost curve. Where the whole census window around it is like that too, it is not matched
-  // (its curve is flat, neutral in the semi-global passes); nearer to texture its curve still
-  // supports its textured neighbours along the paths. On templeRing the black background is two
-  // thirds of every view.
+  // its cost curve. Where every pixel within three census radii of it is like that too, it is not
+  // matched (one cost on every plane, flat in the semi-global passes, except where the box filter
+  // mixes in a matched neighbour's curve); nearer to texture its curve still supports its
+  // textured neighbours along the paths. On templeRing the black background is two thirds of
+  // every view.
   if (options.texture_scale > 0 && options.confidence_threshold > 0) {
     if (ranges.first.empty()) {
       ranges.first.assign(static_cast<size_t>(w) * h, 0);

@@ -19,6 +19,7 @@
 #include <fstream>
 #include <iostream>
 #include <mutex>
+#include <new>
 #include <opencv2/imgproc.hpp>
 
 #include "pipeline/core/atomic_file.h"
@@ -50,8 +51,8 @@ double PeakRssMb() {
   return usage.ru_maxrss / 1024.0;
 }
 
-// Grey image of a view, undistorted in memory when the camera has distortion.
-cv::Mat LoadGrayUndistorted(const std::string& path, const Camera& camera, Camera* undistorted) {
+// Grey image of a view, checked against its camera's size.
+cv::Mat ReadGray(const std::string& path, const Camera& camera) {
   const cv::Mat color = ReadImageColor(path);
   if (color.cols != camera.width || color.rows != camera.height) {
     throw InputError(path + ": image is " + std::to_string(color.cols) + "x" + std::to_string(color.rows) +
@@ -60,31 +61,19 @@ cv::Mat LoadGrayUndistorted(const std::string& path, const Camera& camera, Camer
   }
   cv::Mat gray;
   cv::cvtColor(color, gray, cv::COLOR_BGR2GRAY);
-  *undistorted = camera.HasDistortion() ? camera.Undistorted() : camera;
-  if (!camera.HasDistortion()) return gray;
-  cv::Mat map_x(gray.size(), CV_32F), map_y(gray.size(), CV_32F);
-  const Eigen::Matrix3d k_inv = undistorted->K().inverse();
-  for (int y = 0; y < gray.rows; ++y) {
-    for (int x = 0; x < gray.cols; ++x) {
-      const Eigen::Vector2d p = camera.ImgFromCam(k_inv * Eigen::Vector3d(x + 0.5, y + 0.5, 1.0));
-      map_x.at<float>(y, x) = static_cast<float>(p.x() - 0.5);
-      map_y.at<float>(y, x) = static_cast<float>(p.y() - 0.5);
-    }
-  }
-  cv::Mat out;
-  cv::remap(gray, out, map_x, map_y, cv::INTER_LINEAR, cv::BORDER_CONSTANT);
-  return out;
+  return gray;
 }
 
-// Grey, undistorted, and downscaled (area averaging) when its longest side exceeds `max_size`
-// (> 0); `undistorted` is the camera of the result.
-cv::Mat LoadGray(const std::string& path, const Camera& camera, int max_size, Camera* undistorted) {
-  cv::Mat gray = LoadGrayUndistorted(path, camera, undistorted);
+// Grey, and downscaled (area averaging) when its longest side exceeds `max_size` (> 0); `scaled`
+// is the camera of the result.
+cv::Mat LoadGray(const std::string& path, const Camera& camera, int max_size, Camera* scaled) {
+  cv::Mat gray = ReadGray(path, camera);
+  *scaled = camera;
   const int longest = std::max(gray.cols, gray.rows);
   if (max_size <= 0 || longest <= max_size) return gray;
-  *undistorted = undistorted->Scaled(static_cast<double>(max_size) / longest);
+  *scaled = camera.Scaled(static_cast<double>(max_size) / longest);
   cv::Mat smaller;
-  cv::resize(gray, smaller, cv::Size(undistorted->width, undistorted->height), 0, 0, cv::INTER_AREA);
+  cv::resize(gray, smaller, cv::Size(scaled->width, scaled->height), 0, 0, cv::INTER_AREA);
   return smaller;
 }
 
@@ -202,8 +191,8 @@ class PlaneSweepStage : public Stage {
     std::vector<int> ids;
     for (const std::string& name : names) ids.push_back(model.FindImage(name)->image_id);
 
-    // Views, loaded once (grey, undistorted) when first needed: a shard loads its own views and
-    // their neighbours only, and an unreadable image fails just the views that need it.
+    // Views, loaded once (grey, scaled to max_image_size) when first needed: a shard loads its own
+    // views and their neighbours only, and an unreadable image fails just the views that need it.
     std::vector<SweepView> views(names.size());
     std::vector<std::once_flag> loaded(names.size());  // a load that throws is tried again
     auto view = [&](size_t i) -> const SweepView& {
@@ -212,6 +201,14 @@ class PlaneSweepStage : public Stage {
         const Camera& camera = model.CameraOf(image);
         const std::string problem = camera.Validate();
         if (!problem.empty()) throw InputError(context.workspace.SparseDir() + "/cameras.txt: camera of " + image.name + ": " + problem);
+        // The depth maps of a distorted photo would lie on a grid that multi_depth, fuse and the
+        // renderers cannot tell from the photo's own; COLMAP's dense steps, too, take undistorted
+        // images.
+        if (camera.HasDistortion()) {
+          throw InputError(context.workspace.SparseDir() + "/cameras.txt: camera of " + image.name +
+                           " has lens distortion; plane_sweep needs undistorted images: add the undistort stage "
+                           "before it (as configs/photos.yaml does), or import PINHOLE cameras");
+        }
         views[i].name = image.name;
         views[i].cam_from_world = image.cam_from_world;
         views[i].gray = LoadGray(context.workspace.ImagesDir() + "/" + image.name, camera,
@@ -477,6 +474,13 @@ int StereoPairMain(const std::vector<std::string>& args) {
     WritePfm(out, result.disparity);
     std::cout << "stereo-pair: " << out << " (" << l.cols << "x" << l.rows << ", " << max_disparity << " disparities, "
               << result.seconds * 1e3 << " ms, unfilled " << result.unfilled_fraction << ")\n";
+  } catch (const std::bad_alloc&) {
+    // The cost volume and the two semi-global sums: 16-bit costs, disparities in multiples of 16.
+    const cv::Mat l = ReadImageColor(left);
+    const double gb = 3.0 * l.cols * l.rows * ((max_disparity + 15) / 16 * 16) * 2 / 1e9;
+    std::cerr << "stereo-pair: out of memory: " << l.cols << "x" << l.rows << " with " << max_disparity
+              << " disparities needs about " << gb << " GB for its cost volumes; lower --max-disparity or downscale the pair\n";
+    return 1;
   } catch (const std::exception& e) {
     std::cerr << "stereo-pair: " << e.what() << "\n";
     return 1;

@@ -11,6 +11,7 @@
 #include <random>
 
 #include "pipeline/core/colmap_array_io.h"
+#include "pipeline/core/errors.h"
 #include "pipeline/core/image_io.h"
 #include "pipeline/core/stage_api.h"
 #include "stages/plane_sweep/plane_sweep.h"
@@ -91,6 +92,14 @@ TEST(PlaneSweepOptions, InvalidRangesNameTheKey) {
   o.min_depth = 2;
   o.max_depth = 1;
   EXPECT_EQ(key_of(o), "max_depth");
+}
+
+// Bad arguments from the C++ API are errors, not reads outside a volume of no disparities.
+TEST(StereoPair, RejectsNoDisparitiesAndMismatchedImages) {
+  const cv::Mat image = RandomTexture(40, 30, 4);
+  EXPECT_THROW(StereoPair(image, image, 0, PlaneSweepOptions()), std::invalid_argument);
+  EXPECT_THROW(StereoPair(image, image(cv::Rect(0, 0, 39, 30)), 8, PlaneSweepOptions()), std::invalid_argument);
+  EXPECT_THROW(StereoPair(cv::Mat(), cv::Mat(), 8, PlaneSweepOptions()), std::invalid_argument);
 }
 
 TEST(StereoPair, RecoversAConstantShift) {
@@ -605,6 +614,32 @@ TEST_F(PlaneSweepStageTest, SynthObjectRingDepthMatchesGroundTruth) {
               static_cast<double>(estimated) / truth);
   EXPECT_GT(fraction, 0.65);
   EXPECT_GT(static_cast<double>(within) / std::max<size_t>(1, estimated), 0.7);
+}
+
+// A camera with lens distortion is refused with a message naming the file, the image and the fix
+// (its depth maps would lie on a grid multi_depth, fuse and the renderers read as the photo's own).
+TEST_F(PlaneSweepStageTest, DistortedCamerasAreRefusedWithTheFix) {
+  SynthRing(4, 80, 60);
+  const Workspace ws(dir_.string());
+  const std::string cameras = ws.SparseDir() + "/cameras.txt";
+  std::ifstream in(cameras);
+  std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  in.close();
+  const size_t at = text.find(" PINHOLE ");
+  ASSERT_NE(at, std::string::npos);
+  const size_t end = text.find('\n', at);
+  text = text.substr(0, at) + " OPENCV " + text.substr(at + 9, end - at - 9) + " 0.05 0 0 0" + text.substr(end);
+  std::ofstream(cameras) << text;
+  try {
+    Run("plane_sweep", Defaults(*registry_.Find("plane_sweep")));
+    FAIL() << "a distorted camera was accepted";
+  } catch (const InputError& e) {
+    const std::string message = e.what();
+    EXPECT_NE(message.find("cameras.txt"), std::string::npos) << message;
+    EXPECT_NE(message.find("view_00"), std::string::npos) << message;
+    EXPECT_NE(message.find("lens distortion"), std::string::npos) << message;
+    EXPECT_NE(message.find("undistort"), std::string::npos) << message;
+  }
 }
 
 }  // namespace

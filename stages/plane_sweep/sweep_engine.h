@@ -72,7 +72,9 @@ struct Neighbour {
 // planes first..last (inclusive), as a hull bounds it; first > last: no surface (the pixel is not
 // matched). Planes outside a pixel's range take the mean of its in-range costs, neutral for the
 // aggregation and for the certainty (the curve's mean is the in-range mean); an unmatched pixel's
-// curve is flat (no certainty). With the census cost only in-range planes (in blocks of 16) are
+// curve is flat (no certainty). The census cost's box filter runs after the ranges are applied, so
+// near a range's edge (and near a matched pixel) it mixes in the neighbours' curves; SAD and ZNCC
+// apply the ranges last. With the census cost only in-range planes (in blocks of 16) are
 // evaluated.
 struct PlaneRanges {
   std::vector<uint16_t> first, last;
