@@ -60,9 +60,13 @@ inline Eigen::Vector3f Unproject(const PreparedNeighbor& n, const Eigen::Vector2
 // pixel's (across a depth edge interpolation would invent a surface). 0 outside or unknown; the
 // nearest pixel is returned in (*px, *py).
 inline float DepthAt(const DepthMap& depth, const Eigen::Vector2f& p, float smooth, int* px, int* py) {
-  *px = static_cast<int>(std::floor(p.x()));
-  *py = static_cast<int>(std::floor(p.y()));
-  if (*px < 0 || *py < 0 || *px >= depth.width || *py >= depth.height) return 0.f;
+  // Tested as floats: a point just in front of the camera projects too far for an int.
+  if (!(p.x() >= 0 && p.y() >= 0 && p.x() < depth.width && p.y() < depth.height)) {
+    *px = *py = -1;
+    return 0.f;
+  }
+  *px = static_cast<int>(p.x());
+  *py = static_cast<int>(p.y());
   const float nearest = depth.At(*px, *py);
   const float fx = p.x() - 0.5f, fy = p.y() - 0.5f;
   const int x0 = static_cast<int>(std::floor(fx)), y0 = static_cast<int>(std::floor(fy));
@@ -169,11 +173,6 @@ Votes Vote(const Eigen::Vector3f& ray, float depth, float confidence, const std:
   return votes;
 }
 
-bool Accepted(const Votes& votes, const MultiDepthOptions& options) {
-  return votes.confirmations >= options.min_consistent_views &&
-         votes.violations <= options.max_violation_ratio * votes.confirmations;
-}
-
 // Each neighbour's confident samples forward-warped into the key view (nearest surface per key
 // pixel, z-buffered): the candidate depths for key pixels without an accepted sample.
 std::vector<DepthMap> WarpNeighbors(const std::vector<PreparedNeighbor>& prepared, const Camera& key_camera, int w, int h,
@@ -195,8 +194,9 @@ std::vector<DepthMap> WarpNeighbors(const std::vector<PreparedNeighbor>& prepare
         if (in_key.z() <= 0) continue;
         Eigen::Vector2f p(fx * in_key.x() / in_key.z() + cx, fy * in_key.y() / in_key.z() + cy);
         if (distorted) p = (key_camera.ImgFromCam(in_key.cast<double>()).array() * Eigen::Array2d(sx, sy)).cast<float>().matrix();
-        const int x = static_cast<int>(std::floor(p.x())), y = static_cast<int>(std::floor(p.y()));
-        if (x < 0 || y < 0 || x >= w || y >= h) continue;
+        // Tested as floats: a point just in front of the key camera projects too far for an int.
+        if (!(p.x() >= 0 && p.y() >= 0 && p.x() < w && p.y() < h)) continue;
+        const int x = static_cast<int>(p.x()), y = static_cast<int>(p.y());
         float& target = z.At(x, y);
         if (target == 0.f || in_key.z() < target) target = in_key.z();
       }
@@ -236,7 +236,10 @@ MultiDepthResult MakeDepthConsistent(const DepthView& key, const std::vector<con
     if (n != nullptr && !n->depth.Empty()) prepared.push_back(Prepare(key, *n));
   }
   auto store = [&](int x, int y, const Votes& votes, float depth, const Eigen::Vector3f& ray, Eigen::Vector3f normal) {
-    result.depth.At(x, y) = options.refine_depth ? static_cast<float>(votes.weighted_depth / votes.weight_sum) : depth;
+    // No weight (the key and its confirming views all of confidence 0, which min_confidence 0
+    // lets through): the sample's own depth.
+    const bool refine = options.refine_depth && votes.weight_sum > 0;
+    result.depth.At(x, y) = refine ? static_cast<float>(votes.weighted_depth / votes.weight_sum) : depth;
     result.confidence.At(x, y) = static_cast<float>(votes.confidence_sum / (1 + votes.confirmations + votes.violations));
     if (!(normal.squaredNorm() > 0.25f)) normal = -ray.normalized();  // unknown: face the camera
     for (int c = 0; c < 3; ++c) result.normals.At(x, y, c) = normal[c];
@@ -316,7 +319,7 @@ MultiDepthResult MakeDepthConsistent(const DepthView& key, const std::vector<con
         const Votes votes = Vote(ray, candidate, 0.f, prepared, options);  // depth from the confirming views only
         if (votes.violations > 0 || votes.confirmations < options.min_consistent_views + 1) continue;
         ++stats.filled;
-        store(x, y, votes, candidate, ray, Eigen::Vector3f::Zero());  // weight_sum > 0: confirmations >= 1
+        store(x, y, votes, candidate, ray, Eigen::Vector3f::Zero());
         filled.push_back(static_cast<size_t>(y) * w + x);
         break;
       }

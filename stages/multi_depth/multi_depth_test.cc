@@ -325,6 +325,21 @@ TEST(MultiDepth, LowConfidenceSamplesAreDropped) {
   EXPECT_GT(result.stats.kept, 1000u);
 }
 
+// With min_confidence 0, samples of confidence 0 everywhere are kept (and filled in) with no weight
+// to refine by: they keep their own depth, not 0/0.
+TEST(MultiDepth, ZeroConfidenceEverywhereGivesFiniteDepths) {
+  const Scene scene = MakeScene();
+  std::vector<DepthView> views = scene.truth;
+  for (DepthView& view : views) view.confidence = FloatMap(view.depth.width, view.depth.height, 1, 0.f);
+  MultiDepthOptions options;
+  options.min_confidence = 0;
+  const MultiDepthResult result = MakeDepthConsistent(views[0], Others(views, 0), options);
+  EXPECT_GT(result.stats.kept, 1000u);
+  for (const float d : result.depth.data) ASSERT_TRUE(std::isfinite(d));
+  const DepthAccuracy accuracy = CompareDepth(result.depth, scene.truth[0].depth, 0.01);
+  EXPECT_GT(accuracy.within_tolerance, 0.995 * accuracy.estimated);  // the filled ones warped in
+}
+
 TEST(MultiDepth, CompareDepthSamplesTruthAtLowerResolution) {
   DepthMap truth(4, 4, 1, 2.f), half(2, 2, 1, 2.01f);
   half.At(1, 1) = 0;
