@@ -4,6 +4,7 @@
 #include <yaml-cpp/yaml.h>
 
 #include <algorithm>
+#include <cmath>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
@@ -77,6 +78,10 @@ bool ToValue(const YAML::Node& node, const ParamSpec& spec, const std::string& d
         size_t pos = 0;
         const double v = std::stod(s, &pos);
         if (pos != s.size()) throw std::invalid_argument(s);
+        if (!std::isfinite(v)) {  // stod reads "inf" and "nan"; no parameter means either
+          *error = "expected a finite number, got " + scalar_text();
+          return false;
+        }
         *value = v;
         return true;
       }
@@ -106,7 +111,13 @@ bool ToValue(const YAML::Node& node, const ParamSpec& spec, const std::string& d
           *value = v;
         } else if (spec.type == ParamType::kDoubleList) {
           std::vector<double> v;
-          for (const auto& item : node) v.push_back(item.as<double>());
+          for (const auto& item : node) {
+            v.push_back(item.as<double>());
+            if (!std::isfinite(v.back())) {
+              *error = "expected finite numbers, got '" + item.Scalar() + "'";
+              return false;
+            }
+          }
           *value = v;
         } else {
           std::vector<std::string> v;

@@ -68,6 +68,17 @@ TEST_F(ConfigTest, TypeErrorSaysExpectedType) {
   EXPECT_NE(error.find("'many'"), std::string::npos) << error;
 }
 
+// "inf" and "nan" read as numbers (std::stod takes them), but no parameter means either: a bound
+// of infinity made the plane sweep's planes and depths infinite, not an error.
+TEST_F(ConfigTest, NonFiniteNumbersAreTypeErrors) {
+  for (const std::string text : {"inf", "-inf", "nan", "NAN"}) {
+    const std::string error = ErrorOf("workspace: ws\nstages:\n  - produce:\n      scale: " + text + "\n");
+    EXPECT_NE(error.find("c.yaml:4"), std::string::npos) << error;
+    EXPECT_NE(error.find("expected a finite number, got '" + text + "'"), std::string::npos) << error;
+  }
+  EXPECT_EQ(ErrorOf("workspace: ws\nstages:\n  - produce:\n      scale: 2.5e3\n"), "");
+}
+
 TEST_F(ConfigTest, StageCheckErrorNamesTheKeyLine) {
   const std::string error = ErrorOf("workspace: ws\nstages:\n  - produce:\n      threads: 2\n      value: -4\n");
   EXPECT_NE(error.find("c.yaml:5"), std::string::npos) << error;

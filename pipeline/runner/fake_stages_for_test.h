@@ -32,7 +32,8 @@ class Produce : public Stage {
     return {{"value", ParamType::kInt, "1", "any integer >= 0"},
             {"source", ParamType::kPath, "source.txt", "external input"},
             {"threads", ParamType::kInt, "1", "resource knob", {}, false},
-            {"fail", ParamType::kBool, "false", "throw halfway"}};
+            {"fail", ParamType::kBool, "false", "throw halfway"},
+            {"scale", ParamType::kDouble, "1", "any finite number"}};
   }
   std::optional<ParamError> CheckParams(const Params& params) const override {
     if (params.Int("value") < 0) return ParamError{"value", "must be >= 0, got " + std::to_string(params.Int("value"))};
