@@ -148,10 +148,13 @@ cv::Mat CombinedDepth(const LayerSet& set, cv::Mat* front) {
     for (int x = 0; x < width; ++x) {
       float best = 0;
       int best_layer = -1;
-      for (size_t k = 0; k < set.layers.size(); ++k) {
-        if (set.layers[k].rgba.at<cv::Vec4b>(y, x)[3] < 128) continue;
-        const float z = static_cast<float>(set.Depth(k, x, y));
-        if (z > 0 && (best == 0 || z < best)) best = z, best_layer = static_cast<int>(k);
+      for (const int min_alpha : {255, 128}) {  // owned pixels first, then seams
+        for (size_t k = 0; k < set.layers.size(); ++k) {
+          if (set.layers[k].rgba.at<cv::Vec4b>(y, x)[3] < min_alpha) continue;
+          const float z = static_cast<float>(set.Depth(k, x, y));
+          if (z > 0 && (best == 0 || z < best)) best = z, best_layer = static_cast<int>(k);
+        }
+        if (best_layer >= 0) break;
       }
       depth.at<float>(y, x) = best;
       if (front) front->at<int>(y, x) = best_layer;

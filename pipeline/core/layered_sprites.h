@@ -19,13 +19,16 @@
 //                            "layers": [{"normal", "offset", "sprite", "residual", "pixels"}],
 //                            plus what the stage records (the layer-count curve)}; layers are
 //                            listed back to front as the reference view sees them
-//   layer_<k>.png           RGBA sprite, straight (not premultiplied) alpha
+//   layer_<k>.png           RGBA sprite, straight (not premultiplied) alpha; 255 on the layer's
+//                            own pixels (and where it extends under nearer layers), kSeamAlpha on
+//                            the seam it laps over its neighbours' pixels
 //   layer_<k>.residual.bin  residual depth, COLMAP array (1 channel, float)
 //   depth.bin               the front-most layer's depth per pixel (COLMAP array; 0: none), which
 //                            multi_depth and fuse read like a plane-sweep depth map
 #pragma once
 
 #include <Eigen/Core>
+#include <cstdint>
 #include <nlohmann/json.hpp>
 #include <opencv2/core.hpp>
 #include <string>
@@ -69,8 +72,16 @@ struct RgbaImage {
 RgbaImage CompositeLayers(const LayerSet& set, const Camera& camera, const Rigid3d& cam_from_world,
                           double max_depth_step = 0.05);
 
-// Per pixel, the front-most layer's depth where its alpha is at least 0.5 (0 elsewhere): the
-// combined depth map (CV_32F). `front` (optional): that layer's index per pixel (CV_32S, -1: none).
+// The alpha of a sprite's seam: the pixels of other layers next to its own, which it covers so
+// that a novel view that pulls the layers apart shows no crack. Drawn as opaque as the rest (to
+// within 1/255), but not the layer's surface there: the combined depth map prefers a layer that
+// owns the pixel.
+constexpr uint8_t kSeamAlpha = 254;
+
+// Per pixel, the front-most layer's depth among those with alpha 255 there (its own pixels, or
+// extended under nearer ones), else among those with alpha at least 0.5 (a seam), 0 where none:
+// the combined depth map (CV_32F). Seams do not push a nearer surface out over a farther one by a
+// pixel. `front` (optional): that layer's index per pixel (CV_32S, -1: none).
 cv::Mat CombinedDepth(const LayerSet& set, cv::Mat* front = nullptr);
 
 // layers/<image>/ as documented above (files written atomically). Read throws InputError naming

@@ -141,6 +141,30 @@ TEST_F(TwoPlanes, BothPlanesAndTheirCountAreRecovered) {
   EXPECT_NEAR(std::abs(result.layers.layers[0].offset), 4.0, 0.04);
 }
 
+// The combined depth map keeps the outline where the assignment put it: a sprite's 1-pixel seam
+// over its neighbour's pixels (there against cracks in novel views) does not push the nearer
+// plane's depth out over the farther one.
+TEST_F(TwoPlanes, TheCombinedDepthDoesNotGrowTheForegroundBySeams) {
+  LayeredOptions options;
+  options.choose_count = 0;
+  const LayeredResult result = ReconstructLayers(reference, pointers, options);
+  const cv::Mat depth = CombinedDepth(result.layers);
+  size_t ring = 0, ring_background = 0;  // true background pixels next to the foreground
+  for (int y = 1; y + 1 < kHeight; ++y) {
+    for (int x = 1; x + 1 < kWidth; ++x) {
+      if (reference.depth.at<float>(y, x) < 3.5f) continue;
+      bool next_to_front = false;
+      for (int dy = -1; dy <= 1; ++dy)
+        for (int dx = -1; dx <= 1; ++dx) next_to_front |= reference.depth.at<float>(y + dy, x + dx) < 3.5f;
+      if (!next_to_front) continue;
+      ++ring;
+      ring_background += depth.at<float>(y, x) >= 3.5f;
+    }
+  }
+  ASSERT_GT(ring, 100u);
+  EXPECT_GT(ring_background, 0.9 * ring) << ring_background << " of " << ring;
+}
+
 TEST_F(TwoPlanes, TheOcclusionBoundaryFollowsTheForegroundsOutline) {
   std::vector<WorldPlane> planes = {TrueBackground(), TrueForeground()};
   // Assignment without depth (the photo-consistency alone must find the outline).

@@ -363,10 +363,11 @@ LayerSet SpritesFromPlaneDepths(const LayerView& reference, const std::vector<co
         if (!(zp > 0)) continue;
         if (support.at<uint8_t>(y, x)) {
           const cv::Vec3b c = reference.image.at<cv::Vec3b>(y, x);
-          layer.rgba.at<cv::Vec4b>(y, x) = cv::Vec4b(c[0], c[1], c[2], 255);
+          const bool owned = own.at<uint8_t>(y, x) != 0;
+          layer.rgba.at<cv::Vec4b>(y, x) = cv::Vec4b(c[0], c[1], c[2], owned ? 255 : kSeamAlpha);
           const float limit = static_cast<float>(options.max_residual) * zp;
           const float z = reference.depth.at<float>(y, x);
-          if (!own.at<uint8_t>(y, x)) continue;  // seam pixels lie on the plane
+          if (!owned) continue;  // seam pixels lie on the plane
           if (z > 0) {
             layer.residual.at<float>(y, x) = std::clamp(z - zp, -limit, limit);
           } else if (!swept.empty()) {
