@@ -86,20 +86,36 @@ cv::Mat PlaneDepthMap(const LayerView& reference, const WorldPlane& plane) {
 }
 
 // Per pixel, the mean absolute colour difference between the reference and the neighbour warped
-// through the plane; NaN where the neighbour does not reach.
+// through the plane; NaN where the neighbour does not reach, and where the plane's point lies
+// behind either camera (the homography would mirror it into the neighbour's image: the floor
+// ahead of a camera that moves forward lies behind the camera in front).
 cv::Mat WarpDifference(const LayerView& reference, const LayerView& neighbour, const WorldPlane& plane,
                        const cv::Mat& reference_float) {
   cv::Mat source, warped;
   neighbour.image.convertTo(source, CV_32FC3);
   const float nan = std::numeric_limits<float>::quiet_NaN();
-  cv::warpPerspective(source, warped, PlaneHomography(reference, neighbour, plane), reference.image.size(),
-                      cv::INTER_LINEAR | cv::WARP_INVERSE_MAP, cv::BORDER_CONSTANT, cv::Scalar::all(nan));
+  const cv::Matx33d h = PlaneHomography(reference, neighbour, plane);
+  cv::warpPerspective(source, warped, h, reference.image.size(), cv::INTER_LINEAR | cv::WARP_INVERSE_MAP,
+                      cv::BORDER_CONSTANT, cv::Scalar::all(nan));
+  // At pixel (x, y) the homography's third coordinate is z_neighbour / z_reference, and
+  // n_c . K^-1 (x + 0.5, y + 0.5, 1) has the sign of d_c where the plane lies in front of the reference.
+  Eigen::Vector3d n_c;
+  double d_c;
+  PlaneInCamera(plane, reference.cam_from_world, &n_c, &d_c);
+  const Eigen::Matrix3d k_inv = reference.camera.K().inverse();
+  const Eigen::RowVector3d along = n_c.transpose() * k_inv * std::copysign(1.0, d_c);
   cv::Mat difference(reference.image.size(), CV_32F);
   for (int y = 0; y < difference.rows; ++y) {
     const cv::Vec3f* a = reference_float.ptr<cv::Vec3f>(y);
     const cv::Vec3f* b = warped.ptr<cv::Vec3f>(y);
     float* out = difference.ptr<float>(y);
     for (int x = 0; x < difference.cols; ++x) {
+      const double w = h(2, 0) * x + h(2, 1) * y + h(2, 2);
+      const double in_front = along.x() * (x + 0.5) + along.y() * (y + 0.5) + along.z();
+      if (!(w > 0 && in_front > 0)) {
+        out[x] = nan;
+        continue;
+      }
       out[x] = (std::abs(a[x][0] - b[x][0]) + std::abs(a[x][1] - b[x][1]) + std::abs(a[x][2] - b[x][2])) / 3.f;
     }
   }
