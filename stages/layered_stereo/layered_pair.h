@@ -86,7 +86,7 @@ struct DisparityPlane {
 };
 
 struct LayeredPairResult {
-  cv::Mat disparity;  // CV_32F, left view, in [0.001, max_disparity - 1] everywhere (no holes)
+  cv::Mat disparity;  // CV_32F, left view, in [0.001, max(1, max_disparity - 1)] everywhere (no holes)
   cv::Mat labels;     // CV_32S, index into `planes` per left pixel
   std::vector<DisparityPlane> planes;
   double seconds = 0;  // wall time of LayeredStereoPair (not of the initial disparity)

@@ -329,12 +329,13 @@ LayerSet SpritesFromPlaneDepths(const LayerView& reference, const std::vector<co
   set.image = reference.name;
   set.camera = reference.camera;
   set.cam_from_world = reference.cam_from_world;
-  // Order: back to front by the median reference depth of each plane's pixels.
+  // Order: back to front by the median reference depth of each plane's pixels (every pixel: a
+  // plane that holds only a thin strip still makes a layer).
   std::vector<std::pair<double, int>> order;
   for (size_t l = 0; l < planes.size(); ++l) {
     std::vector<float> depths;
-    for (int y = 0; y < height; y += 2) {
-      for (int x = 0; x < width; x += 2) {
+    for (int y = 0; y < height; ++y) {
+      for (int x = 0; x < width; ++x) {
         if (labels.at<int>(y, x) == static_cast<int>(l) && plane_z[l].at<float>(y, x) > 0) depths.push_back(plane_z[l].at<float>(y, x));
       }
     }

@@ -96,7 +96,8 @@ struct WorldPlane {
 };
 
 // Step 1. Planes largest first; at most max_layers, each with at least min_layer_fraction of the
-// samples. Deterministic for a given seed.
+// samples. Deterministic for a given seed with one standard library (std::uniform_int_distribution
+// may draw differently in another).
 std::vector<WorldPlane> FitPlanesRansac(const LayerView& reference, const LayeredOptions& options, unsigned seed = 1);
 
 // Step 2, in place. `views[0]` is the reference; the others add their samples near each plane.
