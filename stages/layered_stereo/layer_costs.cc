@@ -143,7 +143,7 @@ void AddParabolaOffsets(const float* __restrict c0, const float* __restrict c1, 
     const float denominator = convex ? curvature : 1.f;  // (a variable: inline, it stops vectorisation)
     const float offset = 0.5f * (c0[x] - c2[x]) / denominator;
     const float clamped = Min(0.5f, -Min(0.5f, -offset));
-    d[x] += (best_k[x] == kf) & convex ? clamped : 0.f;  // & not &&: no branch
+    d[x] += ((best_k[x] == kf) & convex) ? clamped : 0.f;  // & not &&: no branch
   }
 }
 
