@@ -284,8 +284,8 @@ std::string ExpandVariables(const std::string& text, const std::string& file) {
     if (!(env && *env) && !m[2].matched && !InComment(text, m.position(0))) {
       // No value and no default: the YAML would read null, and a stage fail late on a path "null".
       const int line = 1 + static_cast<int>(std::count(text.begin(), text.begin() + m.position(0), '\n'));
-      throw ConfigError(Where(file, line, "", "${" + name + "} is " + (env ? "empty" : "not set") + ": set it (" + name +
-                                                  "=...) or give a default as ${" + name + ":-...}"));
+      throw ConfigError(Where(file, line, "", "${" + name + "} is " + (env ? "empty" : "not set") + ": set it (" +
+                                                  name + "=...) or give a default as ${" + name + ":-...}"));
     }
     out += (env && *env) ? std::string(env) : m[3].str();
     last = m.position(0) + m.length(0);

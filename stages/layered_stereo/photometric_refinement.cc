@@ -114,8 +114,10 @@ void RefinePlanesPhotometric(const LayerView& reference, const std::vector<const
         if (labels.at<int>(y, x) != static_cast<int>(l)) continue;
         const float g = std::hypot(gx.at<float>(y, x), gy.at<float>(y, x)) / 8.0f;  // Sobel's scale: 8
         if (g < 8.0f) continue;
-        const double along = Eigen::Vector3d(u[0], u[1], u[2]).dot(reference.camera.CamFromImg(Eigen::Vector2d(x + 0.5, y + 0.5)));
-        if (!(along > 0) || !OneSurfaceAround(reference.depth, x, y, kMargin, 1.0 / along, 2 * options.plane_tolerance)) continue;
+        const Eigen::Vector3d ray = reference.camera.CamFromImg(Eigen::Vector2d(x + 0.5, y + 0.5));
+        const double along = Eigen::Vector3d(u[0], u[1], u[2]).dot(ray);  // 1 / the plane's depth here
+        if (!(along > 0)) continue;
+        if (!OneSurfaceAround(reference.depth, x, y, kMargin, 1.0 / along, 2 * options.plane_tolerance)) continue;
         pixels.emplace_back(x, y);
       }
     }

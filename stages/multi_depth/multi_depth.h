@@ -9,9 +9,10 @@
 //   * within a relative tolerance -> depth compatibility (the "controlled depth compatibility"
 //     term): a vote for it.
 // Samples that fewer than `min_consistent_views` neighbours confirm, or that more neighbours see
-// through than max_violation_ratio times those that confirm, are rejected. Kept samples are optionally refined to the confidence-
-// (inverse-variance-) weighted mean of the confirming depths along the key pixel's ray (the
-// uncertainty-weighted merging of seed 000 section 4, lines 4399-4453, in one dimension).
+// through than max_violation_ratio times those that confirm, are rejected. Kept samples are
+// optionally refined to the confidence- (inverse-variance-) weighted mean of the confirming
+// depths along the key pixel's ray (the uncertainty-weighted merging of seed 000 section 4,
+// lines 4399-4453, in one dimension).
 // Key pixels left without a depth (missing or rejected, but not dropped for low confidence) are
 // filled from the neighbours' depths forward-warped into the key view when other views confirm
 // them: the compatibility term lets neighbours inform the key's estimate (line ~5890).

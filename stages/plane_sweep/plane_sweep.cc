@@ -133,7 +133,9 @@ bool PlaneSweepOptions::Check(std::string* error) const {
 
 StereoPairResult StereoPair(const cv::Mat& left_image, const cv::Mat& right_image, int max_disparity,
                             const PlaneSweepOptions& options) {
-  if (max_disparity < 1) throw std::invalid_argument("StereoPair: max_disparity must be at least 1, got " + std::to_string(max_disparity));
+  if (max_disparity < 1) {
+    throw std::invalid_argument("StereoPair: max_disparity must be at least 1, got " + std::to_string(max_disparity));
+  }
   if (left_image.empty() || left_image.size() != right_image.size()) {
     throw std::invalid_argument("StereoPair: a rectified pair needs two non-empty images of one size");
   }

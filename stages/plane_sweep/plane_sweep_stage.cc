@@ -479,7 +479,8 @@ int StereoPairMain(const std::vector<std::string>& args) {
     const cv::Mat l = ReadImageColor(left);
     const double gb = 3.0 * l.cols * l.rows * ((max_disparity + 15) / 16 * 16) * 2 / 1e9;
     std::cerr << "stereo-pair: out of memory: " << l.cols << "x" << l.rows << " with " << max_disparity
-              << " disparities needs about " << gb << " GB for its cost volumes; lower --max-disparity or downscale the pair\n";
+              << " disparities needs about " << gb
+              << " GB for its cost volumes; lower --max-disparity or downscale the pair\n";
     return 1;
   } catch (const std::exception& e) {
     std::cerr << "stereo-pair: " << e.what() << "\n";
