@@ -107,18 +107,25 @@ void RefinePlanesPhotometric(const LayerView& reference, const std::vector<const
     const double d_c = plane.offset - plane.normal.dot(centre);
     if (std::abs(d_c) < 1e-12) continue;
     double u[3] = {n_c.x() / d_c, n_c.y() / d_c, n_c.z() / d_c};
-    // The layer's textured pixels (gradient above 8 grey levels a pixel), on a grid of sample_step.
-    std::vector<std::pair<int, int>> pixels;
+    // The layer's textured pixels (gradient above 8 grey levels a pixel), on a grid of sample_step,
+    // with their rays and u . ray (1 / the plane's depth there), which every neighbour uses.
+    struct Pixel {
+      int x, y;
+      Eigen::Vector3d ray;
+      double along;
+    };
+    const Eigen::Vector3d u_start(u[0], u[1], u[2]);
+    std::vector<Pixel> pixels;
     for (int y = 2; y < height - 2; y += options.sample_step) {
       for (int x = 2; x < width - 2; x += options.sample_step) {
         if (labels.at<int>(y, x) != static_cast<int>(l)) continue;
         const float g = std::hypot(gx.at<float>(y, x), gy.at<float>(y, x)) / 8.0f;  // Sobel's scale: 8
         if (g < 8.0f) continue;
         const Eigen::Vector3d ray = reference.camera.CamFromImg(Eigen::Vector2d(x + 0.5, y + 0.5));
-        const double along = Eigen::Vector3d(u[0], u[1], u[2]).dot(ray);  // 1 / the plane's depth here
+        const double along = u_start.dot(ray);
         if (!(along > 0)) continue;
         if (!OneSurfaceAround(reference.depth, x, y, kMargin, 1.0 / along, 2 * options.plane_tolerance)) continue;
-        pixels.emplace_back(x, y);
+        pixels.push_back({x, y, ray, along});
       }
     }
     if (pixels.size() < 50) continue;
@@ -131,20 +138,18 @@ void RefinePlanesPhotometric(const LayerView& reference, const std::vector<const
       const Eigen::Vector3d t_rel = n.cam_from_world.translation - r_rel * reference.cam_from_world.translation;
       const Eigen::Matrix3d k = n.camera.K();
       for (size_t s = 0; s < pixels.size(); s += stride) {
-        const auto [x, y] = pixels[s];
-        const Eigen::Vector3d ray = reference.camera.CamFromImg(Eigen::Vector2d(x + 0.5, y + 0.5));
-        // Kept only where the neighbour sees the plane's point: inside its image, and not behind a
-        // nearer surface of its depth map.
-        const double denominator = Eigen::Vector3d(u[0], u[1], u[2]).dot(ray);
-        if (!(denominator > 0)) continue;
-        const Eigen::Vector3d in_neighbour = r_rel * (ray / denominator) + t_rel;
+        const Pixel& pixel = pixels[s];
+        // Kept only where the neighbour sees the plane's point: inside its image, with the plane
+        // alone around it in the neighbour's depth map.
+        const Eigen::Vector3d in_neighbour = r_rel * (pixel.ray / pixel.along) + t_rel;
         if (in_neighbour.z() <= 0) continue;
         const Eigen::Vector2d p = n.camera.ImgFromCam(in_neighbour);
         if (p.x() < 3 || p.y() < 3 || p.x() > n.image.cols - 3 || p.y() > n.image.rows - 3) continue;
         if (!OneSurfaceAround(n.depth, static_cast<int>(p.x()), static_cast<int>(p.y()), kMargin, in_neighbour.z(),
                               2 * options.plane_tolerance)) continue;
-        problem.AddResidualBlock(new ceres::AutoDiffCostFunction<PhotoResidual, 1, 3>(new PhotoResidual(
-                                     ray, grey.at<uint8_t>(y, x), r_rel, t_rel, k, interpolators[j].get())),
+        auto* residual = new PhotoResidual(pixel.ray, grey.at<uint8_t>(pixel.y, pixel.x), r_rel, t_rel, k,
+                                           interpolators[j].get());
+        problem.AddResidualBlock(new ceres::AutoDiffCostFunction<PhotoResidual, 1, 3>(residual),
                                  new ceres::HuberLoss(10.0), u);
         ++residuals;
       }

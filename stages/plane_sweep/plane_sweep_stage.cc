@@ -51,8 +51,9 @@ double PeakRssMb() {
   return usage.ru_maxrss / 1024.0;
 }
 
-// Grey image of a view, checked against its camera's size.
-cv::Mat ReadGray(const std::string& path, const Camera& camera) {
+// Grey image of a view, checked against its camera's size, and downscaled (area averaging) when its
+// longest side exceeds `max_size` (> 0); `scaled` is the camera of the result.
+cv::Mat LoadGray(const std::string& path, const Camera& camera, int max_size, Camera* scaled) {
   const cv::Mat color = ReadImageColor(path);
   if (color.cols != camera.width || color.rows != camera.height) {
     throw InputError(path + ": image is " + std::to_string(color.cols) + "x" + std::to_string(color.rows) +
@@ -61,13 +62,6 @@ cv::Mat ReadGray(const std::string& path, const Camera& camera) {
   }
   cv::Mat gray;
   cv::cvtColor(color, gray, cv::COLOR_BGR2GRAY);
-  return gray;
-}
-
-// Grey, and downscaled (area averaging) when its longest side exceeds `max_size` (> 0); `scaled`
-// is the camera of the result.
-cv::Mat LoadGray(const std::string& path, const Camera& camera, int max_size, Camera* scaled) {
-  cv::Mat gray = ReadGray(path, camera);
   *scaled = camera;
   const int longest = std::max(gray.cols, gray.rows);
   if (max_size <= 0 || longest <= max_size) return gray;
@@ -448,8 +442,10 @@ int StereoPairMain(const std::vector<std::string>& args) {
     std::cerr << "stereo-pair: --" << error << "\n";
     return 2;
   }
+  cv::Size size;  // of the pair, for an out-of-memory message
   try {
     const cv::Mat l = ReadImageColor(left), r = ReadImageColor(right);
+    size = l.size();
     if (l.size() != r.size()) {
       std::cerr << "stereo-pair: " << left << " and " << right << " differ in size; a rectified pair has equal sizes\n";
       return 1;
@@ -476,9 +472,8 @@ int StereoPairMain(const std::vector<std::string>& args) {
               << result.seconds * 1e3 << " ms, unfilled " << result.unfilled_fraction << ")\n";
   } catch (const std::bad_alloc&) {
     // The cost volume and the two semi-global sums: 16-bit costs, disparities in multiples of 16.
-    const cv::Mat l = ReadImageColor(left);
-    const double gb = 3.0 * l.cols * l.rows * ((max_disparity + 15) / 16 * 16) * 2 / 1e9;
-    std::cerr << "stereo-pair: out of memory: " << l.cols << "x" << l.rows << " with " << max_disparity
+    const double gb = 3.0 * size.width * size.height * ((max_disparity + 15) / 16 * 16) * 2 / 1e9;
+    std::cerr << "stereo-pair: out of memory: " << size.width << "x" << size.height << " with " << max_disparity
               << " disparities needs about " << gb
               << " GB for its cost volumes; lower --max-disparity or downscale the pair\n";
     return 1;
