@@ -31,6 +31,7 @@
 #include "pipeline/core/ply_io.h"
 #include "pipeline/core/rasterizer.h"
 #include "pipeline/core/stage_api.h"
+#include "pipeline/core/undistorted_cameras.h"
 #include "pipeline/core/view_cache.h"
 #include "pipeline/core/two_view_methods.h"
 #include "stages/plane_sweep/plane_sweep.h"
@@ -198,11 +199,7 @@ class PlaneSweepStage : public Stage {
         // The depth maps of a distorted photo would lie on a grid that multi_depth, fuse and the
         // renderers cannot tell from the photo's own; COLMAP's dense steps, too, take undistorted
         // images.
-        if (camera.HasDistortion()) {
-          throw InputError(context.workspace.SparseDir() + "/cameras.txt: camera of " + image.name +
-                           " has lens distortion; plane_sweep needs undistorted images: add the undistort stage "
-                           "before it (as configs/photos.yaml does), or import PINHOLE cameras");
-        }
+        RequireUndistorted(camera, image.name, context.workspace.SparseDir() + "/cameras.txt", "plane_sweep");
         views[i].name = image.name;
         views[i].cam_from_world = image.cam_from_world;
         views[i].gray = LoadGray(context.workspace.ImagesDir() + "/" + image.name, camera,

@@ -10,6 +10,7 @@
 #include "pipeline/core/depth_normals.h"
 #include "pipeline/core/errors.h"
 #include "pipeline/core/image_io.h"
+#include "pipeline/core/undistorted_cameras.h"
 
 namespace fs = std::filesystem;
 
@@ -23,10 +24,7 @@ std::vector<DepthImage> LoadDepthImages(const Workspace& workspace, const Sparse
     DepthImage& out = images[i];
     out.name = image.name;
     const Camera& camera = model.CameraOf(image);
-    if (camera.HasDistortion()) {
-      throw InputError("render: camera of " + image.name + " has lens distortion; splatting needs undistorted "
-                       "depth maps and photos (PINHOLE cameras)");
-    }
+    RequireUndistorted(camera, image.name, workspace.SparseDir() + "/cameras.txt", "render (splatting depth maps)");
     const bool truth = kind == "truth";
     const std::string depth_path = truth ? workspace.GroundTruthDepthPath(image.name) : workspace.DepthMapPath(image.name, kind);
     if (!fs::exists(depth_path)) {

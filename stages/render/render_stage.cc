@@ -56,6 +56,7 @@
 #include "pipeline/core/ply_io.h"
 #include "pipeline/core/stage_api.h"
 #include "pipeline/core/textured_mesh.h"
+#include "pipeline/core/undistorted_cameras.h"
 #include "pipeline/core/view_maps.h"
 #include "stages/render/depth_image_io.h"
 #include "stages/render/mesh_decimation.h"
@@ -175,13 +176,8 @@ ProxySurface HitsOf(const RenderResult& fine) {
   return surface;
 }
 
-Camera PinholeOf(const Camera& camera, const std::string& image_name) {
-  if (camera.HasDistortion()) {
-    throw InputError("render: camera " + std::to_string(camera.camera_id) + " of image " + image_name + " (" +
-                     CameraModelName(camera.model) +
-                     ") has lens distortion; render needs undistorted images (run the calibrate stage's "
-                     "undistortion, or import PINHOLE cameras)");
-  }
+Camera PinholeOf(const Camera& camera, const std::string& image_name, const Workspace& workspace) {
+  RequireUndistorted(camera, image_name, workspace.SparseDir() + "/cameras.txt", "render");
   return camera;
 }
 
@@ -389,7 +385,7 @@ class RenderStage : public Stage {
     tbb::parallel_for(size_t{0}, training.size(), [&](size_t i) {
       const Image& image = *model.FindImage(training[i]);
       sources[i].name = image.name;
-      sources[i].camera = PinholeOf(model.CameraOf(image), image.name);
+      sources[i].camera = PinholeOf(model.CameraOf(image), image.name, context.workspace);
       sources[i].cam_from_world = image.cam_from_world;
       sources[i].image = ReadImageColor(context.workspace.ImagesDir() + "/" + image.name);
       if (sources[i].image.cols != sources[i].camera.width || sources[i].image.rows != sources[i].camera.height) {
@@ -410,7 +406,7 @@ class RenderStage : public Stage {
     for (const std::string& name : PhotoViewNames(context)) {
       const Image* image = model.FindImage(name);
       if (!image) throw InputError("render.views: no image named \"" + name + "\" in " + context.workspace.SparseDir());
-      desired.push_back({name, Stem(name), PinholeOf(model.CameraOf(*image), name), image->cam_from_world});
+      desired.push_back({name, Stem(name), PinholeOf(model.CameraOf(*image), name, context.workspace), image->cam_from_world});
     }
     const std::vector<double> look = context.params.DoubleList("novel_look_at");
     if (!look.empty()) {

@@ -27,6 +27,7 @@
 #include "pipeline/core/ply_io.h"
 #include "pipeline/core/stage_api.h"
 #include "pipeline/core/textured_mesh.h"
+#include "pipeline/core/undistorted_cameras.h"
 #include "pipeline/core/view_maps.h"
 #include "stages/texture/color_leveling.h"
 #include "stages/texture/face_view_maps.h"
@@ -135,10 +136,7 @@ class TextureStage : public Stage {
     for (size_t v = 0; v < names.size(); ++v) {
       const Image& image = *model.FindImage(names[v]);
       const Camera& camera = model.CameraOf(image);
-      if (camera.HasDistortion()) {
-        throw InputError("texture: camera of " + names[v] + " (" + CameraModelName(camera.model) +
-                         ") has lens distortion; texture needs undistorted images (run undistort first)");
-      }
+      RequireUndistorted(camera, names[v], context.workspace.SparseDir() + "/cameras.txt", "texture");
       views[v] = {camera, image.cam_from_world};
       centers[v] = image.Center();
     }
