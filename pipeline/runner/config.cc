@@ -8,6 +8,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <regex>
 #include <sstream>
 
@@ -69,6 +70,11 @@ bool ToValue(const YAML::Node& node, const ParamSpec& spec, const std::string& d
         size_t pos = 0;
         const long long v = std::stoll(s, &pos);
         if (pos != s.size()) throw std::invalid_argument(s);
+        // Stages keep their counts in int: a larger value would wrap past their range checks.
+        if (v < std::numeric_limits<int32_t>::min() || v > std::numeric_limits<int32_t>::max()) {
+          *error = "expected an integer within 32 bits (no parameter needs more), got " + scalar_text();
+          return false;
+        }
         *value = static_cast<int64_t>(v);
         return true;
       }
@@ -107,7 +113,13 @@ bool ToValue(const YAML::Node& node, const ParamSpec& spec, const std::string& d
         if (!node.IsSequence() && !node.IsNull()) throw YAML::Exception(YAML::Mark(), "");
         if (spec.type == ParamType::kIntList) {
           std::vector<int64_t> v;
-          for (const auto& item : node) v.push_back(item.as<int64_t>());
+          for (const auto& item : node) {
+            v.push_back(item.as<int64_t>());
+            if (v.back() < std::numeric_limits<int32_t>::min() || v.back() > std::numeric_limits<int32_t>::max()) {
+              *error = "expected integers within 32 bits, got '" + item.Scalar() + "'";
+              return false;
+            }
+          }
           *value = v;
         } else if (spec.type == ParamType::kDoubleList) {
           std::vector<double> v;

@@ -79,6 +79,17 @@ TEST_F(ConfigTest, NonFiniteNumbersAreTypeErrors) {
   EXPECT_EQ(ErrorOf("workspace: ws\nstages:\n  - produce:\n      scale: 2.5e3\n"), "");
 }
 
+// Integers beyond 32 bits are type errors: stages keep counts in int, where 4294967297 would wrap
+// to 1 after passing a range check on the 64-bit value.
+TEST_F(ConfigTest, IntegersBeyond32BitsAreTypeErrors) {
+  for (const std::string text : {"4294967297", "-2147483649"}) {
+    const std::string error = ErrorOf("workspace: ws\nstages:\n  - produce:\n      value: " + text + "\n");
+    EXPECT_NE(error.find("c.yaml:4"), std::string::npos) << error;
+    EXPECT_NE(error.find("within 32 bits (no parameter needs more), got '" + text + "'"), std::string::npos) << error;
+  }
+  EXPECT_EQ(ErrorOf("workspace: ws\nstages:\n  - produce:\n      value: 2147483647\n"), "");
+}
+
 TEST_F(ConfigTest, StageCheckErrorNamesTheKeyLine) {
   const std::string error = ErrorOf("workspace: ws\nstages:\n  - produce:\n      threads: 2\n      value: -4\n");
   EXPECT_NE(error.find("c.yaml:5"), std::string::npos) << error;
