@@ -33,4 +33,8 @@ using DepthMap = FloatMap;  // 1 channel, z depth
 
 inline bool IsValidDepth(float z) { return z > 0.f && z < 1e30f; }
 
+// A confidence map's value as the stages weigh it: clamped to [0, 1], and 0 where it is not a
+// number (std::clamp passes NaN through, and NaN then passes every `< threshold` test).
+inline float UsableConfidence(float c) { return c > 0.f ? (c < 1.f ? c : 1.f) : 0.f; }
+
 }  // namespace ibmr

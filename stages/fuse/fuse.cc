@@ -25,6 +25,7 @@ struct FusedPoint {
   Eigen::Vector3f normal_sum = Eigen::Vector3f::Zero();
   Eigen::Vector3f color_sum = Eigen::Vector3f::Zero();
   float confidence_sum = 0;
+  float weight_sum = 0;  // of the normals and colours: the confidences, at least 0.01 each
   int views = 0;
 };
 
@@ -70,7 +71,7 @@ void PointFuser::AddView(const FuseView& view) {
   const Eigen::Matrix3d world_from_cam = view.cam_from_world.R().transpose();
   const Eigen::Vector3d center = view.cam_from_world.Inverse().translation;
   const double cos_normal = std::cos(o.max_normal_angle_deg * kPi / 180.0);
-  auto confidence_at = [&](int x, int y) { return view.confidence.Empty() ? 1.f : std::clamp(view.confidence.At(x, y), 0.f, 1.f); };
+  auto confidence_at = [&](int x, int y) { return view.confidence.Empty() ? 1.f : UsableConfidence(view.confidence.At(x, y)); };
   auto sample_usable = [&](int x, int y) { return IsValidDepth(view.depth.At(x, y)) && confidence_at(x, y) >= o.min_confidence; };
   auto ray_at = [&](double px, double py) { return view.camera.CamFromImg(Eigen::Vector2d(px / sx, py / sy)); };
   auto depth_sigma = [&](float depth, float confidence) {
@@ -98,8 +99,11 @@ void PointFuser::AddView(const FuseView& view) {
       if (in_cam.z() <= 0) continue;
       Eigen::Vector2d pixel = view.camera.ImgFromCam(in_cam);
       pixel.x() *= sx, pixel.y() *= sy;
-      const int x = static_cast<int>(std::floor(pixel.x())), y = static_cast<int>(std::floor(pixel.y()));
-      if (x < 0 || y < 0 || x >= w || y >= h || !sample_usable(x, y)) continue;
+      // Tested as doubles before the conversion: a point just in front of the camera projects
+      // beyond any int (and NaN fails both tests).
+      if (!(pixel.x() >= 0 && pixel.y() >= 0 && pixel.x() < w && pixel.y() < h)) continue;
+      const int x = static_cast<int>(pixel.x()), y = static_cast<int>(pixel.y());
+      if (!sample_usable(x, y)) continue;
       if ((pixel - Eigen::Vector2d(x + 0.5, y + 0.5)).norm() > o.merge_pixel_radius) continue;
       const float depth = view.depth.At(x, y);
       const Eigen::Vector3d ray = ray_at(x + 0.5, y + 0.5);
@@ -185,8 +189,12 @@ void PointFuser::AddView(const FuseView& view) {
         }
         p->information += sample.information;
         p->information_x += sample.information * sample.position;
-        p->normal_sum += sample.confidence * sample.normal.cast<float>();
-        p->color_sum += sample.confidence * sample.color;
+        // Normals and colours weigh samples by confidence, floored as depth_sigma floors it: with
+        // min_confidence 0, samples of confidence 0 would otherwise make black points without normals.
+        const float weight = std::max(sample.confidence, 0.01f);
+        p->normal_sum += weight * sample.normal.cast<float>();
+        p->color_sum += weight * sample.color;
+        p->weight_sum += weight;
         p->confidence_sum += sample.confidence;
         ++p->views;
       }
@@ -211,7 +219,7 @@ PointCloud PointFuser::Finish(FuseStats* stats) const {
     cloud.positions.push_back(p.position.cast<float>());
     const float norm = p.normal_sum.norm();
     cloud.normals.push_back(norm > 0 ? Eigen::Vector3f(p.normal_sum / norm) : Eigen::Vector3f::Zero());
-    const Eigen::Vector3f color = (p.color_sum / std::max(p.confidence_sum, 1e-6f) * 255.f).array().round().min(255.f).max(0.f).matrix();
+    const Eigen::Vector3f color = (p.color_sum / p.weight_sum * 255.f).array().round().min(255.f).max(0.f).matrix();
     cloud.colors.push_back(color.cast<uint8_t>());
     cloud.confidence.push_back(p.confidence_sum / p.views);
   }

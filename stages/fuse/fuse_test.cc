@@ -8,6 +8,7 @@
 #include <unistd.h>
 
 #include <filesystem>
+#include <limits>
 #include <opencv2/imgproc.hpp>
 #include <random>
 
@@ -178,6 +179,40 @@ TEST(Fuse, LowConfidenceSamplesMakeNoPoints) {
   FuseStats stats;
   EXPECT_EQ(fuser.Finish(&stats).size(), 0u);
   EXPECT_EQ(stats.samples, 0u);
+}
+
+// A confidence that is not a number counts as 0: such samples are skipped like low ones (NaN used
+// to pass every `< min_confidence` test and the clamp).
+TEST(Fuse, NotANumberConfidenceCountsAsZero) {
+  PointFuser fuser{FuseOptions()};
+  for (int i = 0; i < 6; ++i) {
+    FuseView view = SphereView(i, 6, 0.001);
+    for (float& c : view.confidence.data) c = std::numeric_limits<float>::quiet_NaN();
+    fuser.AddView(view);
+  }
+  FuseStats stats;
+  EXPECT_EQ(fuser.Finish(&stats).size(), 0u);
+  EXPECT_EQ(stats.samples, 0u);
+}
+
+// With min_confidence 0, samples of confidence 0 still give their colour and normal to the points
+// they make (they were black, with zero normals).
+TEST(Fuse, ZeroConfidenceSamplesKeepColourAndNormal) {
+  FuseOptions options;
+  options.min_confidence = 0;
+  PointFuser fuser(options);
+  for (int i = 0; i < 6; ++i) {
+    FuseView view = SphereView(i, 6, 0.001);
+    for (float& c : view.confidence.data) c = 0.f;
+    fuser.AddView(view);
+  }
+  const PointCloud cloud = fuser.Finish(nullptr);
+  ASSERT_GT(cloud.size(), 1000u);
+  for (size_t i = 0; i < cloud.size(); ++i) {
+    ASSERT_EQ(cloud.colors[i], Color3u8(200, 120, 40));
+    ASSERT_NEAR(cloud.normals[i].norm(), 1.f, 1e-4f);
+    ASSERT_EQ(cloud.confidence[i], 0.f);
+  }
 }
 
 // Points on a fronto-parallel square at depth 2 seen by one camera; the mask covers the left half

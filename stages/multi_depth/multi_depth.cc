@@ -80,7 +80,7 @@ inline float DepthAt(const DepthMap& depth, const Eigen::Vector2f& p, float smoo
 }
 
 inline float ConfidenceAt(const FloatMap& confidence, int x, int y) {
-  return confidence.Empty() ? 1.f : std::clamp(confidence.At(x, y), 0.f, 1.f);
+  return confidence.Empty() ? 1.f : UsableConfidence(confidence.At(x, y));
 }
 
 }  // namespace
@@ -98,6 +98,12 @@ bool MultiDepthOptions::Check(std::string* error) const {
   if (max_neighbors < 1 || max_neighbors > 64) return fail("max_neighbors: must be in [1, 64], got " + std::to_string(max_neighbors));
   if (max_neighbors < min_consistent_views) {
     return fail("max_neighbors: must be >= min_consistent_views (" + std::to_string(min_consistent_views) + "), got " + std::to_string(max_neighbors));
+  }
+  // A filled pixel needs min_consistent_views confirmations besides the view it came from.
+  if (fill_from_neighbors && max_neighbors == min_consistent_views) {
+    return fail("max_neighbors: must exceed min_consistent_views (" + std::to_string(min_consistent_views) +
+                ") when fill_from_neighbors is on (a filled depth needs that many confirmations besides its source); "
+                "got " + std::to_string(max_neighbors) + ": raise max_neighbors or set fill_from_neighbors: false");
   }
   if (!(max_view_angle_deg > 0 && max_view_angle_deg <= 180)) return fail("max_view_angle_deg: must be in (0, 180], got " + std::to_string(max_view_angle_deg));
   if (!(min_baseline_ratio >= 0 && min_baseline_ratio < 1)) return fail("min_baseline_ratio: must be in [0, 1), got " + std::to_string(min_baseline_ratio));

@@ -9,6 +9,7 @@
 #include <unistd.h>
 
 #include <filesystem>
+#include <limits>
 #include <random>
 
 #include "pipeline/core/colmap_array_io.h"
@@ -144,6 +145,12 @@ TEST(MultiDepthOptions, RejectsInvalidRanges) {
   o.max_neighbors = 1;
   o.min_consistent_views = 2;
   expect_error(o, "max_neighbors");
+  o = MultiDepthOptions();
+  o.max_neighbors = o.min_consistent_views = 2;  // filling could never confirm a pixel
+  expect_error(o, "max_neighbors");
+  o.fill_from_neighbors = false;
+  std::string error;
+  EXPECT_TRUE(o.Check(&error)) << error;
   o = MultiDepthOptions();
   o.max_view_angle_deg = 0;
   expect_error(o, "max_view_angle_deg");
@@ -323,6 +330,21 @@ TEST(MultiDepth, LowConfidenceSamplesAreDropped) {
   }
   EXPECT_GT(result.stats.low_confidence, 1000u);
   EXPECT_GT(result.stats.kept, 1000u);
+}
+
+// A confidence that is not a number counts as 0: such samples are dropped as low, neither kept nor
+// confirming others, and no NaN reaches the output confidence (NaN passed the clamp and every
+// `< min_confidence` test).
+TEST(MultiDepth, NotANumberConfidenceCountsAsZero) {
+  const Scene scene = MakeScene();
+  std::vector<DepthView> views = scene.truth;
+  for (DepthView& view : views) {
+    view.confidence = FloatMap(view.depth.width, view.depth.height, 1, std::numeric_limits<float>::quiet_NaN());
+  }
+  const MultiDepthResult result = MakeDepthConsistent(views[0], Others(views, 0), MultiDepthOptions());
+  EXPECT_EQ(result.stats.kept, 0u);
+  EXPECT_GT(result.stats.low_confidence, 1000u);
+  for (const float c : result.confidence.data) ASSERT_FALSE(std::isnan(c));
 }
 
 // With min_confidence 0, samples of confidence 0 everywhere are kept (and filled in) with no weight

@@ -109,7 +109,9 @@ class SurfelsStage : public Stage {
     if (context.params.Bool("use_hull")) inputs.push_back(kHull);  // optional
     if (context.params.Int("silhouette_views") > 0) {
       inputs.push_back("masks");
-      if (context.params.Int("silhouette_color_tolerance") > 0) inputs.push_back("images");  // the colour check
+      if (context.params.Int("silhouette_color_tolerance") > 0) {
+        inputs.push_back(context.workspace.ImagesRelative());  // the colour check's photos (dense/images once undistorted)
+      }
     }
     inputs.push_back("ground_truth/mesh.ply");                      // metrics only
     return inputs;
@@ -170,6 +172,12 @@ class SurfelsStage : public Stage {
     if (s.dropped_nonfinite) {
       spdlog::warn("[surfels] {}: {} of {} points have NaN or infinite coordinates or normals; ignored", fused_path,
                    s.dropped_nonfinite, s.input_points);
+    }
+    // A mesh without faces is no surface: the texture and render stages would fail on it later.
+    if (result.mesh.faces.empty()) {
+      throw InputError(fused_path + ": the " + std::to_string(s.particles) + " surfel particles made no mesh face (too few, " +
+                       "or all on a line; or surfels.max_edge and min_component_faces removed every piece): check the " +
+                       "fused points (fuse's record), or raise surfels.max_edge / lower min_component_faces");
     }
     fs::create_directories(workspace.Path("surfels"));
     result.surfels.comments = {"ibmr surfels " + Version() + ": oriented particles from " + std::string(kFused),

@@ -630,6 +630,22 @@ TEST(SurfelsStage, WritesSurfelsAndMeshAndNamesAMissingInput) {
   }
   WritePointCloudPly(workspace.Path("dense/fused.ply"), PointCloud());
   EXPECT_THROW(stage->Run(context), InputError);
+
+  // Points on a line make particles but no face: refused (the texture and render stages would fail
+  // on an empty mesh later), and the last good mesh stays.
+  PointCloud line;
+  for (int i = 0; i < 2000; ++i) {
+    line.positions.emplace_back(-1.f + i / 1000.f, 0.f, 0.f);
+    line.normals.emplace_back(0.f, 0.f, 1.f);
+  }
+  WritePointCloudPly(workspace.Path("dense/fused.ply"), line);
+  try {
+    stage->Run(context);
+    FAIL() << "a mesh without faces was accepted";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("no mesh face"), std::string::npos) << e.what();
+  }
+  EXPECT_EQ(ReadMeshPly(workspace.Path("surfels/mesh.ply")).faces.size(), mesh.faces.size());
   fs::remove_all(root);
 }
 
