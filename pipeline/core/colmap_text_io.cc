@@ -71,6 +71,11 @@ T ParseNumber(std::string_view token, const char* field, const Location& where) 
     where.Fail(std::string("field ") + field + ": cannot parse '" + std::string(token) + "' as " +
                (std::is_integral_v<T> ? "an integer" : "a number"));
   }
+  // from_chars reads "nan" and "inf", which no field of a model means: a NaN pose or point would
+  // pass every range test downstream and blank the views or centres computed from it.
+  if constexpr (std::is_floating_point_v<T>) {
+    if (!std::isfinite(value)) where.Fail(std::string("field ") + field + ": '" + std::string(token) + "' is not a finite number");
+  }
   return value;
 }
 
@@ -119,7 +124,7 @@ class LineReader {
     message += "; only " + bin + " is there: convert it with 'colmap model_converter --input_path " +
                folder + " --output_path " + folder + " --output_type TXT'";
   } else {
-    message += "; run the sparse stage first or point the input at a COLMAP sparse folder";
+    message += "; run import (or sfm) first, or point the input at a COLMAP sparse folder";
   }
   throw IoError(message);
 }
@@ -180,7 +185,9 @@ Image ParseImageHeader(const std::string& line, const Location& where) {
   double v[7];
   for (int i = 0; i < 7; ++i) v[i] = ParseNumber<double>(tokens[i + 1], kNames[i], where);
   const Eigen::Quaterniond q(v[0], v[1], v[2], v[3]);
-  if (!(q.norm() > 1e-12)) where.Fail("fields QW QX QY QZ: quaternion has zero length");
+  if (!(q.norm() > 1e-12 && std::isfinite(q.norm()))) {
+    where.Fail("fields QW QX QY QZ: quaternion has zero or overflowing length");
+  }
   Image image;
   image.image_id = ParseNumber<int>(tokens[0], "IMAGE_ID", where);
   // Keep a quaternion that is already unit bit-for-bit (Rigid3d's constructor would

@@ -234,6 +234,23 @@ TEST(ColmapTextIo, BadNumberNamesField) {
   ExpectIoError(dir, {"images.txt:2:", "triples", "got 4"});
 }
 
+// "nan" and "inf" parse as numbers but mean nothing in a model: a NaN pose dropped its view with
+// only a warning, and a NaN point blanked the scene centre. Refused with file, line and field.
+TEST(ColmapTextIo, NonFiniteNumbersNameFileLineAndField) {
+  const std::string dir = MakeTestDir();
+  WriteOneCamera(dir);
+  WriteText(dir + "/images.txt", "1 1 0 0 0 0 nan 0 1 a.png\n\n");
+  ExpectIoError(dir, {"images.txt:1:", "TY", "'nan' is not a finite number"});
+  WriteText(dir + "/images.txt", "1 1e308 1e308 0 0 0 0 0 1 a.png\n\n");  // a finite quaternion of infinite length
+  ExpectIoError(dir, {"images.txt:1:", "quaternion"});
+  WriteText(dir + "/images.txt", "1 1 0 0 0 0 0 0 1 a.png\n\n");
+  WriteText(dir + "/points3D.txt", "# points\n7 0 inf 0 128 128 128 0\n");
+  ExpectIoError(dir, {"points3D.txt:2:", "Y", "'inf' is not a finite number"});
+  WriteText(dir + "/cameras.txt", "1 PINHOLE 640 480 500 NaN 320 240\n");
+  WriteText(dir + "/points3D.txt", "");
+  ExpectIoError(dir, {"cameras.txt:1:", "NaN"});
+}
+
 TEST(ColmapTextIo, UnknownModelListsValidOnes) {
   const std::string dir = MakeTestDir();
   WriteText(dir + "/cameras.txt", "# c\n1 PINHOLE 10 10 5 5 5 5\n2 FISHEYE 10 10 5 5 5 0.1\n");
