@@ -98,7 +98,9 @@ TEST_F(TexturedSynth, ExposureDifferencesAreLeveledAtTheSeams) {
     return Json(root_ / "ws/records/texture.json")["metrics"]["seam_step_atlas"].get<double>();
   };
   const double without = step(false);
+  std::ofstream(root_ / "ws/texture/atlas_7.png") << "a page of an earlier run with more pages";
   const double with = step(true);
+  EXPECT_FALSE(fs::exists(root_ / "ws/texture/atlas_7.png")) << "a stale page stayed beside the new atlas";
   EXPECT_GT(without, 5.0) << "the exposure differences show at the seams";
   EXPECT_LE(with, 0.5 * without) << "leveled " << with << " against " << without;
 }

@@ -51,7 +51,12 @@ bool FuseOptions::Check(std::string* error) const {
   if (!(relative_depth_sigma > 0 && relative_depth_sigma <= 0.2)) return fail("relative_depth_sigma: must be in (0, 0.2], got " + std::to_string(relative_depth_sigma));
   if (!(lateral_sigma_pixels > 0 && lateral_sigma_pixels <= 10)) return fail("lateral_sigma_pixels: must be in (0, 10], got " + std::to_string(lateral_sigma_pixels));
   if (!(merge_sigmas > 0 && merge_sigmas <= 100)) return fail("merge_sigmas: must be in (0, 100], got " + std::to_string(merge_sigmas));
-  if (!(merge_pixel_radius > 0 && merge_pixel_radius <= 5)) return fail("merge_pixel_radius: must be in (0, 5], got " + std::to_string(merge_pixel_radius));
+  // A point is a candidate for the one pixel it falls in, whose centre is at most sqrt(1/2) away:
+  // a larger radius would promise merges across pixels that never happen.
+  if (!(merge_pixel_radius > 0 && merge_pixel_radius <= 0.71)) {
+    return fail("merge_pixel_radius: must be in (0, 0.71] (a point merges only within the pixel it falls in; 0.71: "
+                "anywhere in it), got " + std::to_string(merge_pixel_radius));
+  }
   if (!(max_normal_angle_deg > 0 && max_normal_angle_deg <= 180)) return fail("max_normal_angle_deg: must be in (0, 180], got " + std::to_string(max_normal_angle_deg));
   if (!(min_confidence >= 0 && min_confidence <= 1)) return fail("min_confidence: must be in [0, 1], got " + std::to_string(min_confidence));
   if (min_views < 1 || min_views > 1000) return fail("min_views: must be in [1, 1000], got " + std::to_string(min_views));

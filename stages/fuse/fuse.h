@@ -30,7 +30,8 @@ struct FuseOptions {
   double relative_depth_sigma = 0.003;  // depth std / depth of a confidence-1 sample, in (0, 0.2]
   double lateral_sigma_pixels = 0.5;    // std across the ray, in pixels of footprint, in (0, 10]
   double merge_sigmas = 3.0;            // 1-D uncertainty-weighted depth distance for a merge, in (0, 100]
-  double merge_pixel_radius = 1.0;      // re-projection within this of the pixel centre, pixels, in (0, 5]
+  double merge_pixel_radius = 0.71;     // re-projection within this of the centre of the pixel it falls in, pixels,
+                                        // in (0, 0.71] (0.71: anywhere in that pixel)
   double max_normal_angle_deg = 60.0;   // normals of merged samples within this, degrees, in (0, 180]
   double min_confidence = 0.1;          // samples below this confidence are skipped, in [0, 1]
   int min_views = 2;                    // views that must have contributed to a point, in [1, 1000]

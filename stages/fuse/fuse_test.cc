@@ -90,7 +90,7 @@ TEST(FuseOptions, RejectsInvalidRanges) {
   expect(o, "lateral_sigma_pixels");
   o = FuseOptions(), o.merge_sigmas = 0;
   expect(o, "merge_sigmas");
-  o = FuseOptions(), o.merge_pixel_radius = 6;
+  o = FuseOptions(), o.merge_pixel_radius = 0.8;  // beyond any point of the pixel it falls in
   expect(o, "merge_pixel_radius");
   o = FuseOptions(), o.max_normal_angle_deg = 0;
   expect(o, "max_normal_angle_deg");

@@ -129,7 +129,11 @@ class MultiDepthStage : public Stage {
     const MultiDepthOptions options = ToOptions(context.params);
     const SparseModel model = context.LoadModel();
     const std::vector<std::string> names = context.TrainingImageNames(model);
-    if (names.size() < 2) throw InputError("multi_depth: needs at least 2 training views, sparse/ has " + std::to_string(names.size()));
+    if (names.size() < 2) {
+      throw InputError("multi_depth: needs at least 2 training views to check depth maps against each other, " +
+                       context.workspace.SparseDir() + " has " + std::to_string(names.size()) +
+                       " (after holdout): hold out fewer views, or drop multi_depth and set fuse.input_type: photometric");
+    }
     std::vector<const Image*> images;
     for (const std::string& name : names) images.push_back(model.FindImage(name));
     const Workspace& workspace = context.workspace;

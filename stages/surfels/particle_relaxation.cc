@@ -14,9 +14,11 @@ namespace ibmr {
 
 namespace {
 
-constexpr double kNeighbourRadius = 2.5;  // spacings: potentials beyond are < 5% (sigma 1)
-constexpr double kDataRadius = 2.0;       // spacings: psi_D (sigma 1) is 0.14 there
-constexpr int kDataNearest = 64;          // at most this many data points per particle (the nearest)
+// Reach of the terms, in sigmas: the pair potentials beyond 2.5 sigma are < 5% of their peak (and
+// repulsion reaches its own radius); psi_D is 0.14 at 2 data sigmas.
+constexpr double kPairReach = 2.5;
+constexpr double kDataReach = 2.0;
+constexpr int kDataNearest = 64;  // at most this many data points per particle (the nearest)
 
 using Neighbours = std::vector<std::pair<uint32_t, float>>;
 
@@ -73,16 +75,20 @@ double RelaxParticles(const PointCloud& data, double spacing, const ParticleWeig
   };
   std::vector<Eigen::Vector3f> next_positions(n), next_normals(n);
   std::vector<double> steps(n, 0.0);
-  const double data_radius2 = kDataRadius * kDataRadius * spacing * spacing;
-  const double pair_radius2 = kNeighbourRadius * kNeighbourRadius * spacing * spacing;
+  // In spacings, from the weights (2.5 and 2 at the defaults), so that a wider sigma or repulsion
+  // radius is not cut off at a fixed distance.
+  const double pair_reach = std::max(kPairReach * weights.sigma, weights.repulsion_radius);
+  const double data_reach = kDataReach * weights.data_sigma;
+  const double data_radius2 = data_reach * data_reach * spacing * spacing;
+  const double pair_radius2 = pair_reach * pair_reach * spacing * spacing;
   for (int sweep = 0; sweep < sweeps; ++sweep) {
     if (data_anchor.empty() || largest_move(data_anchor) > margin) {
-      data_near.Build(data_index, particles->positions, static_cast<float>(kDataRadius * spacing + margin), kDataNearest);
+      data_near.Build(data_index, particles->positions, static_cast<float>(data_reach * spacing + margin), kDataNearest);
       data_anchor = particles->positions;
     }
     if (particle_anchor.empty() || 2 * largest_move(particle_anchor) > margin) {
       const PointIndex index(particles->positions);
-      particle_near.Build(index, particles->positions, static_cast<float>(kNeighbourRadius * spacing + margin));
+      particle_near.Build(index, particles->positions, static_cast<float>(pair_reach * spacing + margin));
       particle_anchor = particles->positions;
     }
     tbb::parallel_for(tbb::blocked_range<size_t>(0, n), [&](const tbb::blocked_range<size_t>& range) {

@@ -7,6 +7,7 @@
 
 #include <Eigen/Eigenvalues>
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <limits>
@@ -158,19 +159,28 @@ PointCloud ThinToSpacing(const PointCloud& points, double spacing) {
     double weight = 0, confidence = 0;
     int count = 0;
   };
-  // Cells are keyed by 21 bits per axis from the points' lower corner: the extent must fit.
+  // Cells are keyed by their three 64-bit indices from the points' lower corner, so one stray point
+  // far away (2 million spacings and more, which a packed 21-bit key refused) costs a cell, not the
+  // run. The extent only has to fit 64 bits, which any float cloud at a sane spacing does.
   Eigen::Vector3d lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::max());
   Eigen::Vector3d hi = -lo;
   for (const auto& p : points.positions) lo = lo.cwiseMin(p.cast<double>()), hi = hi.cwiseMax(p.cast<double>());
-  if (!points.positions.empty() && ((hi - lo) / spacing).maxCoeff() >= 2097151) {
-    throw InputError("surfels: the points span " + std::to_string((hi - lo).maxCoeff()) + " scene units, over 2 million " +
+  if (!points.positions.empty() && !(((hi - lo) / spacing).maxCoeff() < 1e15)) {
+    throw InputError("surfels: the points span " + std::to_string((hi - lo).maxCoeff()) + " scene units, over 1e15 " +
                      "spacings of " + std::to_string(spacing) + "; raise surfels.spacing_scale or crop the points");
   }
-  std::unordered_map<int64_t, size_t> cell_of;
+  using CellKey = std::array<int64_t, 3>;
+  struct CellHash {
+    size_t operator()(const CellKey& k) const {
+      const auto u = [](int64_t v) { return static_cast<uint64_t>(v); };  // wraps, as hashing wants
+      return std::hash<uint64_t>()(u(k[0]) * 73856093u ^ u(k[1]) * 19349663u ^ u(k[2]) * 83492791u);
+    }
+  };
+  std::unordered_map<CellKey, size_t, CellHash> cell_of;
   std::vector<Cell> cells;
   for (size_t i = 0; i < points.size(); ++i) {
     const Eigen::Vector3d c = ((points.positions[i].cast<double>() - lo) / spacing).array().floor();
-    const int64_t key = (static_cast<int64_t>(c.x()) << 42) | (static_cast<int64_t>(c.y()) << 21) | static_cast<int64_t>(c.z());
+    const CellKey key = {static_cast<int64_t>(c.x()), static_cast<int64_t>(c.y()), static_cast<int64_t>(c.z())};
     const auto [it, inserted] = cell_of.emplace(key, cells.size());
     if (inserted) cells.emplace_back();
     Cell& cell = cells[it->second];

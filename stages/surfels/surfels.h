@@ -22,7 +22,11 @@
 //  5. Growth (the stretching rule): between two neighbours whose normals agree and whose distance
 //     is more than `stretch_distance` but less than `max_gap` spacings, with no particle near the
 //     midpoint, a particle is added there; rounds of growth and relaxation alternate. Gaps wider than
-//     `max_gap` stay open, so holes in the data stay holes.
+//     `max_gap` stay open, so holes in the data stay holes. The paper's second rule (growing in
+//     every tangent direction where a particle has too few neighbours, lines ~4530-4545) is left
+//     out on purpose: the particles start from every fused point's cell, so the surface is already
+//     covered where there is data, and growing past the data would close the holes the rule above
+//     keeps open.
 //  6. Triangulation (surfel_mesh.cc, CGAL advancing front): the particles are connected into a
 //     manifold mesh whose edges are at most `max_edge` spacings, so it never spans a hole wider
 //     than that; faces are oriented by the particles' normals. Pieces of fewer than

@@ -229,6 +229,22 @@ TEST(Surfels, NoisySphereConvergesToTheSurfaceWithEvenSpacing) {
   EXPECT_EQ(result.surfels.radius.size(), p.size());
 }
 
+// One stray point 6 million spacings away costs one cell, not the run (a 21-bit packed key refused
+// any extent past 2 million spacings); the rest thin as before (the grid's origin moves with the
+// lower corner, so the count may differ slightly).
+TEST(Surfels, AStrayFarPointCostsOneCell) {
+  const double spacing = 0.05;
+  const PointCloud data = NoisySphere(20000, 0.01);
+  PointCloud stray = data;
+  stray.positions.emplace_back(0.f, 0.f, -3e5f);
+  stray.normals.emplace_back(0.f, 0.f, 1.f);
+  if (!stray.colors.empty()) stray.colors.push_back(stray.colors.back());
+  if (!stray.confidence.empty()) stray.confidence.push_back(1.f);
+  const PointCloud cells = ThinToSpacing(data, spacing), with_stray = ThinToSpacing(stray, spacing);
+  EXPECT_NEAR(static_cast<double>(with_stray.size()), cells.size() + 1.0, 0.02 * cells.size());
+  EXPECT_EQ(with_stray.positions.back(), Eigen::Vector3f(0.f, 0.f, -3e5f));
+}
+
 TEST(Surfels, NoisyPlaneConvergesToThePlane) {
   const double spacing = 0.05, sigma = 0.01;
   const PointCloud data = NoisyPlane(40000, sigma, [](const Eigen::Vector3f&) { return false; });

@@ -253,10 +253,23 @@ class TextureStage : public Stage {
     WriteTexturedObj(textured, folder, "mesh");
     WriteTexturedGlb(textured, folder + "/mesh.glb");
     WriteViewMaps(BuildViewMaps(geometry, visible, centers, names, options.view_map_grid, options.view_map_partial_penalty), folder + "/view_maps.bin");
+    RemoveStalePages(folder, textured.pages.size());
     context.metrics["seconds_write"] = SecondsSince(start);
   }
 
  private:
+  // Pages atlas_<n>.png beyond this run's count, left by a run with more pages (a smaller
+  // max_texture_size): no material names them, but they would stay in the stage's hashed output.
+  static void RemoveStalePages(const std::string& folder, size_t pages) {
+    for (const auto& entry : fs::directory_iterator(folder)) {
+      const std::string name = entry.path().filename().string();
+      if (name.rfind("atlas_", 0) != 0 || entry.path().extension() != ".png") continue;
+      const std::string number = name.substr(6, name.size() - 10);
+      if (number.empty() || number.find_first_not_of("0123456789") != std::string::npos) continue;
+      if (number.size() > 9 || std::stoull(number) >= pages) fs::remove(entry.path());
+    }
+  }
+
   static std::string MeshPath(const StageContext& context) {
     const std::string mesh = context.params.String("mesh");
     return fs::path(mesh).is_absolute() ? mesh : context.workspace.Path(mesh);
