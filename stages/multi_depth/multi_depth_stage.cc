@@ -25,6 +25,10 @@ namespace ibmr {
 
 namespace {
 
+// A damaged map of plane_sweep's: the runner sees plane_sweep as up to date (its inputs and
+// parameters did not change), so a plain run would not rewrite it.
+const std::string kRerunPlaneSweep = "re-run plane_sweep with --only plane_sweep --force (a plain run sees it as up to date)";
+
 std::string ConfidencePath(const Workspace& workspace, const std::string& name, const std::string& kind) {
   return workspace.ConfidenceMapPath(name, kind);
 }
@@ -40,20 +44,23 @@ DepthView LoadView(const Workspace& workspace, const SparseModel& model, const I
     throw InputError(depth_path + ": no photometric depth map for view '" + image.name + "'; run plane_sweep first");
   }
   view.depth = ReadColmapArray(depth_path);
-  if (view.depth.channels != 1) throw InputError(depth_path + ": a depth map must have 1 channel, got " + std::to_string(view.depth.channels));
+  if (view.depth.channels != 1) {
+    throw InputError(depth_path + ": a depth map must have 1 channel, got " + std::to_string(view.depth.channels) + "; " +
+                     kRerunPlaneSweep);
+  }
   const std::string confidence_path = ConfidencePath(workspace, image.name, "photometric");
   if (fs::exists(confidence_path)) {
     view.confidence = ReadColmapArray(confidence_path);
     if (view.confidence.width != view.depth.width || view.confidence.height != view.depth.height || view.confidence.channels != 1) {
       throw InputError(confidence_path + ": size differs from the depth map's (" + std::to_string(view.depth.width) + "x" +
-                       std::to_string(view.depth.height) + ", 1 channel); rerun plane_sweep");
+                       std::to_string(view.depth.height) + ", 1 channel); " + kRerunPlaneSweep);
     }
   }
   const std::string normal_path = workspace.NormalMapPath(image.name, "photometric");
   if (with_normals && fs::exists(normal_path)) {
     view.normals = ReadColmapArray(normal_path);
     if (view.normals.width != view.depth.width || view.normals.height != view.depth.height || view.normals.channels != 3) {
-      throw InputError(normal_path + ": a normal map must match the depth map's size with 3 channels; rerun plane_sweep");
+      throw InputError(normal_path + ": a normal map must match the depth map's size with 3 channels; " + kRerunPlaneSweep);
     }
   }
   return view;
