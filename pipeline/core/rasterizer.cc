@@ -126,11 +126,14 @@ void RasterizeTriangle(const ClipVertex tri[3], int face_id, const Intrinsics& k
   const double min_x = std::min({v[0].x, v[1].x, v[2].x}), max_x = std::max({v[0].x, v[1].x, v[2].x});
   const double min_y = std::min({v[0].y, v[1].y, v[2].y}), max_y = std::max({v[0].y, v[1].y, v[2].y});
   // Pixel c is sampled at c + 0.5: the covered columns are ceil(min - 0.5) .. floor(max - 0.5).
-  const int c0 = static_cast<int>(std::max(0.0, std::ceil(min_x - 0.5)));
-  const int c1 = static_cast<int>(std::min(k.width - 1.0, std::floor(max_x - 0.5)));
-  const int r0 = static_cast<int>(std::max(0.0, std::ceil(min_y - 0.5)));
-  const int r1 = static_cast<int>(std::min(k.height - 1.0, std::floor(max_y - 0.5)));
-  if (c0 > c1 || r0 > r1) return;
+  // Clamped to the image in double before any cast: near the camera plane a vertex can project
+  // beyond 2^31 pixels, where the cast to int is undefined (in practice INT_MIN, which made the
+  // loop below run ~2^31 columns per row). The negated comparisons also reject NaN bounds.
+  const double x0 = std::max(0.0, std::ceil(min_x - 0.5)), x1 = std::min(k.width - 1.0, std::floor(max_x - 0.5));
+  const double y0 = std::max(0.0, std::ceil(min_y - 0.5)), y1 = std::min(k.height - 1.0, std::floor(max_y - 0.5));
+  if (!(x0 <= x1) || !(y0 <= y1)) return;  // off-screen
+  const int c0 = static_cast<int>(x0), c1 = static_cast<int>(x1);
+  const int r0 = static_cast<int>(y0), r1 = static_cast<int>(y1);
 
   const bool identity = tri[0].weights == Eigen::Vector3d::UnitX() && tri[1].weights == Eigen::Vector3d::UnitY() &&
                         tri[2].weights == Eigen::Vector3d::UnitZ();

@@ -4,6 +4,8 @@
 // clipping, backface culling, and barycentrics that reproduce the 3D surface point.
 #include "pipeline/core/rasterizer.h"
 
+#include <chrono>
+
 #include <gtest/gtest.h>
 
 #include <opencv2/imgproc.hpp>
@@ -277,6 +279,35 @@ TEST(Rasterizer, BarycentricsReproduceTheSurfacePoint) {
     }
   }
   EXPECT_GT(covered, 2000);
+}
+
+TEST(Rasterizer, TrianglesProjectingBeyondIntRangeFinishAndDrawNothingOffScreen) {
+  // Crosses the near plane far off to the side: the clipped vertices project to x ~ 2.5e9 and
+  // 5e9 pixels, beyond int range. Casting those bounds to int used to give INT_MIN and a loop of
+  // ~2^31 columns per row (a hang); the triangle is wholly right of the image, so nothing is drawn.
+  const Camera camera = Camera::Pinhole(64, 48, 1000, 1000, 32, 24);
+  TriangleMesh mesh;
+  mesh.vertices = {{5000, 0, -1}, {5000, 1, -1}, {5001, 0, 0.002f}};
+  mesh.faces = {{0, 1, 2}, {0, 2, 1}};  // both windings
+  // The mirrored triangle lies far off to the left, and a huge one spans the image side to side.
+  mesh.vertices.push_back({-5000, 0, -1});
+  mesh.vertices.push_back({-5000, 1, -1});
+  mesh.vertices.push_back({-5001, 0, 0.002f});
+  mesh.faces.push_back({3, 4, 5});
+  mesh.faces.push_back({3, 5, 4});
+  const auto start = std::chrono::steady_clock::now();
+  const RasterResult result = Rasterize(mesh, camera, Rigid3d());
+  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  EXPECT_LT(seconds, 1.0);
+  EXPECT_EQ(CountCovered(result), 0);
+
+  // A triangle spanning the whole image from beyond int range on both sides still covers it all.
+  TriangleMesh wide;
+  wide.vertices = {{-3e6f, -3e6f, 1e-3f}, {3e6f, -3e6f, 1e-3f}, {0, 3e6f, 1e-3f}};
+  wide.faces = {{0, 2, 1}};
+  RasterizeOptions options;
+  options.near_z = 1e-4;
+  EXPECT_EQ(CountCovered(Rasterize(wide, camera, Rigid3d(), options)), 64 * 48);
 }
 
 TEST(Rasterizer, RejectsBadInputs) {

@@ -3,6 +3,7 @@
 
 #include <tbb/parallel_for.h>
 
+#include <cstdlib>
 #include <filesystem>
 #include <opencv2/imgproc.hpp>
 
@@ -40,6 +41,16 @@ std::vector<DepthImage> LoadDepthImages(const Workspace& workspace, const Sparse
       out.normals = ReadColmapArrayMatching(workspace.NormalMapPath(image.name, kind), out.depth, 3);
     }
     out.camera = out.depth.width == camera.width ? camera : camera.Scaled(static_cast<double>(out.depth.width) / camera.width);
+    // The camera is scaled by the width ratio: a map of another aspect ratio (another image's, or
+    // a crop) would put every sample at the wrong height, so its height must match too (within the
+    // rounding of a downscaled size).
+    if (std::abs(out.camera.height - out.depth.height) > 1) {
+      throw InputError(depth_path + ": depth map is " + std::to_string(out.depth.width) + "x" +
+                       std::to_string(out.depth.height) + " but the image '" + image.name + "' is " +
+                       std::to_string(camera.width) + "x" + std::to_string(camera.height) + " (expected height " +
+                       std::to_string(out.camera.height) + " at that width): not this image's aspect ratio; re-run " +
+                       (truth ? "synth" : "plane_sweep / multi_depth") + " for the current sparse model");
+    }
     out.cam_from_world = image.cam_from_world;
     if (out.normals.Empty()) out.normals = NormalsFromDepth(out.camera, out.depth);
     const std::string photo_path = workspace.ImagesDir() + "/" + image.name;

@@ -14,7 +14,8 @@
 
 namespace ibmr {
 
-// Throws InputError naming the missing depth map (and the stage to run) or a photo whose size
+// Throws InputError naming the missing depth map (and the stage to run), a depth map whose aspect
+// ratio is not its image's (height off by more than 1 at the map's width), or a photo whose size
 // disagrees with its camera. Views load in parallel.
 std::vector<DepthImage> LoadDepthImages(const Workspace& workspace, const SparseModel& model,
                                         const std::vector<std::string>& names, const std::string& kind);

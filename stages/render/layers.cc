@@ -19,10 +19,16 @@ size_t LayersRenderer::Layers() const {
   return count;
 }
 
-RenderResult LayersRenderer::Render(const Camera& camera, const Rigid3d& cam_from_world) const {
+bool LayersRenderer::HasSet(const std::string& image) const {
+  return std::any_of(sets_.begin(), sets_.end(), [&](const LayerSet& set) { return set.image == image; });
+}
+
+RenderResult LayersRenderer::Render(const Camera& camera, const Rigid3d& cam_from_world,
+                                    const std::string& exclude_image) const {
   const Eigen::Vector3d desired = (centre_ - CentreOf(cam_from_world)).normalized();
   std::vector<std::pair<double, size_t>> nearest;
   for (size_t i = 0; i < sets_.size(); ++i) {
+    if (!exclude_image.empty() && sets_[i].image == exclude_image) continue;
     const Eigen::Vector3d ray = (centre_ - CentreOf(sets_[i].cam_from_world)).normalized();
     nearest.emplace_back(std::acos(std::clamp(ray.dot(desired), -1.0, 1.0)), i);
   }

@@ -4,10 +4,12 @@
 // smallest angles between the rays to the scene centre) each composite their layers back to front
 // (CompositeLayers); where several cover a pixel their colours blend with weights 1 / angle^2 (the
 // angle softened by 0.5 degrees), so that the nearest reference dominates as in ULR (seed 001), and
-// the pixel's alpha is the largest of theirs.
+// the pixel's alpha is the largest of theirs. With exclude_self, a training view being rendered does
+// not use its own reference set.
 #pragma once
 
 #include <Eigen/Core>
+#include <string>
 #include <vector>
 
 #include "pipeline/core/layered_sprites.h"
@@ -20,8 +22,11 @@ class LayersRenderer {
   // `scene_centre`: the point the desired views look at (angles between rays to it).
   LayersRenderer(std::vector<LayerSet> sets, int references, const Eigen::Vector3d& scene_centre);
   // At the camera's size: colour (not premultiplied) and coverage 255 where alpha >= 0.5.
-  RenderResult Render(const Camera& camera, const Rigid3d& cam_from_world) const;
+  // `exclude_image` non-empty: the reference set of that image is never used (leave-one-out: a
+  // training view rendered without its own layers, which reproduce its photo at angle 0).
+  RenderResult Render(const Camera& camera, const Rigid3d& cam_from_world, const std::string& exclude_image = {}) const;
   size_t Sets() const { return sets_.size(); }
+  bool HasSet(const std::string& image) const;
   size_t Layers() const;
 
  private:

@@ -53,7 +53,7 @@ TriangleMesh DecimateMesh(const TriangleMesh& mesh, size_t max_faces, size_t* re
 
   TriangleMesh out;
   out.comments = mesh.comments;
-  out.comments.push_back("decimated to at most " + std::to_string(max_faces) + " faces (quadric, OpenMesh)");
+  out.comments.push_back("decimated towards " + std::to_string(max_faces) + " faces (quadric, OpenMesh)");
   out.vertices.reserve(om.n_vertices());
   for (const auto v : om.vertices()) {
     const OmMesh::Point& p = om.point(v);

@@ -9,9 +9,10 @@
 
 namespace ibmr {
 
-// `mesh` with at most `max_faces` faces (fewer where a collapse would flip a face or break the
-// manifold); a mesh already within the budget is returned as it is. OpenMesh refuses
-// non-manifold faces: those are dropped before decimating (counted in *refused when given).
+// `mesh` decimated towards `max_faces` faces: collapses stop at the budget, but OpenMesh refuses
+// those that would flip a face or break the manifold, so the result can keep more faces than
+// `max_faces` (the caller warns); a mesh already within the budget is returned as it is. OpenMesh
+// refuses non-manifold faces: those are dropped before decimating (counted in *refused when given).
 TriangleMesh DecimateMesh(const TriangleMesh& mesh, size_t max_faces, size_t* refused = nullptr);
 
 }  // namespace ibmr

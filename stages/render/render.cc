@@ -287,8 +287,15 @@ int UlrRenderer::Blend(const Eigen::Vector3d& p, const Eigen::Vector3d& desired_
       sum += weights[j] = std::max(0.0, w);
     }
   }
-  if (!(sum > 0) || !std::isfinite(sum)) {  // all kept penalties equal: uniform weights
-    for (int j = 0; j < n; ++j) weights[j] = 1.0 / n;
+  if (!(sum > 0) || !std::isfinite(sum)) {
+    // Every kept penalty reached the threshold: all kept penalties equal (the k-th is the
+    // threshold), or every one exceeds max_penalty (e.g. near the borders of every source). The
+    // weight goes to the smallest-penalty camera(s), the limit of the weights just before (the
+    // others fall to 0 first); uniform only when all are equal. Uniform weights here made a
+    // camera whose penalty had risen to 1e27 at its border weigh 1/3 (a jump, not continuity).
+    int tied = 0;
+    for (int j = 0; j < n; ++j) tied += !(scratch[j].penalty > scratch[0].penalty);
+    for (int j = 0; j < n; ++j) weights[j] = !(scratch[j].penalty > scratch[0].penalty) ? 1.0 / tied : 0.0;
     return n;
   }
   for (int j = 0; j < n; ++j) weights[j] /= sum;

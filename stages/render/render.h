@@ -18,8 +18,10 @@
 // occluded (taking the largest usable penalty instead jumps when one leaves); a zero penalty with
 // the 1/penalty variant ->
 // the zero-penalty cameras share the weight (the desired ray passes through their centres);
-// all kept penalties equal (every w_i = 0) -> uniform weights, never NaN; no usable camera ->
-// the pixel is not covered.
+// all kept penalties equal (every w_i = 0) -> uniform weights, never NaN; every kept penalty at or
+// above the threshold but not all equal (all beyond max_penalty, e.g. near every source's border)
+// -> the smallest-penalty camera(s) share the weight, the limit of the weights as the penalties rise
+// to max_penalty (continuous); no usable camera -> the pixel is not covered.
 // Plane proxy [U 218, "pond"]: parallel to the desired image plane at the mean inverse depth of the
 // sparse points; without sparse points, through the point nearest to all optical axes.
 #pragma once

@@ -29,6 +29,11 @@
 //   layers                   the layered_stereo stage's sprites with depth (layers/<image>/; layers.h):
 //                            the layers_references reference views nearest in viewing direction,
 //                            each composited back to front, blended 1 / angle^2
+// exclude_self (leave-one-out, for training views listed in `views`): ULR and vdtm leave the view's
+// photo out of every blend, splat_depth its depth samples (its depth map still took part in the
+// model's skin test and tile merging), layers its reference set. textured and splat_surfels are one
+// model made from every photo: a warning says such views are not held out. Held-out views are
+// never sources, so this changes nothing for them.
 // Metrics per model: ms_per_frame_<name>, the mean wall time of one view's render (supersampled
 // render and downsampling, not the file writes; views run concurrently, so it compares models of
 // one run, not machines), and seconds_<name> for the whole model including its preparation.
@@ -36,7 +41,10 @@
 // <image stem>.json (the view's coverage, sources, files) per proxy,
 // the primary proxy's copies as renders/<image stem>.png and .coverage.png, and renders/renders.json.
 // With `background: plane`, every other model's holes are also filled from the plane proxy's render
-// of the same view: <image stem>.filled.png and .filled.coverage.png, scored apart by score.
+// of the same view: <image stem>.filled.png and .filled.coverage.png, listed as the view's "filled"
+// and scored apart by score (a view rendered without a fill loses any such files of an earlier run).
+// Views whose images share a stem are refused (their files would collide), as are two proxies with
+// one name.
 #include <spdlog/spdlog.h>
 #include <tbb/parallel_for.h>
 
@@ -203,13 +211,40 @@ class RenderStage : public Stage {
     std::sort(names.begin(), names.end());
     return names;
   }
-  // One view's buffers at the supersampled size (colour, depth, weights and blend accumulators of
-  // every model): 88 bytes per supersampled pixel, as measured on the full-size Sceaux castle
-  // (2832x2128, supersample 2: 2.0 GB a view besides the 0.4 GB of sources and program).
+  // One view's buffers at the supersampled size, for the model that needs the most (models run
+  // one after the other): ULR, splats and texture models 88 bytes per supersampled pixel (colour,
+  // depth, weights and blend accumulators), as measured on the full-size Sceaux castle (2832x2128,
+  // supersample 2: 2.0 GB a view besides the 0.4 GB of sources and program). `layers` needs
+  // 40 + 20 L bytes, L the layers of one reference set: per layer its drawn premultiplied colour
+  // and alpha (16) and depth (4) in CompositeLayers, besides the blend accumulators (20), one
+  // RasterResult (20) and the composite and output images: 240 bytes at L = 10.
   double ViewMemoryMb(const StageContext& context) const override {
     const double pixels = LargestTrainingImage(context).Pixels();
     const double factor = static_cast<double>(context.params.Int("supersample"));
-    return pixels * factor * factor * 88.0 / 1048576.0;
+    double bytes = 88.0;
+    for (const std::string& entry : context.params.StringList("proxies")) {
+      const ProxySpec spec = ParseProxy(entry, context.workspace);
+      if (spec.kind == ModelKind::kLayers) bytes = std::max(bytes, 40.0 + 20.0 * LargestLayerCount(spec.path));
+    }
+    return pixels * factor * factor * bytes / 1048576.0;
+  }
+  // The most layers in one reference set under `folder` (layers/<image>/layers.json, small files),
+  // or layered_stereo's largest max_layers (16) when there is none yet (planned before that stage
+  // runs) or one cannot be read: an estimate must not fall short.
+  static int LargestLayerCount(const std::string& folder) {
+    constexpr int kMaxLayers = 16;
+    int largest = 0;
+    std::error_code ec;
+    for (fs::recursive_directory_iterator it(folder, ec), end; !ec && it != end; it.increment(ec)) {
+      if (it->path().filename() != "layers.json") continue;
+      try {
+        const nlohmann::json j = nlohmann::json::parse(ReadFile(it->path().string()));
+        largest = std::max(largest, static_cast<int>(j.at("layers").size()));
+      } catch (const std::exception&) {
+        return kMaxLayers;
+      }
+    }
+    return ec || largest == 0 ? kMaxLayers : largest;
   }
   // The photographed views to render: render.views, else the held-out ones.
   static std::vector<std::string> PhotoViewNames(const StageContext& context) {
@@ -316,13 +351,29 @@ class RenderStage : public Stage {
     if (look != 0 && look != 6 && look != 9) {
       return ParamError{"novel_look_at", "expected 0, 6 or 9 numbers (eye, target[, up]), got " + std::to_string(look)};
     }
+    if (look != 0) {
+      const std::vector<double> v = params.DoubleList("novel_look_at");
+      const Eigen::Vector3d eye(v[0], v[1], v[2]), target(v[3], v[4], v[5]);
+      if (!eye.allFinite() || !target.allFinite() || !((target - eye).norm() > 0)) {
+        return ParamError{"novel_look_at", "eye (the first 3 numbers) and target (the next 3) must be distinct finite "
+                                           "points; move the target to where the camera should look"};
+      }
+    }
     if (params.Int("layers_references") < 1 || params.Int("layers_references") > 16) {
       return ParamError{"layers_references", "must be in [1, 16], got " + std::to_string(params.Int("layers_references"))};
     }
     if (params.StringList("proxies").empty()) return ParamError{"proxies", "list at least one proxy (e.g. [plane])"};
+    std::map<std::string, std::string> entry_of_name;  // each model writes renders/<name>/
     for (const std::string& entry : params.StringList("proxies")) {
       if (entry.empty() || entry.back() == '=') return ParamError{"proxies", "empty proxy entry \"" + entry + "\""};
       const ProxySpec spec = ParseProxy(entry, Workspace("."));
+      const auto [named, fresh] = entry_of_name.emplace(spec.name, entry);
+      if (!fresh) {
+        return ParamError{"proxies", "\"" + named->second + "\" and \"" + entry + "\" are both named \"" + spec.name +
+                                         "\" (both would write renders/" + spec.name +
+                                         "/); name one, e.g. " + spec.name + "_2=" +
+                                         entry.substr(entry.find('=') == std::string::npos ? 0 : entry.find('=') + 1)};
+      }
       if (!spec.depth_type.empty() && bad_type(spec.depth_type)) {
         return ParamError{"proxies", "\"" + entry + "\": depth type must be geometric, photometric or truth"};
       }
@@ -417,6 +468,22 @@ class RenderStage : public Stage {
     if (desired.empty()) {
       spdlog::warn("[render] no view to render: the config holds no view out (holdout) and lists no render.views");
     }
+    // Every file of a view is named by its image's stem (renders/<proxy>/<stem>.png, the checkpoint
+    // keys): two views with one stem (view_000.png and view_000.jpg, left/0001.jpg and
+    // right/0001.jpg) would overwrite each other's renders and be scored against the wrong photo.
+    {
+      std::map<std::string, std::string> view_of_stem;
+      for (const Desired& view : desired) {
+        const auto [other, fresh] = view_of_stem.emplace(view.stem, view.name);
+        if (!fresh) {
+          throw InputError("render: views \"" + other->second + "\" and \"" + view.name +
+                           "\" would both be written as renders/<proxy>/" + view.stem +
+                           ".png (same file stem); rename one of the images (in " + context.workspace.ImagesDir() +
+                           " and " + context.workspace.SparseDir() + "/images.txt), or render only one of them " +
+                           "(render.views, holdout)");
+        }
+      }
+    }
     // A shard renders its views only; its per-view loops below then run unsharded over them (the
     // marks are per model and view), and it ends before the files that gather every view.
     const std::set<std::string> shard = std::move(context.shard_views);
@@ -438,6 +505,9 @@ class RenderStage : public Stage {
     std::set<int> training_ids;
     for (const std::string& name : training) training_ids.insert(model.FindImage(name)->image_id);
     for (const auto& [id, point] : model.points) {
+      // A non-finite point would make the plane's depth and the layers' scene centre NaN (a black
+      // render reported as rendered); it says nothing about where the scene is.
+      if (!point.xyz.allFinite()) continue;
       bool seen = point.track.empty();
       for (const TrackElement& element : point.track) seen = seen || training_ids.count(element.image_id) > 0;
       if (seen) sparse_points.push_back(point.xyz);
@@ -533,6 +603,12 @@ class RenderStage : public Stage {
           mesh = DecimateMesh(mesh, static_cast<size_t>(spec.detail), &refused);
           spdlog::info("[render] proxy {}: {} faces decimated to {}{}", spec.name, before, mesh.faces.size(),
                        refused ? " (" + std::to_string(refused) + " non-manifold faces dropped)" : std::string());
+          if (mesh.faces.size() > static_cast<size_t>(spec.detail)) {
+            spdlog::warn("[render] proxy {}: {} faces, over the budget of {}: OpenMesh refused the remaining "
+                         "collapses (they would flip a face or break the manifold); its size in renders.json is "
+                         "the faces kept",
+                         spec.name, mesh.faces.size(), spec.detail);
+          }
         }
       }
       // Texture models: the texture stage's mesh and atlas, and for vdtm its view maps.
@@ -686,6 +762,23 @@ class RenderStage : public Stage {
         });
       }
       const SplatOptions splat_options = ToSplatOptions(context.params);
+      // Leave-one-out (exclude_self) for a training view among the desired ones: ULR, vdtm, layers
+      // and splat_depth leave its own photo (and depth, layers) out below. A texture atlas or surfels
+      // are one model made from every photo: such a view is not held out there.
+      const bool exclude_self = context.params.Bool("exclude_self");
+      if (exclude_self && (spec.kind == ModelKind::kTextured || spec.kind == ModelKind::kSplatSurfels)) {
+        std::string in_model;
+        for (const Desired& view : desired) {
+          if (std::find(training.begin(), training.end(), view.name) != training.end()) {
+            in_model += (in_model.empty() ? "" : ", ") + view.name;
+          }
+        }
+        if (!in_model.empty()) {
+          spdlog::warn("[render] proxy {}: the training views {} are not held out: the model was made from their "
+                       "photos too, so their scores are optimistic (exclude_self cannot apply); score held-out views",
+                       spec.name, in_model);
+        }
+      }
       const std::string folder = context.workspace.Path("renders/" + spec.name);
       fs::create_directories(folder);
       std::mutex mutex;
@@ -706,9 +799,12 @@ class RenderStage : public Stage {
           result = render_ulr(proxy_sources, layers, view, &plane_kind, &used_sources);
         } else if (layered) {
           const Camera camera = factor > 1 ? view.camera.Scaled(factor) : view.camera;
-          const RenderResult fine = layered->Render(camera, view.cam_from_world);
+          // Leave-one-out: a training view's own layers reproduce its photo (angle 0).
+          const bool self = exclude_self && layered->HasSet(view.name);
+          const RenderResult fine = layered->Render(camera, view.cam_from_world, self ? view.name : std::string());
           result = Downsample(fine, HitsOf(fine), factor);
-          used_sources = std::min<size_t>(layered->Sets(), static_cast<size_t>(context.params.Int("layers_references")));
+          used_sources = std::min<size_t>(layered->Sets() - (self ? 1 : 0),
+                                          static_cast<size_t>(context.params.Int("layers_references")));
         } else if (is_texture) {
           const Camera camera = factor > 1 ? view.camera.Scaled(factor) : view.camera;
           RenderResult fine;
@@ -733,13 +829,20 @@ class RenderStage : public Stage {
         } else {
           const auto splat_start = std::chrono::steady_clock::now();
           const Camera camera = factor > 1 ? view.camera.Scaled(factor) : view.camera;
-          const SplatImage splats = RenderSplats(cloud, camera, view.cam_from_world, splat_options);
+          // Leave-one-out: the depth samples of a training view's own depth map (and photo) are not
+          // drawn; the cloud's sources are the training views in order (LoadDepthImages).
+          int self = -1;
+          if (exclude_self && spec.kind != ModelKind::kSplatSurfels) {
+            const auto found = std::find(training.begin(), training.end(), view.name);
+            if (found != training.end()) self = static_cast<int>(found - training.begin());
+          }
+          const SplatImage splats = RenderSplats(cloud, camera, view.cam_from_world, splat_options, self);
           RenderResult fine;
           fine.image = splats.image;
           fine.coverage = splats.coverage;
           fine.covered_pixels = splats.covered_pixels;
           result = Downsample(fine, HitsOf(fine), factor);
-          used_sources = spec.kind == ModelKind::kSplatSurfels ? 0 : training.size();
+          used_sources = spec.kind == ModelKind::kSplatSurfels ? 0 : training.size() - (self >= 0 ? 1 : 0);
           const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - splat_start).count();
           std::lock_guard<std::mutex> lock(mutex);
           splat_seconds += seconds;
@@ -770,6 +873,12 @@ class RenderStage : public Stage {
           WriteImage(folder + "/" + view.stem + ".filled.png", filled.image);
           WriteImage(folder + "/" + view.stem + ".filled.coverage.png", filled.coverage);
           vj["filled"] = "renders/" + spec.name + "/" + view.stem + ".filled.png";
+        } else {
+          // No fill this time (background: none, or the plane proxy): a filled image of an earlier
+          // run would be stale beside the new render.
+          std::error_code ec;
+          fs::remove(folder + "/" + view.stem + ".filled.png", ec);
+          fs::remove(folder + "/" + view.stem + ".filled.coverage.png", ec);
         }
         // The view's facts beside its images: a resumed run skips views already rendered and
         // gathers every view's facts from these files.

@@ -9,12 +9,15 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <nlohmann/json.hpp>
 
 #include "pipeline/core/colmap_text_io.h"
+#include "pipeline/core/errors.h"
 #include "pipeline/core/image_io.h"
 #include "pipeline/core/ply_io.h"
 #include "pipeline/core/stage_api.h"
+#include "stages/render/layers.h"
 
 namespace fs = std::filesystem;
 
@@ -330,6 +333,54 @@ TEST(Ulr, TiedPenaltiesGiveUniformWeightsNotNaN) {
   }
 }
 
+TEST(Ulr, WeightsStayContinuousWhenEveryCameraNearsItsBorder) {
+  // Three cameras looking straight down from (0, y_i, 3): a ground point walking along +x nears the
+  // right border of all three images at once (same u, same field-of-view penalty), so beyond some
+  // point every penalty exceeds max_penalty. The weights must not jump there (they did, to 1/3
+  // each, giving a camera with a penalty of ~1e27 a third of the pixel).
+  std::vector<SourceView> sources;
+  for (const double y : {0.1, 0.3, 0.5}) {
+    SourceView view = PlaneView(Eigen::Vector3d(0, y, 3), "y" + std::to_string(y));
+    view.cam_from_world = LookAt(Eigen::Vector3d(0, y, 3), Eigen::Vector3d(0, y, 0), Eigen::Vector3d(0, 1, 0));
+    sources.push_back(view);
+  }
+  const UlrRenderer renderer(&sources, RenderOptions());
+  const Eigen::Vector3d desired(0, 0.25, 3.0);  // nearest in angle: source 1 (y = 0.3)
+  const SourceView& s = sources[1];
+  const Rigid3d world_from_cam = s.cam_from_world.Inverse();
+  const auto point_at = [&](double u) {
+    const Eigen::Vector3d ray = world_from_cam.rotation * s.camera.CamFromImg(Eigen::Vector2d(u, kHeight / 2.0));
+    return Eigen::Vector3d(world_from_cam.translation + (-world_from_cam.translation.z() / ray.z()) * ray);
+  };
+  const auto weights_at = [&](double u) {
+    std::vector<double> w(sources.size(), 0.0);
+    double smallest = std::numeric_limits<double>::infinity();
+    for (const BlendWeight& b : renderer.Weights(point_at(u), desired)) {
+      EXPECT_TRUE(std::isfinite(b.weight)) << "u=" << u;
+      w[b.source] = b.weight;
+      smallest = std::min(smallest, b.penalty);
+    }
+    return std::make_pair(w, smallest);
+  };
+  // The image side of the point where the smallest penalty reaches max_penalty (pi), by bisection.
+  double inside = kWidth / 2.0, outside = kWidth - 0.5 - 1e-9;
+  ASSERT_LT(weights_at(inside).second, M_PI);
+  ASSERT_GT(weights_at(outside).second, M_PI);
+  for (int i = 0; i < 100; ++i) {
+    const double mid = 0.5 * (inside + outside);
+    (weights_at(mid).second < M_PI ? inside : outside) = mid;
+  }
+  const std::vector<double> before = weights_at(inside).first, after = weights_at(outside).first;
+  for (size_t i = 0; i < sources.size(); ++i) EXPECT_NEAR(before[i], after[i], 1e-6) << "source " << i;
+  EXPECT_NEAR(after[1], 1.0, 1e-6);
+  // And on towards the border, every penalty far beyond max_penalty: still the nearest camera.
+  for (double u = outside; u < kWidth - 0.5; u += 0.01) {
+    const std::vector<double> w = weights_at(u).first;
+    EXPECT_DOUBLE_EQ(w[1], 1.0) << "u=" << u;
+    EXPECT_EQ(w[0] + w[2], 0.0) << "u=" << u;
+  }
+}
+
 TEST(Ulr, FewerThanKCamerasHandled) {
   const std::vector<SourceView> one = {PlaneView(Eigen::Vector3d(0.3, 0, 3), "a")};
   const UlrRenderer renderer(&one, RenderOptions());
@@ -489,6 +540,148 @@ TEST(RenderStage, RendersHeldOutViewsAndSkipsMissingProxy) {
   EXPECT_GT(cv::countNonZero(coverage), kWidth * kHeight / 2);
   EXPECT_GT(Psnr(rendered, views[0].image, coverage), 28.0);
   fs::remove_all(root);
+}
+
+// A workspace of the ring of 8 plane views (v0.png .. v7.png; `extra` adds more images at v0's
+// pose) and a render context with every parameter at its default.
+struct RenderWorkspace {
+  fs::path root;
+  StageRegistry registry;
+  const Stage* stage = nullptr;
+  StageContext context;
+  NullProgress progress;
+
+  RenderWorkspace(const std::string& tag, const std::vector<std::string>& extra) {
+    root = fs::temp_directory_path() / ("ibmr_render_" + tag + "_" + std::to_string(::getpid()));
+    fs::remove_all(root);
+    fs::create_directories(root / "images");
+    const std::vector<SourceView> views = Ring(8, 1.5);
+    SparseModel model;
+    model.cameras[1] = TestCamera();
+    std::vector<std::string> names;
+    for (size_t i = 0; i < views.size(); ++i) names.push_back("v" + std::to_string(i) + ".png");
+    names.insert(names.end(), extra.begin(), extra.end());
+    for (size_t i = 0; i < names.size(); ++i) {
+      Image image;
+      image.image_id = static_cast<int>(i) + 1;
+      image.camera_id = 1;
+      image.name = names[i];
+      image.cam_from_world = views[i < views.size() ? i : 0].cam_from_world;
+      model.images[image.image_id] = image;
+      fs::create_directories((root / "images" / image.name).parent_path());
+      WriteImage((root / "images" / image.name).string(), views[i < views.size() ? i : 0].image);
+    }
+    WriteSparseModelText((root / "sparse").string(), model);
+    RegisterStage_render(&registry);
+    stage = registry.Find("render");
+    context.workspace = Workspace(root.string());
+    context.role = stage->Role();
+    for (const ParamSpec& spec : stage->Parameters()) {
+      if (spec.type == ParamType::kString) {
+        context.params.Set(spec.key, spec.default_yaml);
+      } else if (spec.type == ParamType::kInt) {
+        context.params.Set(spec.key, static_cast<int64_t>(std::stoll(spec.default_yaml)));
+      } else if (spec.type == ParamType::kDouble) {
+        context.params.Set(spec.key, std::stod(spec.default_yaml));
+      } else if (spec.type == ParamType::kBool) {
+        context.params.Set(spec.key, spec.default_yaml == "true");
+      } else if (spec.type == ParamType::kDoubleList) {
+        context.params.Set(spec.key, std::vector<double>{});
+      } else {
+        context.params.Set(spec.key, std::vector<std::string>{});
+      }
+    }
+    context.params.Set("proxies", std::vector<std::string>{"plane"});
+    context.progress = &progress;
+  }
+  ~RenderWorkspace() { fs::remove_all(root); }
+};
+
+TEST(RenderStage, RefusesViewsWhoseFilesWouldCollide) {
+  RenderWorkspace ws("stems", {"v0.jpg", "left/v1.png"});
+  ws.context.heldout_images = {"v0.png", "v0.jpg"};
+  try {
+    ws.stage->Run(ws.context);
+    ADD_FAILURE() << "v0.png and v0.jpg would both write renders/<proxy>/v0.png";
+  } catch (const InputError& e) {
+    const std::string message = e.what();
+    EXPECT_NE(message.find("\"v0.png\""), std::string::npos) << message;
+    EXPECT_NE(message.find("\"v0.jpg\""), std::string::npos) << message;
+    EXPECT_NE(message.find("rename"), std::string::npos) << message;
+  }
+  ws.context.heldout_images = {"v1.png", "left/v1.png"};  // one stem in two folders
+  EXPECT_THROW(ws.stage->Run(ws.context), InputError);
+  EXPECT_FALSE(fs::exists(ws.root / "renders/plane/v1.png")) << "refused before anything is written";
+}
+
+TEST(RenderStage, CheckParamsNamesCollidingProxiesAndADegenerateLookAt) {
+  RenderWorkspace ws("params", {});
+  Params params = ws.context.params;
+  params.Set("proxies", std::vector<std::string>{"plane", "hull/hull.ply", "hull.ply"});
+  std::optional<ParamError> error = ws.stage->CheckParams(params);
+  ASSERT_TRUE(error.has_value());
+  EXPECT_EQ(error->key, "proxies");
+  EXPECT_NE(error->message.find("hull/hull.ply"), std::string::npos) << error->message;
+  EXPECT_NE(error->message.find("\"hull.ply\""), std::string::npos) << error->message;
+  params.Set("proxies", std::vector<std::string>{"plane", "hull/hull.ply", "hull2=hull.ply"});
+  EXPECT_FALSE(ws.stage->CheckParams(params).has_value());
+
+  params.Set("novel_look_at", std::vector<double>{1, 2, 3, 1, 2, 3});
+  error = ws.stage->CheckParams(params);
+  ASSERT_TRUE(error.has_value());
+  EXPECT_EQ(error->key, "novel_look_at");
+  params.Set("novel_look_at", std::vector<double>{1, 2, 3, 0, 0, 0});
+  EXPECT_FALSE(ws.stage->CheckParams(params).has_value());
+}
+
+TEST(RenderStage, ARenderWithoutFillRemovesAnEarlierRunsFilledImages) {
+  RenderWorkspace ws("filled", {});
+  TriangleMesh ground;
+  ground.vertices = {{-0.5, -0.5, 0}, {0.5, -0.5, 0}, {0.5, 0.5, 0}, {-0.5, 0.5, 0}};  // leaves holes
+  ground.faces = {{0, 1, 2}, {0, 2, 3}};
+  fs::create_directories(ws.root / "ground_truth");
+  WriteMeshPly((ws.root / "ground_truth/mesh.ply").string(), ground);
+  ws.context.heldout_images = {"v0.png"};
+  ws.context.params.Set("proxies", std::vector<std::string>{"ground_truth/mesh.ply", "plane"});
+  ws.stage->Run(ws.context);
+  ASSERT_TRUE(fs::exists(ws.root / "renders/ground_truth_mesh/v0.filled.png"));
+  ws.context.params.Set("background", std::string("none"));
+  ws.stage->Run(ws.context);
+  EXPECT_FALSE(fs::exists(ws.root / "renders/ground_truth_mesh/v0.filled.png"));
+  EXPECT_FALSE(fs::exists(ws.root / "renders/ground_truth_mesh/v0.filled.coverage.png"));
+  const nlohmann::json summary = nlohmann::json::parse(std::ifstream((ws.root / "renders/renders.json").string()));
+  EXPECT_FALSE(summary["proxies"][0]["views"]["v0.png"].contains("filled"));
+}
+
+// Leave-one-out for `layers`: a training view rendered with exclude_self does not use its own
+// reference set, which would reproduce its photo at angle 0.
+TEST(Layers, ExcludedReferenceSetIsNotUsed) {
+  const Camera camera = Camera::Pinhole(32, 24, 30, 30, 16, 12);
+  const auto set_at = [&](const std::string& name, const Eigen::Vector3d& eye, const cv::Scalar& bgr) {
+    LayerSet set;
+    set.image = name;
+    set.camera = camera;
+    set.cam_from_world = LookAt(eye, Eigen::Vector3d(eye.x(), eye.y(), 4), Eigen::Vector3d(0, -1, 0));
+    SpriteLayer layer;
+    layer.normal = Eigen::Vector3d::UnitZ();
+    layer.offset = 4;  // the plane z = 4
+    layer.rgba = cv::Mat(24, 32, CV_8UC4, cv::Scalar(bgr[0], bgr[1], bgr[2], 255));
+    set.layers.push_back(layer);
+    return set;
+  };
+  std::vector<LayerSet> sets = {set_at("a.png", {0, 0, 0}, cv::Scalar(0, 0, 255)),
+                                set_at("b.png", {0.2, 0, 0}, cv::Scalar(255, 0, 0))};
+  const Rigid3d at_a = sets[0].cam_from_world;
+  const LayersRenderer renderer(std::move(sets), 2, Eigen::Vector3d(0, 0, 4));
+  EXPECT_TRUE(renderer.HasSet("a.png"));
+  EXPECT_FALSE(renderer.HasSet("c.png"));
+  const RenderResult with_self = renderer.Render(camera, at_a);
+  const RenderResult without = renderer.Render(camera, at_a, "a.png");
+  const cv::Point centre(16, 12);
+  ASSERT_EQ(with_self.coverage.at<uint8_t>(centre), 255);
+  EXPECT_GT(with_self.image.at<cv::Vec3b>(centre)[2], 200);  // its own (red) layer dominates at angle 0
+  ASSERT_EQ(without.coverage.at<uint8_t>(centre), 255);
+  EXPECT_EQ(without.image.at<cv::Vec3b>(centre), cv::Vec3b(255, 0, 0));  // only b's (blue) layer
 }
 
 }  // namespace

@@ -266,7 +266,7 @@ void SetEllipse(float v00, float v01, float v11, float min_radius, float max_rad
 }  // namespace
 
 SplatImage RenderSplats(const SplatCloud& cloud, const Camera& camera, const Rigid3d& cam_from_world,
-                        const SplatOptions& options) {
+                        const SplatOptions& options, int exclude_source) {
   const int width = camera.width, height = camera.height;
   SplatImage out;
   out.image = cv::Mat(height, width, CV_8UC3, cv::Scalar::all(0));
@@ -295,6 +295,7 @@ SplatImage RenderSplats(const SplatCloud& cloud, const Camera& camera, const Rig
     for (size_t i = range.begin(); i < range.end(); ++i) {
       Projected& s = projected[i];
       s.radius = -1;
+      if (exclude_source >= 0 && cloud.source[i] == exclude_source) continue;  // leave-one-out
       const Eigen::Vector3f& p = cloud.positions[i];
       const Eigen::Vector3f x = rotation * p + translation;
       if (!(x.z() > 0)) continue;

@@ -33,8 +33,10 @@
 // of the front at a pixel are blended (the "compositing by confidence" of [N 5.3], without the
 // alpha blur across surfaces). Which ones, and how much, follows ULR's blending field [U 115-134]
 // per pixel: angle = that between a sample's source ray and the desired ray at the sample; the k
-// sources with the smallest angles among the front samples are kept, threshold = the k-th angle,
-// and a sample weighs
+// sources with the smallest angles among all the samples drawn at the pixel are kept, chosen before
+// the depth test (each source's depth map is one consistent surface, so an outlier of a distant
+// view can neither hide nor tint the pixel), and only their samples take part in the z test and
+// the blend; threshold = the k-th angle, and a sample weighs
 //     confidence * (1 - (r / R)^2) * max(0, 1 - angle / threshold) / max(angle, angle_epsilon),
 // so the nearest views dominate and, at a source camera, that source's samples (epipole
 // consistency [U 130]). Surfel samples have no source ray: angle 0, one "source".
@@ -101,8 +103,9 @@ struct SplatImage {
 };
 
 // Draws `cloud` into `camera` (any resolution: pass camera.Scaled(s) to supersample). Bands of rows
-// run in parallel (TBB).
+// run in parallel (TBB). `exclude_source` >= 0: that source's samples are not drawn (leave-one-out:
+// a training view rendered without its own depth and photo).
 SplatImage RenderSplats(const SplatCloud& cloud, const Camera& camera, const Rigid3d& cam_from_world,
-                        const SplatOptions& options);
+                        const SplatOptions& options, int exclude_source = -1);
 
 }  // namespace ibmr

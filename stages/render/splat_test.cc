@@ -7,10 +7,19 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <filesystem>
+#include <string>
+#include <unistd.h>
 
 #include <Eigen/Geometry>
 
+#include "pipeline/core/colmap_array_io.h"
 #include "pipeline/core/depth_normals.h"
+#include "pipeline/core/errors.h"
+#include "pipeline/core/image_io.h"
+#include "pipeline/core/sparse_model.h"
+#include "pipeline/core/workspace.h"
+#include "stages/render/depth_image_io.h"
 #include "stages/render/depth_images.h"
 
 namespace ibmr {
@@ -212,6 +221,75 @@ TEST(Splat, DesiredCameraAtASourceReproducesItsImage) {
   }
   const double psnr = 10 * std::log10(255.0 * 255.0 / std::max(squared / counted, 1e-12));
   EXPECT_GT(psnr, 40.0);
+}
+
+// Leave-one-out (render.exclude_self): a training view rendered without its own samples is drawn
+// exactly as from a model built without its depth image; its photo (here a marker colour) shows
+// nowhere.
+TEST(Splat, ExcludedSourceIsNotDrawn) {
+  std::vector<DepthImage> images = {View({0, 0, 0}, false, "a"), View({0.3, 0, 0}, false, "b"),
+                                    View({-0.2, 0.2, 0}, false, "c")};
+  images[1].image.setTo(cv::Scalar(0, 0, 255));  // a colour the texture never has: its channels stay in [38, 218]
+  const SplatCloud cloud = CloudFromDepthImages(images);
+  const SplatCloud others = CloudFromDepthImages({images[0], images[2]});
+  const Rigid3d at_b = images[1].cam_from_world;
+  const auto reddest = [](const SplatImage& out) {  // the largest red excess over blue
+    int most = -255;
+    for (int y = 0; y < out.image.rows; ++y) {
+      for (int x = 0; x < out.image.cols; ++x) {
+        const cv::Vec3b& c = out.image.at<cv::Vec3b>(y, x);
+        most = std::max(most, static_cast<int>(c[2]) - c[0]);
+      }
+    }
+    return most;
+  };
+  EXPECT_GT(reddest(RenderSplats(cloud, TestCamera(), at_b, SplatOptions())), 200);  // its own samples weigh most
+  const SplatImage without = RenderSplats(cloud, TestCamera(), at_b, SplatOptions(), 1);
+  const SplatImage expected = RenderSplats(others, TestCamera(), at_b, SplatOptions());
+  EXPECT_LT(reddest(without), 200);
+  EXPECT_GT(without.covered_pixels, static_cast<size_t>(kWidth * kHeight / 2));  // the others still cover it
+  EXPECT_EQ(without.covered_pixels, expected.covered_pixels);
+  EXPECT_EQ(cv::norm(without.image, expected.image, cv::NORM_INF), 0.0);
+}
+
+// A depth map of another aspect ratio than its image: the camera scaled by the width ratio would
+// put every sample at the wrong height, so loading it fails naming the file and what to re-run.
+TEST(DepthImageIo, RejectsDepthMapOfAnotherAspectRatio) {
+  const std::filesystem::path root =
+      std::filesystem::temp_directory_path() / ("ibmr_depth_io_test_" + std::to_string(::getpid()));
+  std::filesystem::remove_all(root);
+  std::filesystem::create_directories(root / "images");
+  std::filesystem::create_directories(root / "dense/stereo/depth_maps");
+  const Workspace workspace(root.string());
+  SparseModel model;
+  model.cameras[1] = TestCamera();  // 80 x 60
+  Image image;
+  image.image_id = 1;
+  image.camera_id = 1;
+  image.name = "a.png";
+  model.images[1] = image;
+  WriteImage(workspace.ImagesDir() + "/a.png", cv::Mat(kHeight, kWidth, CV_8UC3, cv::Scalar::all(128)));
+  const std::string depth_path = workspace.DepthMapPath("a.png", "geometric");
+  // Half the width: 40 x 30 is this image's aspect ratio (30 +- 1 accepted), 40 x 40 is not.
+  for (const int height : {30, 31, 40}) {
+    WriteColmapArray(depth_path, DepthMap(kWidth / 2, height, 1, 2.f));
+    if (height != 40) {
+      const std::vector<DepthImage> images = LoadDepthImages(workspace, model, {"a.png"}, "geometric");
+      ASSERT_EQ(images.size(), 1u);
+      EXPECT_EQ(images[0].camera.width, kWidth / 2);
+      EXPECT_EQ(images[0].camera.height, kHeight / 2);
+      continue;
+    }
+    try {
+      LoadDepthImages(workspace, model, {"a.png"}, "geometric");
+      ADD_FAILURE() << "a 40x40 depth map of an 80x60 image was accepted";
+    } catch (const InputError& e) {
+      const std::string message = e.what();
+      EXPECT_NE(message.find(depth_path), std::string::npos) << message;
+      EXPECT_NE(message.find("plane_sweep / multi_depth"), std::string::npos) << message;
+    }
+  }
+  std::filesystem::remove_all(root);
 }
 
 // Skins [N 4.4]: between a view and one displaced sideways, the connections across the square's

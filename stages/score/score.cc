@@ -105,6 +105,18 @@ bool ScoreOptions::Check(std::string* error) const {
   return true;
 }
 
+bool MeanOfFinitePoints(const std::vector<Eigen::Vector3d>& points, Eigen::Vector3d* mean) {
+  const size_t count = std::count_if(points.begin(), points.end(), [](const Eigen::Vector3d& p) { return p.allFinite(); });
+  if (count == 0) return false;
+  // Summed as p / count, as before finite points were counted apart: the same centre to the bit.
+  Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+  for (const Eigen::Vector3d& p : points) {
+    if (p.allFinite()) sum += p / static_cast<double>(count);
+  }
+  *mean = sum;
+  return true;
+}
+
 ImageScore ScoreImage(const cv::Mat& real, const cv::Mat& rendered_in, const cv::Mat& coverage, const cv::Mat& mask,
                       const ScoreOptions& options) {
   if (real.type() != CV_8UC3 || rendered_in.type() != CV_8UC3 || coverage.type() != CV_8UC1 ||

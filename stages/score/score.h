@@ -37,7 +37,8 @@ struct ScoreOptions {
 };
 
 struct MaskedScore {
-  double psnr = 0;          // dB over the pixels counted (covered [and in mask])
+  double psnr = 0;          // dB over the pixels counted (covered [and in mask]); 0 when pixels == 0,
+                            // which is no score: the stage omits psnr and ssim then
   double ssim = 0;
   double coverage = 0;      // covered fraction of the image (or of the mask)
   size_t pixels = 0;        // pixels counted
@@ -59,6 +60,10 @@ ImageScore ScoreImage(const cv::Mat& real, const cv::Mat& rendered, const cv::Ma
 
 // real | rendered | |real - rendered| * error_gain (uncovered pixels of the error panel dark blue).
 cv::Mat SideBySide(const cv::Mat& real, const cv::Mat& rendered, const cv::Mat& coverage, int error_gain);
+
+// Mean of the finite points (one NaN or infinite coordinate would make the mean NaN; such points
+// are skipped). False, `mean` unchanged, when there is none.
+bool MeanOfFinitePoints(const std::vector<Eigen::Vector3d>& points, Eigen::Vector3d* mean);
 
 // Angle in degrees at `scene_center` between `center` and the nearest of `others`; sets `nearest`
 // (index into others, -1 when empty; angle 180 then).

@@ -33,7 +33,8 @@ nlohmann::json ToJson(const MaskedScore& s) {
   return {{"psnr", s.psnr}, {"ssim", s.ssim}, {"coverage", s.coverage}, {"pixels", s.pixels}};
 }
 
-// Mean of the per-view entries' metrics over the views selected by `use`.
+// Mean of the per-view entries' metrics over the views selected by `use`: each metric over the
+// views that have it (a view with no covered pixel has no psnr or ssim; "views" counts them all).
 nlohmann::json Mean(const nlohmann::json& views, const std::function<bool(const nlohmann::json&)>& use) {
   const char* const keys[] = {"psnr",          "ssim",          "coverage",        "mask_psnr",
                               "mask_ssim",     "mask_coverage", "photo_psnr",      "photo_ssim",
@@ -120,10 +121,13 @@ class ScoreStage : public Stage {
     Eigen::Vector3d scene_center;
     std::string center_kind = "nearest_to_axes";
     if (!PointNearestToAxes(centers, directions, &scene_center)) {
-      Eigen::Vector3d mean_point = Eigen::Vector3d::Zero();
-      for (const auto& [id, point] : model.points) mean_point += point.xyz / model.points.size();
-      scene_center = model.points.empty() ? Eigen::Vector3d(mean_center + mean_direction.normalized()) : mean_point;
-      center_kind = model.points.empty() ? "ahead_of_cameras" : "mean_sparse_point";
+      // Finite points only: one NaN or infinite coordinate would make the centre (and every
+      // nearest-camera angle) NaN, written as null.
+      std::vector<Eigen::Vector3d> points;
+      for (const auto& [id, point] : model.points) points.push_back(point.xyz);
+      const bool have_points = MeanOfFinitePoints(points, &scene_center);
+      if (!have_points) scene_center = mean_center + mean_direction.normalized();
+      center_kind = have_points ? "mean_sparse_point" : "ahead_of_cameras";
     }
 
     nlohmann::json out = {{"primary", renders.value("primary", "")},
@@ -182,20 +186,35 @@ class ScoreStage : public Stage {
     return options;
   }
 
+  // <name>.png -> <name>.coverage.png beside it (render's naming of a render's coverage).
+  static std::string CoveragePathOf(const std::string& render_path) {
+    const fs::path path(render_path);
+    return (path.parent_path() / (path.stem().string() + ".coverage" + path.extension().string())).string();
+  }
+
   static nlohmann::json ScoreView(const StageContext& context, const ScoreOptions& options, const std::string& proxy,
                                   const std::string& image_name, const nlohmann::json& info, const SparseModel& model,
                                   const std::vector<Eigen::Vector3d>& training_centers,
                                   const std::vector<std::string>& training_names, const Eigen::Vector3d& scene_center) {
     const Workspace& ws = context.workspace;
+    // The render as renders.json lists it (its file name is render's, not rebuilt here from the
+    // image name); older renders.json files without the entry used renders/<proxy>/<stem>.png.
     const std::string stem = fs::path(image_name).stem().string();
-    const std::string render_path = ws.Path("renders/" + proxy + "/" + stem + ".png");
-    const std::string coverage_path = ws.Path("renders/" + proxy + "/" + stem + ".coverage.png");
+    const std::string render_relative = info.value("render", "renders/" + proxy + "/" + stem + ".png");
+    const std::string render_path = ws.Path(render_relative);
+    const std::string coverage_path = CoveragePathOf(render_path);
     const std::string real_path = ws.ImagesDir() + "/" + image_name;
-    nlohmann::json v = {{"render", "renders/" + proxy + "/" + stem + ".png"}};
+    nlohmann::json v = {{"render", render_relative}};
     if (!fs::exists(real_path)) {
       spdlog::warn("[score] {}: no real photo {}; view not scored", image_name, real_path);
       v["error"] = real_path + " does not exist";
       return v;
+    }
+    for (const std::string& path : {render_path, coverage_path}) {
+      if (!fs::exists(path)) {
+        throw InputError(path + ": missing, though renders/renders.json lists the view " + image_name + " of proxy " +
+                         proxy + "; re-run the render stage");
+      }
     }
     const cv::Mat real = ReadImageColor(real_path);
     const cv::Mat rendered = ReadImageColor(render_path);
@@ -219,13 +238,19 @@ class ScoreStage : public Stage {
       break;
     }
     const ImageScore score = ScoreImage(real, rendered, coverage, mask, options);
-    v["psnr"] = score.all.psnr;
-    v["ssim"] = score.all.ssim;
+    // A render that covers no pixel has no PSNR or SSIM (ScoreImage's 0 is not a score): they are
+    // left out, so the means run over the views that have them, as for photo_*; coverage says 0.
+    if (score.all.pixels > 0) {
+      v["psnr"] = score.all.psnr;
+      v["ssim"] = score.all.ssim;
+    }
     v["coverage"] = score.all.coverage;
     v["covered_pixels"] = score.all.pixels;
     if (score.has_mask) {
-      v["mask_psnr"] = score.mask.psnr;
-      v["mask_ssim"] = score.mask.ssim;
+      if (score.mask.pixels > 0) {
+        v["mask_psnr"] = score.mask.psnr;
+        v["mask_ssim"] = score.mask.ssim;
+      }
       v["mask_coverage"] = score.mask.coverage;
     }
     if (score.photo.pixels > 0) {  // a photo without lit pixels has no photo score (not 0 dB in the mean)
@@ -235,18 +260,28 @@ class ScoreStage : public Stage {
     }
     if (options.gain_correction) v["gains_bgr"] = {score.gains[0], score.gains[1], score.gains[2]};
     // The render with its holes filled by the background (render.background): the same metrics,
-    // so a model is judged both alone (holes black) and as it would be shown.
-    const std::string filled_path = ws.Path("renders/" + proxy + "/" + stem + ".filled.png");
-    const std::string filled_coverage_path = ws.Path("renders/" + proxy + "/" + stem + ".filled.coverage.png");
-    if (fs::exists(filled_path) && fs::exists(filled_coverage_path)) {
+    // so a model is judged both alone (holes black) and as it would be shown. Only when the view's
+    // entry says render made it: a .filled.png left by an earlier run with another background is
+    // stale.
+    if (info.contains("filled") && info["filled"].is_string()) {
+      const std::string filled_path = ws.Path(info["filled"].get<std::string>());
+      const std::string filled_coverage_path = CoveragePathOf(filled_path);
+      for (const std::string& path : {filled_path, filled_coverage_path}) {
+        if (!fs::exists(path)) {
+          throw InputError(path + ": missing, though renders/renders.json lists a filled render of the view " +
+                           image_name + " of proxy " + proxy + "; re-run the render stage");
+        }
+      }
       const cv::Mat filled = ReadImageColor(filled_path);
       const cv::Mat filled_coverage = ReadImageUnchanged(filled_coverage_path);
       if (filled.size() != real.size() || filled_coverage.size() != real.size() || filled_coverage.type() != CV_8UC1) {
         throw InputError(filled_path + ": size differs from the photo " + real_path + "; re-run the render stage");
       }
       const ImageScore filled_score = ScoreImage(real, filled, filled_coverage, mask, options);
-      v["filled_psnr"] = filled_score.all.psnr;
-      v["filled_ssim"] = filled_score.all.ssim;
+      if (filled_score.all.pixels > 0) {
+        v["filled_psnr"] = filled_score.all.psnr;
+        v["filled_ssim"] = filled_score.all.ssim;
+      }
       v["filled_coverage"] = filled_score.all.coverage;
       if (filled_score.photo.pixels > 0) v["filled_photo_psnr"] = filled_score.photo.psnr;
     }
@@ -267,7 +302,8 @@ class ScoreStage : public Stage {
       }
     }
     v["sources"] = info.value("sources", 0);
-    WriteImage(ws.Path("scores/" + proxy + "/" + stem + ".png"),
+    // Named after the render's file, which render keeps unique per proxy.
+    WriteImage(ws.Path("scores/" + proxy + "/" + fs::path(render_path).filename().string()),
                SideBySide(real, rendered, coverage, options.error_gain));
     return v;
   }

@@ -13,6 +13,7 @@
 
 #include "pipeline/core/atomic_file.h"
 #include "pipeline/core/colmap_text_io.h"
+#include "pipeline/core/errors.h"
 #include "pipeline/core/image_io.h"
 #include "pipeline/core/stage_api.h"
 
@@ -188,6 +189,109 @@ TEST(ScoreStage, WritesHeldoutJsonWithSkippedProxy) {
   EXPECT_EQ(out["proxies"]["hull"]["status"], "skipped");
   EXPECT_TRUE(fs::exists(root / "scores/plane/v0.png"));
   EXPECT_EQ(ReadImageColor((root / "scores/plane/v0.png").string()).cols, 3 * 64);
+  fs::remove_all(root);
+}
+
+TEST(MeanOfFinitePoints, SkipsNonFinitePoints) {
+  Eigen::Vector3d mean(7, 7, 7);
+  EXPECT_FALSE(MeanOfFinitePoints({}, &mean));
+  EXPECT_FALSE(MeanOfFinitePoints({Eigen::Vector3d(NAN, 0, 0)}, &mean));
+  EXPECT_EQ(mean, Eigen::Vector3d(7, 7, 7));
+  ASSERT_TRUE(MeanOfFinitePoints({Eigen::Vector3d(1, 2, 3), Eigen::Vector3d(NAN, 0, 0), Eigen::Vector3d(3, 4, INFINITY),
+                                  Eigen::Vector3d(3, 2, 1)},
+                                 &mean));
+  EXPECT_EQ(mean, Eigen::Vector3d(2, 2, 2));
+}
+
+// Renders as renders.json lists them: the file its entry names, the filled variant only when the
+// entry has one (not a stale file of an earlier run), no PSNR / SSIM for a view with no covered
+// pixel (and means over the views that have them), and a missing render names the file and says
+// to re-run render.
+TEST(ScoreStage, ScoresWhatRendersJsonListsAndLeavesUncoveredViewsOutOfMeans) {
+  const fs::path root = fs::temp_directory_path() / ("ibmr_score_listed_test_" + std::to_string(::getpid()));
+  fs::remove_all(root);
+  fs::create_directories(root / "images");
+  fs::create_directories(root / "renders/plane");
+  SparseModel model;
+  model.cameras[1] = Camera::Pinhole(64, 48, 60, 60, 32, 24);
+  for (int i = 0; i < 5; ++i) {
+    Image image;
+    image.image_id = i + 1;
+    image.camera_id = 1;
+    image.name = "v" + std::to_string(i) + ".png";
+    const double a = 2 * M_PI / 5 * i;
+    image.cam_from_world = LookAt(Eigen::Vector3d(3 * std::cos(a), 3 * std::sin(a), 1), Eigen::Vector3d::Zero(),
+                                  Eigen::Vector3d(0, 0, 1));
+    model.images[image.image_id] = image;
+    WriteImage((root / "images" / image.name).string(), Noise(64, 48, i));
+  }
+  WriteSparseModelText((root / "sparse").string(), model);
+  const cv::Mat full(48, 64, CV_8UC1, cv::Scalar(255)), none(48, 64, CV_8UC1, cv::Scalar(0));
+  // v0: exact, with a stale filled render of an earlier run (its entry lists none).
+  WriteImage((root / "renders/plane/v0.png").string(), Noise(64, 48, 0));
+  WriteImage((root / "renders/plane/v0.coverage.png").string(), full);
+  WriteImage((root / "renders/plane/v0.filled.png").string(), Noise(64, 48, 9));
+  WriteImage((root / "renders/plane/v0.filled.coverage.png").string(), full);
+  // v1: covers nothing.
+  WriteImage((root / "renders/plane/v1.png").string(), cv::Mat(48, 64, CV_8UC3, cv::Scalar::all(0)));
+  WriteImage((root / "renders/plane/v1.coverage.png").string(), none);
+  // v2: exact, under the name its entry gives (not rebuilt from the image name); a decoy where the
+  // rebuilt name would point.
+  WriteImage((root / "renders/plane/other_v2.png").string(), Noise(64, 48, 2));
+  WriteImage((root / "renders/plane/other_v2.coverage.png").string(), full);
+  WriteImage((root / "renders/plane/v2.png").string(), Noise(64, 48, 7));
+  WriteImage((root / "renders/plane/v2.coverage.png").string(), full);
+  nlohmann::json views = {{"v0.png", {{"sources", 3}, {"render", "renders/plane/v0.png"}}},
+                          {"v1.png", {{"sources", 3}, {"render", "renders/plane/v1.png"}}},
+                          {"v2.png", {{"sources", 3}, {"render", "renders/plane/other_v2.png"}}}};
+  const auto write_renders_json = [&]() {
+    const nlohmann::json summary = {
+        {"primary", "plane"},
+        {"proxies", nlohmann::json::array({{{"name", "plane"}, {"status", "rendered"}, {"views", views}}})}};
+    WriteFileAtomic((root / "renders/renders.json").string(), summary.dump());
+  };
+  write_renders_json();
+
+  StageRegistry registry;
+  RegisterStage_score(&registry);
+  const Stage* stage = registry.Find("score");
+  StageContext context;
+  context.workspace = Workspace(root.string());
+  context.role = stage->Role();
+  context.heldout_images = {"v0.png", "v1.png", "v2.png", "v3.png"};
+  context.params.Set("gain_correction", false);
+  context.params.Set("near_angle_deg", 1.0);
+  context.params.Set("error_gain", int64_t{4});
+  context.params.Set("photo_threshold", int64_t{20});
+  NullProgress progress;
+  context.progress = &progress;
+  stage->Run(context);
+  const nlohmann::json out = nlohmann::json::parse(std::ifstream((root / "scores/heldout.json").string()));
+  const nlohmann::json& scored = out["proxies"]["plane"]["views"];
+  EXPECT_EQ(scored["v0.png"]["psnr"].get<double>(), 100.0);
+  EXPECT_FALSE(scored["v0.png"].contains("filled_psnr")) << "a stale .filled.png was scored";
+  EXPECT_FALSE(scored["v1.png"].contains("psnr"));
+  EXPECT_FALSE(scored["v1.png"].contains("ssim"));
+  EXPECT_EQ(scored["v1.png"]["coverage"].get<double>(), 0.0);
+  EXPECT_EQ(scored["v2.png"]["psnr"].get<double>(), 100.0);
+  EXPECT_EQ(scored["v2.png"]["render"], "renders/plane/other_v2.png");
+  EXPECT_TRUE(fs::exists(root / "scores/plane/other_v2.png"));
+  const nlohmann::json& mean = out["proxies"]["plane"]["mean"];
+  EXPECT_EQ(mean["views"], 3);
+  EXPECT_EQ(mean["psnr"].get<double>(), 100.0) << "the uncovered view counted as 0 dB";
+  EXPECT_NEAR(mean["coverage"].get<double>(), 2.0 / 3.0, 1e-12);
+
+  // A listed render that is gone: the error names it and says to re-run render.
+  views["v3.png"] = {{"sources", 3}, {"render", "renders/plane/v3.png"}};
+  write_renders_json();
+  try {
+    stage->Run(context);
+    ADD_FAILURE() << "a missing render was not reported";
+  } catch (const InputError& e) {
+    const std::string message = e.what();
+    EXPECT_NE(message.find("renders/plane/v3.png"), std::string::npos) << message;
+    EXPECT_NE(message.find("re-run the render stage"), std::string::npos) << message;
+  }
   fs::remove_all(root);
 }
 
