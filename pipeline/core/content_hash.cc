@@ -63,10 +63,14 @@ bool IsTemporary(const std::string& file_name) {
   return std::regex_match(file_name, kTemporary);
 }
 
-std::string HashFolder(const fs::path& folder) {
+std::string HashFolder(const fs::path& folder, const fs::path& exclude) {
   std::vector<std::string> relative_paths;
   std::error_code ec;
   for (fs::recursive_directory_iterator it(folder, ec), end; !ec && it != end; it.increment(ec)) {
+    if (!exclude.empty() && it->is_directory() && it->path().lexically_normal() == exclude) {
+      it.disable_recursion_pending();
+      continue;
+    }
     if (!it->is_regular_file() || IsTemporary(it->path().filename().string())) continue;
     relative_paths.push_back(fs::relative(it->path(), folder).generic_string());
   }
@@ -84,11 +88,17 @@ std::string HashFolder(const fs::path& folder) {
 
 std::string HashBytes(const std::string& bytes) { return ToHex(XXH3_64bits(bytes.data(), bytes.size())); }
 
-std::string HashPath(const std::string& path) {
+std::string HashPath(const std::string& path, const std::string& exclude) {
   std::error_code ec;
   const fs::file_status status = fs::status(path, ec);
   if (!fs::exists(status)) return "missing";
-  if (fs::is_directory(status)) return HashFolder(path);
+  if (fs::is_directory(status)) {
+    // Compared by normalised absolute path, as the iterator spells its entries from `path`.
+    const fs::path root = fs::absolute(path).lexically_normal();
+    fs::path excluded = exclude.empty() ? fs::path() : fs::absolute(exclude).lexically_normal();
+    if (!excluded.empty() && !excluded.has_filename()) excluded = excluded.parent_path();  // drop a trailing '/'
+    return HashFolder(root, excluded);
+  }
   return HashFile(path);
 }
 

@@ -75,5 +75,22 @@ TEST(ContentHash, FolderSkipsTemporariesOfAtomicWrites) {
   EXPECT_NE(HashPath(dir.string()), base) << "only temporaries with a pid are skipped";
 }
 
+// A workspace inside the photo folder it imports: its logs and records changed on every run, so
+// the folder's hash did, and import ran again every time.
+TEST(ContentHash, FolderLeavesOutTheExcludedSubfolder) {
+  const fs::path dir = MakeTestDir("exclude");
+  WriteFileAtomic((dir / "a.png").string(), "A");
+  const std::string base = HashPath(dir.string());
+  WriteFileAtomic((dir / "ibmr_out" / "logs" / "ibmr.log").string(), "run 1");
+  EXPECT_EQ(HashPath(dir.string(), (dir / "ibmr_out").string()), base);
+  EXPECT_EQ(HashPath(dir.string(), (dir / "ibmr_out/").string()), base) << "a trailing slash names the same folder";
+  WriteFileAtomic((dir / "ibmr_out" / "logs" / "ibmr.log").string(), "run 2");
+  EXPECT_EQ(HashPath(dir.string(), (dir / "ibmr_out").string()), base);
+  EXPECT_NE(HashPath(dir.string()), base) << "without the exclusion the folder's files count";
+  EXPECT_NE(HashPath(dir.string(), (dir / "elsewhere").string()), base);
+  WriteFileAtomic((dir / "b.png").string(), "B");
+  EXPECT_NE(HashPath(dir.string(), (dir / "ibmr_out").string()), base) << "the photos still count";
+}
+
 }  // namespace
 }  // namespace ibmr

@@ -430,12 +430,14 @@ PlyContents ReadPly(const std::string& path) {
   bool have_vertices = false;
   for (const PlyElement& element : header.elements) {
     // Every record takes at least one byte, so a larger count is a corrupt header; checking
-    // here avoids allocating for it.
-    if (!element.properties.empty() && element.count > bytes.size() - header.data_offset) {
+    // here avoids allocating for it. An element without properties has empty records, but a
+    // count beyond the data is no more plausible, and looping over 10^14 of them never ends.
+    if (element.count > bytes.size() - header.data_offset) {
       throw IoError(path + ": element \"" + element.name + "\" claims " + std::to_string(element.count) +
                     " records but the file has only " + std::to_string(bytes.size() - header.data_offset) +
-                    " bytes of data (truncated?)");
+                    " bytes of data (truncated, or a corrupt header: rewrite the file)");
     }
+    if (element.properties.empty() && element.name != "vertex" && element.name != "face") continue;  // no data
     if (element.name == "vertex") {
       ReadVertices(path, element, &reader, &contents);
       have_vertices = true;

@@ -230,6 +230,22 @@ TEST(PlyIo, CorruptFilesNameTheFile) {
   EXPECT_NE(message.find("record 1"), std::string::npos) << message;
 }
 
+// An element without properties skipped the size guard, and the reader then looped over its
+// records for ever (fusion's output read by a later stage hung at 100% CPU).
+TEST(PlyIo, HugeCountOfAnElementWithoutPropertiesIsAnError) {
+  const fs::path dir = MakeTestDir("huge_empty_element");
+  const std::string path = (dir / "bad.ply").string();
+  WriteFileAtomic(path, "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\n"
+                        "property float z\nelement foo 99999999999999\nend_header\n0 0 0\n");
+  const std::string message = ReadError(path);
+  EXPECT_NE(message.find(path), std::string::npos) << message;
+  EXPECT_NE(message.find("\"foo\" claims 99999999999999"), std::string::npos) << message;
+  // A few empty records within the data still read.
+  WriteFileAtomic(path, "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\n"
+                        "property float z\nelement foo 2\nend_header\n0 0 0\n");
+  EXPECT_EQ(ReadPointCloudPly(path).positions.size(), 1u);
+}
+
 TEST(PlyIo, WriterRejectsInconsistentAttributes) {
   const std::string path = (MakeTestDir("inconsistent") / "p.ply").string();
   PointCloud cloud;

@@ -31,6 +31,14 @@ std::string Where(const std::string& file, int line, const std::string& key, con
 
 int LineOf(const YAML::Node& node) { return node.Mark().line >= 0 ? node.Mark().line + 1 : 0; }
 
+// What a node holds, for "expected X, got Y".
+std::string Describe(const YAML::Node& node) {
+  if (node.IsScalar()) return "'" + node.Scalar() + "'";
+  if (node.IsSequence()) return "a list";
+  if (node.IsMap()) return "a map";
+  return "nothing";
+}
+
 std::string Suggest(const std::string& key, const std::vector<std::string>& valid) {
   std::string best;
   int best_distance = 1 << 30;
@@ -61,7 +69,7 @@ std::string ResolvePath(const std::string& dir, const std::string& value) {
 bool ToValue(const YAML::Node& node, const ParamSpec& spec, const std::string& dir, ParamValue* value,
              std::string* error) {
   const std::string expected = "expected " + ParamTypeName(spec.type);
-  auto scalar_text = [&]() { return node.IsScalar() ? "'" + node.Scalar() + "'" : std::string("a map or list"); };
+  auto scalar_text = [&]() { return Describe(node); };
   try {
     switch (spec.type) {
       case ParamType::kInt: {
@@ -133,7 +141,10 @@ bool ToValue(const YAML::Node& node, const ParamSpec& spec, const std::string& d
           *value = v;
         } else {
           std::vector<std::string> v;
-          for (const auto& item : node) v.push_back(item.as<std::string>());
+          for (const auto& item : node) {
+            if (!item.IsScalar()) throw YAML::Exception(YAML::Mark(), "");  // as<std::string>() reads null as "null"
+            v.push_back(item.Scalar());
+          }
           *value = v;
         }
         return true;
@@ -165,7 +176,7 @@ StageConfig ParseStage(const YAML::Node& entry, const StageRegistry& registry, c
   if (entry.IsScalar()) {
     stage_config.name = entry.Scalar();
   } else if (entry.IsMap() && entry.size() == 1) {
-    stage_config.name = entry.begin()->first.as<std::string>();
+    stage_config.name = entry.begin()->first.Scalar();  // keys are plain names (ExpandAndCheckTree)
     params_node = entry.begin()->second;
   } else {
     throw ConfigError(Where(config.path, stage_config.line, "stages",
@@ -185,7 +196,7 @@ StageConfig ParseStage(const YAML::Node& entry, const StageRegistry& registry, c
     std::vector<std::string> valid;
     for (const auto& s : specs) valid.push_back(s.key);
     for (const auto& kv : params_node) {
-      const std::string key = kv.first.as<std::string>();
+      const std::string key = kv.first.Scalar();
       const int line = LineOf(kv.first);
       auto spec = std::find_if(specs.begin(), specs.end(), [&](const ParamSpec& s) { return s.key == key; });
       if (spec == specs.end()) {
@@ -208,8 +219,9 @@ StageConfig ParseStage(const YAML::Node& entry, const StageRegistry& registry, c
 void ParseHoldout(const YAML::Node& node, Config* config) {
   if (!node.IsMap()) throw ConfigError(Where(config->path, LineOf(node), "holdout", "expected a map (every, offset, images)"));
   const std::vector<std::string> valid = {"every", "offset", "images"};
+  int offset_line = LineOf(node);
   for (const auto& kv : node) {
-    const std::string key = kv.first.as<std::string>();
+    const std::string key = kv.first.Scalar();
     const int line = LineOf(kv.first);
     try {
       if (key == "every") {
@@ -219,8 +231,15 @@ void ParseHoldout(const YAML::Node& node, Config* config) {
         }
       } else if (key == "offset") {
         config->holdout.offset = kv.second.as<int>();
+        offset_line = line;
       } else if (key == "images") {
-        config->holdout.images = kv.second.as<std::vector<std::string>>();
+        // Item by item: as<std::vector<std::string>>() reads a null item as the name "null".
+        if (!kv.second.IsSequence()) throw YAML::Exception(YAML::Mark(), "");
+        for (const auto& item : kv.second) {
+          if (!item.IsScalar() || item.Scalar().empty()) throw YAML::Exception(YAML::Mark(), "");
+          config->holdout.images.push_back(item.Scalar());
+          config->holdout.image_lines.push_back(LineOf(item));
+        }
       } else {
         throw ConfigError(Where(config->path, line, "holdout." + key, "unknown key; " + Suggest(key, valid)));
       }
@@ -230,7 +249,132 @@ void ParseHoldout(const YAML::Node& node, Config* config) {
     }
   }
   if (config->holdout.every > 0 && (config->holdout.offset < 0 || config->holdout.offset >= config->holdout.every)) {
-    throw ConfigError(Where(config->path, 0, "holdout.offset", "must be in [0, every)"));
+    throw ConfigError(Where(config->path, offset_line, "holdout.offset",
+                            "must be in [0, every) = [0, " + std::to_string(config->holdout.every) + "), got " +
+                                std::to_string(config->holdout.offset)));
+  }
+}
+
+// ${VAR} or ${VAR:-default}; a default does not span lines.
+const std::regex& VariablePattern() {
+  static const std::regex pattern(R"(\$\{([A-Za-z_][A-Za-z0-9_]*)(:-([^}\n]*))?\})");
+  return pattern;
+}
+
+// The value of ${name} (or ${name:-fallback} when `has_default`): the variable when set and not
+// empty, else the default. Throws for neither: the value would read as null, and a stage fail late
+// on a path ".../null".
+std::string VariableValue(const std::string& name, bool has_default, const std::string& fallback,
+                          const std::string& file, int line) {
+  const char* env = std::getenv(name.c_str());
+  if (env && *env) return env;
+  if (has_default) return fallback;
+  throw ConfigError(Where(file, line, "", "${" + name + "} is " + (env ? "empty" : "not set") + ": set it (" + name +
+                                              "=...) or give a default as ${" + name + ":-...}"));
+}
+
+// A config's text with every ${...} replaced by a placeholder that YAML reads as plain text in
+// any position (block or flow, quoted or not, key or value), and what each placeholder stands
+// for. The values go in after parsing (ExpandScalar): spliced into the text, a value holding
+// " #" cut a path short ('/x/photos #1' read as '/x/photos'), and one holding ": " was a syntax
+// error blamed on the config. Placeholders in comments vanish with them, unchecked.
+struct MaskedConfig {
+  struct Reference {
+    std::string name;
+    bool has_default = false;
+    std::string fallback;
+    int line = 0;  // 1-based
+  };
+  std::string text;
+  std::string marker;  // a placeholder is marker + index + "__"; the marker is not in the file
+  std::vector<Reference> references;
+};
+
+MaskedConfig MaskVariables(const std::string& text) {
+  MaskedConfig masked;
+  masked.marker = "__ibmr_variable_";
+  while (text.find(masked.marker) != std::string::npos) masked.marker += "_";
+  size_t last = 0;
+  const auto end = std::sregex_iterator();
+  for (auto it = std::sregex_iterator(text.begin(), text.end(), VariablePattern()); it != end; ++it) {
+    const std::smatch& m = *it;
+    const size_t at = static_cast<size_t>(m.position(0));
+    const int line = 1 + static_cast<int>(std::count(text.begin(), text.begin() + at, '\n'));
+    masked.text += text.substr(last, at - last);
+    masked.text += masked.marker + std::to_string(masked.references.size()) + "__";
+    masked.references.push_back({m[1].str(), m[2].matched, m[3].str(), line});
+    last = at + m.length(0);
+  }
+  masked.text += text.substr(last);
+  return masked;
+}
+
+// `scalar` with its placeholders replaced by their values. Throws as VariableValue, with the line
+// of the ${...} itself.
+std::string ExpandScalar(const std::string& scalar, const MaskedConfig& masked, const std::string& file) {
+  std::string out;
+  size_t last = 0;
+  for (size_t at = scalar.find(masked.marker); at != std::string::npos; at = scalar.find(masked.marker, last)) {
+    size_t end = at + masked.marker.size();
+    size_t index = 0;
+    const size_t digits = end;
+    while (end < scalar.size() && std::isdigit(static_cast<unsigned char>(scalar[end]))) {
+      index = index * 10 + (scalar[end++] - '0');
+    }
+    if (end == digits || scalar.compare(end, 2, "__") != 0 || index >= masked.references.size()) {
+      out += scalar.substr(last, digits - last);  // not one of ours (cannot happen: the marker is unique)
+      last = digits;
+      continue;
+    }
+    const MaskedConfig::Reference& ref = masked.references[index];
+    out += scalar.substr(last, at - last) + VariableValue(ref.name, ref.has_default, ref.fallback, file, ref.line);
+    last = end + 2;
+  }
+  return out + scalar.substr(last);
+}
+
+// Expands the variables of every scalar under `node` in place (keys too), and refuses in every map
+// what the parser below cannot read: a key that is not a plain name ("? [a, b]"; as<std::string>()
+// aborted on it) and a key given twice (yaml-cpp keeps both: node["k"] saw the first, a loop over
+// the map kept the last). `prefix` is the dotted key of `node` with a trailing '.', as errors name
+// keys; a stage's parameters are "stage.key", without "stages.". `owner` names the key holding
+// `node` ("stages" for a stage entry).
+void ExpandAndCheckTree(YAML::Node node, const MaskedConfig& masked, const std::string& file,
+                        const std::string& prefix, const std::string& owner) {
+  if (node.IsScalar()) {
+    if (node.Scalar().find(masked.marker) != std::string::npos) node = ExpandScalar(node.Scalar(), masked, file);
+    return;
+  }
+  if (node.IsSequence()) {
+    for (YAML::Node item : node) ExpandAndCheckTree(item, masked, file, prefix == "stages." ? "" : prefix, owner);
+    return;
+  }
+  if (!node.IsMap()) return;
+  std::map<std::string, int> first_lines;
+  for (auto kv : node) {
+    YAML::Node key = kv.first;
+    if (!key.IsScalar()) {
+      throw ConfigError(Where(file, LineOf(key), owner,
+                              "expected a plain name as key, got " + Describe(key) + " (a '? ' key is not supported)"));
+    }
+    ExpandAndCheckTree(key, masked, file, prefix, owner);
+    const std::string name = prefix + key.Scalar();
+    const auto [first, inserted] = first_lines.emplace(key.Scalar(), LineOf(key));
+    if (!inserted) {
+      throw ConfigError(file + ":" + std::to_string(LineOf(key)) + ": key '" + name +
+                        "' appears twice (first on line " + std::to_string(first->second) + "); keep one");
+    }
+    ExpandAndCheckTree(kv.second, masked, file, name + ".", name);
+  }
+}
+
+// Whether `value` parses as YAML to the plain value `value` (see ParseSweep).
+bool RereadsAsItself(const std::string& value) {
+  try {
+    const YAML::Node node = YAML::Load(value);
+    return node.IsScalar() && node.Scalar() == value;
+  } catch (const YAML::Exception&) {
+    return false;
   }
 }
 
@@ -284,22 +428,16 @@ static bool InComment(const std::string& text, size_t position) {
 }
 
 std::string ExpandVariables(const std::string& text, const std::string& file) {
-  static const std::regex pattern(R"(\$\{([A-Za-z_][A-Za-z0-9_]*)(:-([^}]*))?\})");
   std::string out;
-  auto begin = std::sregex_iterator(text.begin(), text.end(), pattern);
+  auto begin = std::sregex_iterator(text.begin(), text.end(), VariablePattern());
   size_t last = 0;
   for (auto it = begin; it != std::sregex_iterator(); ++it) {
     const std::smatch& m = *it;
     out += text.substr(last, m.position(0) - last);
-    const std::string name = m[1].str();
-    const char* env = std::getenv(name.c_str());
-    if (!(env && *env) && !m[2].matched && !InComment(text, m.position(0))) {
-      // No value and no default: the YAML would read null, and a stage fail late on a path "null".
-      const int line = 1 + static_cast<int>(std::count(text.begin(), text.begin() + m.position(0), '\n'));
-      throw ConfigError(Where(file, line, "", "${" + name + "} is " + (env ? "empty" : "not set") + ": set it (" +
-                                                  name + "=...) or give a default as ${" + name + ":-...}"));
-    }
-    out += (env && *env) ? std::string(env) : m[3].str();
+    const int line = 1 + static_cast<int>(std::count(text.begin(), text.begin() + m.position(0), '\n'));
+    // A comment's ${VAR} needs no value.
+    const bool has_default = m[2].matched || InComment(text, m.position(0));
+    out += VariableValue(m[1].str(), has_default, m[3].str(), file, line);
     last = m.position(0) + m.length(0);
   }
   out += text.substr(last);
@@ -335,7 +473,7 @@ const StageConfig* Config::FindStage(const std::string& name) const {
 static void RejectUnknownKeys(const std::string& path, const YAML::Node& map, const std::vector<std::string>& valid,
                               const std::string& prefix) {
   for (const auto& kv : map) {
-    const std::string key = kv.first.as<std::string>();
+    const std::string key = kv.first.Scalar();
     if (std::find(valid.begin(), valid.end(), key) == valid.end()) {
       throw ConfigError(Where(path, LineOf(kv.first), prefix + key, "unknown key; " + Suggest(key, valid)));
     }
@@ -355,7 +493,7 @@ static void ParseSweep(const YAML::Node& node, Config* config) {
   if (const YAML::Node vary = node["vary"]) {
     if (!vary.IsMap()) throw ConfigError(Where(path, LineOf(vary), "sweep.vary", "expected a map of stage.key: [values]"));
     for (const auto& kv : vary) {
-      const std::string key = "sweep.vary." + kv.first.as<std::string>();
+      const std::string key = "sweep.vary." + kv.first.Scalar();
       if (!kv.second.IsSequence() || kv.second.size() == 0) {
         throw ConfigError(Where(path, LineOf(kv.second), key, "expected a non-empty list of values"));
       }
@@ -365,9 +503,15 @@ static void ParseSweep(const YAML::Node& node, Config* config) {
         if (v.find(',') != std::string::npos) {
           throw ConfigError(Where(path, LineOf(value), key, "a value with a comma cannot be varied; list it in sweep.variants"));
         }
+        // Each value reaches the variant as text parsed again (ApplyOverride), where '#' or ': '
+        // would cut it short or fail: refuse here, where the line is known.
+        if (!RereadsAsItself(v)) {
+          throw ConfigError(Where(path, LineOf(value), key, "'" + v + "' would not read back as itself in a variant "
+                                                            "(it holds YAML syntax such as ' #' or ': '); rename it"));
+        }
         joined += (joined.empty() ? "" : ",") + v;
       }
-      config->sweep.vary.push_back(kv.first.as<std::string>() + "=" + joined);
+      config->sweep.vary.push_back(kv.first.Scalar() + "=" + joined);
     }
   }
   if (const YAML::Node variants = node["variants"]) {
@@ -430,22 +574,48 @@ Config LoadConfig(const std::string& path, const StageRegistry& registry) {
   text << in.rdbuf();
   config.dir = fs::absolute(fs::path(path)).parent_path().lexically_normal().string();
 
+  // Variables expand in the parsed values, not in the text (see MaskVariables).
+  const MaskedConfig masked = MaskVariables(text.str());
   YAML::Node root;
   try {
-    root = YAML::Load(ExpandVariables(text.str(), path));
+    root = YAML::Load(masked.text);
   } catch (const YAML::ParserException& e) {
     throw ConfigError(Where(path, e.mark.line + 1, "", "YAML syntax error: " + e.msg));
   }
   if (!root.IsMap()) throw ConfigError(Where(path, 1, "", "expected a map with keys workspace, inputs, holdout, stages"));
+  ExpandAndCheckTree(root, masked, path, "", "");
   RejectUnknownKeys(path, root, {"workspace", "inputs", "holdout", "stages", "sweep"}, "");
-  if (!root["workspace"] || !root["workspace"].IsScalar()) {
-    throw ConfigError(Where(path, 0, "workspace", "missing: give the folder where results go, e.g. 'workspace: ../workspaces/demo'"));
+  const std::string example = "e.g. 'workspace: ../workspaces/demo'";
+  const YAML::Node workspace = root["workspace"];
+  if (!workspace || workspace.IsNull()) {
+    throw ConfigError(Where(path, workspace ? LineOf(workspace) : 0, "workspace",
+                            "missing: give the folder where results go, " + example));
   }
-  config.workspace = ResolvePath(config.dir, root["workspace"].Scalar());
+  if (!workspace.IsScalar()) {
+    throw ConfigError(Where(path, LineOf(workspace), "workspace", "expected a folder, got " + Describe(workspace)));
+  }
+  // Empty (say ${IBMR_WORKSPACE:-}), the workspace was the filesystem root: records/, images/, ...
+  // would have been made at /.
+  if (workspace.Scalar().empty()) {
+    throw ConfigError(
+        Where(path, LineOf(workspace), "workspace", "is empty: give the folder where results go, " + example));
+  }
+  config.workspace = ResolvePath(config.dir, workspace.Scalar());
+  if (fs::path(config.workspace).relative_path().empty()) {
+    throw ConfigError(Where(path, LineOf(workspace), "workspace",
+                            "'" + workspace.Scalar() + "' is the filesystem root " + config.workspace +
+                                ": give a folder of its own for the results, " + example));
+  }
   if (const YAML::Node inputs = root["inputs"]) {
     if (!inputs.IsMap()) throw ConfigError(Where(path, LineOf(inputs), "inputs", "expected a map of name: path"));
     for (const auto& kv : inputs) {
-      config.inputs[kv.first.as<std::string>()] = ResolvePath(config.dir, kv.second.as<std::string>());
+      const std::string name = kv.first.Scalar();
+      if (!kv.second.IsScalar() || kv.second.Scalar().empty()) {
+        // A null value used to read as a folder named "null".
+        const std::string got = kv.second.IsScalar() ? "an empty one" : Describe(kv.second);
+        throw ConfigError(Where(path, LineOf(kv.first), "inputs." + name, "expected a path, got " + got));
+      }
+      config.inputs[name] = ResolvePath(config.dir, kv.second.Scalar());
     }
   }
   if (const YAML::Node holdout = root["holdout"]) ParseHoldout(holdout, &config);

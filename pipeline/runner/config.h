@@ -37,6 +37,7 @@ struct HoldoutPolicy {
   int every = 0;   // 0: no periodic holdout
   int offset = 0;  // first held-out index in the sorted image list
   std::vector<std::string> images;
+  std::vector<int> image_lines;  // 1-based config line of each of `images` (0: not from a file)
 
   bool Active() const { return every > 0 || !images.empty(); }
   // The held-out subset of `sorted_names`.
@@ -98,7 +99,8 @@ struct Config {
 
 // Expands ${VAR} and ${VAR:-default} from the environment in `text` (an empty VAR counts as unset).
 // Throws ConfigError naming `file` and the line for a ${VAR} without default whose VAR is unset or
-// empty (outside comments).
+// empty (outside comments). LoadConfig does not expand the file's text with this: it expands each
+// parsed value, so that a value holding '#' or ': ' stays one value.
 std::string ExpandVariables(const std::string& text, const std::string& file = "config");
 // Edit distance between two keys, for "did you mean" suggestions.
 int EditDistance(const std::string& a, const std::string& b);
@@ -107,7 +109,8 @@ int EditDistance(const std::string& a, const std::string& b);
 Params DefaultParams(const Stage& stage, const std::string& dir);
 
 // Loads and validates `path` against the registered stages' parameter declarations and the
-// stages' own CheckParams. Throws ConfigError.
+// stages' own CheckParams. Throws ConfigError, also for a key given twice in one map, a key that
+// is not a plain name, and a workspace that is empty or the filesystem root.
 Config LoadConfig(const std::string& path, const StageRegistry& registry);
 // Applies "--set stage.key=value" (value parsed as YAML) and re-checks the stage. Throws ConfigError.
 void ApplyOverride(const std::string& assignment, const StageRegistry& registry, Config* config);

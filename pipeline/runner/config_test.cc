@@ -136,6 +136,100 @@ TEST_F(ConfigTest, UnsetVariableWithoutDefaultNamesFileLineAndVariable) {
   EXPECT_THROW(ExpandVariables("a: ${IBMR_TEST_UNSET}\n", "x.yaml"), ConfigError);
 }
 
+// Was: ResolvePath kept an empty workspace "", and the runner made records/, images/, ... at the
+// filesystem root.
+TEST_F(ConfigTest, EmptyOrRootWorkspaceIsAnError) {
+  ::unsetenv("IBMR_TEST_UNSET");
+  for (const std::string value : {"\"\"", "${IBMR_TEST_UNSET:-}", "''"}) {
+    const std::string error = ErrorOf("stages:\n  - produce\nworkspace: " + value + "\n");
+    EXPECT_NE(error.find("c.yaml:3: key 'workspace': is empty: give the folder"), std::string::npos) << value << ": " << error;
+  }
+  std::string up;
+  for (int i = 0; i < 40; ++i) up += "../";
+  for (const std::string value : {std::string("/"), up, std::string("/tmp/..")}) {
+    const std::string error = ErrorOf("workspace: " + value + "\nstages:\n  - produce\n");
+    EXPECT_NE(error.find("c.yaml:1: key 'workspace'"), std::string::npos) << value << ": " << error;
+    EXPECT_NE(error.find("is the filesystem root /: give a folder of its own"), std::string::npos) << error;
+  }
+  EXPECT_NE(ErrorOf("workspace:\nstages:\n  - produce\n").find("key 'workspace': missing"), std::string::npos);
+  EXPECT_NE(ErrorOf("workspace: [a]\nstages:\n  - produce\n").find("c.yaml:1: key 'workspace': expected a folder, got a list"),
+            std::string::npos);
+}
+
+// Was: ${VAR} spliced into the YAML text, so a value's " #" started a comment and its ": " made
+// a map (a syntax error blamed on the config).
+TEST_F(ConfigTest, VariableValuesStayOneValue) {
+  ::setenv("IBMR_TEST_IMAGES", "/x/photos #1", 1);
+  ::setenv("IBMR_TEST_COLON", "/x/a: b", 1);
+  ::setenv("IBMR_TEST_VALUE", "7", 1);
+  const Config config = LoadConfig(Write("workspace: ${IBMR_TEST_COLON}\ninputs:\n  images: ${IBMR_TEST_IMAGES}\n"
+                                         "  quoted: \"${IBMR_TEST_IMAGES}/sub\"\n"
+                                         "stages:\n  - produce: {value: ${IBMR_TEST_VALUE}, source: ${IBMR_TEST_IMAGES}}\n"),
+                                   registry_);
+  EXPECT_EQ(config.workspace, "/x/a: b");
+  EXPECT_EQ(config.inputs.at("images"), "/x/photos #1");
+  EXPECT_EQ(config.inputs.at("quoted"), "/x/photos #1/sub");
+  EXPECT_EQ(config.stages[0].params.Int("value"), 7);
+  EXPECT_EQ(config.stages[0].params.String("source"), "/x/photos #1");
+}
+
+// Each of these aborted the program (an uncaught YAML::TypedBadConversion, exit 134), or read a
+// null input as a folder named "null".
+TEST_F(ConfigTest, MalformedShapesAreConfigErrors) {
+  const std::vector<std::pair<std::string, std::string>> cases = {
+      {"workspace: ws\ninputs: {images: [/a, /b]}\nstages:\n  - produce\n",
+       "c.yaml:2: key 'inputs.images': expected a path, got a list"},
+      {"workspace: ws\ninputs: {images: {a: 1}}\nstages:\n  - produce\n",
+       "c.yaml:2: key 'inputs.images': expected a path, got a map"},
+      {"workspace: ws\ninputs: {images: }\nstages:\n  - produce\n",
+       "c.yaml:2: key 'inputs.images': expected a path, got nothing"},
+      {"workspace: ws\ninputs:\n  images: ''\nstages:\n  - produce\n",
+       "c.yaml:3: key 'inputs.images': expected a path, got an empty one"},
+      {"workspace: ws\n? [a, b]\n: 1\nstages:\n  - produce\n", "c.yaml:2: expected a plain name as key, got a list"},
+      {"workspace: ws\nstages:\n  - ? [a, b]\n    : {value: 1}\n", "c.yaml:3: key 'stages': expected a plain name as key"},
+      {"workspace: ws\nstages:\n  - produce:\n      ? {a: 1}\n      : 2\n",
+       "c.yaml:4: key 'produce': expected a plain name as key, got a map"},
+      {"workspace: ws\nholdout:\n  images: [a.png, ~]\nstages:\n  - produce\n",
+       "c.yaml:3: key 'holdout.images': expected a list of image names"},
+      {"workspace: ws\nsweep:\n  vary: {? [x] : [1]}\nstages:\n  - produce\n", "key 'sweep.vary': expected a plain name"},
+      {"workspace: ws\nstages:\n  - consume: {suffix: [a]}\n", "c.yaml:3: key 'consume.suffix': expected string, got a list"},
+  };
+  for (const auto& [text, expected] : cases) {
+    std::string error;
+    EXPECT_NO_FATAL_FAILURE(error = ErrorOf(text));
+    EXPECT_NE(error.find(expected), std::string::npos) << text << "\n-> " << error;
+  }
+}
+
+// Was: accepted, the first workspace: winning but the last stage parameter.
+TEST_F(ConfigTest, DuplicateKeysAreErrors) {
+  std::string error = ErrorOf("workspace: a\nworkspace: b\nstages:\n  - produce\n");
+  EXPECT_NE(error.find("c.yaml:2: key 'workspace' appears twice (first on line 1)"), std::string::npos) << error;
+  error = ErrorOf("workspace: ws\nstages:\n  - produce:\n      value: 1\n      value: 2\n");
+  EXPECT_NE(error.find("c.yaml:5: key 'produce.value' appears twice"), std::string::npos) << error;
+  error = ErrorOf("workspace: ws\ninputs: {images: a, images: b}\nstages:\n  - produce\n");
+  EXPECT_NE(error.find("c.yaml:2: key 'inputs.images' appears twice"), std::string::npos) << error;
+  error = ErrorOf("workspace: ws\nholdout:\n  every: 2\n  every: 3\nstages:\n  - produce\n");
+  EXPECT_NE(error.find("c.yaml:4: key 'holdout.every' appears twice"), std::string::npos) << error;
+  // The same key in two maps is fine.
+  EXPECT_EQ(ErrorOf("workspace: ws\nstages:\n  - produce: {value: 1}\n  - consume: {suffix: y}\n"), "");
+}
+
+TEST_F(ConfigTest, HoldoutOffsetErrorNamesItsLine) {
+  const std::string error = ErrorOf("workspace: ws\nholdout:\n  every: 4\n  offset: 4\nstages:\n  - produce\n");
+  EXPECT_NE(error.find("c.yaml:4: key 'holdout.offset': must be in [0, every) = [0, 4), got 4"), std::string::npos) << error;
+}
+
+// A sweep value reaches its variant as text parsed again; one holding " #" was cut short there.
+TEST_F(ConfigTest, SweepValuesThatWouldNotReadBackAreErrors) {
+  ::setenv("IBMR_TEST_IMAGES", "/x/photos #1", 1);
+  const std::string error =
+      ErrorOf("workspace: ws\nsweep:\n  vary:\n    consume.suffix: [a, '${IBMR_TEST_IMAGES}']\nstages:\n  - consume\n");
+  EXPECT_NE(error.find("c.yaml:4: key 'sweep.vary.consume.suffix': '/x/photos #1' would not read back"),
+            std::string::npos) << error;
+  EXPECT_EQ(ErrorOf("workspace: ws\nsweep:\n  vary:\n    consume.suffix: [a, b]\nstages:\n  - consume\n"), "");
+}
+
 TEST_F(ConfigTest, HoldoutSelectsEveryNthAndNamed) {
   const Config config = LoadConfig(Write("workspace: ws\nholdout:\n  every: 3\n  images: [z.png]\nstages:\n  - produce\n"),
                                    registry_);

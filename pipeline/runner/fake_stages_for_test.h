@@ -97,10 +97,34 @@ class PerView : public Stage {
   }
 };
 
+inline std::atomic<int> list_folder_runs{0};
+
+// Reads a folder (as import reads the photo folder): writes the names of its top-level files.
+class ListFolder : public Stage {
+ public:
+  std::string Name() const override { return "list_folder"; }
+  std::string Summary() const override { return "test: lists a folder into listing.txt"; }
+  std::string Version() const override { return "1"; }
+  HoldoutRole Role() const override { return HoldoutRole::kAllViews; }
+  std::vector<ParamSpec> Parameters() const override { return {{"folder", ParamType::kPath, ".", "folder read"}}; }
+  std::optional<ParamError> CheckParams(const Params&) const override { return std::nullopt; }
+  std::vector<std::string> Inputs(const StageContext& c) const override { return {c.params.String("folder")}; }
+  std::vector<std::string> Outputs(const StageContext&) const override { return {"listing.txt"}; }
+  void Run(StageContext& c) const override {
+    ++list_folder_runs;
+    std::string listing;
+    for (const auto& entry : std::filesystem::directory_iterator(c.params.String("folder"))) {
+      if (entry.is_regular_file()) listing += entry.path().filename().string() + "\n";
+    }
+    WriteFileAtomic(c.workspace.Path("listing.txt"), listing);
+  }
+};
+
 inline void Register(StageRegistry* registry) {
   registry->Add(std::make_unique<Produce>());
   registry->Add(std::make_unique<Consume>());
   registry->Add(std::make_unique<PerView>());
+  registry->Add(std::make_unique<ListFolder>());
 }
 
 }  // namespace testing_stages

@@ -55,6 +55,9 @@ void SetUpLogging(const std::string& workspace) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  // stderr from the start: spdlog's own default logger writes to stdout, where a warning before
+  // the workspace's log is set up corrupted `ibmr export snakemake CONFIG > Snakefile` and `status`.
+  SetUpLogging("");
   ibmr::ConfigureHeap();  // see process_memory.h
   CLI::App app{"ibmr: photographs to 3D models and image-based renderings, stage by stage"};
   app.require_subcommand(1);
@@ -193,15 +196,25 @@ int main(int argc, char** argv) {
   ibmr::Config config;
   try {
     config = ibmr::LoadConfig(config_path, registry);
-    if (!workspace.empty()) config.workspace = std::filesystem::absolute(workspace).lexically_normal().string();
+    if (!workspace.empty()) {
+      config.workspace = std::filesystem::absolute(workspace).lexically_normal().string();
+      if (std::filesystem::path(config.workspace).relative_path().empty()) {  // as LoadConfig refuses it
+        throw ibmr::ConfigError("--workspace " + workspace + " is the filesystem root: give a folder of its own");
+      }
+    }
     for (const std::string& assignment : overrides) ibmr::ApplyOverride(assignment, registry, &config);
   } catch (const ibmr::ConfigError& e) {
     std::cerr << "error: " << e.what() << "\n";
     return 2;
   }
   ibmr::Runner runner(config, registry);
-  if (const std::string shared = runner.SharedOutputs(); !shared.empty()) {
-    std::cerr << "error: " << shared << "\n";
+  try {
+    if (const std::string shared = runner.SharedOutputs(); !shared.empty()) {
+      std::cerr << "error: " << shared << "\n";
+      return 2;
+    }
+  } catch (const std::exception& e) {  // a config problem found with the workspace (holdout.images)
+    spdlog::error("{}", e.what());
     return 2;
   }
   // What a job or a Snakemake rule passes to `ibmr run` to see this config as this process does.
@@ -210,27 +223,46 @@ int main(int argc, char** argv) {
   for (const std::string& assignment : overrides) run_args.insert(run_args.end(), {"--set", assignment});
   const std::string self = std::filesystem::read_symlink("/proc/self/exe").string();
   if (export_cmd->parsed()) {
-    SetUpLogging("");
     export_options.ibmr = self;
     export_options.run_args = run_args;
-    std::cout << ibmr::SnakemakeFile(runner, export_options);
+    try {
+      std::cout << ibmr::SnakemakeFile(runner, export_options);
+    } catch (const std::exception& e) {
+      spdlog::error("{}", e.what());
+      return 1;
+    }
     return 0;
   }
   if (views->parsed()) {
-    SetUpLogging("");
-    const ibmr::Stage* stage = registry.Find(views_stage);
-    if (stage == nullptr || !stage->Shardable() || config.FindStage(views_stage) == nullptr) {
-      spdlog::error("'{}' is not a per-view stage of {} ({})", views_stage, config_path, runner.ShardableStagesText());
-      return 2;
-    }
-    if (memory_mb) {
-      std::cout << static_cast<long>(std::ceil(runner.ViewMemoryMb(views_stage))) << "\n";
+    try {
+      const ibmr::Stage* stage = registry.Find(views_stage);
+      if (stage == nullptr || !stage->Shardable() || config.FindStage(views_stage) == nullptr) {
+        spdlog::error("'{}' is not a per-view stage of {} ({})", views_stage, config_path,
+                      runner.ShardableStagesText());
+        return 2;
+      }
+      if (memory_mb) {
+        std::cout << static_cast<long>(std::ceil(runner.ViewMemoryMb(views_stage))) << "\n";
+        return 0;
+      }
+      for (const std::string& name : runner.ShardViews(views_stage)) std::cout << name << "\n";
       return 0;
+    } catch (const std::exception& e) {
+      spdlog::error("{}", e.what());
+      return 1;
     }
-    for (const std::string& name : runner.ShardViews(views_stage)) std::cout << name << "\n";
-    return 0;
   }
-  SetUpLogging(config.workspace);
+  // A wrong selection (--only with --from) is refused before the workspace gets its logs/.
+  if (run->parsed() && options.views.empty()) {
+    std::vector<size_t> selected;
+    if (!runner.SelectStages(options, &selected)) return 2;
+  }
+  // Looking (status, --dry-run) leaves a workspace that is not there yet as it was: no logs/.
+  if ((status->parsed() || options.dry_run) && !std::filesystem::exists(config.workspace)) {
+    spdlog::info("workspace {} does not exist yet: every stage would run", config.workspace);
+  } else {
+    SetUpLogging(config.workspace);
+  }
   try {
     if (status->parsed()) {
       for (const auto& s : runner.Status()) {

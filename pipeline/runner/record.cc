@@ -60,8 +60,12 @@ std::optional<StageRecord> ReadRecord(const std::string& path) {
   }
 }
 
+std::string DumpJson(const nlohmann::json& json, int indent) {
+  return json.dump(indent, ' ', false, nlohmann::json::error_handler_t::replace);
+}
+
 void WriteRecord(const std::string& path, const StageRecord& record) {
-  WriteFileAtomic(path, record.ToJson().dump(2) + "\n");
+  WriteFileAtomic(path, DumpJson(record.ToJson(), 2) + "\n");
 }
 
 }  // namespace ibmr

@@ -48,6 +48,12 @@ struct StageRecord {
   static StageRecord FromJson(const nlohmann::json& json);
 };
 
+// `json` as text (`indent` as nlohmann's dump), with bytes that are not UTF-8 replaced by U+FFFD:
+// file names and workspace paths in another encoding are legal on Linux, and a plain dump()
+// throws an opaque "incomplete UTF-8 string" naming no file. Every JSON the runner writes goes
+// through here.
+std::string DumpJson(const nlohmann::json& json, int indent = -1);
+
 // nullopt when the record is absent or unreadable (treated as "never ran").
 std::optional<StageRecord> ReadRecord(const std::string& path);
 void WriteRecord(const std::string& path, const StageRecord& record);

@@ -47,13 +47,51 @@ std::string ImageDataUri(const std::string& path, int width) {
   return "data:image/jpeg;base64," + Base64(jpeg);
 }
 
+// What to do about a malformed file that stage `stage` writes.
+std::string Rerun(const std::string& stage) {
+  return "re-run the " + stage + " stage (ibmr run CONFIG --only " + stage + " --force)";
+}
+
+// A JSON file the page is made from; `fallback` when absent. One that is not JSON (truncated by a
+// full disk or a killed copy) is an IoError naming it and `remedy`: a page that silently left it
+// out looked like a run that had produced nothing.
+nlohmann::json ReadReportJson(const std::string& path, nlohmann::json fallback, const std::string& remedy) {
+  if (!fs::exists(path)) return fallback;
+  try {
+    return nlohmann::json::parse(ReadFile(path));
+  } catch (const nlohmann::json::exception& e) {
+    throw IoError(path + ": not valid JSON (" + e.what() + "); " + remedy);
+  }
+}
+
+// Calls `read`, which takes apart the JSON of `path`; a value of another type than the code
+// expects ([1] where a map belongs) becomes an IoError naming the file and `remedy`, instead of
+// nlohmann's "[json.exception.type_error.306] ..." that names none.
+template <typename Read>
+auto ReadingFile(const std::string& path, const std::string& remedy, Read read) -> decltype(read()) {
+  try {
+    return read();
+  } catch (const nlohmann::json::exception& e) {
+    throw IoError(path + ": not the expected contents (" + e.what() + "); " + remedy);
+  }
+}
+
 // The stage records of a workspace, in the order the runner wrote them (by start time).
 nlohmann::json StageCosts(const Workspace& workspace) {
   std::vector<StageRecord> records;
   if (fs::is_directory(workspace.RecordsDir())) {
     for (const auto& entry : fs::directory_iterator(workspace.RecordsDir())) {
       if (entry.path().extension() != ".json") continue;
-      if (auto record = ReadRecord(entry.path().string())) records.push_back(*record);
+      const std::string path = entry.path().string();
+      const std::string stage = entry.path().stem().string();
+      // ReadRecord reads an unreadable record as "never ran", which suits the cache; the report
+      // would leave the stage out without a word.
+      const nlohmann::json json = ReadReportJson(path, nullptr, Rerun(stage));
+      if (!json.is_object()) {
+        throw IoError(path + ": not a stage record (expected a JSON object, got " + json.type_name() + "); " +
+                      Rerun(stage));
+      }
+      records.push_back(ReadingFile(path, Rerun(stage), [&] { return StageRecord::FromJson(json); }));
     }
   }
   std::stable_sort(records.begin(), records.end(),
@@ -258,17 +296,10 @@ std::string ScriptSafe(std::string text) {
   return text;
 }
 
-}  // namespace
-
-nlohmann::json GatherWorkspaceReport(const std::string& root, int image_width) {
-  const Workspace workspace(root);
-  nlohmann::json report = {{"kind", "workspace"}, {"title", root}, {"stages", StageCosts(workspace)}};
-  const nlohmann::json selection = ReadJsonOr(workspace.Path("scores/selection.json"), nullptr);
-  report["selection"] = selection;
-  report["metric"] = selection.is_object() ? selection.value("metric", "photo_psnr") : "photo_psnr";
+// The held-out scores of scores/heldout.json into the report's models and views.
+void GatherScores(const Workspace& workspace, const nlohmann::json& scores, int image_width, nlohmann::json* report) {
   nlohmann::json models = nlohmann::json::array();
   nlohmann::json views = nlohmann::json::array();
-  const nlohmann::json scores = ReadJsonOr(workspace.Path("scores/heldout.json"), nlohmann::json::object());
   const nlohmann::json proxies = scores.value("proxies", nlohmann::json::object());
   std::map<std::string, nlohmann::json> images_by_view;
   for (const auto& [name, proxy] : proxies.items()) {
@@ -285,13 +316,12 @@ nlohmann::json GatherWorkspaceReport(const std::string& root, int image_width) {
     }
   }
   for (const auto& [view, images] : images_by_view) views.push_back({{"view", view}, {"images", images}});
-  report["models"] = models;
-  report["views"] = views;
-  return report;
+  (*report)["models"] = models;
+  (*report)["views"] = views;
 }
 
-nlohmann::json GatherSweepReport(const std::string& folder) {
-  const nlohmann::json sweep = ReadJsonOr(folder + "/sweep.json", nlohmann::json::object());
+// The page's data from sweep.json's contents.
+nlohmann::json SweepReport(const std::string& folder, const nlohmann::json& sweep) {
   nlohmann::json report = {{"kind", "sweep"},
                            {"title", folder},
                            {"config", sweep.value("config", "")},
@@ -315,6 +345,33 @@ nlohmann::json GatherSweepReport(const std::string& folder) {
   return report;
 }
 
+}  // namespace
+
+nlohmann::json GatherWorkspaceReport(const std::string& root, int image_width) {
+  const Workspace workspace(root);
+  nlohmann::json report = {{"kind", "workspace"}, {"title", root}, {"stages", StageCosts(workspace)}};
+  const std::string selection_path = workspace.Path("scores/selection.json");
+  const nlohmann::json selection = ReadReportJson(selection_path, nullptr, Rerun("select"));
+  report["selection"] = selection;
+  report["metric"] = ReadingFile(selection_path, Rerun("select"), [&]() -> nlohmann::json {
+    return selection.is_object() ? selection.value("metric", "photo_psnr") : "photo_psnr";
+  });
+  const std::string scores_path = workspace.Path("scores/heldout.json");
+  const nlohmann::json scores = ReadReportJson(scores_path, nlohmann::json::object(), Rerun("score"));
+  ReadingFile(scores_path, Rerun("score"), [&] { GatherScores(workspace, scores, image_width, &report); });
+  return report;
+}
+
+nlohmann::json GatherSweepReport(const std::string& folder) {
+  const std::string path = folder + "/sweep.json";
+  const std::string remedy = "run the sweep again (ibmr sweep CONFIG --out " + folder + ")";
+  const nlohmann::json sweep = ReadReportJson(path, nlohmann::json::object(), remedy);
+  if (!sweep.is_object()) {
+    throw IoError(path + ": expected a JSON object, got " + std::string(sweep.type_name()) + "; " + remedy);
+  }
+  return ReadingFile(path, remedy, [&] { return SweepReport(folder, sweep); });
+}
+
 std::string WriteReport(const ReportOptions& options) {
   const bool is_sweep = fs::exists(options.path + "/sweep.json");
   if (!is_sweep && !fs::is_directory(options.path + "/records")) {
@@ -330,7 +387,7 @@ std::string WriteReport(const ReportOptions& options) {
   std::string page = kPageHead;
   page += ScriptSafe(ReadFile(options.chart_js));
   page += "\n</script>\n<script>\nconst REPORT = ";
-  page += ScriptSafe(data.dump());
+  page += ScriptSafe(DumpJson(data));
   page += ";";
   page += kPageScript;
   const std::string out = options.out.empty() ? options.path + "/report/index.html" : options.out;

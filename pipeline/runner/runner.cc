@@ -66,6 +66,25 @@ std::vector<std::string> SortedImageNames(const Workspace& workspace) {
   return names;
 }
 
+// Throws ConfigError for a name of holdout.images that is not an image of the model: the view
+// would be used for training while the log said it was held out. Names the config key and the
+// nearest image name. Nothing to check before a model exists (`sorted_names` empty).
+void CheckHeldoutNames(const Config& config, const std::vector<std::string>& sorted_names) {
+  if (sorted_names.empty()) return;
+  for (size_t i = 0; i < config.holdout.images.size(); ++i) {
+    const std::string& name = config.holdout.images[i];
+    if (std::find(sorted_names.begin(), sorted_names.end(), name) != sorted_names.end()) continue;
+    const std::string* nearest = &sorted_names.front();
+    for (const std::string& candidate : sorted_names) {
+      if (EditDistance(name, candidate) < EditDistance(name, *nearest)) nearest = &candidate;
+    }
+    const int line = i < config.holdout.image_lines.size() ? config.holdout.image_lines[i] : 0;
+    throw ConfigError(config.path + (line > 0 ? ":" + std::to_string(line) : "") + ": key 'holdout.images': '" + name +
+                      "' is not an image of the model (" + std::to_string(sorted_names.size()) +
+                      " images); did you mean '" + *nearest + "'? Give names as the model's images.txt has them");
+  }
+}
+
 }  // namespace
 
 ViewCheckpoint Runner::CheckpointOf(const Stage& stage, const std::string& key) const {
@@ -90,7 +109,9 @@ StageContext Runner::MakeContext(const Stage& stage, const StageConfig& stage_co
   context.inputs = config_.inputs;
   context.role = stage.Role();
   if (context.role != HoldoutRole::kAllViews && config_.holdout.Active()) {
-    context.heldout_images = config_.holdout.Select(SortedImageNames(context.workspace));
+    const std::vector<std::string> names = SortedImageNames(context.workspace);
+    CheckHeldoutNames(config_, names);
+    context.heldout_images = config_.holdout.Select(names);
   }
   return context;
 }
@@ -99,14 +120,15 @@ std::string Runner::CacheKey(const Stage& stage, const StageContext& context, nl
   *input_hashes = nlohmann::json::object();
   for (const std::string& input : stage.Inputs(context)) {
     const std::string path = Resolve(context.workspace, input);
-    (*input_hashes)[input] = HashPath(path);
+    (*input_hashes)[input] = HashPath(path, config_.workspace);  // a workspace in the photo folder
   }
   nlohmann::json key_source = {{"stage", stage.Name()},
                                {"version", stage.Version()},
                                {"params", context.params.ResultJson(stage.Parameters())},
                                {"heldout", context.heldout_images},
                                {"inputs", *input_hashes}};
-  return HashBytes(key_source.dump());
+  // Equal to a plain dump() for UTF-8 names, so that cache keys stay as they were.
+  return HashBytes(DumpJson(key_source));
 }
 
 std::string Runner::OwnStaleness(const Stage& stage, const StageContext& context, const std::string& key) const {
@@ -125,8 +147,8 @@ std::string Runner::OwnStaleness(const Stage& stage, const StageContext& context
   for (auto it = params.begin(); it != params.end(); ++it) {
     if (!record->params.contains(it.key()) || record->params[it.key()] != it.value()) {
       return "parameter '" + it.key() + "' changed (" +
-             (record->params.contains(it.key()) ? record->params[it.key()].dump() : "unset") + " -> " +
-             it.value().dump() + ")";
+             (record->params.contains(it.key()) ? DumpJson(record->params[it.key()]) : "unset") + " -> " +
+             DumpJson(it.value()) + ")";
     }
   }
   if (record->heldout != nlohmann::json(context.heldout_images)) return "holdout set changed";
@@ -257,7 +279,8 @@ bool Runner::Execute(const Stage& stage, StageContext& context, const std::strin
   FitViewsToMemory(stage, options.memory_limit_mb, &context, &record);
   WriteRecord(RecordPath(stage.Name()), record);
 
-  spdlog::info("[{}] running (version {}, params {})", stage.Name(), stage.Version(), context.params.ToJson().dump());
+  spdlog::info("[{}] running (version {}, params {})", stage.Name(), stage.Version(),
+               DumpJson(context.params.ToJson()));
   if (!context.heldout_images.empty()) {
     spdlog::info("[{}] {} held-out views are kept out", stage.Name(), context.heldout_images.size());
   }
@@ -380,6 +403,11 @@ bool Runner::SelectStages(const RunOptions& options, std::vector<size_t>* select
       return false;
     }
   }
+  if (!options.only.empty() && (!options.from.empty() || !options.to.empty())) {
+    // Either would silently widen or narrow what --only asked for.
+    spdlog::error("--only '{}' with --from/--to: use --only alone, or --from/--to", options.only);
+    return false;
+  }
   int first = 0;
   int last = static_cast<int>(config_.stages.size()) - 1;
   if (!options.only.empty()) first = last = index_of(options.only);
@@ -487,7 +515,8 @@ int Runner::Run(const RunOptions& options) {
   if (options.jobs > 0) {
     threads = std::make_unique<tbb::global_control>(tbb::global_control::max_allowed_parallelism, options.jobs);
   }
-  fs::create_directories(Workspace(config_.workspace).RecordsDir());
+  // A dry run changes nothing, not even an empty records/ in a workspace that is not there yet.
+  if (!options.dry_run) fs::create_directories(Workspace(config_.workspace).RecordsDir());
 
   int ran = 0;
   std::vector<bool> stale_before(config_.stages.size(), false);

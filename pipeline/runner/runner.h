@@ -52,7 +52,7 @@ class Runner {
   // Why the config's stage `index` would run (its own staleness, as Run decides); "" when up to date.
   std::string Staleness(size_t index) const;
   // The config's stage indices that `options` selects (--only, --from, --to); false, with the
-  // problem logged, when one names a stage the config does not have.
+  // problem logged, when one names a stage the config does not have or --only comes with --from/--to.
   bool SelectStages(const RunOptions& options, std::vector<size_t>* selected) const;
   // Indices of the earlier stages whose outputs a stage reads.
   std::vector<size_t> Upstream(size_t index) const;

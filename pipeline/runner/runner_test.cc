@@ -8,6 +8,7 @@
 #include <filesystem>
 #include <fstream>
 
+#include "pipeline/core/colmap_text_io.h"
 #include "pipeline/core/process_memory.h"
 #include "pipeline/runner/fake_stages_for_test.h"
 #include "pipeline/runner/record.h"
@@ -113,6 +114,15 @@ TEST_F(RunnerTest, OnlyFromToAndForce) {
   unknown.only = "nope";
   Run({}, unknown);
   EXPECT_EQ(last_exit_, 2);
+  // Was: --from/--to silently widened --only.
+  for (const bool use_from : {true, false}) {
+    RunOptions both;
+    both.only = "consume";
+    (use_from ? both.from : both.to) = "produce";
+    both.force = true;
+    EXPECT_EQ(Run({}, both), std::make_pair(0, 0));
+    EXPECT_EQ(last_exit_, 2);
+  }
 }
 
 TEST_F(RunnerTest, DryRunChangesNothing) {
@@ -120,6 +130,55 @@ TEST_F(RunnerTest, DryRunChangesNothing) {
   dry.dry_run = true;
   EXPECT_EQ(Run({}, dry), std::make_pair(0, 0));
   EXPECT_FALSE(fs::exists(dir_ / "ws" / "a.txt"));
+  EXPECT_FALSE(fs::exists(dir_ / "ws")) << "a dry run made the workspace's records/";
+}
+
+// A name of holdout.images that the model does not have was accepted, and the log said the view
+// was held out while every view trained.
+TEST_F(RunnerTest, UnknownHeldOutImageNameIsAnError) {
+  SparseModel model;
+  model.cameras[1] = Camera::Pinhole(4, 4, 2, 2, 2, 2);
+  for (int id = 1; id <= 4; ++id) {
+    Image image;
+    image.image_id = id;
+    image.camera_id = 1;
+    image.name = "view_00" + std::to_string(id) + ".png";
+    model.images[id] = image;
+  }
+  WriteSparseModelText((dir_ / "ws" / "sparse").string(), model);
+  std::ofstream(dir_ / "c.yaml") << "workspace: ws\nholdout:\n  images:\n    - view_002.png\n    - view_03.png\n"
+                                    "stages:\n  - produce\n  - consume\n";
+  try {
+    Run();
+    ADD_FAILURE() << "ran with an unknown held-out image";
+  } catch (const ConfigError& e) {
+    const std::string message = e.what();
+    EXPECT_NE(message.find("c.yaml:5: key 'holdout.images': 'view_03.png' is not an image of the model"),
+              std::string::npos) << message;
+    EXPECT_NE(message.find("did you mean 'view_003.png'?"), std::string::npos) << message;
+  }
+  EXPECT_FALSE(fs::exists(dir_ / "ws" / "b.txt"));
+  std::ofstream(dir_ / "c.yaml") << "workspace: ws\nholdout:\n  images: [view_003.png]\nstages:\n  - produce\n  - consume\n";
+  EXPECT_EQ(Run().second, 1);
+  EXPECT_EQ(ReadRecord((dir_ / "ws/records/consume.json").string())->heldout, nlohmann::json({"view_003.png"}));
+}
+
+// A workspace inside the folder a stage reads (inputs.images: . with workspace: ibmr_out): the
+// folder's hash took in the workspace's own records and logs, so the stage ran again every time.
+TEST_F(RunnerTest, WorkspaceInsideAnInputFolderIsLeftOutOfItsHash) {
+  fs::create_directories(dir_ / "photos");
+  std::ofstream(dir_ / "photos" / "a.png") << "A";
+  std::ofstream(dir_ / "c.yaml") << "workspace: photos/ibmr_out\nstages:\n  - list_folder: {folder: photos}\n";
+  const auto runs = [&]() {
+    const int before = testing_stages::list_folder_runs;
+    Run();
+    EXPECT_EQ(last_exit_, 0);
+    return testing_stages::list_folder_runs - before;
+  };
+  EXPECT_EQ(runs(), 1);
+  EXPECT_EQ(runs(), 0);
+  std::ofstream(dir_ / "photos" / "b.png") << "B";
+  EXPECT_EQ(runs(), 1) << "the photos still count";
 }
 
 TEST_F(RunnerTest, FailureKeepsPreviousOutputsAndRecordsError) {
@@ -151,6 +210,27 @@ TEST_F(RunnerTest, RecordHoldsInputsParamsAndCosts) {
 // A per-view stage runs as many views at once as the memory budget holds (one at least), and its
 // record keeps the budget, the estimate of one view and the views in flight. The budget is the
 // process's: what it holds already counts against it.
+// File names in another encoding are legal on Linux; dump() threw "[json.exception.type_error.316]
+// incomplete UTF-8 string" naming no file, and the stage's record was never written.
+TEST_F(RunnerTest, RecordsOfNonUtf8NamesAreWritten) {
+  StageRecord record;
+  record.stage = "produce";
+  record.status = "ok";
+  record.outputs = nlohmann::json::array({"photos/caf\xe9.png"});
+  record.inputs = {{"/data/caf\xe9", "0123"}};
+  const std::string path = (dir_ / "records" / "produce.json").string();
+  ASSERT_NO_THROW(WriteRecord(path, record));
+  const auto back = ReadRecord(path);
+  ASSERT_TRUE(back.has_value());
+  EXPECT_EQ(back->outputs[0], "photos/caf\xef\xbf\xbd.png");  // U+FFFD in place of the byte
+  EXPECT_EQ(DumpJson(nlohmann::json("caf\xc3\xa9")), "\"caf\xc3\xa9\"") << "UTF-8 is kept as it is";
+  // A whole run in a workspace whose name is not UTF-8.
+  std::ofstream(dir_ / "c.yaml") << "workspace: ws\xff\nstages:\n  - produce\n  - consume\n";
+  EXPECT_EQ(Run(), std::make_pair(1, 1));
+  EXPECT_EQ(last_exit_, 0);
+  EXPECT_EQ(Run(), std::make_pair(0, 0));
+}
+
 TEST_F(RunnerTest, MemoryLimitCapsTheViewsInFlight) {
   std::ofstream(dir_ / "c.yaml") << "workspace: ws\nstages:\n  - per_view\n";
   const double held = ResidentMemoryMb();

@@ -6,13 +6,23 @@
 #include <filesystem>
 #include <sstream>
 
+#include "pipeline/core/errors.h"
 #include "pipeline/runner/shell_words.h"
 
 namespace ibmr {
 namespace {
 
-// A Python string literal (JSON's escapes are Python's).
-std::string Py(const std::string& text) { return nlohmann::json(text).dump(); }
+// A Python string literal (JSON's escapes are Python's). A path that is not UTF-8 has no such
+// literal that names the same file: refuse it by name rather than write a Snakefile that misses it
+// (or let dump() throw its opaque "incomplete UTF-8 string").
+std::string Py(const std::string& text) {
+  try {
+    return nlohmann::json(text).dump();
+  } catch (const nlohmann::json::type_error&) {
+    throw InputError("'" + text + "' is not valid UTF-8, and a Snakefile cannot name it: rename it (or the folder) "
+                     "in UTF-8, or run `ibmr run` instead");
+  }
+}
 
 std::string PyList(const std::vector<std::string>& items) {
   std::string list = "[";

@@ -249,7 +249,7 @@ int RunSweep(const SweepOptions& given, const StageRegistry& registry) {
     sweep["points"] = points;
     sweep["pareto"] = ParetoFront(points);
     if (base.sweep.HasStability()) sweep["stability"] = StabilityMatrix(sweep["variants"], base.sweep);
-    WriteFileAtomic(out + "/sweep.json", sweep.dump(2) + "\n");
+    WriteFileAtomic(out + "/sweep.json", DumpJson(sweep, 2) + "\n");
   }
   spdlog::info("sweep: {} of {} variant(s) ran; {}", configs.size() - failed, configs.size(), out + "/sweep.json");
   for (const auto& p : sweep["pareto"]) {

@@ -1,0 +1,90 @@
+// The report's data: a file of another shape than the code expects, or not JSON at all, is an
+// error naming the file and what to re-run (it was nlohmann's opaque type error, or, for a
+// truncated sweep.json, an empty page with exit 0).
+#include "pipeline/runner/report.h"
+
+#include <gtest/gtest.h>
+
+#include <filesystem>
+
+#include "pipeline/core/atomic_file.h"
+#include "pipeline/core/errors.h"
+#include "tests/scratch_dir.h"
+
+namespace fs = std::filesystem;
+
+namespace ibmr {
+namespace {
+
+// The message of gathering `folder`'s report, or "" when it succeeds.
+std::string ErrorOf(const fs::path& folder, bool sweep) {
+  try {
+    if (sweep) {
+      GatherSweepReport(folder.string());
+    } else {
+      GatherWorkspaceReport(folder.string(), 64);
+    }
+  } catch (const IoError& e) {
+    return e.what();
+  }
+  return "";
+}
+
+TEST(Report, MalformedWorkspaceFilesNameTheFileAndTheStage) {
+  const fs::path ws = ibmr_testing::ScratchDir("ibmr_report_workspace");
+  WriteFileAtomic((ws / "records/carve.json").string(), R"({"stage": "carve", "status": "ok", "wall_seconds": 1})");
+  EXPECT_EQ(ErrorOf(ws, false), "");
+  const std::vector<std::pair<std::string, std::string>> cases = {
+      {"scores/heldout.json", "[1]"},
+      {"scores/heldout.json", R"({"proxies": {"a": 3}})"},
+      {"scores/heldout.json", R"({"proxies": {"a": {"mean": 5}}})"},
+      {"scores/heldout.json", R"({"proxies": )"},
+      {"scores/selection.json", R"({"metric": 7})"},
+      {"records/carve.json", "[1]"},
+      {"records/carve.json", R"({"stage": 1})"},
+  };
+  for (const auto& [file, text] : cases) {
+    const std::string path = (ws / file).string();
+    const std::string before = ReadFile(fs::exists(path) ? path : (ws / "records/carve.json").string());
+    WriteFileAtomic(path, text);
+    const std::string error = ErrorOf(ws, false);
+    EXPECT_NE(error.find(path + ": "), std::string::npos) << file << " = " << text << ": " << error;
+    const std::string stage = file == "scores/heldout.json" ? "score" : file == "scores/selection.json" ? "select" : "carve";
+    EXPECT_NE(error.find("re-run the " + stage + " stage"), std::string::npos) << error;
+    if (file == "records/carve.json") {
+      WriteFileAtomic(path, before);
+    } else {
+      fs::remove(path);
+    }
+  }
+}
+
+TEST(Report, MalformedSweepJsonNamesTheFile) {
+  const fs::path folder = ibmr_testing::ScratchDir("ibmr_report_sweep");
+  const std::string path = (folder / "sweep.json").string();
+  WriteFileAtomic(path, R"({"variants": [{"name": "v00", "stages": [{"stage": "a", "metrics": {}}]}]})");
+  EXPECT_EQ(ErrorOf(folder, true), "");
+  for (const std::string text : {R"({"variants": [1, 2]})", R"({"variants": [{"name": "v00", "stag)", "[1]"}) {
+    WriteFileAtomic(path, text);
+    const std::string error = ErrorOf(folder, true);
+    EXPECT_NE(error.find(path + ": "), std::string::npos) << text << ": " << error;
+    EXPECT_NE(error.find("run the sweep again"), std::string::npos) << error;
+  }
+}
+
+// A workspace named in another encoding than UTF-8 made the page's JSON throw an opaque
+// "incomplete UTF-8 string".
+TEST(Report, NonUtf8WorkspaceNameWritesThePage) {
+  const fs::path ws = ibmr_testing::ScratchDir("ibmr_report_caf\xe9");
+  WriteFileAtomic((ws / "records/carve.json").string(), R"({"stage": "carve", "status": "ok"})");
+  ReportOptions options;
+  options.path = ws.string();
+  options.chart_js = (ws / "chart.js").string();
+  WriteFileAtomic(options.chart_js, "// Chart.js stand-in");
+  std::string page;
+  ASSERT_NO_THROW(page = ReadFile(WriteReport(options)));
+  EXPECT_NE(page.find("caf\xef\xbf\xbd"), std::string::npos);
+}
+
+}  // namespace
+}  // namespace ibmr
