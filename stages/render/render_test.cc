@@ -92,6 +92,27 @@ double Psnr(const cv::Mat& a, const cv::Mat& b, const cv::Mat& mask) {
   return 10 * std::log10(255.0 * 255.0 / std::max(1e-12, sum / n));
 }
 
+// The stage's parameters at their defaults (list parameters empty), as a config without them gives.
+Params DefaultParams(const Stage& stage) {
+  Params params;
+  for (const ParamSpec& spec : stage.Parameters()) {
+    if (spec.type == ParamType::kString) {
+      params.Set(spec.key, spec.default_yaml);
+    } else if (spec.type == ParamType::kInt) {
+      params.Set(spec.key, static_cast<int64_t>(std::stoll(spec.default_yaml)));
+    } else if (spec.type == ParamType::kDouble) {
+      params.Set(spec.key, std::stod(spec.default_yaml));
+    } else if (spec.type == ParamType::kBool) {
+      params.Set(spec.key, spec.default_yaml == "true");
+    } else if (spec.type == ParamType::kDoubleList) {
+      params.Set(spec.key, std::vector<double>{});
+    } else {
+      params.Set(spec.key, std::vector<std::string>{});
+    }
+  }
+  return params;
+}
+
 TEST(RenderOptions, DefaultsAreValid) {
   std::string error;
   EXPECT_TRUE(RenderOptions().Check(&error)) << error;
@@ -490,24 +511,9 @@ TEST(RenderStage, RendersHeldOutViewsAndSkipsMissingProxy) {
   context.workspace = Workspace(root.string());
   context.role = stage->Role();
   context.heldout_images = {"v0.png", "v4.png"};
-  for (const ParamSpec& spec : stage->Parameters()) {
-    if (spec.key == "proxies") {
-      context.params.Set("proxies", std::vector<std::string>{"ground_truth/mesh.ply", "plane", "hull/hull.ply",
-                                                             "splat_depth", "splat_surfels"});
-    } else if (spec.type == ParamType::kString) {
-      context.params.Set(spec.key, spec.default_yaml);
-    } else if (spec.type == ParamType::kInt) {
-      context.params.Set(spec.key, static_cast<int64_t>(std::stoll(spec.default_yaml)));
-    } else if (spec.type == ParamType::kDouble) {
-      context.params.Set(spec.key, std::stod(spec.default_yaml));
-    } else if (spec.type == ParamType::kBool) {
-      context.params.Set(spec.key, spec.default_yaml == "true");
-    } else if (spec.type == ParamType::kDoubleList) {
-      context.params.Set(spec.key, std::vector<double>{});
-    } else {
-      context.params.Set(spec.key, std::vector<std::string>{});
-    }
-  }
+  context.params = DefaultParams(*stage);
+  context.params.Set("proxies", std::vector<std::string>{"ground_truth/mesh.ply", "plane", "hull/hull.ply", "splat_depth",
+                                                         "splat_surfels"});
   ASSERT_FALSE(stage->CheckParams(context.params).has_value());
   NullProgress progress;
   context.progress = &progress;
@@ -576,21 +582,7 @@ struct RenderWorkspace {
     stage = registry.Find("render");
     context.workspace = Workspace(root.string());
     context.role = stage->Role();
-    for (const ParamSpec& spec : stage->Parameters()) {
-      if (spec.type == ParamType::kString) {
-        context.params.Set(spec.key, spec.default_yaml);
-      } else if (spec.type == ParamType::kInt) {
-        context.params.Set(spec.key, static_cast<int64_t>(std::stoll(spec.default_yaml)));
-      } else if (spec.type == ParamType::kDouble) {
-        context.params.Set(spec.key, std::stod(spec.default_yaml));
-      } else if (spec.type == ParamType::kBool) {
-        context.params.Set(spec.key, spec.default_yaml == "true");
-      } else if (spec.type == ParamType::kDoubleList) {
-        context.params.Set(spec.key, std::vector<double>{});
-      } else {
-        context.params.Set(spec.key, std::vector<std::string>{});
-      }
-    }
+    context.params = DefaultParams(*stage);
     context.params.Set("proxies", std::vector<std::string>{"plane"});
     context.progress = &progress;
   }
