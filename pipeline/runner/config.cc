@@ -409,39 +409,10 @@ int EditDistance(const std::string& a, const std::string& b) {
   return row[b.size()];
 }
 
-// Whether `position` of `text` lies in a YAML comment: after a '#' that starts its line or follows
-// a blank, outside quotes, on the same line.
-static bool InComment(const std::string& text, size_t position) {
-  const size_t line_start = text.rfind('\n', position == 0 ? 0 : position - 1);
-  char quote = 0;
-  for (size_t i = line_start == std::string::npos ? 0 : line_start + 1; i < position; ++i) {
-    const char c = text[i];
-    if (quote) {
-      if (c == quote) quote = 0;
-    } else if (c == '"' || c == '\'') {
-      quote = c;
-    } else if (c == '#' && (i == 0 || text[i - 1] == ' ' || text[i - 1] == '\t' || text[i - 1] == '\n')) {
-      return true;
-    }
-  }
-  return false;
-}
-
+// The same expansion LoadConfig gives each parsed value, over a whole text.
 std::string ExpandVariables(const std::string& text, const std::string& file) {
-  std::string out;
-  auto begin = std::sregex_iterator(text.begin(), text.end(), VariablePattern());
-  size_t last = 0;
-  for (auto it = begin; it != std::sregex_iterator(); ++it) {
-    const std::smatch& m = *it;
-    out += text.substr(last, m.position(0) - last);
-    const int line = 1 + static_cast<int>(std::count(text.begin(), text.begin() + m.position(0), '\n'));
-    // A comment's ${VAR} needs no value.
-    const bool has_default = m[2].matched || InComment(text, m.position(0));
-    out += VariableValue(m[1].str(), has_default, m[3].str(), file, line);
-    last = m.position(0) + m.length(0);
-  }
-  out += text.substr(last);
-  return out;
+  const MaskedConfig masked = MaskVariables(text);
+  return ExpandScalar(masked.text, masked, file);
 }
 
 std::set<std::string> HoldoutPolicy::Select(const std::vector<std::string>& sorted_names) const {

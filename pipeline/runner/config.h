@@ -99,8 +99,9 @@ struct Config {
 
 // Expands ${VAR} and ${VAR:-default} from the environment in `text` (an empty VAR counts as unset).
 // Throws ConfigError naming `file` and the line for a ${VAR} without default whose VAR is unset or
-// empty (outside comments). LoadConfig does not expand the file's text with this: it expands each
-// parsed value, so that a value holding '#' or ': ' stays one value.
+// empty. LoadConfig does not expand the file's text with this: it expands each parsed value the
+// same way, so that a value holding '#' or ': ' stays one value (and a comment's ${VAR} is dropped
+// with the comment).
 std::string ExpandVariables(const std::string& text, const std::string& file = "config");
 // Edit distance between two keys, for "did you mean" suggestions.
 int EditDistance(const std::string& a, const std::string& b);
