@@ -10,10 +10,12 @@
 //    census cost stays the scalar POPCNT loop (AVX2 has no vector popcount; the nibble-table
 //    method costs more shuffles than POPCNT costs cycles on 64-bit codes);
 //  * `avx512`: the same source under `#pragma GCC target` for AVX-512 (F, BW, DQ, VL, VPOPCNTDQ),
-//    where the compiler vectorises the 16-bit semi-global and box loops over 32 lanes and the
-//    census cost uses the explicit VPOPCNTQ kernels below: a lane per reference pixel for warped
-//    neighbours (codes fetched by contiguous loads and permutes, BestKCostsAcrossPixels), a lane
-//    per plane with gathers otherwise.
+//    where the compiler vectorises the 16-bit box loops over 32 lanes and the census cost uses
+//    the explicit VPOPCNTQ kernels below: a lane per reference pixel for warped neighbours (codes
+//    fetched by contiguous loads and permutes, BestKCostsAcrossPixels), a lane per plane with
+//    gathers otherwise.
+// The semi-global steps and winner-take-all are written once over vectors of 16-bit lanes (8 in
+// the portable build, 16 in the AVX2 build, 16 or 32 in the AVX-512 build; see Lanes).
 // sweep_engine.cc picks one at run time. The pragma (not -march on the command line) keeps
 // the AVX-512 code inside this file's own functions: template code from headers (std::vector,
 // TBB) is compiled for the baseline, so the linker cannot hand an AVX-512 copy of it to the
@@ -30,8 +32,12 @@
 #include <array>
 #include <cmath>
 #include <cstddef>
+#include <cstring>
 #include <limits>
 #include <opencv2/imgproc.hpp>
+#if defined(__SSE4_1__)  // x86-64-v2, the baseline of every build on x86
+#include <smmintrin.h>
+#endif
 
 #if IBMR_SWEEP_AVX512
 #include <immintrin.h>
@@ -196,25 +202,180 @@ void ZnccSlice(const cv::Mat& ref, const cv::Mat& ref_mean, const cv::Mat& ref_v
   }
 }
 
-// One semi-global path step: L(p,d) = C(p,d) + min(L(p-r,d), L(p-r,d+-1) + P1, min L(p-r) + P2) - min L(p-r).
-// `prev` and `cur` are padded by one sentinel on each side. Returns min over d of L. Signed 16-bit
-// so that min vectorises with SSE2 (all values stay below 2^15).
-template <bool kAssign>
+// Vectors of 16-bit lanes (GCC vector extensions). Every operation on them is an elementwise
+// integer one, so all builds give the same values whatever the width. `Lanes` is one register of
+// the build: 16 lanes in the AVX2 and AVX-512 builds, 8 in the portable one (a 16-lane vector
+// there became two SSE registers, handled poorly: 2.7 times slower). `WideLanes` is the widest the
+// build has: 32 lanes (one AVX-512 register) in the AVX-512 build, else `Lanes`; the semi-global
+// steps use it where the planes come in multiples of it (teddy's 64: 15-20% less time than 16
+// lanes). Volume strides are multiples of 16.
+typedef int16_t Lanes8 __attribute__((vector_size(16)));
+typedef int16_t Lanes16 __attribute__((vector_size(32)));
+typedef uint16_t UnsignedLanes8 __attribute__((vector_size(16)));
+typedef uint16_t UnsignedLanes16 __attribute__((vector_size(32)));
+#if IBMR_SWEEP_AVX512
+typedef int16_t Lanes32 __attribute__((vector_size(64)));
+typedef uint16_t UnsignedLanes32 __attribute__((vector_size(64)));
+#endif
+#if IBMR_SWEEP_AVX2 || IBMR_SWEEP_AVX512
+typedef Lanes16 Lanes;
+typedef UnsignedLanes16 UnsignedLanes;
+#else
+typedef Lanes8 Lanes;
+typedef UnsignedLanes8 UnsignedLanes;
+#endif
+#if IBMR_SWEEP_AVX512
+typedef Lanes32 WideLanes;
+#else
+typedef Lanes WideLanes;
+#endif
+template <class V>
+constexpr int kLanesOf = static_cast<int>(sizeof(V) / sizeof(int16_t));
+constexpr int kLaneCount = kLanesOf<Lanes>;
+
+template <class V>
+inline V LoadLanes(const void* p) {
+  V v;
+  std::memcpy(&v, p, sizeof v);
+  return v;
+}
+template <class V>
+inline void StoreLanes(void* p, V v) {
+  std::memcpy(p, &v, sizeof v);
+}
+template <class V>
+inline V SplatLanes(int16_t x) {
+  return V{} + x;
+}
+template <class V>
+inline V MinLanes(V a, V b) {
+  return a < b ? a : b;
+}
+// uint16 sums wrap (signed vector overflow would not be defined).
+inline Lanes8 AddWrapping(Lanes8 a, Lanes8 b) {
+  return reinterpret_cast<Lanes8>(reinterpret_cast<UnsignedLanes8>(a) + reinterpret_cast<UnsignedLanes8>(b));
+}
+// The entries at d - 1 and d + 1 when `here` holds entries d.., `before` the lanes below and
+// `after` those above: built in registers from whole-vector loads rather than loaded at an offset
+// of one entry. A path's previous entries were often stored by the step just before (the row
+// path's always): a load one entry off such a store spans two stores, which the CPU cannot
+// forward, so each step of the row path waited for the last one's stores to reach the cache.
+inline Lanes8 EntriesBelow(Lanes8 before, Lanes8 here) {
+  return __builtin_shuffle(before, here, Lanes8{7, 8, 9, 10, 11, 12, 13, 14});
+}
+inline Lanes8 EntriesAbove(Lanes8 here, Lanes8 after) {
+  return __builtin_shuffle(here, after, Lanes8{1, 2, 3, 4, 5, 6, 7, 8});
+}
+#if IBMR_SWEEP_AVX2 || IBMR_SWEEP_AVX512  // (the portable build has no 256-bit registers to pass them in)
+inline Lanes16 AddWrapping(Lanes16 a, Lanes16 b) {
+  return reinterpret_cast<Lanes16>(reinterpret_cast<UnsignedLanes16>(a) + reinterpret_cast<UnsignedLanes16>(b));
+}
+inline Lanes16 EntriesBelow(Lanes16 before, Lanes16 here) {
+  return __builtin_shuffle(before, here, Lanes16{15, 16, 17, 18, 19, 20, 21, 22, 23, 24, 25, 26, 27, 28, 29, 30});
+}
+inline Lanes16 EntriesAbove(Lanes16 here, Lanes16 after) {
+  return __builtin_shuffle(here, after, Lanes16{1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15, 16});
+}
+#endif
+// The least lane, unsigned (generic: any width, any build).
+template <class U>
+inline uint16_t LowestUnsignedLane(U v) {
+  uint16_t m = v[0];
+  for (int i = 1; i < kLanesOf<U>; ++i) m = std::min<uint16_t>(m, v[i]);
+  return m;
+}
+#if defined(__SSE4_1__)
+inline uint16_t LowestUnsignedLane(__m128i v) {
+  return static_cast<uint16_t>(_mm_cvtsi128_si32(_mm_minpos_epu16(v)) & 0xFFFF);
+}
+inline uint16_t LowestUnsignedLane(UnsignedLanes8 v) {
+  __m128i x;
+  std::memcpy(&x, &v, sizeof x);
+  return LowestUnsignedLane(x);
+}
+#if IBMR_SWEEP_AVX2 || IBMR_SWEEP_AVX512
+inline uint16_t LowestUnsignedLane(UnsignedLanes16 v) {
+  __m128i low, high;
+  std::memcpy(&low, &v, sizeof low);
+  std::memcpy(&high, reinterpret_cast<const char*>(&v) + sizeof low, sizeof high);
+  return LowestUnsignedLane(_mm_min_epu16(low, high));
+}
+#endif
+#endif
+#if IBMR_SWEEP_AVX512
+inline Lanes32 AddWrapping(Lanes32 a, Lanes32 b) {
+  return reinterpret_cast<Lanes32>(reinterpret_cast<UnsignedLanes32>(a) + reinterpret_cast<UnsignedLanes32>(b));
+}
+inline Lanes32 EntriesBelow(Lanes32 before, Lanes32 here) {
+  return __builtin_shuffle(before, here, Lanes32{31, 32, 33, 34, 35, 36, 37, 38, 39, 40, 41, 42, 43, 44, 45, 46,
+                                                 47, 48, 49, 50, 51, 52, 53, 54, 55, 56, 57, 58, 59, 60, 61, 62});
+}
+inline Lanes32 EntriesAbove(Lanes32 here, Lanes32 after) {
+  return __builtin_shuffle(here, after, Lanes32{1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15, 16,
+                                                17, 18, 19, 20, 21, 22, 23, 24, 25, 26, 27, 28, 29, 30, 31, 32});
+}
+inline uint16_t LowestUnsignedLane(UnsignedLanes32 v) {
+  __m512i z;
+  std::memcpy(&z, &v, sizeof z);
+  const __m256i y = _mm256_min_epu16(_mm512_castsi512_si256(z), _mm512_extracti64x4_epi64(z, 1));
+  return LowestUnsignedLane(_mm_min_epu16(_mm256_castsi256_si128(y), _mm256_extracti128_si256(y, 1)));
+}
+#endif
+// The least lane of lanes that are all >= 0 (so the unsigned minimum is the signed one).
+inline int16_t LowestLane(Lanes8 v) { return static_cast<int16_t>(LowestUnsignedLane(reinterpret_cast<UnsignedLanes8>(v))); }
+#if IBMR_SWEEP_AVX2 || IBMR_SWEEP_AVX512
+inline int16_t LowestLane(Lanes16 v) { return static_cast<int16_t>(LowestUnsignedLane(reinterpret_cast<UnsignedLanes16>(v))); }
+#endif
+#if IBMR_SWEEP_AVX512
+inline int16_t LowestLane(Lanes32 v) { return static_cast<int16_t>(LowestUnsignedLane(reinterpret_cast<UnsignedLanes32>(v))); }
+#endif
+// The first lane holding x, or -1.
+inline int FirstLaneEqual(UnsignedLanes v, uint16_t x) {
+#if defined(__SSE4_1__)
+  const UnsignedLanes equal = v == (UnsignedLanes{} + x);
+  __m128i low, high = _mm_setzero_si128();
+  std::memcpy(&low, &equal, sizeof low);
+  if constexpr (kLaneCount == 16) std::memcpy(&high, reinterpret_cast<const char*>(&equal) + sizeof low, sizeof high);
+  const uint32_t bits = static_cast<uint32_t>(_mm_movemask_epi8(low)) | static_cast<uint32_t>(_mm_movemask_epi8(high)) << 16;
+  return bits == 0 ? -1 : __builtin_ctz(bits) / 2;
+#else
+  for (int i = 0; i < kLaneCount; ++i)
+    if (v[i] == x) return i;
+  return -1;
+#endif
+}
+
+// One semi-global path step over the planes of one vector, d.., from the previous pixel's entries
+// (here = L(p-r, d..), before and after the lanes on either side):
+//   L(p,d) = C(p,d) + min(L(p-r,d), L(p-r,d+-1) + P1, min L(p-r) + P2) - min L(p-r).
+// `min_p2` = min L(p-r) + P2, `min_prev` = min L(p-r). All values stay below 2^15 (costs below
+// 2^11, penalties at most 6000): signed 16-bit lanes never overflow.
+template <class V>
+inline V PathLanes(V cost, V before, V here, V after, V p1, V min_p2, V min_prev) {
+  const V t = MinLanes(MinLanes(here, EntriesBelow(before, here) + p1), MinLanes(EntriesAbove(here, after) + p1, min_p2));
+  return cost + t - min_prev;
+}
+
+// One semi-global path step for all n planes (a multiple of V's lanes): L(p, .) into `cur`, and
+// into `sum` (kAssign) or added to it. `prev` holds L(p-r, .); outside 0..n-1 a path reads the
+// sentinel. Returns min over d of L.
+template <bool kAssign, class V>
 inline int16_t PathStep(const uint16_t* __restrict c, const int16_t* __restrict prev, int16_t min_prev, int16_t p1,
                         int16_t p2, int n, int16_t* __restrict cur, uint16_t* __restrict sum) {
-  const int16_t mp2 = static_cast<int16_t>(min_prev + p2);
-  int16_t m = 0x7FFF;
-  for (int d = 0; d < n; ++d) {
-    const int16_t a = prev[d];
-    const int16_t b = static_cast<int16_t>(prev[d - 1] + p1);
-    const int16_t e = static_cast<int16_t>(prev[d + 1] + p1);
-    const int16_t t = std::min(std::min(a, b), std::min(e, mp2));
-    const int16_t l = static_cast<int16_t>(static_cast<int16_t>(c[d]) + t - min_prev);
-    cur[d] = l;
-    sum[d] = kAssign ? static_cast<uint16_t>(l) : static_cast<uint16_t>(sum[d] + l);
-    m = std::min(m, l);
+  constexpr int kLanes = kLanesOf<V>;
+  const V p1v = SplatLanes<V>(p1), min_p2 = SplatLanes<V>(static_cast<int16_t>(min_prev + p2)), min_v = SplatLanes<V>(min_prev);
+  const V sentinel = SplatLanes<V>(kSentinel);
+  V m = SplatLanes<V>(0x7FFF), before = sentinel, here = LoadLanes<V>(prev);
+  for (int d = 0; d < n; d += kLanes) {
+    const V after = d + kLanes < n ? LoadLanes<V>(prev + d + kLanes) : sentinel;
+    const V l = PathLanes(LoadLanes<V>(c + d), before, here, after, p1v, min_p2, min_v);
+    StoreLanes(cur + d, l);
+    StoreLanes(sum + d, kAssign ? l : AddWrapping(LoadLanes<V>(sum + d), l));
+    m = MinLanes(m, l);
+    before = here;
+    here = after;
   }
-  return m;
+  return LowestLane(m);
 }
 
 template <bool kAssign>
@@ -240,6 +401,7 @@ void FillP2Table(const EngineOptions& o, int16_t table[256]) {
 // One pass over the image in scan order `s` (+1: top-left to bottom-right; -1: reverse) along the
 // paths arriving from the previous pixel and, when `diagonals`, the previous row's three pixels
 // (else only the one above); `out` receives their sum or, `accumulate`, has it added.
+template <class V>
 void SgmPassPerPath(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, int s, bool accumulate,
                     LargeBuffer<uint16_t>* out) {
   const int w = v.width, h = v.height, n = v.stride, ps = n + 2;
@@ -270,8 +432,8 @@ void SgmPassPerPath(const CostVolume& v, const cv::Mat& gray, const EngineOption
         left_min = accumulate ? PathStart<false>(c, n, left_cur.data() + 1, sum) : PathStart<true>(c, n, left_cur.data() + 1, sum);
       } else {
         const int16_t p2 = p2_for(g[x], g[x - s]);
-        left_min = accumulate ? PathStep<false>(c, left.data() + 1, left_min, p1, p2, n, left_cur.data() + 1, sum)
-                              : PathStep<true>(c, left.data() + 1, left_min, p1, p2, n, left_cur.data() + 1, sum);
+        left_min = accumulate ? PathStep<false, V>(c, left.data() + 1, left_min, p1, p2, n, left_cur.data() + 1, sum)
+                              : PathStep<true, V>(c, left.data() + 1, left_min, p1, p2, n, left_cur.data() + 1, sum);
       }
       std::swap(left, left_cur);
       // From the previous row.
@@ -284,7 +446,7 @@ void SgmPassPerPath(const CostVolume& v, const cv::Mat& gray, const EngineOption
           cm = PathStart<false>(c, n, cur, sum);
         } else {
           const int16_t* pv = prev_row.data() + (static_cast<size_t>(k) * w + xs) * ps + 1;
-          cm = PathStep<false>(c, pv, prev_min[static_cast<size_t>(k) * w + xs], p1, p2_for(g[x], gp[xs]), n, cur, sum);
+          cm = PathStep<false, V>(c, pv, prev_min[static_cast<size_t>(k) * w + xs], p1, p2_for(g[x], gp[xs]), n, cur, sum);
         }
       }
     }
@@ -293,46 +455,49 @@ void SgmPassPerPath(const CostVolume& v, const cv::Mat& gray, const EngineOption
   }
 }
 
-// One pixel's semi-global step along K paths at once:
-//   L_k(p,d) = C(p,d) + min(L_k(p-r_k,d), L_k(p-r_k,d+-1) + P1, min L_k(p-r_k) + P2_k) - min L_k(p-r_k),
-// and sum[d] = sum over k of L_k(p,d) (or, kAccumulate, sum[d] plus that). `prev[k]` is path
-// k's previous pixel (padded by one entry on each side); a path that starts here reads the zero
-// row with min 0, which makes L = C.
-// `cur[k]` receives L_k, `min_out[k]` its minimum. Signed 16-bit lanes: all values stay below 2^15
-// (the sums wrap as uint16, like the volume they are added into, in any order).
-template <int K, bool kAccumulate>
+// One pixel's semi-global step along K paths at once (PathStep's formula, path by path), for all
+// n planes (a multiple of 16): sum[d] = sum over k of L_k(p,d) (or, kAccumulate, sum[d] plus that).
+// `prev[k]` is path k's previous pixel; a path that starts here reads the zero row with min 0,
+// which makes L = C. `cur[k]` receives L_k, `min_out[k]` its minimum. The sums wrap as uint16,
+// like the volume they are added into, in any order.
+template <int K, bool kAccumulate, class V>
 inline void PathSteps(const uint16_t* __restrict c, int n, const int16_t* const* prev, const int16_t* min_prev,
                       const int16_t* p2, int16_t p1, int16_t* const* cur, int16_t* min_out, uint16_t* __restrict sum) {
-  int16_t mp2[K], m[K];
+  constexpr int kLanes = kLanesOf<V>;
+  const V p1v = SplatLanes<V>(p1), sentinel = SplatLanes<V>(kSentinel);
+  V min_p2[K], min_v[K], m[K], before[K], here[K];
   for (int k = 0; k < K; ++k) {
-    mp2[k] = static_cast<int16_t>(min_prev[k] + p2[k]);
-    m[k] = 0x7FFF;
+    min_p2[k] = SplatLanes<V>(static_cast<int16_t>(min_prev[k] + p2[k]));
+    min_v[k] = SplatLanes<V>(min_prev[k]);
+    m[k] = SplatLanes<V>(0x7FFF);
+    before[k] = sentinel;
+    here[k] = LoadLanes<V>(prev[k]);
   }
-  // The rows of different paths and the sum never overlap: no dependence between iterations.
-#pragma GCC ivdep
-  for (int d = 0; d < n; ++d) {
-    uint16_t total = 0;
+  for (int d = 0; d < n; d += kLanes) {
+    const V cost = LoadLanes<V>(c + d);
+    V total = kAccumulate ? LoadLanes<V>(sum + d) : V{};
 #pragma GCC unroll 4
     for (int k = 0; k < K; ++k) {
-      const int16_t* pv = prev[k];
-      const int16_t a = pv[d];
-      const int16_t b = static_cast<int16_t>(pv[d - 1] + p1);
-      const int16_t e = static_cast<int16_t>(pv[d + 1] + p1);
-      const int16_t t = std::min(std::min(a, b), std::min(e, mp2[k]));
-      const int16_t l = static_cast<int16_t>(static_cast<int16_t>(c[d]) + t - min_prev[k]);
-      cur[k][d] = l;
-      m[k] = std::min(m[k], l);
-      total = static_cast<uint16_t>(total + l);
+      const V after = d + kLanes < n ? LoadLanes<V>(prev[k] + d + kLanes) : sentinel;
+      const V l = PathLanes(cost, before[k], here[k], after, p1v, min_p2[k], min_v[k]);
+      StoreLanes(cur[k] + d, l);
+      m[k] = MinLanes(m[k], l);
+      total = AddWrapping(total, l);
+      before[k] = here[k];
+      here[k] = after;
     }
-    sum[d] = kAccumulate ? static_cast<uint16_t>(sum[d] + total) : total;
+    StoreLanes(sum + d, total);
   }
-  for (int k = 0; k < K; ++k) min_out[k] = m[k];
+  for (int k = 0; k < K; ++k) min_out[k] = LowestLane(m[k]);
 }
 
 // One pass over the image in scan order `s` (+1: top-left to bottom-right; -1: reverse) along the
 // paths arriving from the previous pixel and, when `diagonals`, the previous row's three pixels
 // (else only the one above); `out` receives the sum of those paths or, `accumulate`, has it added.
-template <int kRowPaths>
+// The cost and sum entries of the pixel kPrefetchPixels ahead are fetched early: the backward
+// pass walks the volume from its end, and waiting on those loads had been the largest stall.
+constexpr int kPrefetchPixels = 6;
+template <int kRowPaths, class V>
 void SgmPassFused(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, int s, bool accumulate,
                   LargeBuffer<uint16_t>* out) {
   constexpr int K = 1 + kRowPaths;  // the row path, then the paths from the previous row
@@ -381,10 +546,17 @@ void SgmPassFused(const CostVolume& v, const cv::Mat& gray, const EngineOptions&
       }
       const size_t pixel = static_cast<size_t>(y) * w + x;
       uint16_t* sum = v.Matched(pixel) ? out->data() + pixel * n : discarded.data();
+      if (xi + kPrefetchPixels < w) {
+        const size_t ahead = (pixel + static_cast<ptrdiff_t>(s) * kPrefetchPixels) * n;
+        for (int line = 0; line < n; line += 32) {
+          __builtin_prefetch(v.data.data() + ahead + line, 0);
+          __builtin_prefetch(out->data() + ahead + line, 1);
+        }
+      }
       if (accumulate) {  // the same every pixel: a branch the predictor always gets right
-        PathSteps<K, true>(v.At(x, y), n, prev, min_prev, p2, p1, cur, min_out, sum);
+        PathSteps<K, true, V>(v.At(x, y), n, prev, min_prev, p2, p1, cur, min_out, sum);
       } else {
-        PathSteps<K, false>(v.At(x, y), n, prev, min_prev, p2, p1, cur, min_out, sum);
+        PathSteps<K, false, V>(v.At(x, y), n, prev, min_prev, p2, p1, cur, min_out, sum);
       }
       left_min = min_out[0];
       std::swap(left, left_cur);
@@ -400,12 +572,13 @@ void SgmPassFused(const CostVolume& v, const cv::Mat& gray, const EngineOptions&
 // 13.0 ms against 14.3); with many (a multi-view sweep's 128) one loop per path vectorises better
 // (templeRing plane_sweep: 13.3 s against 14.7). Both give the same sums.
 void SgmPass(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, int s, bool accumulate, LargeBuffer<uint16_t>* out) {
+  const bool wide = v.stride % kLanesOf<WideLanes> == 0;
   if (v.stride > 64) {
-    SgmPassPerPath(v, gray, o, s, accumulate, out);
+    wide ? SgmPassPerPath<WideLanes>(v, gray, o, s, accumulate, out) : SgmPassPerPath<Lanes>(v, gray, o, s, accumulate, out);
   } else if (o.paths == 8) {
-    SgmPassFused<3>(v, gray, o, s, accumulate, out);
+    wide ? SgmPassFused<3, WideLanes>(v, gray, o, s, accumulate, out) : SgmPassFused<3, Lanes>(v, gray, o, s, accumulate, out);
   } else {
-    SgmPassFused<1>(v, gray, o, s, accumulate, out);
+    wide ? SgmPassFused<1, WideLanes>(v, gray, o, s, accumulate, out) : SgmPassFused<1, Lanes>(v, gray, o, s, accumulate, out);
   }
 }
 
@@ -1347,6 +1520,9 @@ Winners WinnerTakeAll(const Aggregated& ag, const CostVolume* data, double confi
   if (right_winners) out.right = cv::Mat(h, w, CV_32S, cv::Scalar(-1));
   tbb::parallel_for(0, h, [&](int y) {
     std::vector<uint16_t> s(stride);
+    // 0xFFFF at the padding planes, to OR into their sums.
+    std::vector<uint16_t> padding(stride, 0);
+    std::fill(padding.begin() + np, padding.end(), static_cast<uint16_t>(0xFFFF));
     // Right-view winners of this row, stored right to left: left pixel x at disparity d is right
     // pixel x - d, entry w - 1 - x + d, so a left pixel's disparities update a contiguous run.
     std::vector<uint32_t> right_cost(right_winners ? w : 0, 0xFFFFFFFFu);
@@ -1357,16 +1533,25 @@ Winners WinnerTakeAll(const Aggregated& ag, const CostVolume* data, double confi
       const size_t pixel = static_cast<size_t>(y) * w + x;
       if (!ag.Matched(pixel)) continue;  // no winner, certainty 0
       const uint16_t* a = ag.a.data() + pixel * stride;
-      // The sum and its minimum in one vectorised pass, then the first plane at the minimum.
-      uint16_t lowest = 0xFFFF;
-      if (ag.b.empty()) {
-        for (int d = 0; d < np; ++d) lowest = std::min(lowest, s[d] = a[d]);
-      } else {
-        const uint16_t* b = ag.b.data() + pixel * stride;
-        for (int d = 0; d < np; ++d) lowest = std::min(lowest, s[d] = static_cast<uint16_t>(a[d] + b[d]));
+      // The sum and its minimum over the planes (padding planes at 0xFFFF), a vector at a time,
+      // then the first plane at the minimum.
+      UnsignedLanes low = UnsignedLanes{} + static_cast<uint16_t>(0xFFFF);
+      for (int d = 0; d < stride; d += kLaneCount) {
+        UnsignedLanes sum = reinterpret_cast<UnsignedLanes>(LoadLanes<Lanes>(a + d));
+        if (!ag.b.empty()) sum += reinterpret_cast<UnsignedLanes>(LoadLanes<Lanes>(ag.b.data() + pixel * stride + d));
+        if (d + kLaneCount > np) sum |= reinterpret_cast<UnsignedLanes>(LoadLanes<Lanes>(padding.data() + d));
+        StoreLanes(s.data() + d, reinterpret_cast<Lanes>(sum));
+        low = low < sum ? low : sum;
       }
+      const uint16_t lowest = LowestUnsignedLane(low);
       int best = 0;
-      while (s[best] != lowest) ++best;
+      for (int d = 0;; d += kLaneCount) {
+        const int lane = FirstLaneEqual(reinterpret_cast<UnsignedLanes>(LoadLanes<Lanes>(s.data() + d)), lowest);
+        if (lane >= 0) {
+          best = d + lane;
+          break;
+        }
+      }
       if (right_winners) {
         // Left pixels come in increasing x, so a right pixel sees its disparities in increasing
         // order: a strict < keeps the smallest among equal costs.
