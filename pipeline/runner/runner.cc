@@ -21,6 +21,7 @@
 #include "pipeline/runner/record.h"
 #include "pipeline/core/process_memory.h"
 #include "pipeline/runner/resource_usage.h"
+#include "pipeline/runner/stage_lock.h"
 #include "pipeline/runner/terminal_progress.h"
 
 namespace fs = std::filesystem;
@@ -95,6 +96,10 @@ std::string Runner::RecordPath(const std::string& stage) const {
   return Workspace(config_.workspace).RecordsDir() + "/" + stage + ".json";
 }
 
+std::string Runner::LockPath(const std::string& stage) const {
+  return Workspace(config_.workspace).RecordsDir() + "/" + stage + ".lock";
+}
+
 StageContext Runner::MakeContext(const Stage& stage, const StageConfig& stage_config) const {
   StageContext context;
   context.workspace = Workspace(config_.workspace);
@@ -134,7 +139,11 @@ std::string Runner::CacheKey(const Stage& stage, const StageContext& context, nl
 std::string Runner::OwnStaleness(const Stage& stage, const StageContext& context, const std::string& key) const {
   const auto record = ReadRecord(RecordPath(stage.Name()));
   if (!record) return "never ran";
-  if (record->status == "running") return "interrupted while running (will resume)";
+  if (record->status == "running") {
+    const std::string holder = LockHolder(LockPath(stage.Name()));
+    if (!holder.empty()) return "running now in another process (" + holder + ")";
+    return "interrupted while running (will resume)";
+  }
   if (record->status != "ok") return "last run failed: " + record->error;
   if (record->key == key) {
     for (const std::string& output : stage.Outputs(context)) {
@@ -479,6 +488,14 @@ int Runner::RunShard(const RunOptions& options) {
     return 0;
   }
   fs::create_directories(context.workspace.RecordsDir());
+  StageLock lock;  // shared: other shards may run beside this one, a whole run or a merge may not
+  std::string holder;
+  if (!lock.TryLock(LockPath(stage.Name()), false, &holder)) {
+    spdlog::error("[{}] a whole run of the stage (or the merge of its shards) is running in another ibmr process "
+                  "on workspace {} ({}); run the shard when it has finished",
+                  stage.Name(), config_.workspace, holder);
+    return 1;
+  }
   // No record and no clean-up of temporaries here: other shards of the stage may be writing now.
   // Both belong to the merge.
   TerminalProgress progress(stage.Name() + " shard", options.interactive);
@@ -545,6 +562,14 @@ int Runner::Run(const RunOptions& options) {
     if (options.dry_run) {
       spdlog::info("[{}] would run: {}", stage.Name(), reason);
       continue;
+    }
+    StageLock lock;
+    std::string holder;
+    if (!lock.TryLock(LockPath(stage.Name()), true, &holder)) {
+      spdlog::error("[{}] is running in another ibmr process on workspace {} ({}); wait for it to finish "
+                    "('ibmr status' shows it) or stop that process, then run again",
+                    stage.Name(), config_.workspace, holder);
+      return 1;
     }
     if (!options.force && !options.reuse_from.empty() && Reuse(stage, context, key, options.reuse_from)) continue;
     spdlog::info("[{}] runs: {}", stage.Name(), reason);

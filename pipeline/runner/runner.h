@@ -76,6 +76,8 @@ class Runner {
   // Own staleness of one stage, ignoring upstream; "" when up to date.
   std::string OwnStaleness(const Stage& stage, const StageContext& context, const std::string& key) const;
   std::string RecordPath(const std::string& stage) const;
+  // records/<stage>.lock: see stage_lock.h.
+  std::string LockPath(const std::string& stage) const;
   // The per-view marks of a stage's run with cache key `key` (records/<stage>.views/).
   ViewCheckpoint CheckpointOf(const Stage& stage, const std::string& key) const;
   bool Execute(const Stage& stage, StageContext& context, const std::string& key, const nlohmann::json& inputs,

@@ -12,6 +12,7 @@
 #include "pipeline/core/process_memory.h"
 #include "pipeline/runner/fake_stages_for_test.h"
 #include "pipeline/runner/record.h"
+#include "pipeline/runner/stage_lock.h"
 
 namespace fs = std::filesystem;
 
@@ -123,6 +124,33 @@ TEST_F(RunnerTest, OnlyFromToAndForce) {
     EXPECT_EQ(Run({}, both), std::make_pair(0, 0));
     EXPECT_EQ(last_exit_, 2);
   }
+}
+
+// A second run on a workspace whose stage was still running elsewhere took the record's
+// "running" for an interrupted run, started the stage again and removed the first run's
+// temporary files as left-overs.
+TEST_F(RunnerTest, AStageRunningInAnotherProcessIsNotStartedAgain) {
+  Run();
+  const std::string before = Read("a.txt");
+  const std::string record_path = (dir_ / "ws/records/produce.json").string();
+  StageRecord record = *ReadRecord(record_path);
+  record.status = "running";
+  WriteRecord(record_path, record);
+  {
+    StageLock elsewhere;  // another open of the lock file stands for another process
+    std::string holder;
+    ASSERT_TRUE(elsewhere.TryLock((dir_ / "ws/records/produce.lock").string(), true, &holder));
+    const std::vector<StageStatus> status = Status();
+    EXPECT_NE(status[0].reason.find("running now in another process (pid " + std::to_string(::getpid())),
+              std::string::npos)
+        << status[0].reason;
+    EXPECT_EQ(Run({"produce.value=5"}), std::make_pair(0, 0));
+    EXPECT_EQ(last_exit_, 1);
+    EXPECT_EQ(Read("a.txt"), before);
+  }
+  EXPECT_EQ(Status()[0].reason, "interrupted while running (will resume)");
+  EXPECT_EQ(Run({"produce.value=5"}), std::make_pair(1, 1));
+  EXPECT_EQ(last_exit_, 0);
 }
 
 TEST_F(RunnerTest, DryRunChangesNothing) {
