@@ -582,6 +582,30 @@ void SgmPass(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, i
   }
 }
 
+// One output row of the box mean from the horizontal sums of its kRows rows (`rows`, those of the
+// clipped window): sum / area by a fixed-point reciprocal, (sum * inv) >> 16, inv = 2^16 / area + 1
+// (exact enough for costs below 2^11 * area). With at most 7 rows of at most 7 costs of 1023 the
+// sums fit in 16 bits, and so does inv (area >= 2), so the product's high half is the 16-bit
+// multiply the vector units have; the values are those of a 32-bit running sum.
+template <int kRows>
+void BoxMeanRow(const uint16_t* const* rows, int w, int n, int r, int ny, uint16_t* __restrict out) {
+  for (int x = 0; x < w; ++x) {
+    const uint32_t area = static_cast<uint32_t>(ny * (std::min(w - 1, x + r) - std::max(0, x - r) + 1));
+    const size_t at = static_cast<size_t>(x) * n;
+    uint16_t* __restrict o = out + at;
+    if (area == 1) {  // a one-pixel image: the mean is the cost (and 2^16 + 1 has no 16 bits)
+      std::copy(rows[0] + at, rows[0] + at + n, o);
+      continue;
+    }
+    const uint16_t inv = static_cast<uint16_t>((1u << 16) / area + 1);
+    for (int d = 0; d < n; ++d) {
+      uint16_t sum = rows[0][at + d];
+      for (int k = 1; k < kRows; ++k) sum = static_cast<uint16_t>(sum + rows[k][at + d]);
+      o[d] = static_cast<uint16_t>((static_cast<uint32_t>(sum) * inv) >> 16);
+    }
+  }
+}
+
 // Box mean of the volume over (2r+1)^2 pixels per plane, borders clipped; in place, in bands of
 // rows (one task each) swept top to bottom. A row's horizontal sums go into a ring of the last
 // 2r + 2 rows and a running vertical sum; a row is overwritten once its own sums are in the ring,
@@ -656,7 +680,7 @@ void BoxFilterVolume(CostVolume* v, int r) {
     const int first = band * band_rows, end = std::min(h, first + band_rows);
     const int ring_rows = 2 * r + 2;
     std::vector<uint16_t> ring(static_cast<size_t>(ring_rows) * row);
-    std::vector<uint32_t> acc(row, 0u);
+    std::vector<uint32_t> acc(r <= 3 ? 0 : row, 0u);  // the running vertical sum of wider windows
     // Row y's horizontal sums, made (from the band's own rows, still unfiltered) or taken (halo).
     auto take = [&](int y) {
       uint16_t* slot = ring.data() + static_cast<size_t>(y % ring_rows) * row;
@@ -668,6 +692,26 @@ void BoxFilterVolume(CostVolume* v, int r) {
       }
       return slot;
     };
+    if (r <= 3) {  // 16-bit sums of the window's rows, straight from the ring (BoxMeanRow)
+      for (int yy = std::max(0, first - r); yy <= std::min(h - 1, first + r - 1); ++yy) take(yy);
+      for (int y = first; y < end; ++y) {
+        if (y + r < h) take(y + r);
+        const int y0 = std::max(0, y - r), y1 = std::min(h - 1, y + r), ny = y1 - y0 + 1;
+        const uint16_t* rows[7];
+        for (int yy = y0; yy <= y1; ++yy) rows[yy - y0] = ring.data() + static_cast<size_t>(yy % ring_rows) * row;
+        uint16_t* out = v->At(0, y);
+        switch (ny) {
+          case 1: BoxMeanRow<1>(rows, w, n, r, ny, out); break;
+          case 2: BoxMeanRow<2>(rows, w, n, r, ny, out); break;
+          case 3: BoxMeanRow<3>(rows, w, n, r, ny, out); break;
+          case 4: BoxMeanRow<4>(rows, w, n, r, ny, out); break;
+          case 5: BoxMeanRow<5>(rows, w, n, r, ny, out); break;
+          case 6: BoxMeanRow<6>(rows, w, n, r, ny, out); break;
+          default: BoxMeanRow<7>(rows, w, n, r, ny, out); break;
+        }
+      }
+      return;
+    }
     for (int yy = std::max(0, first - r); yy <= std::min(h - 1, first + r - 1); ++yy) {
       const uint16_t* in = take(yy);
       for (size_t i = 0; i < row; ++i) acc[i] += in[i];
