@@ -40,15 +40,8 @@ std::string Describe(const YAML::Node& node) {
 }
 
 std::string Suggest(const std::string& key, const std::vector<std::string>& valid) {
-  std::string best;
-  int best_distance = 1 << 30;
-  for (const std::string& candidate : valid) {
-    const int d = EditDistance(key, candidate);
-    if (d < best_distance) {
-      best_distance = d;
-      best = candidate;
-    }
-  }
+  int best_distance = 0;
+  const std::string best = Nearest(key, valid, &best_distance);
   std::string out;
   if (!best.empty() && best_distance <= std::max<int>(2, static_cast<int>(key.size()) / 3)) {
     out = "did you mean '" + best + "'? ";
@@ -407,6 +400,20 @@ int EditDistance(const std::string& a, const std::string& b) {
     }
   }
   return row[b.size()];
+}
+
+std::string Nearest(const std::string& name, const std::vector<std::string>& candidates, int* distance) {
+  std::string best;
+  int best_distance = 1 << 30;
+  for (const std::string& candidate : candidates) {
+    const int d = EditDistance(name, candidate);
+    if (d < best_distance) {
+      best_distance = d;
+      best = candidate;
+    }
+  }
+  if (distance != nullptr) *distance = best_distance;
+  return best;
 }
 
 // The same expansion LoadConfig gives each parsed value, over a whole text.

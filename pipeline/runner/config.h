@@ -105,6 +105,9 @@ struct Config {
 std::string ExpandVariables(const std::string& text, const std::string& file = "config");
 // Edit distance between two keys, for "did you mean" suggestions.
 int EditDistance(const std::string& a, const std::string& b);
+// The candidate nearest to `name` by EditDistance (the first of equals; "" when there are none),
+// and its distance in `distance` (optional).
+std::string Nearest(const std::string& name, const std::vector<std::string>& candidates, int* distance = nullptr);
 
 // The stage's declared defaults (paths resolved against `dir`).
 Params DefaultParams(const Stage& stage, const std::string& dir);

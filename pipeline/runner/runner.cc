@@ -75,14 +75,10 @@ void CheckHeldoutNames(const Config& config, const std::vector<std::string>& sor
   for (size_t i = 0; i < config.holdout.images.size(); ++i) {
     const std::string& name = config.holdout.images[i];
     if (std::find(sorted_names.begin(), sorted_names.end(), name) != sorted_names.end()) continue;
-    const std::string* nearest = &sorted_names.front();
-    for (const std::string& candidate : sorted_names) {
-      if (EditDistance(name, candidate) < EditDistance(name, *nearest)) nearest = &candidate;
-    }
     const int line = i < config.holdout.image_lines.size() ? config.holdout.image_lines[i] : 0;
     throw ConfigError(config.path + (line > 0 ? ":" + std::to_string(line) : "") + ": key 'holdout.images': '" + name +
                       "' is not an image of the model (" + std::to_string(sorted_names.size()) +
-                      " images); did you mean '" + *nearest + "'? Give names as the model's images.txt has them");
+                      " images); did you mean '" + Nearest(name, sorted_names) + "'? Give names as the model's images.txt has them");
   }
 }
 
