@@ -492,6 +492,10 @@ int Runner::RunShard(const RunOptions& options) {
                   stage.Name(), config_.workspace, holder);
     return 1;
   }
+  if (!options.force && OwnStaleness(stage, context, key).empty()) {  // a merge finished meanwhile
+    spdlog::info("[{}] up to date: the shard has nothing to do", stage.Name());
+    return 0;
+  }
   // No record and no clean-up of temporaries here: other shards of the stage may be writing now.
   // Both belong to the merge.
   TerminalProgress progress(stage.Name() + " shard", options.interactive);
@@ -566,6 +570,11 @@ int Runner::Run(const RunOptions& options) {
                     "('ibmr status' shows it) or stop that process, then run again",
                     stage.Name(), config_.workspace, holder);
       return 1;
+    }
+    // Decided before the lock: another process may have run the stage in between.
+    if (!options.force && OwnStaleness(stage, context, key).empty()) {
+      spdlog::info("[{}] up to date (another process has just run it)", stage.Name());
+      continue;
     }
     if (!options.force && !options.reuse_from.empty() && Reuse(stage, context, key, options.reuse_from)) continue;
     spdlog::info("[{}] runs: {}", stage.Name(), reason);

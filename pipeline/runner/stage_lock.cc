@@ -7,12 +7,16 @@
 #include <unistd.h>
 
 #include <cerrno>
+#include <chrono>
 #include <cstring>
 #include <string>
+#include <thread>
 
 namespace ibmr {
 
 namespace {
+
+const char* const kShards = "shards (--views) of the stage";
 
 // What the holder of an exclusive lock writes into the file: enough to find the process.
 std::string Description() {
@@ -36,7 +40,7 @@ std::string ReadDescription(int fd) {
 std::string HolderOf(int fd) {
   if (flock(fd, LOCK_SH | LOCK_NB) == 0) {
     flock(fd, LOCK_UN);
-    return "shards (--views) of the stage";
+    return kShards;
   }
   return ReadDescription(fd);
 }
@@ -53,7 +57,15 @@ bool StageLock::TryLock(const std::string& path, bool exclusive, std::string* ho
     spdlog::warn("cannot open the lock file {} ({}); running without a lock", path, std::strerror(errno));
     return true;
   }
-  if (flock(fd, (exclusive ? LOCK_EX : LOCK_SH) | LOCK_NB) != 0) {
+  // A few tries over 100 ms: another process's LockHolder probe, or HolderOf below, holds the lock
+  // for microseconds; a stage that runs holds it for its whole run.
+  int result = -1;
+  for (int attempt = 0; attempt < 20; ++attempt) {
+    result = flock(fd, (exclusive ? LOCK_EX : LOCK_SH) | LOCK_NB);
+    if (result == 0 || errno != EWOULDBLOCK) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  }
+  if (result != 0) {
     const int error = errno;
     if (LocksUnsupported(error)) {
       close(fd);
@@ -77,13 +89,20 @@ bool StageLock::TryLock(const std::string& path, bool exclusive, std::string* ho
 }
 
 std::string LockHolder(const std::string& path) {
-  const int fd = open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  // Read-write where allowed: NFS emulates flock by fcntl locks, whose exclusive form needs it.
+  int fd = open(path.c_str(), O_RDWR | O_CLOEXEC);
+  if (fd < 0) fd = open(path.c_str(), O_RDONLY | O_CLOEXEC);
   if (fd < 0) return "";  // never locked
   std::string holder;
-  if (flock(fd, LOCK_EX | LOCK_NB) == 0) {
+  if (flock(fd, LOCK_SH | LOCK_NB) != 0) {  // an exclusive holder: a whole run or a merge
+    if (errno == EWOULDBLOCK) holder = ReadDescription(fd);
+  } else {
     flock(fd, LOCK_UN);
-  } else if (errno == EWOULDBLOCK) {
-    holder = HolderOf(fd);
+    if (flock(fd, LOCK_EX | LOCK_NB) == 0) {
+      flock(fd, LOCK_UN);  // nobody
+    } else if (errno == EWOULDBLOCK) {
+      holder = kShards;
+    }
   }
   close(fd);
   return holder;

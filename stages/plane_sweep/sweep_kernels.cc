@@ -260,21 +260,22 @@ inline Lanes8 AddWrapping(Lanes8 a, Lanes8 b) {
 // of one entry. A path's previous entries were often stored by the step just before (the row
 // path's always): a load one entry off such a store spans two stores, which the CPU cannot
 // forward, so each step of the row path waited for the last one's stores to reach the cache.
+// (__builtin_shufflevector: GCC 12 and clang both have it; the fuzz build uses clang.)
 inline Lanes8 EntriesBelow(Lanes8 before, Lanes8 here) {
-  return __builtin_shuffle(before, here, Lanes8{7, 8, 9, 10, 11, 12, 13, 14});
+  return __builtin_shufflevector(before, here, 7, 8, 9, 10, 11, 12, 13, 14);
 }
 inline Lanes8 EntriesAbove(Lanes8 here, Lanes8 after) {
-  return __builtin_shuffle(here, after, Lanes8{1, 2, 3, 4, 5, 6, 7, 8});
+  return __builtin_shufflevector(here, after, 1, 2, 3, 4, 5, 6, 7, 8);
 }
 #if IBMR_SWEEP_AVX2 || IBMR_SWEEP_AVX512  // (the portable build has no 256-bit registers to pass them in)
 inline Lanes16 AddWrapping(Lanes16 a, Lanes16 b) {
   return reinterpret_cast<Lanes16>(reinterpret_cast<UnsignedLanes16>(a) + reinterpret_cast<UnsignedLanes16>(b));
 }
 inline Lanes16 EntriesBelow(Lanes16 before, Lanes16 here) {
-  return __builtin_shuffle(before, here, Lanes16{15, 16, 17, 18, 19, 20, 21, 22, 23, 24, 25, 26, 27, 28, 29, 30});
+  return __builtin_shufflevector(before, here, 15, 16, 17, 18, 19, 20, 21, 22, 23, 24, 25, 26, 27, 28, 29, 30);
 }
 inline Lanes16 EntriesAbove(Lanes16 here, Lanes16 after) {
-  return __builtin_shuffle(here, after, Lanes16{1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15, 16});
+  return __builtin_shufflevector(here, after, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15, 16);
 }
 #endif
 // The least lane, unsigned (generic: any width, any build).
@@ -307,12 +308,12 @@ inline Lanes32 AddWrapping(Lanes32 a, Lanes32 b) {
   return reinterpret_cast<Lanes32>(reinterpret_cast<UnsignedLanes32>(a) + reinterpret_cast<UnsignedLanes32>(b));
 }
 inline Lanes32 EntriesBelow(Lanes32 before, Lanes32 here) {
-  return __builtin_shuffle(before, here, Lanes32{31, 32, 33, 34, 35, 36, 37, 38, 39, 40, 41, 42, 43, 44, 45, 46,
-                                                 47, 48, 49, 50, 51, 52, 53, 54, 55, 56, 57, 58, 59, 60, 61, 62});
+  return __builtin_shufflevector(before, here, 31, 32, 33, 34, 35, 36, 37, 38, 39, 40, 41, 42, 43, 44, 45, 46,
+                                                 47, 48, 49, 50, 51, 52, 53, 54, 55, 56, 57, 58, 59, 60, 61, 62);
 }
 inline Lanes32 EntriesAbove(Lanes32 here, Lanes32 after) {
-  return __builtin_shuffle(here, after, Lanes32{1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15, 16,
-                                                17, 18, 19, 20, 21, 22, 23, 24, 25, 26, 27, 28, 29, 30, 31, 32});
+  return __builtin_shufflevector(here, after, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15, 16,
+                                                17, 18, 19, 20, 21, 22, 23, 24, 25, 26, 27, 28, 29, 30, 31, 32);
 }
 inline uint16_t LowestUnsignedLane(UnsignedLanes32 v) {
   __m512i z;
