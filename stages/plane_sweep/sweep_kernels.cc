@@ -873,9 +873,13 @@ void ShiftCensusCosts(uint64_t code, const uint64_t* src, const int* shift, bool
     const __m512i distances = _mm512_popcnt_epi64(_mm512_xor_si512(codes, code_v));
     _mm_storeu_si128(reinterpret_cast<__m128i*>(out + p), _mm_slli_epi16(_mm512_cvtepi64_epi16(distances), 4));
   }
-#else
-  (void)disparity_order;
 #endif
+  // Disparity order, planes whose code lies on the row (p <= x): no shift table, no bounds test.
+  if (disparity_order && x < sw) {
+    for (const int end = std::min(p1, x + 1); p < end; ++p) {
+      out[p] = static_cast<uint16_t>(__builtin_popcountll(code ^ row[x - p]) << 4);
+    }
+  }
   for (; p < p1; ++p) {
     const int xs = x + shift[p];
     const bool inside = xs >= 0 && xs < sw;
