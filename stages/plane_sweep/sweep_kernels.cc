@@ -357,26 +357,51 @@ inline V PathLanes(V cost, V before, V here, V after, V p1, V min_p2, V min_prev
   return cost + t - min_prev;
 }
 
-// One semi-global path step for all n planes (a multiple of V's lanes): L(p, .) into `cur`, and
-// into `sum` (kAssign) or added to it. `prev` holds L(p-r, .); outside 0..n-1 a path reads the
-// sentinel. Returns min over d of L.
-template <bool kAssign, class V>
-inline int16_t PathStep(const uint16_t* __restrict c, const int16_t* __restrict prev, int16_t min_prev, int16_t p1,
-                        int16_t p2, int n, int16_t* __restrict cur, uint16_t* __restrict sum) {
+// One pixel's semi-global step along K paths at once (PathLanes' formula, path by path), for all
+// n planes (a multiple of 16): sum[d] = sum over k of L_k(p,d) (or, kAccumulate, sum[d] plus that).
+// `prev[k]` is path k's previous pixel; a path that starts here reads the zero row with min 0,
+// which makes L = C. `cur[k]` receives L_k, `min_out[k]` its minimum. The sums wrap as uint16,
+// like the volume they are added into, in any order.
+template <int K, bool kAccumulate, class V>
+inline void PathSteps(const uint16_t* __restrict c, int n, const int16_t* const* prev, const int16_t* min_prev,
+                      const int16_t* p2, int16_t p1, int16_t* const* cur, int16_t* min_out, uint16_t* __restrict sum) {
   constexpr int kLanes = kLanesOf<V>;
-  const V p1v = SplatLanes<V>(p1), min_p2 = SplatLanes<V>(static_cast<int16_t>(min_prev + p2)), min_v = SplatLanes<V>(min_prev);
-  const V sentinel = SplatLanes<V>(kSentinel);
-  V m = SplatLanes<V>(0x7FFF), before = sentinel, here = LoadLanes<V>(prev);
-  for (int d = 0; d < n; d += kLanes) {
-    const V after = d + kLanes < n ? LoadLanes<V>(prev + d + kLanes) : sentinel;
-    const V l = PathLanes(LoadLanes<V>(c + d), before, here, after, p1v, min_p2, min_v);
-    StoreLanes(cur + d, l);
-    StoreLanes(sum + d, kAssign ? l : AddWrapping(LoadLanes<V>(sum + d), l));
-    m = MinLanes(m, l);
-    before = here;
-    here = after;
+  const V p1v = SplatLanes<V>(p1), sentinel = SplatLanes<V>(kSentinel);
+  V min_p2[K], min_v[K], m[K], before[K], here[K];
+  for (int k = 0; k < K; ++k) {
+    min_p2[k] = SplatLanes<V>(static_cast<int16_t>(min_prev[k] + p2[k]));
+    min_v[k] = SplatLanes<V>(min_prev[k]);
+    m[k] = SplatLanes<V>(0x7FFF);
+    before[k] = sentinel;
+    here[k] = LoadLanes<V>(prev[k]);
   }
-  return LowestLane(m);
+  for (int d = 0; d < n; d += kLanes) {
+    const V cost = LoadLanes<V>(c + d);
+    V total = kAccumulate ? LoadLanes<V>(sum + d) : V{};
+#pragma GCC unroll 4
+    for (int k = 0; k < K; ++k) {
+      const V after = d + kLanes < n ? LoadLanes<V>(prev[k] + d + kLanes) : sentinel;
+      const V l = PathLanes(cost, before[k], here[k], after, p1v, min_p2[k], min_v[k]);
+      StoreLanes(cur[k] + d, l);
+      m[k] = MinLanes(m[k], l);
+      total = AddWrapping(total, l);
+      before[k] = here[k];
+      here[k] = after;
+    }
+    StoreLanes(sum + d, total);
+  }
+  for (int k = 0; k < K; ++k) min_out[k] = LowestLane(m[k]);
+}
+
+// One semi-global path step for all n planes along one path (PathSteps with K = 1): L(p, .) into
+// `cur`, and into `sum` (kAssign) or added to it. `prev` holds L(p-r, .); outside 0..n-1 a path
+// reads the sentinel. Returns min over d of L.
+template <bool kAssign, class V>
+inline int16_t PathStep(const uint16_t* __restrict c, const int16_t* prev, int16_t min_prev, int16_t p1,
+                        int16_t p2, int n, int16_t* cur, uint16_t* __restrict sum) {
+  int16_t min_out;
+  PathSteps<1, !kAssign, V>(c, n, &prev, &min_prev, &p2, p1, &cur, &min_out, sum);
+  return min_out;
 }
 
 template <bool kAssign>
@@ -454,42 +479,6 @@ void SgmPassPerPath(const CostVolume& v, const cv::Mat& gray, const EngineOption
     std::swap(prev_row, cur_row);
     std::swap(prev_min, cur_min);
   }
-}
-
-// One pixel's semi-global step along K paths at once (PathStep's formula, path by path), for all
-// n planes (a multiple of 16): sum[d] = sum over k of L_k(p,d) (or, kAccumulate, sum[d] plus that).
-// `prev[k]` is path k's previous pixel; a path that starts here reads the zero row with min 0,
-// which makes L = C. `cur[k]` receives L_k, `min_out[k]` its minimum. The sums wrap as uint16,
-// like the volume they are added into, in any order.
-template <int K, bool kAccumulate, class V>
-inline void PathSteps(const uint16_t* __restrict c, int n, const int16_t* const* prev, const int16_t* min_prev,
-                      const int16_t* p2, int16_t p1, int16_t* const* cur, int16_t* min_out, uint16_t* __restrict sum) {
-  constexpr int kLanes = kLanesOf<V>;
-  const V p1v = SplatLanes<V>(p1), sentinel = SplatLanes<V>(kSentinel);
-  V min_p2[K], min_v[K], m[K], before[K], here[K];
-  for (int k = 0; k < K; ++k) {
-    min_p2[k] = SplatLanes<V>(static_cast<int16_t>(min_prev[k] + p2[k]));
-    min_v[k] = SplatLanes<V>(min_prev[k]);
-    m[k] = SplatLanes<V>(0x7FFF);
-    before[k] = sentinel;
-    here[k] = LoadLanes<V>(prev[k]);
-  }
-  for (int d = 0; d < n; d += kLanes) {
-    const V cost = LoadLanes<V>(c + d);
-    V total = kAccumulate ? LoadLanes<V>(sum + d) : V{};
-#pragma GCC unroll 4
-    for (int k = 0; k < K; ++k) {
-      const V after = d + kLanes < n ? LoadLanes<V>(prev[k] + d + kLanes) : sentinel;
-      const V l = PathLanes(cost, before[k], here[k], after, p1v, min_p2[k], min_v[k]);
-      StoreLanes(cur[k] + d, l);
-      m[k] = MinLanes(m[k], l);
-      total = AddWrapping(total, l);
-      before[k] = here[k];
-      here[k] = after;
-    }
-    StoreLanes(sum + d, total);
-  }
-  for (int k = 0; k < K; ++k) min_out[k] = LowestLane(m[k]);
 }
 
 // One pass over the image in scan order `s` (+1: top-left to bottom-right; -1: reverse) along the
@@ -1567,11 +1556,11 @@ Winners WinnerTakeAll(const Aggregated& ag, const CostVolume* data, double confi
   out.plane = cv::Mat(h, w, CV_32F, cv::Scalar(-1));
   out.confidence = cv::Mat(h, w, CV_32F, cv::Scalar(0));
   if (right_winners) out.right = cv::Mat(h, w, CV_32S, cv::Scalar(-1));
+  // 0xFFFF at the padding planes, to OR into their sums.
+  std::vector<uint16_t> padding(stride, 0);
+  std::fill(padding.begin() + np, padding.end(), static_cast<uint16_t>(0xFFFF));
   tbb::parallel_for(0, h, [&](int y) {
     std::vector<uint16_t> s(stride);
-    // 0xFFFF at the padding planes, to OR into their sums.
-    std::vector<uint16_t> padding(stride, 0);
-    std::fill(padding.begin() + np, padding.end(), static_cast<uint16_t>(0xFFFF));
     // Right-view winners of this row, stored right to left: left pixel x at disparity d is right
     // pixel x - d, entry w - 1 - x + d, so a left pixel's disparities update a contiguous run.
     std::vector<uint32_t> right_cost(right_winners ? w : 0, 0xFFFFFFFFu);
