@@ -132,6 +132,18 @@ std::string Runner::CacheKey(const Stage& stage, const StageContext& context, nl
   return HashBytes(DumpJson(key_source));
 }
 
+std::string Runner::MissingOutput(const Stage& stage, const StageContext& context) const {
+  for (const std::string& output : stage.Outputs(context)) {
+    if (!fs::exists(Resolve(context.workspace, output))) return "output '" + output + "' is missing";
+  }
+  return "";
+}
+
+bool Runner::Finished(const Stage& stage, const StageContext& context, const std::string& key) const {
+  const auto record = ReadRecord(RecordPath(stage.Name()));
+  return record && record->status == "ok" && record->key == key && MissingOutput(stage, context).empty();
+}
+
 std::string Runner::OwnStaleness(const Stage& stage, const StageContext& context, const std::string& key) const {
   const auto record = ReadRecord(RecordPath(stage.Name()));
   if (!record) return "never ran";
@@ -141,12 +153,7 @@ std::string Runner::OwnStaleness(const Stage& stage, const StageContext& context
     return "interrupted while running (will resume)";
   }
   if (record->status != "ok") return "last run failed: " + record->error;
-  if (record->key == key) {
-    for (const std::string& output : stage.Outputs(context)) {
-      if (!fs::exists(Resolve(context.workspace, output))) return "output '" + output + "' is missing";
-    }
-    return "";
-  }
+  if (record->key == key) return MissingOutput(stage, context);
   if (record->version != stage.Version()) return "code version changed (" + record->version + " -> " + stage.Version() + ")";
   const nlohmann::json params = context.params.ResultJson(stage.Parameters());
   for (auto it = params.begin(); it != params.end(); ++it) {
@@ -492,7 +499,7 @@ int Runner::RunShard(const RunOptions& options) {
                   stage.Name(), config_.workspace, holder);
     return 1;
   }
-  if (!options.force && OwnStaleness(stage, context, key).empty()) {  // a merge finished meanwhile
+  if (!options.force && Finished(stage, context, key)) {  // a merge finished meanwhile
     spdlog::info("[{}] up to date: the shard has nothing to do", stage.Name());
     return 0;
   }
@@ -572,7 +579,7 @@ int Runner::Run(const RunOptions& options) {
       return 1;
     }
     // Decided before the lock: another process may have run the stage in between.
-    if (!options.force && OwnStaleness(stage, context, key).empty()) {
+    if (!options.force && Finished(stage, context, key)) {
       spdlog::info("[{}] up to date (another process has just run it)", stage.Name());
       continue;
     }

@@ -75,6 +75,11 @@ class Runner {
   std::string CacheKey(const Stage& stage, const StageContext& context, nlohmann::json* input_hashes) const;
   // Own staleness of one stage, ignoring upstream; "" when up to date.
   std::string OwnStaleness(const Stage& stage, const StageContext& context, const std::string& key) const;
+  // "output 'x' is missing" for the first declared output not there, else "".
+  std::string MissingOutput(const Stage& stage, const StageContext& context) const;
+  // The record shows a finished run with cache key `key` and the outputs are there: the check a
+  // run repeats once it holds the stage's lock, without hashing the inputs again.
+  bool Finished(const Stage& stage, const StageContext& context, const std::string& key) const;
   std::string RecordPath(const std::string& stage) const;
   // records/<stage>.lock: see stage_lock.h.
   std::string LockPath(const std::string& stage) const;
