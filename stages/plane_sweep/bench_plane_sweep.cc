@@ -11,7 +11,7 @@
 // Method: plane_sweep.h (seed 000 lines 3659-3760, 5300-5525, 4352-4453).
 //
 // Usage: bench_plane_sweep [--out FILE.json] [--threads N] [--only synth|temple|dino]
-//                          [--confidence-threshold T] [--work DIR]
+//                          [--confidence-threshold T] [--work DIR] [--portable-too true|false]
 #include <tbb/global_control.h>
 
 #include <chrono>
@@ -194,6 +194,7 @@ int main(int argc, char** argv) {
   std::string out = "bench_plane_sweep.json", only, work = (fs::temp_directory_path() / "ibmr_bench_plane_sweep").string();
   int threads = 2;
   double threshold = -1;
+  bool portable_too = true;  // templeSparseRing again on the portable build
   for (int i = 1; i + 1 < argc; i += 2) {
     const std::string key = argv[i];
     if (key == "--out") out = argv[i + 1];
@@ -201,8 +202,9 @@ int main(int argc, char** argv) {
     else if (key == "--only") only = argv[i + 1];
     else if (key == "--work") work = argv[i + 1];
     else if (key == "--confidence-threshold") threshold = std::atof(argv[i + 1]);
+    else if (key == "--portable-too") portable_too = std::string(argv[i + 1]) != "false";
     else {
-      std::cerr << "unknown option " << key << "\nusage: bench_plane_sweep [--out FILE] [--threads N] [--only synth|temple|dino] [--confidence-threshold T] [--work DIR]\n";
+      std::cerr << "unknown option " << key << "\nusage: bench_plane_sweep [--out FILE] [--threads N] [--only synth|temple|dino] [--confidence-threshold T] [--work DIR] [--portable-too true|false]\n";
       return 2;
     }
   }
@@ -219,7 +221,7 @@ int main(int argc, char** argv) {
     if (only.empty() || only == "temple") {
       const std::vector<double> box = {-0.073568, 0.021728, -0.012445, 0.028855, 0.181892, 0.062736};
       report["temple"] = Middlebury(runner, work, "middlebury_templeSparseRing", box, threshold);
-      if (sweep::ActiveIsa() != sweep::Isa::kPortable) {  // the same run on the portable build
+      if (portable_too && sweep::ActiveIsa() != sweep::Isa::kPortable) {  // the same run on the portable build
         const sweep::Isa active = sweep::ActiveIsa();
         sweep::SetIsa(sweep::Isa::kPortable);
         const nlohmann::json portable = Middlebury(runner, work, "middlebury_templeSparseRing", box, threshold);

@@ -161,7 +161,7 @@ StereoPairResult StereoPair(const cv::Mat& left_image, const cv::Mat& right_imag
     std::fprintf(stderr, "  %s %.1f ms\n", what, std::chrono::duration<double>(now - t).count() * 1e3);
     t = now;
   };
-  result.evaluations = sweep::BuildCostVolume(left, {neighbour}, engine, &volume);
+  result.evaluations = sweep::BuildCostVolume(left, {neighbour}, engine, &volume).evaluations;
   lap("cost volume");
   sweep::Aggregate(volume, left, engine, &aggregated);
   lap("aggregation");
@@ -326,9 +326,11 @@ PlaneSweepResult PlaneSweep(const SweepView& reference, const std::vector<SweepV
       band_ranges.last.assign(ranges.last.begin() + begin, ranges.last.begin() + end);
     }
     sweep::CostVolume& volume = buffers->volume;
-    result.evaluations += sweep::BuildCostVolume(band_gray, band_neighbours, engine, &volume,
-                                                 band_ranges.first.empty() ? nullptr : &band_ranges,
-                                                 result.bands == 1 ? reference.census.get() : nullptr);
+    const sweep::VolumeWork work = sweep::BuildCostVolume(band_gray, band_neighbours, engine, &volume,
+                                                          band_ranges.first.empty() ? nullptr : &band_ranges,
+                                                          result.bands == 1 ? reference.census.get() : nullptr);
+    result.evaluations += work.evaluations;
+    result.evaluation_seconds += work.seconds;
     sweep::Aggregated& aggregated = buffers->aggregated;
     sweep::Aggregate(volume, band_gray, engine, &aggregated, /*one_buffer=*/true);
     result.volume_bytes = std::max(result.volume_bytes,

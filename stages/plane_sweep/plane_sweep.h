@@ -110,6 +110,7 @@ struct PlaneSweepResult {
   FloatMap normals;      // 3 channels, camera frame, towards the camera; 0 where no depth
   FloatMap confidence;   // 1 channel in [0, 1]
   int64_t evaluations = 0;       // plane-pixel-neighbour cost evaluations done
+  double evaluation_seconds = 0;  // CPU time spent on them, summed over threads (sweep::VolumeWork)
   int64_t full_evaluations = 0;  // ... that sweeping every plane at every pixel would do
   double valid_fraction = 0;  // fraction of pixels with depth
   size_t volume_bytes = 0;    // bytes of the cost volumes held for this view (its largest band)

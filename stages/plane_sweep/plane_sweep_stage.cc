@@ -10,6 +10,7 @@
 #include <spdlog/spdlog.h>
 #include <sys/resource.h>
 #include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
 
 #include <CLI/CLI.hpp>
 #include <algorithm>
@@ -224,6 +225,7 @@ class PlaneSweepStage : public Stage {
                                             });
     const bool census_cost = context.params.String("cost") == "census";
     std::atomic<int64_t> evaluations_here{0};  // this run's own work, for its speed
+    std::atomic<double> evaluation_seconds_here{0.0};  // and the CPU time of its evaluations
     const PerViewSummary summary = ForEachView(context, "plane_sweep", names, [&](const std::string& name) {
       const int index = static_cast<int>(std::find(names.begin(), names.end(), name) - names.begin());
       const Image& image = model.images.at(ids[index]);
@@ -266,6 +268,9 @@ class PlaneSweepStage : public Stage {
       WriteColmapArray(context.workspace.NormalMapPath(name, "photometric"), result.normals);
       WriteColmapArray(context.workspace.ConfidenceMapPath(name, "photometric"), result.confidence);
       evaluations_here += result.evaluations;
+      for (double seen = evaluation_seconds_here.load();
+           !evaluation_seconds_here.compare_exchange_weak(seen, seen + result.evaluation_seconds);) {
+      }
       std::vector<std::string> neighbour_names;
       for (int j : chosen) neighbour_names.push_back(names[j]);
       return nlohmann::json{{"near", near}, {"far", far}, {"bounds_from", source}, {"neighbors", neighbour_names},
@@ -301,6 +306,14 @@ class PlaneSweepStage : public Stage {
     // Without per-pixel hull bounds every pixel would sweep every plane: the work they saved.
     context.metrics["evaluations_without_pixel_bounds"] = full_evaluations;
     context.metrics["evaluations_per_second"] = evaluations_here.load() / seconds;
+    // The evaluations alone, as if every thread spent all its time on them: the matching cost's
+    // own speed, which the stage's figure above dilutes with everything else a view needs
+    // (aggregation, winners, files).
+    const double threads = static_cast<double>(tbb::this_task_arena::max_concurrency());
+    const double per_core = evaluation_seconds_here.load() > 0 ? evaluations_here.load() / evaluation_seconds_here.load() : 0.0;
+    context.metrics["evaluations_per_cpu_second"] = per_core;
+    context.metrics["evaluation_threads"] = threads;
+    context.metrics["evaluations_per_second_all_threads"] = per_core * threads;
     context.metrics["mean_valid_fraction"] = names.empty() ? 0.0 : valid_sum / names.size();
     context.metrics["cost_volume_mb_per_view"] = volume_max;
     context.metrics["bands_per_view"] = bands_max;  // > 1: swept in bands of rows within max_view_memory_mb

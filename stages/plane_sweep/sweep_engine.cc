@@ -5,6 +5,7 @@
 #include <atomic>
 #include <cstdlib>
 #include <cstring>
+#include <ctime>
 #include <mutex>
 
 #include "stages/plane_sweep/sweep_kernels.h"
@@ -104,9 +105,15 @@ const char* IsaName(Isa isa) {
 #define IBMR_SWEEP_DISPATCH(call) return portable::call
 #endif
 
-int64_t BuildCostVolume(const cv::Mat& reference_gray, const std::vector<Neighbour>& neighbours,
-                        const EngineOptions& options, CostVolume* volume, const PlaneRanges* ranges,
-                        const std::vector<uint64_t>* reference_census) {
+double ThreadCpuSeconds() {
+  timespec now{};
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &now);
+  return static_cast<double>(now.tv_sec) + 1e-9 * static_cast<double>(now.tv_nsec);
+}
+
+VolumeWork BuildCostVolume(const cv::Mat& reference_gray, const std::vector<Neighbour>& neighbours,
+                           const EngineOptions& options, CostVolume* volume, const PlaneRanges* ranges,
+                           const std::vector<uint64_t>* reference_census) {
   IBMR_SWEEP_DISPATCH(BuildCostVolume(reference_gray, neighbours, options, volume, ranges, reference_census));
 }
 

@@ -80,11 +80,19 @@ struct PlaneRanges {
   std::vector<uint16_t> first, last;
 };
 
+// The matching costs' work in one volume: plane-pixel-neighbour evaluations done, and the CPU
+// time the threads spent on them (census: the loop that evaluates and combines the neighbours'
+// costs, summed over the threads that ran it; not the census transforms, the range fill or the
+// box filter). evaluations / seconds is the evaluations per second of one core at it.
+struct VolumeWork {
+  int64_t evaluations = 0;
+  double seconds = 0;
+};
+
 // Fills the matching-cost volume (reusing `volume`'s buffers when large enough): costs of all
-// neighbours per plane, best-k combined; `ranges` (optional) limits the planes per pixel. Returns
-// the number of plane-pixel-neighbour evaluations done.
+// neighbours per plane, best-k combined; `ranges` (optional) limits the planes per pixel.
 // `reference_census` (optional) is CensusTransform(reference_gray) like Neighbour::census.
-int64_t BuildCostVolume(const cv::Mat& reference_gray, const std::vector<Neighbour>& neighbours,
+VolumeWork BuildCostVolume(const cv::Mat& reference_gray, const std::vector<Neighbour>& neighbours,
                         const EngineOptions& options, CostVolume* volume, const PlaneRanges* ranges = nullptr,
                         const std::vector<uint64_t>* reference_census = nullptr);
 

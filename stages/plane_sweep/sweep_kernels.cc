@@ -1224,8 +1224,9 @@ void BestKMean(uint16_t* __restrict costs, size_t stride, int nn, int k, int k_s
 
 // Census costs of all neighbours, combined by best-k: the mean of the k smallest costs per plane.
 // With `ranges`, only the blocks of 16 planes that meet a pixel's range are evaluated (the rest
-// is left for ApplyRanges). Returns the evaluations done (counted per pixel over its own blocks).
-int64_t BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector<const std::vector<uint64_t>*>& src,
+// is left for ApplyRanges). Returns the evaluations done (counted per pixel over its own blocks)
+// and the threads' CPU time spent on them.
+VolumeWork BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector<const std::vector<uint64_t>*>& src,
                           const std::vector<Neighbour>& neighbours, int k, const PlaneRanges* ranges, CostVolume* v) {
   const int w = v->width, h = v->height, np = v->planes, n = v->stride;
   const int nn = static_cast<int>(neighbours.size());
@@ -1268,12 +1269,14 @@ int64_t BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector<co
   }
 #endif
   tbb::enumerable_thread_specific<int64_t> evaluations(0);
+  tbb::enumerable_thread_specific<double> thread_seconds(0.0);
   // Pixels in chunks of kChunk along a row. The plane-major kernel takes each neighbour in turn
   // over the chunk: the codes one neighbour's correspondences read for a chunk stay in the
   // first-level cache (pixel by pixel with every neighbour inside, the four neighbours' paths
   // together overflowed it). The lane kernel takes the chunk's 16 pixels at once.
   constexpr int kChunk = 16;
   tbb::parallel_for(tbb::blocked_range<int>(0, h, 4), [&](const tbb::blocked_range<int>& rows) {
+    const double started = ThreadCpuSeconds();
     // Per neighbour, n planes of kChunk pixels, [j][i][p]; across pixels, only the combined costs,
     // [p][j] in `lane_mean`.
     std::vector<uint16_t> chunk_costs(across_pixels ? 0 : static_cast<size_t>(kChunk) * nn * n, kMaxCost);
@@ -1349,8 +1352,9 @@ int64_t BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector<co
         }
       }
     }
+    thread_seconds.local() += ThreadCpuSeconds() - started;
   });
-  return evaluations.combine(std::plus<int64_t>());
+  return {evaluations.combine(std::plus<int64_t>()), thread_seconds.combine(std::plus<double>())};
 }
 
 // Planes outside each pixel's range take the mean of its in-range costs; an unmatched pixel
@@ -1439,8 +1443,8 @@ std::vector<uint64_t> CensusTransform(const cv::Mat& gray, int rx, int ry) {
   return codes;
 }
 
-int64_t BuildCostVolume(const cv::Mat& ref, const std::vector<Neighbour>& neighbours, const EngineOptions& o,
-                        CostVolume* volume, const PlaneRanges* ranges, const std::vector<uint64_t>* reference_census) {
+VolumeWork BuildCostVolume(const cv::Mat& ref, const std::vector<Neighbour>& neighbours, const EngineOptions& o,
+                           CostVolume* volume, const PlaneRanges* ranges, const std::vector<uint64_t>* reference_census) {
   const int w = ref.cols, h = ref.rows;
   const int planes = static_cast<int>(neighbours.front().homographies.size());
   const int nn = static_cast<int>(neighbours.size());
@@ -1485,11 +1489,12 @@ int64_t BuildCostVolume(const cv::Mat& ref, const std::vector<Neighbour>& neighb
   }
   const int k = std::min(o.best_k, nn);
   if (o.cost == Cost::kCensus) {
-    const int64_t evaluations = BuildCensusVolume(*reference_census, src_census, neighbours, k, ranges, volume);
+    const VolumeWork work = BuildCensusVolume(*reference_census, src_census, neighbours, k, ranges, volume);
     if (ranges != nullptr) ApplyRanges(*ranges, volume);
     BoxFilterVolume(volume, o.window_radius);
-    return evaluations;
+    return work;
   }
+  const double started = ThreadCpuSeconds();  // this thread's share only: a lower bound (SAD, ZNCC)
   tbb::enumerable_thread_specific<PlaneScratch> scratch;
   tbb::parallel_for(tbb::blocked_range<int>(0, planes, 1), [&](const tbb::blocked_range<int>& range) {
     PlaneScratch& s = scratch.local();
@@ -1526,7 +1531,7 @@ int64_t BuildCostVolume(const cv::Mat& ref, const std::vector<Neighbour>& neighb
     }
   });
   if (ranges != nullptr) ApplyRanges(*ranges, volume);  // evaluated everywhere, then limited
-  return static_cast<int64_t>(planes) * w * h * nn;
+  return {static_cast<int64_t>(planes) * w * h * nn, ThreadCpuSeconds() - started};
 }
 
 void Aggregate(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, bool one_buffer, Aggregated* out) {

@@ -6,9 +6,9 @@
 #include "stages/plane_sweep/sweep_engine.h"
 
 #define IBMR_SWEEP_KERNEL_DECLARATIONS                                                                         \
-  int64_t BuildCostVolume(const cv::Mat& reference_gray, const std::vector<Neighbour>& neighbours,              \
-                          const EngineOptions& options, CostVolume* volume, const PlaneRanges* ranges,          \
-                          const std::vector<uint64_t>* reference_census);                                      \
+  VolumeWork BuildCostVolume(const cv::Mat& reference_gray, const std::vector<Neighbour>& neighbours,           \
+                             const EngineOptions& options, CostVolume* volume, const PlaneRanges* ranges,       \
+                             const std::vector<uint64_t>* reference_census);                                   \
   void Aggregate(const CostVolume& volume, const cv::Mat& reference_gray, const EngineOptions& options,         \
                  bool one_buffer, Aggregated* out);                                                           \
   Winners WinnerTakeAll(const Aggregated& aggregated, const CostVolume* data_cost, double confidence_scale,     \
@@ -17,6 +17,8 @@
 
 namespace ibmr {
 namespace sweep {
+// CPU time of the calling thread, seconds (sweep_engine.cc).
+double ThreadCpuSeconds();
 namespace portable {
 IBMR_SWEEP_KERNEL_DECLARATIONS
 }  // namespace portable
