@@ -953,61 +953,78 @@ inline __m256i BilinearCost(__m512i d00, __m512i d01, __m512i d10, __m512i d11, 
   return _mm512_cvtepi32_epi16(cost);
 }
 
-// Hamming distances between 8 reference codes (one a lane) and the codes at index, index + 1,
-// index + sw and index + sw + 1 of 8 of the 16 lanes of `t` (lanes first..first+7, first 0 or 8),
-// as 8 x int64 each (any value in lanes not `valid`; Join packs two halves into 16 x int32 with one
-// permute). One plane maps neighbouring reference pixels to nearby codes: when the 8 top-left codes
-// lie within 15 columns and two rows of each other, contiguous loads of 16 codes from the rows
-// involved (three at most) and in-register permutes fetch them, else gathers do. (Epipolar lines
-// that are not horizontal cross rows often: on the Middlebury temple ring, half of the groups of 8
-// span two rows.) `window` (optional) receives the first code of the loads; it is left as it was when
-// gathers fetched them.
-inline void HalfDistances(__m512i codes, const LaneTaps& t, __mmask16 valid, int first, const uint64_t* src, int sw,
-                          int sh, __m512i d[4], const uint64_t** window = nullptr) {
-  const __mmask16 lanes = valid & static_cast<__mmask16>(0xFF << first);
-  const __mmask8 valid8 = static_cast<__mmask8>(lanes >> first);
-  if (valid8 == 0) {
-    for (int k = 0; k < 4; ++k) d[k] = _mm512_setzero_si512();
+// Hamming distances between 16 reference codes (one a lane; `codes[0]` holds lanes 0-7,
+// `codes[1]` lanes 8-15) and the codes at index, index + 1, index + sw and index + sw + 1 of `t`'s
+// lanes, as 8 x int64 per half and tap: d[h][k] (any value in lanes not `valid`; Join packs two
+// halves into 16 x int32 with one permute). One plane maps neighbouring reference pixels to nearby
+// codes: when a half's 8 top-left codes lie within 15 columns and two rows of each other,
+// contiguous loads of 16 codes from the rows involved (three at most) and in-register permutes
+// fetch them, else gathers do. (Epipolar lines that are not horizontal cross rows often: on the
+// Middlebury temple ring, half of the groups of 8 span two rows.) Both halves' windows are found at
+// once, in vector registers. `window` receives the first code of the low half's loads, or null
+// when gathers fetched them.
+inline void Distances(const __m512i codes[2], const LaneTaps& t, __mmask16 valid, const uint64_t* src, int sw, int sh,
+                      __m512i d[2][4], const uint64_t** window) {
+  *window = nullptr;
+  if (valid == 0) {
+    for (int h = 0; h < 2; ++h)
+      for (int k = 0; k < 4; ++k) d[h][k] = _mm512_setzero_si512();
     return;
   }
-  auto half = [&](__m512i v) { return first == 0 ? _mm512_castsi512_si256(v) : _mm512_extracti64x4_epi64(v, 1); };
-  auto count = [&](__m512i c) { return _mm512_popcnt_epi64(_mm512_xor_si512(c, codes)); };
-  // The window starts at the lesser of the first and last lanes' column and row (a homography
-  // maps a run of pixels to a run of codes in order, increasing or decreasing); every lane must
-  // then lie within 15 columns and 2 rows of it. The loads reach column x_min + 15 of row y_min + 2
-  // (codes past a row's end are never picked).
-  const __m256i column = half(t.column), row = half(t.row);
-  const int x_min = std::min(_mm256_cvtsi256_si32(column), _mm256_extract_epi32(column, 7));
-  const int y_min = std::min(_mm256_cvtsi256_si32(row), _mm256_extract_epi32(row, 7));
-  const __mmask8 near = _mm256_cmple_epu32_mask(_mm256_sub_epi32(column, _mm256_set1_epi32(x_min)), _mm256_set1_epi32(14)) &
-                        _mm256_cmple_epu32_mask(_mm256_sub_epi32(row, _mm256_set1_epi32(y_min)), _mm256_set1_epi32(1));
-  if (valid8 == 0xFF && near == 0xFF && static_cast<size_t>(y_min + 2) * sw + x_min + 16 <= static_cast<size_t>(sw) * sh) {
-    const __m512i at = _mm512_cvtepi32_epi64(_mm256_sub_epi32(column, _mm256_set1_epi32(x_min)));
-    const __m512i right = _mm512_add_epi64(at, _mm512_set1_epi64(1));
-    const uint64_t* r = src + static_cast<size_t>(y_min) * sw + x_min;
-    if (window != nullptr) *window = r;
-    const __m512i a0 = _mm512_loadu_si512(r), a1 = _mm512_loadu_si512(r + 8);
-    const __m512i b0 = _mm512_loadu_si512(r + sw), b1 = _mm512_loadu_si512(r + sw + 8);
-    __m512i top = _mm512_permutex2var_epi64(a0, at, a1), top_right = _mm512_permutex2var_epi64(a0, right, a1);
-    __m512i low = _mm512_permutex2var_epi64(b0, at, b1), low_right = _mm512_permutex2var_epi64(b0, right, b1);
-    // Lanes on the second row take it as their top and the third as their bottom (no branch: which
-    // lanes do is as good as random from one plane to the next).
-    const __mmask8 second = _mm256_cmpgt_epi32_mask(row, _mm256_set1_epi32(y_min));
-    const __m512i c0 = _mm512_loadu_si512(r + 2 * static_cast<size_t>(sw)), c1 = _mm512_loadu_si512(r + 2 * static_cast<size_t>(sw) + 8);
-    top = _mm512_mask_mov_epi64(top, second, low);
-    top_right = _mm512_mask_mov_epi64(top_right, second, low_right);
-    low = _mm512_mask_mov_epi64(low, second, _mm512_permutex2var_epi64(c0, at, c1));
-    low_right = _mm512_mask_mov_epi64(low_right, second, _mm512_permutex2var_epi64(c0, right, c1));
-    d[0] = count(top);
-    d[1] = count(top_right);
-    d[2] = count(low);
-    d[3] = count(low_right);
-    return;
-  }
-  const int offsets[4] = {0, 1, sw, sw + 1};
-  for (int k = 0; k < 4; ++k) {
-    const __m256i at = _mm256_add_epi32(half(t.index), _mm256_set1_epi32(offsets[k]));
-    d[k] = count(_mm512_mask_i32gather_epi64(_mm512_setzero_si512(), valid8, at, src, 8));
+  auto count = [&](__m512i c, __m512i code) { return _mm512_popcnt_epi64(_mm512_xor_si512(c, code)); };
+  // Each half's window starts at the lesser of its first and last lanes' column and row (a
+  // homography maps a run of pixels to a run of codes in order, increasing or decreasing); every
+  // lane must then lie within 15 columns and 2 rows of it. The loads reach column x_min + 15 of
+  // row y_min + 2 (codes past a row's end are never picked).
+  const __m512i first_lane = _mm512_set_epi32(8, 8, 8, 8, 8, 8, 8, 8, 0, 0, 0, 0, 0, 0, 0, 0);
+  const __m512i last_lane = _mm512_set_epi32(15, 15, 15, 15, 15, 15, 15, 15, 7, 7, 7, 7, 7, 7, 7, 7);
+  const __m512i x_min = _mm512_min_epi32(_mm512_permutexvar_epi32(first_lane, t.column), _mm512_permutexvar_epi32(last_lane, t.column));
+  const __m512i y_min = _mm512_min_epi32(_mm512_permutexvar_epi32(first_lane, t.row), _mm512_permutexvar_epi32(last_lane, t.row));
+  const __m512i column = _mm512_sub_epi32(t.column, x_min), row = _mm512_sub_epi32(t.row, y_min);
+  const __m512i start = _mm512_add_epi32(_mm512_mullo_epi32(y_min, _mm512_set1_epi32(sw)), x_min);
+  // Codes up to start + 2 sw + 15 exist (sw * sh codes: fewer than 2^31, as indices are int32).
+  const __mmask16 fast = valid & _mm512_cmple_epu32_mask(column, _mm512_set1_epi32(14)) &
+                         _mm512_cmple_epu32_mask(row, _mm512_set1_epi32(1)) &
+                         _mm512_cmple_epi32_mask(start, _mm512_set1_epi32(sw * (sh - 2) - 16));
+  // Lanes on the second row take it as their top and the third as their bottom (no branch: which
+  // lanes do is as good as random from one plane to the next).
+  const __mmask16 second = _mm512_cmpgt_epi32_mask(row, _mm512_setzero_si512());
+  const int starts[2] = {_mm_cvtsi128_si32(_mm512_castsi512_si128(start)),
+                         _mm_cvtsi128_si32(_mm512_extracti32x4_epi32(start, 2))};
+  for (int h = 0; h < 2; ++h) {
+    const __mmask8 lanes = static_cast<__mmask8>(valid >> (8 * h));
+    if (lanes == 0) {
+      for (int k = 0; k < 4; ++k) d[h][k] = _mm512_setzero_si512();
+      continue;
+    }
+    if (static_cast<__mmask8>(fast >> (8 * h)) == 0xFF) {
+      const __m256i half_column = h == 0 ? _mm512_castsi512_si256(column) : _mm512_extracti64x4_epi64(column, 1);
+      const __m512i at = _mm512_cvtepi32_epi64(half_column);
+      const __m512i right = _mm512_add_epi64(at, _mm512_set1_epi64(1));
+      const uint64_t* r = src + starts[h];
+      if (h == 0) *window = r;
+      const __m512i a0 = _mm512_loadu_si512(r), a1 = _mm512_loadu_si512(r + 8);
+      const __m512i b0 = _mm512_loadu_si512(r + sw), b1 = _mm512_loadu_si512(r + sw + 8);
+      const __m512i c0 = _mm512_loadu_si512(r + 2 * static_cast<size_t>(sw)), c1 = _mm512_loadu_si512(r + 2 * static_cast<size_t>(sw) + 8);
+      const __mmask8 on_second = static_cast<__mmask8>(second >> (8 * h));
+      __m512i top = _mm512_permutex2var_epi64(a0, at, a1), top_right = _mm512_permutex2var_epi64(a0, right, a1);
+      __m512i low = _mm512_permutex2var_epi64(b0, at, b1), low_right = _mm512_permutex2var_epi64(b0, right, b1);
+      top = _mm512_mask_mov_epi64(top, on_second, low);
+      top_right = _mm512_mask_mov_epi64(top_right, on_second, low_right);
+      low = _mm512_mask_mov_epi64(low, on_second, _mm512_permutex2var_epi64(c0, at, c1));
+      low_right = _mm512_mask_mov_epi64(low_right, on_second, _mm512_permutex2var_epi64(c0, right, c1));
+      d[h][0] = count(top, codes[h]);
+      d[h][1] = count(top_right, codes[h]);
+      d[h][2] = count(low, codes[h]);
+      d[h][3] = count(low_right, codes[h]);
+      continue;
+    }
+    const __m256i index = h == 0 ? _mm512_castsi512_si256(t.index) : _mm512_extracti64x4_epi64(t.index, 1);
+    const int offsets[4] = {0, 1, sw, sw + 1};
+    for (int k = 0; k < 4; ++k) {
+      const __m256i at = _mm256_add_epi32(index, _mm256_set1_epi32(offsets[k]));
+      d[h][k] = count(_mm512_mask_i32gather_epi64(_mm512_setzero_si512(), lanes, at, src, 8), codes[h]);
+    }
   }
 }
 
@@ -1040,8 +1057,8 @@ void BestKCostsAcrossPixels(const uint64_t* ref_codes, int count, const LaneNeig
                             int k_shift, int n, int p0, int p1, int x0, int y, uint16_t* out) {
   const int k = K > 0 ? K : runtime_k;
   const __mmask16 exist = static_cast<__mmask16>((1u << count) - 1);
-  const __m512i codes_lo = _mm512_maskz_loadu_epi64(static_cast<__mmask8>(exist), ref_codes);
-  const __m512i codes_hi = _mm512_maskz_loadu_epi64(static_cast<__mmask8>(exist >> 8), ref_codes + 8);
+  const __m512i codes[2] = {_mm512_maskz_loadu_epi64(static_cast<__mmask8>(exist), ref_codes),
+                            _mm512_maskz_loadu_epi64(static_cast<__mmask8>(exist >> 8), ref_codes + 8)};
   const __m512i lanes = _mm512_set_epi32(15, 14, 13, 12, 11, 10, 9, 8, 7, 6, 5, 4, 3, 2, 1, 0);
   const __m512 half = _mm512_set1_ps(0.5f);
   const __m512 xc = _mm512_add_ps(_mm512_cvtepi32_ps(_mm512_add_epi32(_mm512_set1_epi32(x0), lanes)), half);
@@ -1072,11 +1089,9 @@ void BestKCostsAcrossPixels(const uint64_t* ref_codes, int count, const LaneNeig
     previous_window[i] = -1;
     code_count[i] = static_cast<ptrdiff_t>(neighbours[i].width) * neighbours[i].height;
   }
-  for (int p = p0; p < p1; ++p) {
+  // Every neighbour's taps of plane p, into `taps`.
+  auto plane_taps = [&](int p, LaneTaps* taps) {
     const __m512 pf = _mm512_set1_ps(static_cast<float>(p));
-    __m256i best[16];
-    for (int q = 0; q < k; ++q) best[q] = _mm256_set1_epi16(-1);
-    __m256i total = _mm256_setzero_si256();
     for (int i = 0; i < nn; ++i) {
       const LaneNeighbour& g = neighbours[i];
       __m512 z, u, v;
@@ -1092,11 +1107,29 @@ void BestKCostsAcrossPixels(const uint64_t* ref_codes, int count, const LaneNeig
         u = _mm512_sub_ps(_mm512_div_ps(image(m, 0), z), half);
         v = _mm512_sub_ps(_mm512_div_ps(image(m, 3), z), half);
       }
-      const LaneTaps t = TapsOf(z, u, v, static_cast<float>(g.width - 1), static_cast<float>(g.height - 1), g.width);
+      taps[i] = TapsOf(z, u, v, static_cast<float>(g.width - 1), static_cast<float>(g.height - 1), g.width);
+    }
+  };
+  // The planes in a software pipeline: the taps of plane p + 1 are computed before plane p's codes
+  // are fetched. One neighbour's work for a plane is a chain of about 80 cycles' latency
+  // (divisions, conversions, the window's test, loads, permutes, popcounts, the weighting) that the
+  // core, on its own, overlapped with little more than the next neighbour's; so ordered, the taps'
+  // chains of the next plane run beside the fetches of this one.
+  LaneTaps pipeline[2][16];
+  if (p0 < p1) plane_taps(p0, pipeline[0]);
+  for (int p = p0; p < p1; ++p) {
+    const LaneTaps* taps = pipeline[(p - p0) & 1];
+    if (p + 1 < p1) plane_taps(p + 1, pipeline[(p + 1 - p0) & 1]);
+    __m256i best[16];
+    for (int q = 0; q < k; ++q) best[q] = _mm256_set1_epi16(-1);
+    __m256i total = _mm256_setzero_si256();
+    for (int i = 0; i < nn; ++i) {
+      const LaneNeighbour& g = neighbours[i];
+      const LaneTaps& t = taps[i];
       const __mmask16 valid = t.inside & exist;
-      __m512i lo[4], hi[4];
-      const uint64_t* window = nullptr;
-      HalfDistances(codes_lo, t, valid, 0, g.codes, g.width, g.height, lo, &window);
+      __m512i d[2][4];
+      const uint64_t* window;
+      Distances(codes, t, valid, g.codes, g.width, g.height, d, &window);
       if (window == nullptr) {
         previous_window[i] = -1;
       } else {
@@ -1113,8 +1146,7 @@ void BestKCostsAcrossPixels(const uint64_t* ref_codes, int count, const LaneNeig
         }
         previous_window[i] = window_offset;
       }
-      HalfDistances(codes_hi, t, valid, 8, g.codes, g.width, g.height, hi);
-      __m256i cost = BilinearCost(Join(lo[0], hi[0]), Join(lo[1], hi[1]), Join(lo[2], hi[2]), Join(lo[3], hi[3]), t.wx, t.wy, valid);
+      __m256i cost = BilinearCost(Join(d[0][0], d[1][0]), Join(d[0][1], d[1][1]), Join(d[0][2], d[1][2]), Join(d[0][3], d[1][3]), t.wx, t.wy, valid);
       if (k == nn) {
         total = _mm256_add_epi16(total, cost);  // at most 16 costs of 1024: no overflow
         continue;
