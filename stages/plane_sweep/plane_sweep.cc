@@ -300,44 +300,88 @@ PlaneSweepResult PlaneSweep(const SweepView& reference, const std::vector<SweepV
       }
     }
   }
-  // Bands of rows (one: the whole image), each matched with context rows around it.
-  PlaneSweepResult result;
-  result.bands = SweepBands(w, h, options);
-  result.full_evaluations = static_cast<int64_t>(np) * w * h * static_cast<int64_t>(neighbours.size());
-  cv::Mat winner_plane(h, w, CV_32F), winner_confidence(h, w, CV_32F);
-  sweep::BufferLease buffers;
-  for (int band = 0; band < result.bands; ++band) {
-    const int y0 = static_cast<int>(static_cast<int64_t>(band) * h / result.bands);
-    const int y1 = static_cast<int>(static_cast<int64_t>(band + 1) * h / result.bands);
-    const int c0 = result.bands == 1 ? 0 : std::max(0, y0 - kBandContextRows);
-    const int c1 = result.bands == 1 ? h : std::min(h, y1 + kBandContextRows);
-    const cv::Mat band_gray = result.bands == 1 ? reference.gray : reference.gray.rowRange(c0, c1).clone();
-    std::vector<sweep::Neighbour> band_neighbours = engine_neighbours;
-    if (c0 > 0) {  // band pixel (x, y) is the reference's (x, y + c0)
-      Eigen::Matrix3d shift = Eigen::Matrix3d::Identity();
-      shift(1, 2) = c0;
-      for (sweep::Neighbour& n : band_neighbours)
-        for (Eigen::Matrix3d& homography : n.homographies) homography = homography * shift;
+  // The part of the view that can hold a winner: the bounding box of the matched pixels, widened
+  // by twice the box filter's radius. Outside it every pixel is unmatched and so far from a
+  // matched one that its filtered costs are flat (kOutsideCost on every plane), and a semi-global
+  // path carries a flat curve unchanged (L = C: the penalties never apply), so the paths that
+  // start at the part's edge reach its pixels with the sums they had when started at the image's:
+  // the part's winners are those of the whole view. (Planes past num_planes up to the next
+  // multiple of 16 pad the volume; their sums do start afresh at the edge.) On templeSparseRing
+  // the object's box is about half of each view: the filter, the semi-global passes, the winners
+  // and the volumes' pages shrink with it.
+  cv::Rect region(0, 0, w, h);
+  if (!ranges.first.empty()) {
+    int x_lo = w, x_hi = -1, y_lo = h, y_hi = -1;
+    for (int y = 0; y < h; ++y) {
+      for (int x = 0; x < w; ++x) {
+        const size_t i = static_cast<size_t>(y) * w + x;
+        if (ranges.first[i] > ranges.last[i]) continue;
+        x_lo = std::min(x_lo, x), x_hi = std::max(x_hi, x), y_lo = std::min(y_lo, y), y_hi = std::max(y_hi, y);
+      }
     }
-    sweep::PlaneRanges band_ranges;
-    if (!ranges.first.empty()) {
-      const size_t begin = static_cast<size_t>(c0) * w, end = static_cast<size_t>(c1) * w;
-      band_ranges.first.assign(ranges.first.begin() + begin, ranges.first.begin() + end);
-      band_ranges.last.assign(ranges.last.begin() + begin, ranges.last.begin() + end);
+    const int margin = 2 * options.window_radius;
+    region = x_hi < 0 ? cv::Rect() : cv::Rect(cv::Point(x_lo - margin, y_lo - margin), cv::Point(x_hi + margin + 1, y_hi + margin + 1)) &
+                                         cv::Rect(0, 0, w, h);
+  }
+  // Bands of rows of the part (one: all of it), each matched with context rows around it.
+  PlaneSweepResult result;
+  result.bands = region.empty() ? 0 : SweepBands(region.width, region.height, options);
+  // A part's census codes are the whole view's (a window cut at the part's edge would differ).
+  std::shared_ptr<const std::vector<uint64_t>> census = reference.census;
+  const bool census_cost = options.cost == MatchCost::kCensus;
+  if (census_cost && (region.area() < w * h || result.bands > 1) &&
+      (census == nullptr || census->size() != static_cast<size_t>(w) * h)) {
+    census = std::make_shared<std::vector<uint64_t>>(
+        sweep::CensusTransform(reference.gray, options.census_radius_x, options.census_radius_y));
+  }
+  result.full_evaluations = static_cast<int64_t>(np) * w * h * static_cast<int64_t>(neighbours.size());
+  cv::Mat winner_plane(h, w, CV_32F, cv::Scalar(-1.f)), winner_confidence(h, w, CV_32F, cv::Scalar(0.f));
+  sweep::BufferLease buffers;
+  if (result.bands == 1) {
+    // The pooled volumes keep the capacity of a whole view, so that the parts of different sizes
+    // that views have reuse the pages earlier views faulted in (a vector that grows reallocates,
+    // to as much as twice its size, and every page of the new block faults again: on
+    // templeSparseRing 560 MB of first touches instead of 300). Only the pages a part touches
+    // take memory.
+    const size_t entries = static_cast<size_t>(w) * h * ((np + 15) / 16 * 16);
+    for (LargeBuffer<uint16_t>* buffer : {&buffers->volume.data, &buffers->aggregated.a}) {
+      if (buffer->capacity() >= entries) continue;
+      buffer->clear();  // no contents to move
+      buffer->reserve(entries);
+    }
+  }
+  for (int band = 0; band < result.bands; ++band) {
+    const int y0 = region.y + static_cast<int>(static_cast<int64_t>(band) * region.height / result.bands);
+    const int y1 = region.y + static_cast<int>(static_cast<int64_t>(band + 1) * region.height / result.bands);
+    const int c0 = result.bands == 1 ? region.y : std::max(region.y, y0 - kBandContextRows);
+    const int c1 = result.bands == 1 ? region.br().y : std::min(region.br().y, y1 + kBandContextRows);
+    const cv::Rect part(region.x, c0, region.width, c1 - c0);
+    const bool whole = part == cv::Rect(0, 0, w, h);
+    const cv::Mat part_gray = whole ? reference.gray : reference.gray(part).clone();
+    sweep::PlaneRanges part_ranges;
+    std::vector<uint64_t> part_census;
+    for (int y = part.y; y < part.br().y; ++y) {
+      const size_t begin = static_cast<size_t>(y) * w + part.x, end = begin + part.width;
+      if (!ranges.first.empty()) {
+        part_ranges.first.insert(part_ranges.first.end(), ranges.first.begin() + begin, ranges.first.begin() + end);
+        part_ranges.last.insert(part_ranges.last.end(), ranges.last.begin() + begin, ranges.last.begin() + end);
+      }
+      if (!whole && census_cost) part_census.insert(part_census.end(), census->begin() + begin, census->begin() + end);
     }
     sweep::CostVolume& volume = buffers->volume;
-    const sweep::VolumeWork work = sweep::BuildCostVolume(band_gray, band_neighbours, engine, &volume,
-                                                          band_ranges.first.empty() ? nullptr : &band_ranges,
-                                                          result.bands == 1 ? reference.census.get() : nullptr);
+    const sweep::VolumeWork work = sweep::BuildCostVolume(part_gray, engine_neighbours, engine, &volume,
+                                                          part_ranges.first.empty() ? nullptr : &part_ranges,
+                                                          whole ? census.get() : &part_census, part.tl());
     result.evaluations += work.evaluations;
     result.evaluation_seconds += work.seconds;
     sweep::Aggregated& aggregated = buffers->aggregated;
-    sweep::Aggregate(volume, band_gray, engine, &aggregated, /*one_buffer=*/true);
+    sweep::Aggregate(volume, part_gray, engine, &aggregated, /*one_buffer=*/true);
     result.volume_bytes = std::max(result.volume_bytes,
                                    (volume.data.size() + aggregated.a.size() + aggregated.b.size()) * sizeof(uint16_t));
     const sweep::Winners winners = sweep::WinnerTakeAll(aggregated, &volume, options.confidence_scale);
-    winners.plane.rowRange(y0 - c0, y1 - c0).copyTo(winner_plane.rowRange(y0, y1));
-    winners.confidence.rowRange(y0 - c0, y1 - c0).copyTo(winner_confidence.rowRange(y0, y1));
+    const cv::Rect own(region.x, y0, region.width, y1 - y0);
+    winners.plane.rowRange(y0 - c0, y1 - c0).copyTo(winner_plane(own));
+    winners.confidence.rowRange(y0 - c0, y1 - c0).copyTo(winner_confidence(own));
   }
   result.depth = DepthMap(w, h, 1, 0.f);
   result.confidence = FloatMap(w, h, 1, 0.f);

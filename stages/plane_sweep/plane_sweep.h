@@ -114,7 +114,7 @@ struct PlaneSweepResult {
   int64_t full_evaluations = 0;  // ... that sweeping every plane at every pixel would do
   double valid_fraction = 0;  // fraction of pixels with depth
   size_t volume_bytes = 0;    // bytes of the cost volumes held for this view (its largest band)
-  int bands = 1;              // bands of rows swept one after the other (1: the whole image)
+  int bands = 1;              // bands of rows swept one after the other (1: all at once; 0: no pixel to match)
 };
 
 // Per-pixel depth bounds of the reference view (z): `near`, e.g. the nearest surface of a visual

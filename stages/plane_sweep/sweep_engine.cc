@@ -113,8 +113,8 @@ double ThreadCpuSeconds() {
 
 VolumeWork BuildCostVolume(const cv::Mat& reference_gray, const std::vector<Neighbour>& neighbours,
                            const EngineOptions& options, CostVolume* volume, const PlaneRanges* ranges,
-                           const std::vector<uint64_t>* reference_census) {
-  IBMR_SWEEP_DISPATCH(BuildCostVolume(reference_gray, neighbours, options, volume, ranges, reference_census));
+                           const std::vector<uint64_t>* reference_census, cv::Point origin) {
+  IBMR_SWEEP_DISPATCH(BuildCostVolume(reference_gray, neighbours, options, volume, ranges, reference_census, origin));
 }
 
 void Aggregate(const CostVolume& volume, const cv::Mat& reference_gray, const EngineOptions& options,

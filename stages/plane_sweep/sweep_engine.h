@@ -92,9 +92,14 @@ struct VolumeWork {
 // Fills the matching-cost volume (reusing `volume`'s buffers when large enough): costs of all
 // neighbours per plane, best-k combined; `ranges` (optional) limits the planes per pixel.
 // `reference_census` (optional) is CensusTransform(reference_gray) like Neighbour::census.
+// `origin`: where pixel (0, 0) of `reference_gray` (and of the volume) lies in the image whose pixel
+// coordinates the homographies take, when the volume covers only a part of it (a crop or a band):
+// the census cost then projects each pixel from exactly the coordinates of the whole image, so the
+// part's costs are those of the same pixels in the whole (with `reference_census` the whole
+// image's codes of the part: a census window must not be cut at the part's edge).
 VolumeWork BuildCostVolume(const cv::Mat& reference_gray, const std::vector<Neighbour>& neighbours,
-                        const EngineOptions& options, CostVolume* volume, const PlaneRanges* ranges = nullptr,
-                        const std::vector<uint64_t>* reference_census = nullptr);
+                           const EngineOptions& options, CostVolume* volume, const PlaneRanges* ranges = nullptr,
+                           const std::vector<uint64_t>* reference_census = nullptr, cv::Point origin = cv::Point(0, 0));
 
 // Aggregated volume: the sum over paths (or the data cost itself without semi-global).
 struct Aggregated {

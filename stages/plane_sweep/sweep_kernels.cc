@@ -1259,7 +1259,8 @@ void BestKMean(uint16_t* __restrict costs, size_t stride, int nn, int k, int k_s
 // is left for ApplyRanges). Returns the evaluations done (counted per pixel over its own blocks)
 // and the threads' CPU time spent on them.
 VolumeWork BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector<const std::vector<uint64_t>*>& src,
-                          const std::vector<Neighbour>& neighbours, int k, const PlaneRanges* ranges, CostVolume* v) {
+                             const std::vector<Neighbour>& neighbours, int k, const PlaneRanges* ranges, cv::Point origin,
+                             CostVolume* v) {
   const int w = v->width, h = v->height, np = v->planes, n = v->stride;
   const int nn = static_cast<int>(neighbours.size());
   // Homographies as float rows of n planes (padding planes zero); integer shifts detected for
@@ -1347,7 +1348,7 @@ VolumeWork BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector
         if (across_pixels) {
           const int p_end = std::min(union_p1, np);
           lane_kernel(ref.data() + static_cast<size_t>(y) * w + x0, count, lane_neighbours.data(), nn, k, k_shift, n, union_p0,
-                      p_end, x0, y, lane_mean.data());
+                      p_end, x0 + origin.x, y + origin.y, lane_mean.data());
           for (int j = 0; j < count; ++j) {
             if (!chunk_live[j]) continue;
             uint16_t* out = v->At(x0 + j, y);
@@ -1366,12 +1367,13 @@ VolumeWork BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector
             const uint64_t code = ref[static_cast<size_t>(y) * w + x];
             uint16_t* c = chunk_costs.data() + (static_cast<size_t>(j) * nn + i) * n;
             if (shifts) {
-              ShiftCensusCosts(code, src[i]->data(), shift[i].data(), disparity_order[i], p0, std::min(p1, np), x, y, sw, sh, c);
+              ShiftCensusCosts(code, src[i]->data(), shift[i].data(), disparity_order[i], p0, std::min(p1, np), x + origin.x,
+                               y + origin.y, sw, sh, c);
             } else {
               if (affine[i]) {
-                ComputeAffineTaps(family[i], p0, p1, x + 0.5f, y + 0.5f, sw, sh, &taps);
+                ComputeAffineTaps(family[i], p0, p1, (x + origin.x) + 0.5f, (y + origin.y) + 0.5f, sw, sh, &taps);
               } else {
-                ComputeTaps(hom[i].data(), n, p0, p1, x + 0.5f, y + 0.5f, sw, sh, &taps);
+                ComputeTaps(hom[i].data(), n, p0, p1, (x + origin.x) + 0.5f, (y + origin.y) + 0.5f, sw, sh, &taps);
               }
               CensusCosts(code, src[i]->data(), sw, taps, p0, p1, c);
             }
@@ -1475,8 +1477,21 @@ std::vector<uint64_t> CensusTransform(const cv::Mat& gray, int rx, int ry) {
   return codes;
 }
 
-VolumeWork BuildCostVolume(const cv::Mat& ref, const std::vector<Neighbour>& neighbours, const EngineOptions& o,
-                           CostVolume* volume, const PlaneRanges* ranges, const std::vector<uint64_t>* reference_census) {
+VolumeWork BuildCostVolume(const cv::Mat& ref, const std::vector<Neighbour>& given_neighbours, const EngineOptions& o,
+                           CostVolume* volume, const PlaneRanges* ranges, const std::vector<uint64_t>* reference_census,
+                           cv::Point origin) {
+  // SAD and ZNCC warp whole planes of the reference's own pixel coordinates: for them the origin
+  // moves into the homographies (H T, T the shift by the origin), exact up to float rounding.
+  std::vector<Neighbour> shifted;
+  if (o.cost != Cost::kCensus && origin != cv::Point(0, 0)) {
+    Eigen::Matrix3d t = Eigen::Matrix3d::Identity();
+    t(0, 2) = origin.x;
+    t(1, 2) = origin.y;
+    shifted = given_neighbours;
+    for (Neighbour& n : shifted)
+      for (Eigen::Matrix3d& h : n.homographies) h = h * t;
+  }
+  const std::vector<Neighbour>& neighbours = shifted.empty() ? given_neighbours : shifted;
   const int w = ref.cols, h = ref.rows;
   const int planes = static_cast<int>(neighbours.front().homographies.size());
   const int nn = static_cast<int>(neighbours.size());
@@ -1521,7 +1536,7 @@ VolumeWork BuildCostVolume(const cv::Mat& ref, const std::vector<Neighbour>& nei
   }
   const int k = std::min(o.best_k, nn);
   if (o.cost == Cost::kCensus) {
-    const VolumeWork work = BuildCensusVolume(*reference_census, src_census, neighbours, k, ranges, volume);
+    const VolumeWork work = BuildCensusVolume(*reference_census, src_census, neighbours, k, ranges, origin, volume);
     if (ranges != nullptr) ApplyRanges(*ranges, volume);
     BoxFilterVolume(volume, o.window_radius);
     return work;

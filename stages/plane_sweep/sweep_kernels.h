@@ -8,7 +8,7 @@
 #define IBMR_SWEEP_KERNEL_DECLARATIONS                                                                         \
   VolumeWork BuildCostVolume(const cv::Mat& reference_gray, const std::vector<Neighbour>& neighbours,           \
                              const EngineOptions& options, CostVolume* volume, const PlaneRanges* ranges,       \
-                             const std::vector<uint64_t>* reference_census);                                   \
+                             const std::vector<uint64_t>* reference_census, cv::Point origin);                 \
   void Aggregate(const CostVolume& volume, const cv::Mat& reference_gray, const EngineOptions& options,         \
                  bool one_buffer, Aggregated* out);                                                           \
   Winners WinnerTakeAll(const Aggregated& aggregated, const CostVolume* data_cost, double confidence_scale,     \
