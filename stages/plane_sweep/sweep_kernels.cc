@@ -756,12 +756,14 @@ inline void StoreTap(float z, float u, float v, float max_u, float max_v, int sw
 
 #if IBMR_SWEEP_AVX512
 // StoreTap's steps for 16 lanes (16 planes of a pixel, or one plane of 16 pixels), kept in registers.
+// (The top-left code's index, row * sw + column, is left to the callers that need it: the lane
+// kernel finds most codes from the rows and columns alone.)
 struct LaneTaps {
-  __m512i index, wx, wy;
+  __m512i wx, wy;
   __m512i column, row;  // of the top-left code (0 outside)
   __mmask16 inside;
 };
-inline LaneTaps TapsOf(__m512 z, __m512 u, __m512 v, float max_u, float max_v, int sw) {
+inline LaneTaps TapsOf(__m512 z, __m512 u, __m512 v, float max_u, float max_v) {
   const __m512 half = _mm512_set1_ps(0.5f), zero = _mm512_setzero_ps(), one = _mm512_set1_ps(static_cast<float>(kWeightOne));
   LaneTaps t;
   t.inside = _mm512_cmp_ps_mask(z, zero, _CMP_GT_OQ) & _mm512_cmp_ps_mask(u, zero, _CMP_GE_OQ) &
@@ -772,8 +774,6 @@ inline LaneTaps TapsOf(__m512 z, __m512 u, __m512 v, float max_u, float max_v, i
   const __m512 ax = _mm512_sub_ps(uc, _mm512_cvtepi32_ps(x0)), ay = _mm512_sub_ps(vc, _mm512_cvtepi32_ps(y0));
   t.wx = _mm512_cvttps_epi32(_mm512_add_ps(_mm512_mul_ps(ax, one), half));
   t.wy = _mm512_cvttps_epi32(_mm512_add_ps(_mm512_mul_ps(ay, one), half));
-  const __m512i at = _mm512_add_epi32(_mm512_mullo_epi32(y0, _mm512_set1_epi32(sw)), x0);
-  t.index = _mm512_mask_blend_epi32(t.inside, _mm512_set1_epi32(-1), at);
   t.column = x0;
   t.row = y0;
   return t;
@@ -781,10 +781,11 @@ inline LaneTaps TapsOf(__m512 z, __m512 u, __m512 v, float max_u, float max_v, i
 
 // StoreTap for planes p..p+15, the same operations lane by lane.
 inline void StoreTaps16(__m512 z, __m512 u, __m512 v, float max_u, float max_v, int sw, int p, Taps* taps) {
-  const LaneTaps t = TapsOf(z, u, v, max_u, max_v, sw);
+  const LaneTaps t = TapsOf(z, u, v, max_u, max_v);
   _mm512_storeu_si512(taps->wx.data() + p, t.wx);
   _mm512_storeu_si512(taps->wy.data() + p, t.wy);
-  _mm512_storeu_si512(taps->index.data() + p, t.index);
+  const __m512i at = _mm512_add_epi32(_mm512_mullo_epi32(t.row, _mm512_set1_epi32(sw)), t.column);
+  _mm512_storeu_si512(taps->index.data() + p, _mm512_mask_blend_epi32(t.inside, _mm512_set1_epi32(-1), at));
 }
 #elif IBMR_SWEEP_AVX2
 // StoreTap for planes p..p+7, the same operations lane by lane (the masks are all-ones lanes).
@@ -1019,7 +1020,8 @@ inline void Distances(const __m512i codes[2], const LaneTaps& t, __mmask16 valid
       d[h][3] = count(low_right, codes[h]);
       continue;
     }
-    const __m256i index = h == 0 ? _mm512_castsi512_si256(t.index) : _mm512_extracti64x4_epi64(t.index, 1);
+    const __m512i all = _mm512_add_epi32(_mm512_mullo_epi32(t.row, _mm512_set1_epi32(sw)), t.column);
+    const __m256i index = h == 0 ? _mm512_castsi512_si256(all) : _mm512_extracti64x4_epi64(all, 1);
     const int offsets[4] = {0, 1, sw, sw + 1};
     for (int k = 0; k < 4; ++k) {
       const __m256i at = _mm256_add_epi32(index, _mm256_set1_epi32(offsets[k]));
@@ -1107,7 +1109,7 @@ void BestKCostsAcrossPixels(const uint64_t* ref_codes, int count, const LaneNeig
         u = _mm512_sub_ps(_mm512_div_ps(image(m, 0), z), half);
         v = _mm512_sub_ps(_mm512_div_ps(image(m, 3), z), half);
       }
-      taps[i] = TapsOf(z, u, v, static_cast<float>(g.width - 1), static_cast<float>(g.height - 1), g.width);
+      taps[i] = TapsOf(z, u, v, static_cast<float>(g.width - 1), static_cast<float>(g.height - 1));
     }
   };
   // The planes in a software pipeline: the taps of plane p + 1 are computed before plane p's codes
