@@ -3,8 +3,9 @@
 //  * synth object_ring (true depth): fraction of textured (object) pixels within 1% of the true
 //    depth, fraction kept, precision of the kept samples, time, evaluations per second;
 //  * Middlebury templeSparseRing at full resolution: plane_sweep wall time (MVE dmrecon: 161.6 s),
-//    evaluations per second, cost volume per view and peak memory, with the engine's build in use
-//    and again with the portable build;
+//    evaluations per second (over the stage's wall time, and over the CPU time of the evaluations
+//    alone: evaluations_per_second_all_threads), cost volume per view and peak memory, with the
+//    engine's build in use and again with the portable build;
 //  * Middlebury dinoSparseRing (untextured): fraction of pixels kept at the confidence threshold,
 //    on the object (grey >= 40) and on the black background;
 //  * the machine's limit for the census cost (MachineLimit: how it is derived).
