@@ -196,16 +196,22 @@ double SweepFixedBytesPerPixel(int num_neighbors) {
   return 1.0 + num_neighbors + 8 + 4 + 4 + 20 + 12;
 }
 
+namespace {
+// Entries per pixel of a cost volume of `num_planes` (padded to a multiple of 16, as the engine's).
+int VolumeStride(int num_planes) { return (num_planes + 15) / 16 * 16; }
+}  // namespace
+
 double SweepVolumeBytesPerRow(int width, int num_planes) {
-  const int stride = (num_planes + 15) / 16 * 16;
-  return 2.0 * width * stride * sizeof(uint16_t);
+  return 2.0 * width * VolumeStride(num_planes) * sizeof(uint16_t);
 }
 
-int SweepBands(int width, int height, const PlaneSweepOptions& options) {
+int SweepBands(int width, int height, const PlaneSweepOptions& options, int64_t view_pixels) {
   if (options.max_view_memory_mb <= 0) return 1;
   // What the program itself holds (code, TBB, pools) is counted in the stage's estimate, not here.
+  // The fixed maps cover the whole reference, however small the part swept.
   const double budget = options.max_view_memory_mb * 1048576.0 -
-                        SweepFixedBytesPerPixel(options.num_neighbors) * width * height;
+                        SweepFixedBytesPerPixel(options.num_neighbors) *
+                            static_cast<double>(view_pixels >= 0 ? view_pixels : static_cast<int64_t>(width) * height);
   const double per_row = SweepVolumeBytesPerRow(width, options.num_planes);
   if (per_row * height <= budget) return 1;
   // A band's own rows plus its context rows must fit; at least 16 own rows however small the budget.
@@ -305,10 +311,10 @@ PlaneSweepResult PlaneSweep(const SweepView& reference, const std::vector<SweepV
   // matched one that its filtered costs are flat (kOutsideCost on every plane), and a semi-global
   // path carries a flat curve unchanged (L = C: the penalties never apply), so the paths that
   // start at the part's edge reach its pixels with the sums they had when started at the image's:
-  // the part's winners are those of the whole view. (Planes past num_planes up to the next
-  // multiple of 16 pad the volume; their sums do start afresh at the edge.) On templeSparseRing
-  // the object's box is about half of each view: the filter, the semi-global passes, the winners
-  // and the volumes' pages shrink with it.
+  // the part's winners are those of the whole view (census, SAD and ZNCC alike: the engine
+  // projects the part's pixels from the whole image's coordinates; SweepEngine.APartAtItsOrigin-
+  // MatchesLikeTheWholeView). The filter, the semi-global passes, the winners and the volumes'
+  // pages shrink with the part (on templeSparseRing it spans every row and 81-96% of a view).
   cv::Rect region(0, 0, w, h);
   if (!ranges.first.empty()) {
     int x_lo = w, x_hi = -1, y_lo = h, y_hi = -1;
@@ -325,11 +331,11 @@ PlaneSweepResult PlaneSweep(const SweepView& reference, const std::vector<SweepV
   }
   // Bands of rows of the part (one: all of it), each matched with context rows around it.
   PlaneSweepResult result;
-  result.bands = region.empty() ? 0 : SweepBands(region.width, region.height, options);
+  result.bands = region.empty() ? 0 : SweepBands(region.width, region.height, options, static_cast<int64_t>(w) * h);
   // A part's census codes are the whole view's (a window cut at the part's edge would differ).
   std::shared_ptr<const std::vector<uint64_t>> census = reference.census;
   const bool census_cost = options.cost == MatchCost::kCensus;
-  if (census_cost && (region.area() < w * h || result.bands > 1) &&
+  if (census_cost && result.bands > 0 && (region.area() < w * h || result.bands > 1) &&
       (census == nullptr || census->size() != static_cast<size_t>(w) * h)) {
     census = std::make_shared<std::vector<uint64_t>>(
         sweep::CensusTransform(reference.gray, options.census_radius_x, options.census_radius_y));
@@ -343,7 +349,7 @@ PlaneSweepResult PlaneSweep(const SweepView& reference, const std::vector<SweepV
     // to as much as twice its size, and every page of the new block faults again: on
     // templeSparseRing 560 MB of first touches instead of 300). Only the pages a part touches
     // take memory.
-    const size_t entries = static_cast<size_t>(w) * h * ((np + 15) / 16 * 16);
+    const size_t entries = static_cast<size_t>(w) * h * VolumeStride(np);
     for (LargeBuffer<uint16_t>* buffer : {&buffers->volume.data, &buffers->aggregated.a}) {
       if (buffer->capacity() >= entries) continue;
       buffer->clear();  // no contents to move

@@ -101,16 +101,16 @@ double SweepFixedBytesPerPixel(int num_neighbors);
 // two passes update in place; 16 bits per plane, planes padded to 16) per reference row of width
 // `width`.
 double SweepVolumeBytesPerRow(int width, int num_planes);
-// Bands of rows a sweep of a width x height reference takes within options.max_view_memory_mb
-// (1: the whole image at once).
-int SweepBands(int width, int height, const PlaneSweepOptions& options);
+// Bands of rows a sweep of a width x height part of a reference of `view_pixels` pixels (-1: the
+// part is the whole reference) takes within options.max_view_memory_mb (1: the whole part at once).
+int SweepBands(int width, int height, const PlaneSweepOptions& options, int64_t view_pixels = -1);
 
 struct PlaneSweepResult {
   DepthMap depth;        // z depth, 0: no estimate (confidence below the threshold)
   FloatMap normals;      // 3 channels, camera frame, towards the camera; 0 where no depth
   FloatMap confidence;   // 1 channel in [0, 1]
   int64_t evaluations = 0;       // plane-pixel-neighbour cost evaluations done
-  double evaluation_seconds = 0;  // CPU time spent on them, summed over threads (sweep::VolumeWork)
+  double evaluation_seconds = 0;  // the threads' CPU time spent on them, summed (sweep::VolumeWork)
   int64_t full_evaluations = 0;  // ... that sweeping every plane at every pixel would do
   double valid_fraction = 0;  // fraction of pixels with depth
   size_t volume_bytes = 0;    // bytes of the cost volumes held for this view (its largest band)
@@ -127,11 +127,13 @@ struct PixelDepthBounds {
 // Sweeps `near`..`far` (z in the reference camera, 0 < near < far). With `pixel_bounds`, each
 // bounded pixel matches only the planes within its bounds widened by options.depth_margin (and one
 // plane), and a winner that smoothing carried outside them is dropped; unbounded pixels sweep every
-// plane. When the cost volumes of the whole image exceed options.max_view_memory_mb, the
-// reference is swept in bands of rows (SweepBands): each band is matched with kBandContextRows
-// more rows above and below (its homographies shifted by the band's first row) and keeps the
-// winners of its own rows. Inside a band's rows the result differs from the whole image's only
-// where a semi-global path would have carried information from beyond the context rows.
+// plane. Only the box of the pixels that are matched (widened by twice the filter radius) is swept:
+// the winners are those of the whole image (see the comment in PlaneSweep). When the cost volumes
+// of that part exceed options.max_view_memory_mb, it is swept in bands of rows (SweepBands): each
+// band is matched with kBandContextRows more rows above and below (as a part at its origin in the
+// reference, sweep::BuildCostVolume) and keeps the winners of its own rows. Inside a band's rows
+// the result differs from the whole image's only where a semi-global path would have carried
+// information from beyond the context rows.
 PlaneSweepResult PlaneSweep(const SweepView& reference, const std::vector<SweepView>& neighbours, double near,
                             double far, const PlaneSweepOptions& options,
                             const PixelDepthBounds* pixel_bounds = nullptr);

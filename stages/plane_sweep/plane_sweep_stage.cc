@@ -10,6 +10,7 @@
 #include <spdlog/spdlog.h>
 #include <sys/resource.h>
 #include <tbb/parallel_for.h>
+#include <tbb/global_control.h>
 #include <tbb/task_arena.h>
 
 #include <CLI/CLI.hpp>
@@ -309,7 +310,9 @@ class PlaneSweepStage : public Stage {
     // The evaluations alone, as if every thread spent all its time on them: the matching cost's
     // own speed, which the stage's figure above dilutes with everything else a view needs
     // (aggregation, winners, files).
-    const double threads = static_cast<double>(tbb::this_task_arena::max_concurrency());
+    const double threads = static_cast<double>(std::min<size_t>(
+        static_cast<size_t>(tbb::this_task_arena::max_concurrency()),
+        tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism)));
     const double per_core = evaluation_seconds_here.load() > 0 ? evaluations_here.load() / evaluation_seconds_here.load() : 0.0;
     context.metrics["evaluations_per_cpu_second"] = per_core;
     context.metrics["evaluation_threads"] = threads;

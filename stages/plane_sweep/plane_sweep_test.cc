@@ -342,67 +342,85 @@ TEST(SweepEngine, VectorisedAndPortableBuildsAreBitIdentical) {
 // semi-global sums' winners and certainties of the whole view: outside the part every pixel is
 // unmatched and flat after the filter, and a path carries a flat curve unchanged.
 TEST(SweepEngine, APartAtItsOriginMatchesLikeTheWholeView) {
-  const int w = 96, h = 64, planes = 32;
-  const cv::Mat ref = RandomTexture(w, h, 21);
-  std::vector<sweep::Neighbour> neighbours(2);
-  for (int i = 0; i < 2; ++i) {
-    neighbours[i].gray = RandomTexture(w, h, 22 + i);
-    for (int p = 0; p < planes; ++p) {  // not affine in p, not integer shifts: the general path
-      Eigen::Matrix3d m = Eigen::Matrix3d::Identity();
-      m(0, 2) = (i == 0 ? -0.37 : 0.41) * p + 0.013 * p * p, m(1, 2) = 0.05 * p, m(2, 0) = 1e-4 * (i + 1);
-      neighbours[i].homographies.push_back(m);
+  struct Case {
+    int planes, window_radius, p1, p2;
+    sweep::Cost cost;
+  };
+  // Plane counts with and without padding planes, both semi-global pass kinds (up to 64 planes
+  // and beyond), no filter, and penalties large enough for the padding planes' sums to matter.
+  for (const Case& c : {Case{32, 1, 120, 900, sweep::Cost::kCensus}, Case{40, 0, 2000, 6000, sweep::Cost::kCensus},
+                        Case{72, 1, 2000, 6000, sweep::Cost::kCensus}, Case{24, 1, 120, 900, sweep::Cost::kSad},
+                        Case{24, 2, 120, 900, sweep::Cost::kZncc}}) {
+    SCOPED_TRACE(std::to_string(c.planes) + " planes, radius " + std::to_string(c.window_radius) + ", cost " +
+                 std::to_string(static_cast<int>(c.cost)));
+    const int w = 96, h = 64, planes = c.planes;
+    const cv::Mat ref = RandomTexture(w, h, 21);
+    std::vector<sweep::Neighbour> neighbours(2);
+    for (int i = 0; i < 2; ++i) {
+      neighbours[i].gray = RandomTexture(w, h, 22 + i);
+      for (int p = 0; p < planes; ++p) {  // not affine in p, not integer shifts: the general path
+        Eigen::Matrix3d m = Eigen::Matrix3d::Identity();
+        m(0, 2) = (i == 0 ? -0.37 : 0.41) * p + 0.013 * p * p, m(1, 2) = 0.05 * p, m(2, 0) = 1e-4 * (i + 1);
+        neighbours[i].homographies.push_back(m);
+      }
     }
-  }
-  const cv::Rect block(30, 20, 31, 23);  // the matched pixels
-  sweep::PlaneRanges ranges;
-  ranges.first.assign(static_cast<size_t>(w) * h, 1);
-  ranges.last.assign(ranges.first.size(), 0);
-  for (int y = block.y; y < block.br().y; ++y) {
-    for (int x = block.x; x < block.br().x; ++x) {
-      ranges.first[static_cast<size_t>(y) * w + x] = static_cast<uint16_t>(x % 5);  // ranges of their own too
-      ranges.last[static_cast<size_t>(y) * w + x] = static_cast<uint16_t>(planes - 1 - y % 7);
+    const cv::Rect block(30, 20, 31, 23);  // the matched pixels
+    sweep::PlaneRanges ranges;
+    ranges.first.assign(static_cast<size_t>(w) * h, 1);
+    ranges.last.assign(ranges.first.size(), 0);
+    for (int y = block.y; y < block.br().y; ++y) {
+      for (int x = block.x; x < block.br().x; ++x) {
+        ranges.first[static_cast<size_t>(y) * w + x] = static_cast<uint16_t>(x % 5);  // ranges of their own too
+        ranges.last[static_cast<size_t>(y) * w + x] = static_cast<uint16_t>(planes - 1 - y % 7);
+      }
     }
-  }
-  const sweep::EngineOptions options;
-  sweep::CostVolume whole_volume;
-  sweep::Aggregated whole_sums;
-  sweep::BuildCostVolume(ref, neighbours, options, &whole_volume, &ranges);
-  sweep::Aggregate(whole_volume, ref, options, &whole_sums, true);
-  const sweep::Winners whole = sweep::WinnerTakeAll(whole_sums, &whole_volume, 1.0);
+    sweep::EngineOptions options;
+    options.cost = c.cost;
+    options.window_radius = c.window_radius;
+    options.p1 = c.p1;
+    options.p2 = c.p2;
+    sweep::CostVolume whole_volume;
+    sweep::Aggregated whole_sums;
+    sweep::BuildCostVolume(ref, neighbours, options, &whole_volume, &ranges);
+    sweep::Aggregate(whole_volume, ref, options, &whole_sums, true);
+    const sweep::Winners whole = sweep::WinnerTakeAll(whole_sums, &whole_volume, 1.0);
 
-  const int margin = 2 * options.window_radius;
-  const cv::Rect part(block.x - margin, block.y - margin, block.width + 2 * margin, block.height + 2 * margin);
-  const std::vector<uint64_t> census = sweep::CensusTransform(ref, options.census_radius_x, options.census_radius_y);
-  sweep::PlaneRanges part_ranges;
-  std::vector<uint64_t> part_census;
-  for (int y = part.y; y < part.br().y; ++y) {
-    const size_t begin = static_cast<size_t>(y) * w + part.x, end = begin + part.width;
-    part_ranges.first.insert(part_ranges.first.end(), ranges.first.begin() + begin, ranges.first.begin() + end);
-    part_ranges.last.insert(part_ranges.last.end(), ranges.last.begin() + begin, ranges.last.begin() + end);
-    part_census.insert(part_census.end(), census.begin() + begin, census.begin() + end);
-  }
-  const cv::Mat part_gray = ref(part).clone();
-  sweep::CostVolume part_volume;
-  sweep::Aggregated part_sums;
-  sweep::BuildCostVolume(part_gray, neighbours, options, &part_volume, &part_ranges, &part_census, part.tl());
-  sweep::Aggregate(part_volume, part_gray, options, &part_sums, true);
-  const sweep::Winners in_part = sweep::WinnerTakeAll(part_sums, &part_volume, 1.0);
-
-  int with_winner = 0;
-  for (int y = block.y; y < block.br().y; ++y) {
-    for (int x = block.x; x < block.br().x; ++x) {
-      const int px = x - part.x, py = y - part.y;
-      for (int p = 0; p < planes; ++p) ASSERT_EQ(whole_volume.At(x, y)[p], part_volume.At(px, py)[p]) << x << "," << y << " plane " << p;
-      ASSERT_EQ(whole.plane.at<float>(y, x), in_part.plane.at<float>(py, px)) << x << "," << y;
-      ASSERT_EQ(whole.confidence.at<float>(y, x), in_part.confidence.at<float>(py, px)) << x << "," << y;
-      with_winner += whole.plane.at<float>(y, x) >= 0;
+    const int margin = 2 * options.window_radius;
+    const cv::Rect part(block.x - margin, block.y - margin, block.width + 2 * margin, block.height + 2 * margin);
+    const std::vector<uint64_t> census = sweep::CensusTransform(ref, options.census_radius_x, options.census_radius_y);
+    sweep::PlaneRanges part_ranges;
+    std::vector<uint64_t> part_census;
+    for (int y = part.y; y < part.br().y; ++y) {
+      const size_t begin = static_cast<size_t>(y) * w + part.x, end = begin + part.width;
+      part_ranges.first.insert(part_ranges.first.end(), ranges.first.begin() + begin, ranges.first.begin() + end);
+      part_ranges.last.insert(part_ranges.last.end(), ranges.last.begin() + begin, ranges.last.begin() + end);
+      part_census.insert(part_census.end(), census.begin() + begin, census.begin() + end);
     }
+    const cv::Mat part_gray = ref(part).clone();
+    sweep::CostVolume part_volume;
+    sweep::Aggregated part_sums;
+    sweep::BuildCostVolume(part_gray, neighbours, options, &part_volume, &part_ranges, &part_census, part.tl());
+    sweep::Aggregate(part_volume, part_gray, options, &part_sums, true);
+    const sweep::Winners in_part = sweep::WinnerTakeAll(part_sums, &part_volume, 1.0);
+
+    int with_winner = 0;
+    for (int y = block.y; y < block.br().y; ++y) {
+      for (int x = block.x; x < block.br().x; ++x) {
+        const int px = x - part.x, py = y - part.y;
+        for (int p = 0; p < planes; ++p) {
+          ASSERT_EQ(whole_volume.At(x, y)[p], part_volume.At(px, py)[p]) << x << "," << y << " plane " << p;
+        }
+        ASSERT_EQ(whole.plane.at<float>(y, x), in_part.plane.at<float>(py, px)) << x << "," << y;
+        ASSERT_EQ(whole.confidence.at<float>(y, x), in_part.confidence.at<float>(py, px)) << x << "," << y;
+        with_winner += whole.plane.at<float>(y, x) >= 0;
+      }
+    }
+    EXPECT_EQ(with_winner, block.area());
+    // Without the origin the part's pixels would be projected as the whole view's top-left ones.
+    sweep::CostVolume misplaced;
+    sweep::BuildCostVolume(part_gray, neighbours, options, &misplaced, &part_ranges, &part_census);
+    EXPECT_NE(misplaced.data, part_volume.data);
   }
-  EXPECT_EQ(with_winner, block.area());
-  // Without the origin the part's pixels would be projected as the whole view's top-left ones.
-  sweep::CostVolume misplaced;
-  sweep::BuildCostVolume(part_gray, neighbours, options, &misplaced, &part_ranges, &part_census);
-  EXPECT_NE(misplaced.data, part_volume.data);
 }
 
 // The box aggregation (in place, in bands of rows that share their edge rows) against its

@@ -85,15 +85,16 @@ bool IsIntegerTranslation(const Eigen::Matrix3d& h, int* dx, int* dy) {
   return true;
 }
 
-// Bilinear warp of the neighbour's grey image by the plane homography; NaN outside.
-void WarpGray(const cv::Mat& src, int w, int h, const Eigen::Matrix3d& hom, float* out) {
+// Bilinear warp of the neighbour's grey image by the plane homography, for the w x h pixels from
+// `origin` of the image the homography maps from; NaN outside.
+void WarpGray(const cv::Mat& src, int w, int h, cv::Point origin, const Eigen::Matrix3d& hom, float* out) {
   const float h00 = hom(0, 0), h01 = hom(0, 1), h02 = hom(0, 2), h10 = hom(1, 0), h11 = hom(1, 1),
               h12 = hom(1, 2), h20 = hom(2, 0), h21 = hom(2, 1), h22 = hom(2, 2);
   const int sw = src.cols, sh = src.rows;
   for (int y = 0; y < h; ++y) {
-    const float yc = y + 0.5f;
+    const float yc = (y + origin.y) + 0.5f;
     for (int x = 0; x < w; ++x) {
-      const float xc = x + 0.5f;
+      const float xc = (x + origin.x) + 0.5f;
       const float z = h20 * xc + h21 * yc + h22;
       const float u = (h00 * xc + h01 * yc + h02) / z - 0.5f, v = (h10 * xc + h11 * yc + h12) / z - 0.5f;
       float value = std::numeric_limits<float>::quiet_NaN();
@@ -150,10 +151,11 @@ void BoxMeanFloat(const float* in, float* out, int w, int h, int r) {
   cv::boxFilter(src, dst, CV_32F, cv::Size(2 * r + 1, 2 * r + 1), cv::Point(-1, -1), true, cv::BORDER_REFLECT);
 }
 
-void SadSlice(const cv::Mat& ref, const cv::Mat& src, const Eigen::Matrix3d& hom, PlaneScratch* s, uint16_t* out) {
+void SadSlice(const cv::Mat& ref, cv::Point origin, const cv::Mat& src, const Eigen::Matrix3d& hom, PlaneScratch* s,
+              uint16_t* out) {
   const int w = ref.cols, h = ref.rows;
   s->warped.resize(static_cast<size_t>(w) * h);
-  WarpGray(src, w, h, hom, s->warped.data());
+  WarpGray(src, w, h, origin, hom, s->warped.data());
   for (int y = 0; y < h; ++y) {
     const uint8_t* r = ref.ptr<uint8_t>(y);
     for (int x = 0; x < w; ++x) {
@@ -164,7 +166,7 @@ void SadSlice(const cv::Mat& ref, const cv::Mat& src, const Eigen::Matrix3d& hom
   }
 }
 
-void ZnccSlice(const cv::Mat& ref, const cv::Mat& ref_mean, const cv::Mat& ref_var, const cv::Mat& src,
+void ZnccSlice(const cv::Mat& ref, cv::Point origin, const cv::Mat& ref_mean, const cv::Mat& ref_var, const cv::Mat& src,
                const Eigen::Matrix3d& hom, int radius, PlaneScratch* s, uint16_t* out) {
   const int w = ref.cols, h = ref.rows;
   const size_t n = static_cast<size_t>(w) * h;
@@ -172,7 +174,7 @@ void ZnccSlice(const cv::Mat& ref, const cv::Mat& ref_mean, const cv::Mat& ref_v
   s->wsum.resize(n);
   s->wsq.resize(n);
   s->wcross.resize(n);
-  WarpGray(src, w, h, hom, s->warped.data());
+  WarpGray(src, w, h, origin, hom, s->warped.data());
   std::vector<uint8_t> outside(n);
   for (size_t i = 0; i < n; ++i) {
     outside[i] = std::isnan(s->warped[i]);
@@ -779,13 +781,17 @@ inline LaneTaps TapsOf(__m512 z, __m512 u, __m512 v, float max_u, float max_v) {
   return t;
 }
 
+// Each lane's top-left code index, row * sw + column (any value outside).
+inline __m512i LaneIndex(const LaneTaps& t, int sw) {
+  return _mm512_add_epi32(_mm512_mullo_epi32(t.row, _mm512_set1_epi32(sw)), t.column);
+}
+
 // StoreTap for planes p..p+15, the same operations lane by lane.
 inline void StoreTaps16(__m512 z, __m512 u, __m512 v, float max_u, float max_v, int sw, int p, Taps* taps) {
   const LaneTaps t = TapsOf(z, u, v, max_u, max_v);
   _mm512_storeu_si512(taps->wx.data() + p, t.wx);
   _mm512_storeu_si512(taps->wy.data() + p, t.wy);
-  const __m512i at = _mm512_add_epi32(_mm512_mullo_epi32(t.row, _mm512_set1_epi32(sw)), t.column);
-  _mm512_storeu_si512(taps->index.data() + p, _mm512_mask_blend_epi32(t.inside, _mm512_set1_epi32(-1), at));
+  _mm512_storeu_si512(taps->index.data() + p, _mm512_mask_blend_epi32(t.inside, _mm512_set1_epi32(-1), LaneIndex(t, sw)));
 }
 #elif IBMR_SWEEP_AVX2
 // StoreTap for planes p..p+7, the same operations lane by lane (the masks are all-ones lanes).
@@ -967,11 +973,6 @@ inline __m256i BilinearCost(__m512i d00, __m512i d01, __m512i d10, __m512i d11, 
 inline void Distances(const __m512i codes[2], const LaneTaps& t, __mmask16 valid, const uint64_t* src, int sw, int sh,
                       __m512i d[2][4], const uint64_t** window) {
   *window = nullptr;
-  if (valid == 0) {
-    for (int h = 0; h < 2; ++h)
-      for (int k = 0; k < 4; ++k) d[h][k] = _mm512_setzero_si512();
-    return;
-  }
   auto count = [&](__m512i c, __m512i code) { return _mm512_popcnt_epi64(_mm512_xor_si512(c, code)); };
   // Each half's window starts at the lesser of its first and last lanes' column and row (a
   // homography maps a run of pixels to a run of codes in order, increasing or decreasing); every
@@ -1020,7 +1021,7 @@ inline void Distances(const __m512i codes[2], const LaneTaps& t, __mmask16 valid
       d[h][3] = count(low_right, codes[h]);
       continue;
     }
-    const __m512i all = _mm512_add_epi32(_mm512_mullo_epi32(t.row, _mm512_set1_epi32(sw)), t.column);
+    const __m512i all = LaneIndex(t, sw);
     const __m256i index = h == 0 ? _mm512_castsi512_si256(all) : _mm512_extracti64x4_epi64(all, 1);
     const int offsets[4] = {0, 1, sw, sw + 1};
     for (int k = 0; k < 4; ++k) {
@@ -1404,7 +1405,9 @@ void ApplyRanges(const PlaneRanges& ranges, CostVolume* v) {
       const int first = ranges.first[pixel], last = std::min<int>(ranges.last[pixel], np - 1);
       uint16_t* c = v->At(x, y);
       if (first > last) {
-        std::fill(c, c + np, kOutsideCost);
+        // Flat over the padding planes too: a semi-global path then carries this pixel's curve
+        // unchanged (PlaneSweep's crop relies on it).
+        std::fill(c, c + v->stride, kOutsideCost);
         v->unmatched[pixel] = 1;
         continue;
       }
@@ -1479,21 +1482,9 @@ std::vector<uint64_t> CensusTransform(const cv::Mat& gray, int rx, int ry) {
   return codes;
 }
 
-VolumeWork BuildCostVolume(const cv::Mat& ref, const std::vector<Neighbour>& given_neighbours, const EngineOptions& o,
+VolumeWork BuildCostVolume(const cv::Mat& ref, const std::vector<Neighbour>& neighbours, const EngineOptions& o,
                            CostVolume* volume, const PlaneRanges* ranges, const std::vector<uint64_t>* reference_census,
                            cv::Point origin) {
-  // SAD and ZNCC warp whole planes of the reference's own pixel coordinates: for them the origin
-  // moves into the homographies (H T, T the shift by the origin), exact up to float rounding.
-  std::vector<Neighbour> shifted;
-  if (o.cost != Cost::kCensus && origin != cv::Point(0, 0)) {
-    Eigen::Matrix3d t = Eigen::Matrix3d::Identity();
-    t(0, 2) = origin.x;
-    t(1, 2) = origin.y;
-    shifted = given_neighbours;
-    for (Neighbour& n : shifted)
-      for (Eigen::Matrix3d& h : n.homographies) h = h * t;
-  }
-  const std::vector<Neighbour>& neighbours = shifted.empty() ? given_neighbours : shifted;
   const int w = ref.cols, h = ref.rows;
   const int planes = static_cast<int>(neighbours.front().homographies.size());
   const int nn = static_cast<int>(neighbours.size());
@@ -1543,9 +1534,10 @@ VolumeWork BuildCostVolume(const cv::Mat& ref, const std::vector<Neighbour>& giv
     BoxFilterVolume(volume, o.window_radius);
     return work;
   }
-  const double started = ThreadCpuSeconds();  // this thread's share only: a lower bound (SAD, ZNCC)
   tbb::enumerable_thread_specific<PlaneScratch> scratch;
+  tbb::enumerable_thread_specific<double> thread_seconds(0.0);
   tbb::parallel_for(tbb::blocked_range<int>(0, planes, 1), [&](const tbb::blocked_range<int>& range) {
+    const double started = ThreadCpuSeconds();
     PlaneScratch& s = scratch.local();
     s.slices.resize(nn);
     for (int p = range.begin(); p < range.end(); ++p) {
@@ -1554,10 +1546,10 @@ VolumeWork BuildCostVolume(const cv::Mat& ref, const std::vector<Neighbour>& giv
         uint16_t* slice = s.slices[i].data();
         const Eigen::Matrix3d& hom = neighbours[i].homographies[p];
         if (o.cost == Cost::kSad) {
-          SadSlice(ref, neighbours[i].gray, hom, &s, slice);
+          SadSlice(ref, origin, neighbours[i].gray, hom, &s, slice);
           BoxMean(slice, w, h, o.window_radius, &s.row_sums);
         } else {
-          ZnccSlice(ref, ref_mean, ref_var, neighbours[i].gray, hom, o.window_radius, &s, slice);
+          ZnccSlice(ref, origin, ref_mean, ref_var, neighbours[i].gray, hom, o.window_radius, &s, slice);
         }
       }
       // Best-k combination over neighbours, written into the volume's plane p.
@@ -1578,9 +1570,10 @@ VolumeWork BuildCostVolume(const cv::Mat& ref, const std::vector<Neighbour>& giv
         }
       }
     }
+    thread_seconds.local() += ThreadCpuSeconds() - started;
   });
   if (ranges != nullptr) ApplyRanges(*ranges, volume);  // evaluated everywhere, then limited
-  return {static_cast<int64_t>(planes) * w * h * nn, ThreadCpuSeconds() - started};
+  return {static_cast<int64_t>(planes) * w * h * nn, thread_seconds.combine(std::plus<double>())};
 }
 
 void Aggregate(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, bool one_buffer, Aggregated* out) {
