@@ -314,7 +314,7 @@ class PlaneSweepStage : public Stage {
         static_cast<size_t>(tbb::this_task_arena::max_concurrency()),
         tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism)));
     const double per_core = evaluation_seconds_here.load() > 0 ? evaluations_here.load() / evaluation_seconds_here.load() : 0.0;
-    context.metrics["evaluations_per_cpu_second"] = per_core;
+    context.metrics["evaluations_per_second_per_thread"] = per_core;
     context.metrics["evaluation_threads"] = threads;
     context.metrics["evaluations_per_second_all_threads"] = per_core * threads;
     context.metrics["mean_valid_fraction"] = names.empty() ? 0.0 : valid_sum / names.size();
