@@ -3,6 +3,8 @@
 // run on a tiny synthetic object_ring workspace (depth within 1% of the ground truth).
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <array>
 #include <chrono>
 #include <filesystem>
 #include <fstream>
@@ -504,6 +506,78 @@ TEST(SweepEngine, OneBufferAggregationEqualsTwo) {
         for (size_t pixel = 0; pixel < static_cast<size_t>(w) * h; ++pixel)
           for (int d = 0; d < planes; ++d) differ += one.Sum(pixel, d) != two.Sum(pixel, d);
         EXPECT_EQ(differ, 0u) << paths << " paths";
+      }
+    }
+  }
+  sweep::SetIsa(sweep::BestIsa());
+}
+
+// The semi-global sums by their definition, path by path in plain integers (Hirschmueller 2008,
+// Eq. 13): L_r(p, d) = C(p, d) + min(L_r(p-r, d), L_r(p-r, d-1) + P1, L_r(p-r, d+1) + P1,
+// min_k L_r(p-r, k) + P2) - min_k L_r(p-r, k), with L_r = C where the path enters the image and P2
+// divided by 1 + |grey step from p-r to p| / gamma (at least P1 + 1). Over every entry of the
+// stride, as the engine steps them; the sums wrap as 16-bit integers.
+std::vector<uint16_t> SemiGlobalSumsByDefinition(const sweep::CostVolume& v, const cv::Mat& gray, const sweep::EngineOptions& o) {
+  const int w = v.width, h = v.height, n = v.stride;
+  std::vector<std::array<int, 2>> directions = {{1, 0}, {-1, 0}, {0, 1}, {0, -1}};
+  if (o.paths == 8) directions.insert(directions.end(), {{1, 1}, {-1, -1}, {-1, 1}, {1, -1}});
+  std::vector<uint16_t> sums(static_cast<size_t>(w) * h * n, 0);
+  std::vector<int> l(sums.size());
+  for (const auto& [dx, dy] : directions) {
+    for (int yi = 0; yi < h; ++yi) {
+      const int y = dy >= 0 ? yi : h - 1 - yi;
+      for (int xi = 0; xi < w; ++xi) {
+        const int x = dx >= 0 ? xi : w - 1 - xi;
+        const int xp = x - dx, yp = y - dy;
+        const size_t at = (static_cast<size_t>(y) * w + x) * n;
+        const uint16_t* c = v.At(x, y);
+        if (xp < 0 || xp >= w || yp < 0 || yp >= h) {
+          for (int d = 0; d < n; ++d) l[at + d] = c[d];
+        } else {
+          const int* prev = l.data() + (static_cast<size_t>(yp) * w + xp) * n;
+          const int step = std::abs(gray.at<uint8_t>(y, x) - gray.at<uint8_t>(yp, xp));
+          const double divided = o.p2_gamma <= 0 ? o.p2 : o.p2 / (1.0 + step / o.p2_gamma);
+          const int p2 = static_cast<int16_t>(std::max<double>(o.p1 + 1, divided));
+          const int low = *std::min_element(prev, prev + n);
+          for (int d = 0; d < n; ++d) {
+            int best = std::min(prev[d], low + p2);
+            if (d > 0) best = std::min(best, prev[d - 1] + o.p1);
+            if (d + 1 < n) best = std::min(best, prev[d + 1] + o.p1);
+            l[at + d] = c[d] + best - low;
+          }
+        }
+        for (int d = 0; d < n; ++d) sums[at + d] = static_cast<uint16_t>(sums[at + d] + l[at + d]);
+      }
+    }
+  }
+  return sums;
+}
+
+// Every build's semi-global sums, with the paths stepped together (few planes, and many in the
+// AVX-512 build) or one loop per path (many planes in the others), are those of the definition.
+TEST(SweepEngine, SemiGlobalSumsFollowTheDefinition) {
+  const int w = 23, h = 17;
+  cv::Mat gray(h, w, CV_8UC1);
+  cv::RNG rng(8);
+  rng.fill(gray, cv::RNG::UNIFORM, 0, 256);
+  for (int planes : {21, 100, 128}) {
+    const sweep::CostVolume volume = RandomCostVolume(w, h, planes, &rng);
+    for (int paths : {4, 8}) {
+      sweep::EngineOptions options;
+      options.paths = paths;
+      const std::vector<uint16_t> expected = SemiGlobalSumsByDefinition(volume, gray, options);
+      for (sweep::Isa isa : {sweep::Isa::kPortable, sweep::Isa::kAvx2, sweep::Isa::kAvx512}) {
+        if (!sweep::SetIsa(isa)) continue;
+        SCOPED_TRACE(std::string(sweep::IsaName(isa)) + ", planes " + std::to_string(planes) + ", paths " +
+                     std::to_string(paths));
+        for (bool one_buffer : {false, true}) {
+          sweep::Aggregated got;
+          sweep::Aggregate(volume, gray, options, &got, one_buffer);
+          size_t differ = 0;
+          for (size_t pixel = 0; pixel < static_cast<size_t>(w) * h; ++pixel)
+            for (int d = 0; d < planes; ++d) differ += got.Sum(pixel, d) != expected[pixel * volume.stride + d];
+          EXPECT_EQ(differ, 0u) << (one_buffer ? "one buffer" : "two buffers");
+        }
       }
     }
   }

@@ -561,11 +561,14 @@ void SgmPassFused(const CostVolume& v, const cv::Mat& gray, const EngineOptions&
 
 // One semi-global pass, into `out` or (`accumulate`) added to it. With few planes (two-view pairs:
 // 16-64) the per-pixel overhead dominates and stepping the paths together wins (venus 2 threads:
-// 13.0 ms against 14.3); with many (a multi-view sweep's 128) one loop per path vectorises better
-// (templeRing plane_sweep: 13.3 s against 14.7). Both give the same sums.
+// 13.0 ms against 14.3). With many (a multi-view sweep's 128) the AVX-512 build steps them
+// together as well: its 32 registers hold the four paths' state (templeSparseRing plane_sweep,
+// alternated: 1.52-1.54 s against 1.83-1.92), while the AVX2 and portable builds, with 16, do no
+// better that way (3.34-3.69 s against 3.38-3.49, and 5.60-6.35 against 5.35-5.93) and take one
+// loop per path. Both give the same sums.
 void SgmPass(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, int s, bool accumulate, LargeBuffer<uint16_t>* out) {
   const bool wide = v.stride % kLanesOf<WideLanes> == 0;
-  if (v.stride > 64) {
+  if (v.stride > 64 && !IBMR_SWEEP_AVX512) {
     wide ? SgmPassPerPath<WideLanes>(v, gray, o, s, accumulate, out) : SgmPassPerPath<Lanes>(v, gray, o, s, accumulate, out);
   } else if (o.paths == 8) {
     wide ? SgmPassFused<3, WideLanes>(v, gray, o, s, accumulate, out) : SgmPassFused<3, Lanes>(v, gray, o, s, accumulate, out);
