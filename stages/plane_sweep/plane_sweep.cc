@@ -380,11 +380,10 @@ PlaneSweepResult PlaneSweep(const SweepView& reference, const std::vector<SweepV
                                                           whole ? census.get() : &part_census, part.tl());
     result.evaluations += work.evaluations;
     result.evaluation_seconds += work.seconds;
-    sweep::Aggregated& aggregated = buffers->aggregated;
-    sweep::Aggregate(volume, part_gray, engine, &aggregated, /*one_buffer=*/true);
-    result.volume_bytes = std::max(result.volume_bytes,
-                                   (volume.data.size() + aggregated.a.size() + aggregated.b.size()) * sizeof(uint16_t));
-    const sweep::Winners winners = sweep::WinnerTakeAll(aggregated, &volume, options.confidence_scale);
+    LargeBuffer<uint16_t>& sums = buffers->aggregated.a;
+    LargeBuffer<uint16_t>().swap(buffers->aggregated.b);  // pages a two-view sweep may have left
+    const sweep::Winners winners = sweep::AggregateAndPick(volume, part_gray, engine, options.confidence_scale, &sums);
+    result.volume_bytes = std::max(result.volume_bytes, (volume.data.size() + sums.size()) * sizeof(uint16_t));
     const cv::Rect own(region.x, y0, region.width, y1 - y0);
     winners.plane.rowRange(y0 - c0, y1 - c0).copyTo(winner_plane(own));
     winners.confidence.rowRange(y0 - c0, y1 - c0).copyTo(winner_confidence(own));

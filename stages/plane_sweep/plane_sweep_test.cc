@@ -634,6 +634,54 @@ TEST(SweepEngine, UnmatchedPixelsLeaveTheMatchedSumsAndHaveNoWinner) {
   sweep::SetIsa(sweep::BestIsa());
 }
 
+// Picking each pixel's winner in the backward pass (the multi-view stage's path) gives the winners
+// and certainties of the sums stored and then searched, on every build, with unmatched pixels,
+// with few planes and many, 4 and 8 paths, without the semi-global passes, and with a sums buffer
+// that holds an earlier call's values.
+TEST(SweepEngine, PickingWinnersInTheBackwardPassEqualsSearchingTheSums) {
+  const int w = 29, h = 13;
+  cv::Mat gray(h, w, CV_8UC1);
+  cv::RNG rng(9);
+  rng.fill(gray, cv::RNG::UNIFORM, 0, 256);
+  for (int planes : {21, 100, 128}) {
+    sweep::CostVolume volume = RandomCostVolume(w, h, planes, &rng);
+    volume.unmatched.resize(static_cast<size_t>(w) * h);
+    size_t unmatched = 0;
+    for (uint8_t& u : volume.unmatched) unmatched += u = rng.uniform(0, 10) < 3;
+    ASSERT_GT(unmatched, 0u);
+    for (sweep::Isa isa : {sweep::Isa::kPortable, sweep::Isa::kAvx2, sweep::Isa::kAvx512}) {
+      if (!sweep::SetIsa(isa)) continue;
+      for (int paths : {0, 4, 8}) {  // 0: no semi-global passes
+        SCOPED_TRACE(std::string(sweep::IsaName(isa)) + ", planes " + std::to_string(planes) + ", paths " +
+                     std::to_string(paths));
+        sweep::EngineOptions options;
+        options.semi_global = paths > 0;
+        options.paths = paths > 0 ? paths : 8;
+        sweep::Aggregated aggregated;
+        sweep::Aggregate(volume, gray, options, &aggregated, /*one_buffer=*/true);
+        const sweep::Winners want = sweep::WinnerTakeAll(aggregated, &volume, 0.5);
+        LargeBuffer<uint16_t> sums(volume.data.size());
+        for (uint16_t& v : sums) v = static_cast<uint16_t>(rng.uniform(0, 65536));
+        const sweep::Winners have = sweep::AggregateAndPick(volume, gray, options, 0.5, &sums);
+        size_t differ = 0, winners = 0, graded = 0;
+        for (int y = 0; y < h; ++y) {
+          for (int x = 0; x < w; ++x) {
+            const float confidence = have.confidence.at<float>(y, x);
+            differ += have.plane.at<float>(y, x) != want.plane.at<float>(y, x);
+            differ += confidence != want.confidence.at<float>(y, x);
+            winners += have.plane.at<float>(y, x) >= 0;
+            graded += confidence > 0 && confidence < 1;  // neither clamped end: the scale matters
+          }
+        }
+        EXPECT_EQ(differ, 0u);
+        EXPECT_EQ(winners, static_cast<size_t>(w) * h - unmatched);
+        EXPECT_GT(graded, 0u);
+      }
+    }
+  }
+  sweep::SetIsa(sweep::BestIsa());
+}
+
 // The census codes of every build against the definition: bit set where the window's pixel
 // (borders clamped) is darker than the centre, offsets in row-major order, the centre skipped;
 // a window of more than 64 offsets (11x9) keeps the last 64.

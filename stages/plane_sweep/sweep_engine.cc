@@ -127,6 +127,11 @@ Winners WinnerTakeAll(const Aggregated& aggregated, const CostVolume* data_cost,
   IBMR_SWEEP_DISPATCH(WinnerTakeAll(aggregated, data_cost, confidence_scale, right_winners));
 }
 
+Winners AggregateAndPick(const CostVolume& volume, const cv::Mat& reference_gray, const EngineOptions& options,
+                         double confidence_scale, LargeBuffer<uint16_t>* sums) {
+  IBMR_SWEEP_DISPATCH(AggregateAndPick(volume, reference_gray, options, confidence_scale, sums));
+}
+
 std::vector<uint64_t> CensusTransform(const cv::Mat& gray, int radius_x, int radius_y) {
   IBMR_SWEEP_DISPATCH(CensusTransform(gray, radius_x, radius_y));
 }

@@ -139,6 +139,13 @@ struct Winners {
 Winners WinnerTakeAll(const Aggregated& aggregated, const CostVolume* data_cost, double confidence_scale,
                       bool right_winners = false);
 
+// The winners of Aggregate(one_buffer) and WinnerTakeAll(data_cost = volume), found without the
+// second pass over the sums: the forward pass stores its sums in `sums` (reused like Aggregated's
+// buffers), and the backward pass, which completes each matched pixel's sum, picks its winner at
+// once instead of storing the sum. Same winners and certainties.
+Winners AggregateAndPick(const CostVolume& volume, const cv::Mat& reference_gray, const EngineOptions& options,
+                         double confidence_scale, LargeBuffer<uint16_t>* sums);
+
 // Cost-volume buffers lent from a process-wide pool, so that consecutive views (or pairs) reuse
 // already-faulted pages; at most one set per concurrently running sweep is alive.
 struct Buffers {

@@ -426,12 +426,56 @@ void FillP2Table(const EngineOptions& o, int16_t table[256]) {
   }
 }
 
+// Where a backward pass that completes the sums puts each matched pixel's winner (AggregateAndPick)
+// instead of storing its sum: row-major maps of the volume's size.
+struct PickTarget {
+  float* plane = nullptr;       // sub-pixel plane index (left untouched at unmatched pixels)
+  float* confidence = nullptr;  // certainty in [0, 1]
+  double confidence_scale = 0;
+};
+
+// A pixel's winner from its sums `s` (`stride` entries; those past `np` are set to 0xFFFF here, out
+// of the minimum's way): the first plane at the minimum, with a parabola's sub-pixel offset, and,
+// given `data` (the pixel's data-cost curve), the certainty: how far the winner's matching cost
+// lies below the curve's mean (0: the curve is flat, as on untextured surfaces, or the winner
+// matches no better than a random plane, as where it is occluded in the best neighbours).
+void WinnerOf(uint16_t* s, int np, int stride, const uint16_t* data, double confidence_scale, float* plane, float* confidence) {
+  std::fill(s + np, s + stride, static_cast<uint16_t>(0xFFFF));
+  UnsignedLanes low = UnsignedLanes{} + static_cast<uint16_t>(0xFFFF);
+  for (int d = 0; d < stride; d += kLaneCount) {
+    const UnsignedLanes sum = reinterpret_cast<UnsignedLanes>(LoadLanes<Lanes>(s + d));
+    low = low < sum ? low : sum;
+  }
+  const uint16_t lowest = LowestUnsignedLane(low);
+  int best = 0;
+  for (int d = 0;; d += kLaneCount) {
+    const int lane = FirstLaneEqual(reinterpret_cast<UnsignedLanes>(LoadLanes<Lanes>(s + d)), lowest);
+    if (lane >= 0) {
+      best = d + lane;
+      break;
+    }
+  }
+  float sub = static_cast<float>(best);
+  if (best > 0 && best < np - 1) {
+    const float l = s[best - 1], c = s[best], r = s[best + 1];
+    const float denom = l - 2 * c + r;
+    if (denom > 0) sub += std::clamp(0.5f * (l - r) / denom, -0.5f, 0.5f);
+  }
+  *plane = sub;
+  if (data == nullptr) return;
+  uint32_t total = 0;
+  for (int d = 0; d < np; ++d) total += data[d];
+  const float mean = static_cast<float>(total) / np;
+  const float margin = (mean - data[best]) / std::max(1.f, mean);
+  *confidence = static_cast<float>(std::clamp(margin * confidence_scale, 0.0, 1.0));
+}
+
 // One pass over the image in scan order `s` (+1: top-left to bottom-right; -1: reverse) along the
 // paths arriving from the previous pixel and, when `diagonals`, the previous row's three pixels
 // (else only the one above); `out` receives their sum or, `accumulate`, has it added.
 template <class V>
 void SgmPassPerPath(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, int s, bool accumulate,
-                    LargeBuffer<uint16_t>* out) {
+                    LargeBuffer<uint16_t>* out, const PickTarget* pick) {
   const int w = v.width, h = v.height, n = v.stride, ps = n + 2;
   const bool diagonals = o.paths == 8;
   // A matched pixel's entries are assigned by the row path first.
@@ -441,6 +485,7 @@ void SgmPassPerPath(const CostVolume& v, const cv::Mat& gray, const EngineOption
   std::vector<int16_t> prev_min(static_cast<size_t>(ndir) * w, 0), cur_min(prev_min.size(), 0);
   std::vector<int16_t> left(ps, kSentinel), left_cur(ps, kSentinel);
   std::vector<uint16_t> discarded(n);  // the sums of unmatched pixels, which no one reads
+  std::vector<uint16_t> pixel_sums(pick != nullptr ? n : 0);  // a picked pixel's sums
   const int16_t p1 = static_cast<int16_t>(o.p1);
   int16_t p2_table[256];
   FillP2Table(o, p2_table);
@@ -454,7 +499,12 @@ void SgmPassPerPath(const CostVolume& v, const cv::Mat& gray, const EngineOption
       const int x = s > 0 ? xi : w - 1 - xi;
       const uint16_t* c = v.At(x, y);
       const size_t pixel = static_cast<size_t>(y) * w + x;
-      uint16_t* sum = v.Matched(pixel) ? out->data() + pixel * n : discarded.data();
+      const bool matched = v.Matched(pixel);
+      uint16_t* sum = matched ? out->data() + pixel * n : discarded.data();
+      if (matched && pick != nullptr) {  // the forward pass's sums, completed here and not stored
+        std::memcpy(pixel_sums.data(), sum, sizeof(uint16_t) * n);
+        sum = pixel_sums.data();
+      }
       // From the previous pixel on the row.
       if (xi == 0) {
         left_min = accumulate ? PathStart<false>(c, n, left_cur.data() + 1, sum) : PathStart<true>(c, n, left_cur.data() + 1, sum);
@@ -477,6 +527,9 @@ void SgmPassPerPath(const CostVolume& v, const cv::Mat& gray, const EngineOption
           cm = PathStep<false, V>(c, pv, prev_min[static_cast<size_t>(k) * w + xs], p1, p2_for(g[x], gp[xs]), n, cur, sum);
         }
       }
+      if (matched && pick != nullptr) {
+        WinnerOf(sum, v.planes, n, c, pick->confidence_scale, pick->plane + pixel, pick->confidence + pixel);
+      }
     }
     std::swap(prev_row, cur_row);
     std::swap(prev_min, cur_min);
@@ -491,7 +544,7 @@ void SgmPassPerPath(const CostVolume& v, const cv::Mat& gray, const EngineOption
 constexpr int kPrefetchPixels = 6;
 template <int kRowPaths, class V>
 void SgmPassFused(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, int s, bool accumulate,
-                  LargeBuffer<uint16_t>* out) {
+                  LargeBuffer<uint16_t>* out, const PickTarget* pick) {
   constexpr int K = 1 + kRowPaths;  // the row path, then the paths from the previous row
   const int w = v.width, h = v.height, n = v.stride, ps = n + 2;
   if (!accumulate) out->resize(v.data.size());  // every matched pixel's entries are assigned
@@ -503,6 +556,7 @@ void SgmPassFused(const CostVolume& v, const cv::Mat& gray, const EngineOptions&
   int16_t *left = lefts.data(), *left_cur = left + ps;
   const std::vector<int16_t> start(ps, 0);  // the previous pixel of a path that starts: L = C
   std::vector<uint16_t> discarded(n);         // the sums of unmatched pixels, which no one reads
+  std::vector<uint16_t> pixel_sums(pick != nullptr ? n : 0);  // a picked pixel's sums
   const int16_t p1 = static_cast<int16_t>(o.p1);
   int16_t p2_table[256];
   FillP2Table(o, p2_table);
@@ -537,7 +591,12 @@ void SgmPassFused(const CostVolume& v, const cv::Mat& gray, const EngineOptions&
         }
       }
       const size_t pixel = static_cast<size_t>(y) * w + x;
-      uint16_t* sum = v.Matched(pixel) ? out->data() + pixel * n : discarded.data();
+      const bool matched = v.Matched(pixel);
+      uint16_t* sum = matched ? out->data() + pixel * n : discarded.data();
+      if (matched && pick != nullptr) {  // the forward pass's sums, completed here and not stored
+        std::memcpy(pixel_sums.data(), sum, sizeof(uint16_t) * n);
+        sum = pixel_sums.data();
+      }
       if (xi + kPrefetchPixels < w) {
         const size_t ahead = (pixel + static_cast<ptrdiff_t>(s) * kPrefetchPixels) * n;
         for (int line = 0; line < n; line += 32) {
@@ -549,6 +608,9 @@ void SgmPassFused(const CostVolume& v, const cv::Mat& gray, const EngineOptions&
         PathSteps<K, true, V>(v.At(x, y), n, prev, min_prev, p2, p1, cur, min_out, sum);
       } else {
         PathSteps<K, false, V>(v.At(x, y), n, prev, min_prev, p2, p1, cur, min_out, sum);
+      }
+      if (matched && pick != nullptr) {
+        WinnerOf(sum, v.planes, n, v.At(x, y), pick->confidence_scale, pick->plane + pixel, pick->confidence + pixel);
       }
       left_min = min_out[0];
       std::swap(left, left_cur);
@@ -566,14 +628,15 @@ void SgmPassFused(const CostVolume& v, const cv::Mat& gray, const EngineOptions&
 // alternated: 1.52-1.54 s against 1.83-1.92), while the AVX2 and portable builds, with 16, do no
 // better that way (3.34-3.69 s against 3.38-3.49, and 5.60-6.35 against 5.35-5.93) and take one
 // loop per path. Both give the same sums.
-void SgmPass(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, int s, bool accumulate, LargeBuffer<uint16_t>* out) {
+void SgmPass(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, int s, bool accumulate, LargeBuffer<uint16_t>* out,
+             const PickTarget* pick = nullptr) {
   const bool wide = v.stride % kLanesOf<WideLanes> == 0;
   if (v.stride > 64 && !IBMR_SWEEP_AVX512) {
-    wide ? SgmPassPerPath<WideLanes>(v, gray, o, s, accumulate, out) : SgmPassPerPath<Lanes>(v, gray, o, s, accumulate, out);
+    wide ? SgmPassPerPath<WideLanes>(v, gray, o, s, accumulate, out, pick) : SgmPassPerPath<Lanes>(v, gray, o, s, accumulate, out, pick);
   } else if (o.paths == 8) {
-    wide ? SgmPassFused<3, WideLanes>(v, gray, o, s, accumulate, out) : SgmPassFused<3, Lanes>(v, gray, o, s, accumulate, out);
+    wide ? SgmPassFused<3, WideLanes>(v, gray, o, s, accumulate, out, pick) : SgmPassFused<3, Lanes>(v, gray, o, s, accumulate, out, pick);
   } else {
-    wide ? SgmPassFused<1, WideLanes>(v, gray, o, s, accumulate, out) : SgmPassFused<1, Lanes>(v, gray, o, s, accumulate, out);
+    wide ? SgmPassFused<1, WideLanes>(v, gray, o, s, accumulate, out, pick) : SgmPassFused<1, Lanes>(v, gray, o, s, accumulate, out, pick);
   }
 }
 
@@ -1606,9 +1669,6 @@ Winners WinnerTakeAll(const Aggregated& ag, const CostVolume* data, double confi
   out.plane = cv::Mat(h, w, CV_32F, cv::Scalar(-1));
   out.confidence = cv::Mat(h, w, CV_32F, cv::Scalar(0));
   if (right_winners) out.right = cv::Mat(h, w, CV_32S, cv::Scalar(-1));
-  // 0xFFFF at the padding planes, to OR into their sums.
-  std::vector<uint16_t> padding(stride, 0);
-  std::fill(padding.begin() + np, padding.end(), static_cast<uint16_t>(0xFFFF));
   tbb::parallel_for(0, h, [&](int y) {
     std::vector<uint16_t> s(stride);
     // Right-view winners of this row, stored right to left: left pixel x at disparity d is right
@@ -1621,24 +1681,10 @@ Winners WinnerTakeAll(const Aggregated& ag, const CostVolume* data, double confi
       const size_t pixel = static_cast<size_t>(y) * w + x;
       if (!ag.Matched(pixel)) continue;  // no winner, certainty 0
       const uint16_t* a = ag.a.data() + pixel * stride;
-      // The sum and its minimum over the planes (padding planes at 0xFFFF), a vector at a time,
-      // then the first plane at the minimum.
-      UnsignedLanes low = UnsignedLanes{} + static_cast<uint16_t>(0xFFFF);
       for (int d = 0; d < stride; d += kLaneCount) {
         UnsignedLanes sum = reinterpret_cast<UnsignedLanes>(LoadLanes<Lanes>(a + d));
         if (!ag.b.empty()) sum += reinterpret_cast<UnsignedLanes>(LoadLanes<Lanes>(ag.b.data() + pixel * stride + d));
-        if (d + kLaneCount > np) sum |= reinterpret_cast<UnsignedLanes>(LoadLanes<Lanes>(padding.data() + d));
         StoreLanes(s.data() + d, reinterpret_cast<Lanes>(sum));
-        low = low < sum ? low : sum;
-      }
-      const uint16_t lowest = LowestUnsignedLane(low);
-      int best = 0;
-      for (int d = 0;; d += kLaneCount) {
-        const int lane = FirstLaneEqual(reinterpret_cast<UnsignedLanes>(LoadLanes<Lanes>(s.data() + d)), lowest);
-        if (lane >= 0) {
-          best = d + lane;
-          break;
-        }
       }
       if (right_winners) {
         // Left pixels come in increasing x, so a right pixel sees its disparities in increasing
@@ -1653,29 +1699,29 @@ Winners WinnerTakeAll(const Aggregated& ag, const CostVolume* data, double confi
           disparity[d] = better ? d : disparity[d];
         }
       }
-      float sub = static_cast<float>(best);
-      if (best > 0 && best < np - 1) {
-        const float l = s[best - 1], c = s[best], r = s[best + 1];
-        const float denom = l - 2 * c + r;
-        if (denom > 0) sub += std::clamp(0.5f * (l - r) / denom, -0.5f, 0.5f);
-      }
-      plane[x] = sub;
-      // Certainty from the data-cost curve: how far the winner's matching cost lies below the
-      // curve's mean (0: the curve is flat, as on untextured surfaces, or the winner matches
-      // no better than a random plane, as where it is occluded in the best neighbours).
-      if (data == nullptr) continue;
-      const uint16_t* c = data->At(x, y);
-      uint32_t total = 0;
-      for (int d = 0; d < np; ++d) total += c[d];
-      const float mean = static_cast<float>(total) / np;
-      const float margin = (mean - c[best]) / std::max(1.f, mean);
-      conf[x] = static_cast<float>(std::clamp(margin * confidence_scale, 0.0, 1.0));
+      WinnerOf(s.data(), np, stride, data == nullptr ? nullptr : data->At(x, y), confidence_scale, plane + x, conf + x);
     }
     if (right_winners) {
       int* right = out.right.ptr<int>(y);
       for (int x = 0; x < w; ++x) right[x] = right_disparity[w - 1 - x];
     }
   });
+  return out;
+}
+
+Winners AggregateAndPick(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, double confidence_scale,
+                         LargeBuffer<uint16_t>* sums) {
+  if (!o.semi_global) {
+    Aggregated ag;
+    Aggregate(v, gray, o, true, &ag);
+    return WinnerTakeAll(ag, &v, confidence_scale);
+  }
+  Winners out;
+  out.plane = cv::Mat(v.height, v.width, CV_32F, cv::Scalar(-1));
+  out.confidence = cv::Mat(v.height, v.width, CV_32F, cv::Scalar(0));
+  SgmPass(v, gray, o, +1, false, sums);
+  const PickTarget pick{out.plane.ptr<float>(), out.confidence.ptr<float>(), confidence_scale};
+  SgmPass(v, gray, o, -1, true, sums, &pick);
   return out;
 }
 
