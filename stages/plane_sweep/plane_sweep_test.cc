@@ -472,6 +472,13 @@ TEST(SweepEngine, BoxAggregationIsTheClippedWindowMean) {
   sweep::SetIsa(sweep::BestIsa());
 }
 
+// A w x h grey image of independent uniform values.
+cv::Mat UniformNoise(int w, int h, cv::RNG* rng) {
+  cv::Mat gray(h, w, CV_8UC1);
+  rng->fill(gray, cv::RNG::UNIFORM, 0, 256);
+  return gray;
+}
+
 // A w x h volume of `planes` uniformly random costs in [0, kMaxCost] (padding planes too).
 sweep::CostVolume RandomCostVolume(int w, int h, int planes, cv::RNG* rng) {
   sweep::CostVolume volume;
@@ -479,37 +486,6 @@ sweep::CostVolume RandomCostVolume(int w, int h, int planes, cv::RNG* rng) {
   volume.data.resize(static_cast<size_t>(w) * h * volume.stride);
   for (uint16_t& c : volume.data) c = static_cast<uint16_t>(rng->uniform(0, static_cast<int>(sweep::kMaxCost) + 1));
   return volume;
-}
-
-// One buffer (the backward pass adding into the forward pass's sums, as the multi-view stage
-// aggregates) and two (the passes at once) give the same sums, with few planes (the paths stepped
-// together) and many (one loop per path), on every build.
-TEST(SweepEngine, OneBufferAggregationEqualsTwo) {
-  const int w = 23, h = 17;
-  cv::Mat gray(h, w, CV_8UC1);
-  cv::RNG rng(3);
-  rng.fill(gray, cv::RNG::UNIFORM, 0, 256);
-  for (int planes : {21, 100}) {
-    const sweep::CostVolume volume = RandomCostVolume(w, h, planes, &rng);
-    for (sweep::Isa isa : {sweep::Isa::kPortable, sweep::Isa::kAvx2, sweep::Isa::kAvx512}) {
-      if (!sweep::SetIsa(isa)) continue;
-      SCOPED_TRACE(std::string(sweep::IsaName(isa)) + ", planes " + std::to_string(planes));
-      for (int paths : {4, 8}) {
-        sweep::EngineOptions options;
-        options.paths = paths;
-        sweep::Aggregated two, one;
-        sweep::Aggregate(volume, gray, options, &two);
-        sweep::Aggregate(volume, gray, options, &one, /*one_buffer=*/true);
-        ASSERT_FALSE(two.b.empty());
-        ASSERT_TRUE(one.b.empty());
-        size_t differ = 0;
-        for (size_t pixel = 0; pixel < static_cast<size_t>(w) * h; ++pixel)
-          for (int d = 0; d < planes; ++d) differ += one.Sum(pixel, d) != two.Sum(pixel, d);
-        EXPECT_EQ(differ, 0u) << paths << " paths";
-      }
-    }
-  }
-  sweep::SetIsa(sweep::BestIsa());
 }
 
 // The semi-global sums by their definition, path by path in plain integers (Hirschmueller 2008,
@@ -554,12 +530,13 @@ std::vector<uint16_t> SemiGlobalSumsByDefinition(const sweep::CostVolume& v, con
 }
 
 // Every build's semi-global sums, with the paths stepped together (few planes, and many in the
-// AVX-512 build) or one loop per path (many planes in the others), are those of the definition.
+// AVX-512 build) or one loop per path (many planes in the others), are those of the definition, in
+// one buffer (the backward pass adding into the forward pass's sums, as the multi-view stage
+// aggregates) and in two (the passes at once).
 TEST(SweepEngine, SemiGlobalSumsFollowTheDefinition) {
   const int w = 23, h = 17;
-  cv::Mat gray(h, w, CV_8UC1);
   cv::RNG rng(8);
-  rng.fill(gray, cv::RNG::UNIFORM, 0, 256);
+  const cv::Mat gray = UniformNoise(w, h, &rng);
   for (int planes : {21, 100, 128}) {
     const sweep::CostVolume volume = RandomCostVolume(w, h, planes, &rng);
     for (int paths : {4, 8}) {
@@ -589,9 +566,8 @@ TEST(SweepEngine, SemiGlobalSumsFollowTheDefinition) {
 // volume with every pixel matched, on every build, in one buffer and two.
 TEST(SweepEngine, UnmatchedPixelsLeaveTheMatchedSumsAndHaveNoWinner) {
   const int w = 23, h = 17;
-  cv::Mat gray(h, w, CV_8UC1);
   cv::RNG rng(5);
-  rng.fill(gray, cv::RNG::UNIFORM, 0, 256);
+  const cv::Mat gray = UniformNoise(w, h, &rng);
   for (int planes : {21, 100}) {
     const sweep::CostVolume all = RandomCostVolume(w, h, planes, &rng);
     sweep::CostVolume some = all;
@@ -640,9 +616,8 @@ TEST(SweepEngine, UnmatchedPixelsLeaveTheMatchedSumsAndHaveNoWinner) {
 // that holds an earlier call's values.
 TEST(SweepEngine, PickingWinnersInTheBackwardPassEqualsSearchingTheSums) {
   const int w = 29, h = 13;
-  cv::Mat gray(h, w, CV_8UC1);
   cv::RNG rng(9);
-  rng.fill(gray, cv::RNG::UNIFORM, 0, 256);
+  const cv::Mat gray = UniformNoise(w, h, &rng);
   for (int planes : {21, 100, 128}) {
     sweep::CostVolume volume = RandomCostVolume(w, h, planes, &rng);
     volume.unmatched.resize(static_cast<size_t>(w) * h);
