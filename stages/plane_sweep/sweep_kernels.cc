@@ -1331,9 +1331,28 @@ void BestKMean(uint16_t* __restrict costs, size_t stride, int nn, int k, int k_s
   }
 }
 
+// One pixel's costs `c` limited to its plane range first..last: the planes outside it take the mean
+// of its costs in range. An empty range (the pixel is not matched: returns false) makes the curve
+// flat, kOutsideCost on the padding planes too: a semi-global path then carries the pixel's curve
+// unchanged (PlaneSweep's crop relies on it).
+inline bool LimitToRange(int first, int last, int np, int stride, uint16_t* c) {
+  last = std::min(last, np - 1);
+  if (first > last) {
+    std::fill(c, c + stride, kOutsideCost);
+    return false;
+  }
+  uint32_t sum = 0;
+  for (int p = first; p <= last; ++p) sum += c[p];
+  const uint16_t mean = static_cast<uint16_t>(sum / (last - first + 1));
+  std::fill(c, c + first, mean);
+  std::fill(c + last + 1, c + np, mean);
+  return true;
+}
+
 // Census costs of all neighbours, combined by best-k: the mean of the k smallest costs per plane.
-// With `ranges`, only the blocks of 16 planes that meet a pixel's range are evaluated (the rest
-// is left for ApplyRanges). Returns the evaluations done (counted per pixel over its own blocks)
+// With `ranges`, only the blocks of 16 planes that meet a pixel's range are evaluated, and each
+// pixel is then limited to its range (LimitToRange, as ApplyRanges would, while its costs are in
+// the first-level cache; `unmatched` marks the empty ones). Returns the evaluations done (counted per pixel over its own blocks)
 // and the threads' CPU time spent on them.
 VolumeWork BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector<const std::vector<uint64_t>*>& src,
                              const std::vector<Neighbour>& neighbours, int k, const PlaneRanges* ranges, cv::Point origin,
@@ -1378,6 +1397,7 @@ VolumeWork BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector
                           hom[i].data()};
   }
 #endif
+  if (ranges != nullptr) v->unmatched.assign(static_cast<size_t>(w) * h, 0);
   tbb::enumerable_thread_specific<int64_t> evaluations(0);
   tbb::enumerable_thread_specific<double> thread_seconds(0.0);
   // Pixels in chunks of kChunk along a row. The plane-major kernel takes each neighbour in turn
@@ -1400,66 +1420,74 @@ VolumeWork BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector
     for (int y = rows.begin(); y < rows.end(); ++y) {
       for (int x0 = 0; x0 < w; x0 += kChunk) {
         const int count = std::min(kChunk, w - x0);
-        int union_p0 = n, union_p1 = 0;  // the blocks any live pixel of the chunk needs
+        // The chunk's costs, into the volume.
+        [&] {
+          int union_p0 = n, union_p1 = 0;  // the blocks any live pixel of the chunk needs
+          for (int j = 0; j < count; ++j) {
+            const size_t pixel = static_cast<size_t>(y) * w + x0 + j;
+            int p0 = 0, p1 = n;  // blocks of 16 planes evaluated
+            chunk_live[j] = true;
+            if (ranges != nullptr) {
+              const int first = ranges->first[pixel], last = ranges->last[pixel];
+              if (first > last || first >= np) {
+                chunk_live[j] = false;
+                continue;
+              }
+              p0 = first & ~15;
+              p1 = std::min(n, (last + 16) & ~15);
+            }
+            chunk_p0[j] = p0;
+            chunk_p1[j] = p1;
+            union_p0 = std::min(union_p0, p0);
+            union_p1 = std::max(union_p1, p1);
+            done += static_cast<int64_t>(std::min(p1, np) - p0) * nn;
+          }
+          if (union_p0 >= union_p1) return;  // no live pixel
+#if IBMR_SWEEP_AVX512
+          if (across_pixels) {
+            const int p_end = std::min(union_p1, np);
+            lane_kernel(ref.data() + static_cast<size_t>(y) * w + x0, count, lane_neighbours.data(), nn, k, k_shift, n, union_p0,
+                        p_end, x0 + origin.x, y + origin.y, lane_mean.data());
+            for (int j = 0; j < count; ++j) {
+              if (!chunk_live[j]) continue;
+              uint16_t* out = v->At(x0 + j, y);
+              const uint16_t* mean = lane_mean.data() + j;
+              for (int p = chunk_p0[j], end = std::min(chunk_p1[j], np); p < end; ++p) out[p] = mean[static_cast<size_t>(p) * kChunk];
+            }
+            return;
+          }
+#endif
+          for (int i = 0; i < nn; ++i) {
+            const int sw = neighbours[i].gray.cols, sh = neighbours[i].gray.rows;
+            const bool shifts = !shift[i].empty();
+            for (int j = 0; j < count; ++j) {
+              if (!chunk_live[j]) continue;
+              const int x = x0 + j, p0 = chunk_p0[j], p1 = chunk_p1[j];
+              const uint64_t code = ref[static_cast<size_t>(y) * w + x];
+              uint16_t* c = chunk_costs.data() + (static_cast<size_t>(j) * nn + i) * n;
+              if (shifts) {
+                ShiftCensusCosts(code, src[i]->data(), shift[i].data(), disparity_order[i], p0, std::min(p1, np), x + origin.x,
+                                 y + origin.y, sw, sh, c);
+              } else {
+                if (affine[i]) {
+                  ComputeAffineTaps(family[i], p0, p1, (x + origin.x) + 0.5f, (y + origin.y) + 0.5f, sw, sh, &taps);
+                } else {
+                  ComputeTaps(hom[i].data(), n, p0, p1, (x + origin.x) + 0.5f, (y + origin.y) + 0.5f, sw, sh, &taps);
+                }
+                CensusCosts(code, src[i]->data(), sw, taps, p0, p1, c);
+              }
+            }
+          }
+          for (int j = 0; j < count; ++j) {
+            if (!chunk_live[j]) continue;
+            BestKMean(chunk_costs.data() + static_cast<size_t>(j) * nn * n, n, nn, k, k_shift, chunk_p0[j],
+                      std::min(chunk_p1[j], np), best.data(), v->At(x0 + j, y));
+          }
+        }();
+        if (ranges == nullptr) continue;
         for (int j = 0; j < count; ++j) {
           const size_t pixel = static_cast<size_t>(y) * w + x0 + j;
-          int p0 = 0, p1 = n;  // blocks of 16 planes evaluated
-          chunk_live[j] = true;
-          if (ranges != nullptr) {
-            const int first = ranges->first[pixel], last = ranges->last[pixel];
-            if (first > last || first >= np) {
-              chunk_live[j] = false;
-              continue;
-            }
-            p0 = first & ~15;
-            p1 = std::min(n, (last + 16) & ~15);
-          }
-          chunk_p0[j] = p0;
-          chunk_p1[j] = p1;
-          union_p0 = std::min(union_p0, p0);
-          union_p1 = std::max(union_p1, p1);
-          done += static_cast<int64_t>(std::min(p1, np) - p0) * nn;
-        }
-        if (union_p0 >= union_p1) continue;  // no live pixel
-#if IBMR_SWEEP_AVX512
-        if (across_pixels) {
-          const int p_end = std::min(union_p1, np);
-          lane_kernel(ref.data() + static_cast<size_t>(y) * w + x0, count, lane_neighbours.data(), nn, k, k_shift, n, union_p0,
-                      p_end, x0 + origin.x, y + origin.y, lane_mean.data());
-          for (int j = 0; j < count; ++j) {
-            if (!chunk_live[j]) continue;
-            uint16_t* out = v->At(x0 + j, y);
-            const uint16_t* mean = lane_mean.data() + j;
-            for (int p = chunk_p0[j], end = std::min(chunk_p1[j], np); p < end; ++p) out[p] = mean[static_cast<size_t>(p) * kChunk];
-          }
-          continue;
-        }
-#endif
-        for (int i = 0; i < nn; ++i) {
-          const int sw = neighbours[i].gray.cols, sh = neighbours[i].gray.rows;
-          const bool shifts = !shift[i].empty();
-          for (int j = 0; j < count; ++j) {
-            if (!chunk_live[j]) continue;
-            const int x = x0 + j, p0 = chunk_p0[j], p1 = chunk_p1[j];
-            const uint64_t code = ref[static_cast<size_t>(y) * w + x];
-            uint16_t* c = chunk_costs.data() + (static_cast<size_t>(j) * nn + i) * n;
-            if (shifts) {
-              ShiftCensusCosts(code, src[i]->data(), shift[i].data(), disparity_order[i], p0, std::min(p1, np), x + origin.x,
-                               y + origin.y, sw, sh, c);
-            } else {
-              if (affine[i]) {
-                ComputeAffineTaps(family[i], p0, p1, (x + origin.x) + 0.5f, (y + origin.y) + 0.5f, sw, sh, &taps);
-              } else {
-                ComputeTaps(hom[i].data(), n, p0, p1, (x + origin.x) + 0.5f, (y + origin.y) + 0.5f, sw, sh, &taps);
-              }
-              CensusCosts(code, src[i]->data(), sw, taps, p0, p1, c);
-            }
-          }
-        }
-        for (int j = 0; j < count; ++j) {
-          if (!chunk_live[j]) continue;
-          BestKMean(chunk_costs.data() + static_cast<size_t>(j) * nn * n, n, nn, k, k_shift, chunk_p0[j],
-                    std::min(chunk_p1[j], np), best.data(), v->At(x0 + j, y));
+          v->unmatched[pixel] = !LimitToRange(ranges->first[pixel], ranges->last[pixel], np, n, v->At(x0 + j, y));
         }
       }
     }
@@ -1471,25 +1499,12 @@ VolumeWork BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector
 // Planes outside each pixel's range take the mean of its in-range costs; an unmatched pixel
 // (empty range) gets a flat curve and is marked in `unmatched`.
 void ApplyRanges(const PlaneRanges& ranges, CostVolume* v) {
-  const int w = v->width, np = v->planes;
+  const int w = v->width;
   v->unmatched.assign(static_cast<size_t>(w) * v->height, 0);
   tbb::parallel_for(0, v->height, [&](int y) {
     for (int x = 0; x < w; ++x) {
       const size_t pixel = static_cast<size_t>(y) * w + x;
-      const int first = ranges.first[pixel], last = std::min<int>(ranges.last[pixel], np - 1);
-      uint16_t* c = v->At(x, y);
-      if (first > last) {
-        // Flat over the padding planes too: a semi-global path then carries this pixel's curve
-        // unchanged (PlaneSweep's crop relies on it).
-        std::fill(c, c + v->stride, kOutsideCost);
-        v->unmatched[pixel] = 1;
-        continue;
-      }
-      uint32_t sum = 0;
-      for (int p = first; p <= last; ++p) sum += c[p];
-      const uint16_t mean = static_cast<uint16_t>(sum / (last - first + 1));
-      std::fill(c, c + first, mean);
-      std::fill(c + last + 1, c + np, mean);
+      v->unmatched[pixel] = !LimitToRange(ranges.first[pixel], ranges.last[pixel], v->planes, v->stride, v->At(x, y));
     }
   });
 }
@@ -1604,7 +1619,6 @@ VolumeWork BuildCostVolume(const cv::Mat& ref, const std::vector<Neighbour>& nei
   const int k = std::min(o.best_k, nn);
   if (o.cost == Cost::kCensus) {
     const VolumeWork work = BuildCensusVolume(*reference_census, src_census, neighbours, k, ranges, origin, volume);
-    if (ranges != nullptr) ApplyRanges(*ranges, volume);
     BoxFilterVolume(volume, o.window_radius);
     return work;
   }
