@@ -1,8 +1,10 @@
-// Atomic file writes (temporary file in the same folder, then rename(2)) and whole-file reads.
-// rename within one file system replaces the target in one step, so readers and a later run
-// only ever see the previous complete file or the new complete file.
+// Atomic file writes (temporary file in the same folder, flushed to the disk, then rename(2)) and
+// whole-file reads. rename within one file system replaces the target in one step, so readers and
+// a later run only ever see the previous complete file or the new complete file, after a crash
+// too.
 #include "pipeline/core/atomic_file.h"
 
+#include <fcntl.h>
 #include <signal.h>
 #include <unistd.h>
 
@@ -30,8 +32,21 @@ void CreateParentFolders(const std::string& path) {
   if (ec) throw IoError("cannot create folder " + parent.string() + " for " + path + ": " + ec.message());
 }
 
-// Renames `tmp_path` onto `path`; removes the temporary and throws when that fails.
+// Renames `tmp_path` onto `path` once its data is on the disk (fsync): without that, a crash or a
+// power cut soon after can leave the new name on an empty or partial file (the rename reaches the
+// disk before the delayed data), and a disk that fills up reports it only when the data is
+// written back, after the file was called complete. Removes the temporary and throws when either
+// step fails.
 void CommitTemporary(const std::string& tmp_path, const std::string& path) {
+  const int fd = ::open(tmp_path.c_str(), O_RDONLY | O_CLOEXEC);
+  const bool synced = fd >= 0 && ::fsync(fd) == 0;
+  const std::string sync_error = synced ? "" : ErrnoText();
+  if (fd >= 0) ::close(fd);
+  if (!synced) {
+    std::remove(tmp_path.c_str());
+    throw IoError("cannot write " + path + ": its data did not reach the disk (" + sync_error +
+                  "); free space on the disk or check it, then run again");
+  }
   if (std::rename(tmp_path.c_str(), path.c_str()) != 0) {
     const std::string reason = ErrnoText();
     std::remove(tmp_path.c_str());

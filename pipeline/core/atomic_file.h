@@ -1,5 +1,6 @@
-// Atomic writes: data goes to "<path>.tmp.<pid>" in the same folder, then rename(2) replaces
-// the target in one step, so a process killed halfway leaves the previous good file.
+// Atomic writes: data goes to "<path>.tmp.<pid>" in the same folder, is flushed to the disk
+// (fsync), then rename(2) replaces the target in one step, so a process killed halfway, or a
+// machine that loses power, leaves the previous good file or the new one, never a partial one.
 #pragma once
 
 #include <functional>
