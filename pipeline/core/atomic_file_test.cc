@@ -1,15 +1,30 @@
 // Tests for atomic writes: contents, parent folders, no temporaries left behind, the extension
-// kept by WriteViaTemporary, and errors that name the path.
+// kept by WriteViaTemporary, errors that name the path, and a flush to the disk that fails.
 #include "pipeline/core/atomic_file.h"
 
 #include <gtest/gtest.h>
+#include <sys/syscall.h>
 #include <unistd.h>
 
+#include <atomic>
+#include <cerrno>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 
 #include "pipeline/core/errors.h"
 #include "tests/scratch_dir.h"
+
+// This program's fsync (it takes the place of the C library's for the code linked in): fails as a
+// full disk does while `fail_fsync`, else makes the system call.
+static std::atomic<bool> fail_fsync{false};
+extern "C" int fsync(int fd) {
+  if (fail_fsync) {
+    errno = ENOSPC;
+    return -1;
+  }
+  return static_cast<int>(::syscall(SYS_fsync, fd));
+}
 
 namespace ibmr {
 namespace {
@@ -35,6 +50,32 @@ TEST(AtomicFile, WritesCreatesFoldersAndOverwrites) {
   WriteFileAtomic(path, "");
   EXPECT_EQ(ReadFile(path), "");
   EXPECT_EQ(CountFiles(dir), 1) << "a temporary was left behind";
+}
+
+// A write whose data cannot be flushed to the disk (a full disk reports it then) fails naming the
+// file, and leaves the previous file and no temporary, for both writers.
+TEST(AtomicFile, AFailedFlushKeepsThePreviousFileAndNamesIt) {
+  const fs::path dir = MakeTestDir("flush");
+  const std::string path = (dir / "map.bin").string(), image = (dir / "photo.txt").string();
+  WriteFileAtomic(path, "good");
+  WriteFileAtomic(image, "good too");
+  fail_fsync = true;
+  auto expect_refused = [&](const std::string& target, const std::function<void()>& write) {
+    try {
+      write();
+      ADD_FAILURE() << "expected IoError for " << target;
+    } catch (const IoError& e) {
+      EXPECT_NE(std::string(e.what()).find(target), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find("did not reach the disk"), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find("No space left"), std::string::npos) << e.what();
+    }
+  };
+  expect_refused(path, [&] { WriteFileAtomic(path, "partial"); });
+  expect_refused(image, [&] { WriteViaTemporary(image, [](const std::string& tmp) { std::ofstream(tmp) << "partial"; }); });
+  fail_fsync = false;
+  EXPECT_EQ(ReadFile(path), "good");
+  EXPECT_EQ(ReadFile(image), "good too");
+  EXPECT_EQ(CountFiles(dir), 2) << "a temporary was left behind";
 }
 
 TEST(AtomicFile, ReadMissingNamesPath) {
