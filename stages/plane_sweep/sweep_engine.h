@@ -82,8 +82,9 @@ struct PlaneRanges {
 
 // The matching costs' work in one volume: plane-pixel-neighbour evaluations done, and the CPU
 // time the threads spent on them (census: the loop that evaluates and combines the neighbours'
-// costs, summed over the threads that ran it; not the census transforms, the range fill or the
-// box filter). evaluations / seconds is the evaluations per second of one core at it.
+// costs, and fills each pixel's planes outside its range while they are in cache, summed over the
+// threads that ran it; not the census transforms or the box filter). evaluations / seconds is the
+// evaluations per second of one core at it.
 struct VolumeWork {
   int64_t evaluations = 0;
   double seconds = 0;

@@ -1352,8 +1352,8 @@ inline bool LimitToRange(int first, int last, int np, int stride, uint16_t* c) {
 // Census costs of all neighbours, combined by best-k: the mean of the k smallest costs per plane.
 // With `ranges`, only the blocks of 16 planes that meet a pixel's range are evaluated, and each
 // pixel is then limited to its range (LimitToRange, as ApplyRanges would, while its costs are in
-// the first-level cache; `unmatched` marks the empty ones). Returns the evaluations done (counted per pixel over its own blocks)
-// and the threads' CPU time spent on them.
+// the first-level cache; `unmatched` marks the empty ones). Returns the evaluations done (counted
+// per pixel over its own blocks) and the threads' CPU time spent on them.
 VolumeWork BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector<const std::vector<uint64_t>*>& src,
                              const std::vector<Neighbour>& neighbours, int k, const PlaneRanges* ranges, cv::Point origin,
                              CostVolume* v) {
