@@ -37,11 +37,18 @@ void CreateParentFolders(const std::string& path) {
 // disk before the delayed data), and a disk that fills up reports it only when the data is
 // written back, after the file was called complete. Removes the temporary and throws when either
 // step fails.
+// A file system that cannot flush (EINVAL, ENOTSUP: some special and FUSE file systems) is
+// taken as it is: the write still replaces the file in one step.
 void CommitTemporary(const std::string& tmp_path, const std::string& path) {
   const int fd = ::open(tmp_path.c_str(), O_RDONLY | O_CLOEXEC);
-  const bool synced = fd >= 0 && ::fsync(fd) == 0;
+  if (fd < 0) {
+    const std::string reason = ErrnoText();
+    std::remove(tmp_path.c_str());
+    throw IoError("cannot write " + path + ": cannot reopen its temporary " + tmp_path + " to flush it (" + reason + ")");
+  }
+  const bool synced = ::fsync(fd) == 0 || errno == EINVAL || errno == ENOTSUP;
   const std::string sync_error = synced ? "" : ErrnoText();
-  if (fd >= 0) ::close(fd);
+  ::close(fd);
   if (!synced) {
     std::remove(tmp_path.c_str());
     throw IoError("cannot write " + path + ": its data did not reach the disk (" + sync_error +

@@ -120,8 +120,8 @@ struct Aggregated {
 // view where the scene's bounds leave its background unmatched).
 // The forward and backward passes run at once into `a` and `b`, or, with `one_buffer`, one after
 // the other into `a` alone (the backward pass adds to it): half the memory and half the pages to
-// fault in, for callers that already keep the cores busy with several sweeps (the multi-view
-// stage), which lose nothing by running the passes one after the other.
+// fault in, for callers that already keep the cores busy with several sweeps, which lose nothing
+// by running the passes one after the other (the multi-view stage goes further: AggregateAndPick).
 void Aggregate(const CostVolume& volume, const cv::Mat& reference_gray, const EngineOptions& options, Aggregated* out,
                bool one_buffer = false);
 
@@ -143,7 +143,10 @@ Winners WinnerTakeAll(const Aggregated& aggregated, const CostVolume* data_cost,
 // The winners of Aggregate(one_buffer) and WinnerTakeAll(data_cost = volume), found without the
 // second pass over the sums: the forward pass stores its sums in `sums` (reused like Aggregated's
 // buffers), and the backward pass, which completes each matched pixel's sum, picks its winner at
-// once instead of storing the sum. Same winners and certainties.
+// once instead of storing the sum. Without semi-global passes the winners come from the volume
+// itself and `sums` is left empty. Same winners and certainties. The picking runs inside the
+// backward pass, on one thread (WinnerTakeAll's search is spread over the rows): for callers
+// that keep the cores busy with several sweeps, as the multi-view stage does.
 Winners AggregateAndPick(const CostVolume& volume, const cv::Mat& reference_gray, const EngineOptions& options,
                          double confidence_scale, LargeBuffer<uint16_t>* sums);
 

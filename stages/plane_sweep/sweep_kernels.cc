@@ -478,7 +478,9 @@ __attribute__((always_inline)) inline void WinnerOf(const uint16_t* s, uint16_t 
 
 // One pass over the image in scan order `s` (+1: top-left to bottom-right; -1: reverse) along the
 // paths arriving from the previous pixel and, when `diagonals`, the previous row's three pixels
-// (else only the one above); `out` receives their sum or, `accumulate`, has it added.
+// (else only the one above); `out` receives their sum or, `accumulate`, has it added, or, with
+// `pick`, a matched pixel's completed sum (`out`'s plus this pass's) gives its winner and is not
+// stored.
 template <class V>
 void SgmPassPerPath(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, int s, bool accumulate,
                     LargeBuffer<uint16_t>* out, const PickTarget* pick) {
@@ -545,7 +547,8 @@ void SgmPassPerPath(const CostVolume& v, const cv::Mat& gray, const EngineOption
 
 // One pass over the image in scan order `s` (+1: top-left to bottom-right; -1: reverse) along the
 // paths arriving from the previous pixel and, when `diagonals`, the previous row's three pixels
-// (else only the one above); `out` receives the sum of those paths or, `accumulate`, has it added.
+// (else only the one above); `out` receives the sum of those paths or, `accumulate`, has it added
+// (with `pick`, as SgmPassPerPath: the completed sum gives the winner and is not stored).
 // The cost and sum entries of the pixel kPrefetchPixels ahead are fetched early: the backward
 // pass walks the volume from its end, and waiting on those loads had been the largest stall.
 constexpr int kPrefetchPixels = 6;
@@ -629,7 +632,8 @@ void SgmPassFused(const CostVolume& v, const cv::Mat& gray, const EngineOptions&
   }
 }
 
-// One semi-global pass, into `out` or (`accumulate`) added to it. With few planes (two-view pairs:
+// One semi-global pass, into `out` or (`accumulate`) added to it, or (`pick`) completed into each
+// matched pixel's winner. With few planes (two-view pairs:
 // 16-64) the per-pixel overhead dominates and stepping the paths together wins (venus 2 threads:
 // 13.0 ms against 14.3). With many (a multi-view sweep's 128) the AVX-512 build steps them
 // together as well: its 32 registers hold the four paths' state (templeSparseRing plane_sweep,
@@ -1582,7 +1586,7 @@ VolumeWork BuildCostVolume(const cv::Mat& ref, const std::vector<Neighbour>& nei
   volume->planes = planes;
   volume->stride = RoundUp16(planes);
   volume->data.resize(static_cast<size_t>(w) * h * volume->stride);
-  volume->unmatched.clear();  // every pixel, unless ApplyRanges marks some
+  volume->unmatched.clear();  // every pixel, unless the plane ranges leave some out
   if (volume->stride > planes) {
     tbb::parallel_for(0, h, [&](int y) {
       for (int x = 0; x < w; ++x) std::fill(volume->At(x, y) + planes, volume->At(x, y) + volume->stride, kMaxCost);
@@ -1741,14 +1745,23 @@ Winners WinnerTakeAll(const Aggregated& ag, const CostVolume* data, double confi
 
 Winners AggregateAndPick(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, double confidence_scale,
                          LargeBuffer<uint16_t>* sums) {
-  if (!o.semi_global) {
-    Aggregated ag;
-    Aggregate(v, gray, o, true, &ag);
-    return WinnerTakeAll(ag, &v, confidence_scale);
-  }
   Winners out;
   out.plane = cv::Mat(v.height, v.width, CV_32F, cv::Scalar(-1));
   out.confidence = cv::Mat(v.height, v.width, CV_32F, cv::Scalar(0));
+  if (!o.semi_global) {  // the (box-filtered) costs are the sums: picked from the volume itself
+    sums->clear();       // not used (its capacity stays in the pool)
+    tbb::parallel_for(0, v.height, [&](int y) {
+      std::vector<uint16_t> s(v.stride);
+      for (int x = 0; x < v.width; ++x) {
+        const size_t pixel = static_cast<size_t>(y) * v.width + x;
+        if (!v.Matched(pixel)) continue;
+        std::copy(v.At(x, y), v.At(x, y) + v.stride, s.begin());
+        WinnerOf(s.data(), PadAndMinimum(s.data(), v.planes, v.stride), v.planes, v.At(x, y), confidence_scale,
+                 out.plane.ptr<float>(y) + x, out.confidence.ptr<float>(y) + x);
+      }
+    });
+    return out;
+  }
   SgmPass(v, gray, o, +1, false, sums);
   const PickTarget pick{out.plane.ptr<float>(), out.confidence.ptr<float>(), confidence_scale};
   SgmPass(v, gray, o, -1, true, sums, &pick);
