@@ -489,8 +489,8 @@ sweep::CostVolume RandomCostVolume(int w, int h, int planes, cv::RNG* rng) {
   return volume;
 }
 
-// The semi-global sums by their definition, path by path in plain integers (Hirschmueller 2008,
-// Eq. 13): L_r(p, d) = C(p, d) + min(L_r(p-r, d), L_r(p-r, d-1) + P1, L_r(p-r, d+1) + P1,
+// The semi-global sums by their definition, path by path in plain integers (Hirschmueller, PAMI
+// 2008): L_r(p, d) = C(p, d) + min(L_r(p-r, d), L_r(p-r, d-1) + P1, L_r(p-r, d+1) + P1,
 // min_k L_r(p-r, k) + P2) - min_k L_r(p-r, k), with L_r = C where the path enters the image and P2
 // divided by 1 + |grey step from p-r to p| / gamma (at least P1 + 1). Over every entry of the
 // stride, as the engine steps them; the sums wrap as 16-bit integers.
