@@ -426,14 +426,6 @@ void FillP2Table(const EngineOptions& o, int16_t table[256]) {
   }
 }
 
-// Where a backward pass that completes the sums puts each matched pixel's winner (AggregateAndPick)
-// instead of storing its sum: row-major maps of the volume's size.
-struct PickTarget {
-  float* plane = nullptr;       // sub-pixel plane index (left untouched at unmatched pixels)
-  float* confidence = nullptr;  // certainty in [0, 1]
-  double confidence_scale = 0;
-};
-
 // Sets the padding entries of a pixel's sums `s` to 0xFFFF and returns the sums' minimum.
 inline uint16_t PadAndMinimum(uint16_t* s, int np, int stride) {
   std::fill(s + np, s + stride, static_cast<uint16_t>(0xFFFF));
@@ -475,6 +467,20 @@ __attribute__((always_inline)) inline void WinnerOf(const uint16_t* s, uint16_t 
   const float margin = (mean - data[best]) / std::max(1.f, mean);
   *confidence = static_cast<float>(std::clamp(margin * confidence_scale, 0.0, 1.0));
 }
+
+// Where a backward pass that completes the sums puts each matched pixel's winner (AggregateAndPick)
+// instead of storing its sum: row-major maps of the volume's size.
+struct PickTarget {
+  float* plane = nullptr;       // sub-pixel plane index (left untouched at unmatched pixels)
+  float* confidence = nullptr;  // certainty in [0, 1]
+  double confidence_scale = 0;
+
+  // Pixel `pixel`'s winner from its completed sums `s` (`stride` entries; the padding ones are
+  // overwritten) and its data-cost curve `data`.
+  void Pick(uint16_t* s, int np, int stride, const uint16_t* data, size_t pixel) const {
+    WinnerOf(s, PadAndMinimum(s, np, stride), np, data, confidence_scale, plane + pixel, confidence + pixel);
+  }
+};
 
 // One pass over the image in scan order `s` (+1: top-left to bottom-right; -1: reverse) along the
 // paths arriving from the previous pixel and, when `diagonals`, the previous row's three pixels
@@ -536,8 +542,7 @@ void SgmPassPerPath(const CostVolume& v, const cv::Mat& gray, const EngineOption
         }
       }
       if (matched && pick != nullptr) {
-        WinnerOf(sum, PadAndMinimum(sum, v.planes, n), v.planes, c, pick->confidence_scale, pick->plane + pixel,
-                 pick->confidence + pixel);
+        pick->Pick(sum, v.planes, n, c, pixel);
       }
     }
     std::swap(prev_row, cur_row);
@@ -620,8 +625,7 @@ void SgmPassFused(const CostVolume& v, const cv::Mat& gray, const EngineOptions&
         PathSteps<K, false, V>(v.At(x, y), n, prev, min_prev, p2, p1, cur, min_out, sum);
       }
       if (matched && pick != nullptr) {
-        WinnerOf(sum, PadAndMinimum(sum, v.planes, n), v.planes, v.At(x, y), pick->confidence_scale, pick->plane + pixel,
-                 pick->confidence + pixel);
+        pick->Pick(sum, v.planes, n, v.At(x, y), pixel);
       }
       left_min = min_out[0];
       std::swap(left, left_cur);
@@ -1748,6 +1752,7 @@ Winners AggregateAndPick(const CostVolume& v, const cv::Mat& gray, const EngineO
   Winners out;
   out.plane = cv::Mat(v.height, v.width, CV_32F, cv::Scalar(-1));
   out.confidence = cv::Mat(v.height, v.width, CV_32F, cv::Scalar(0));
+  const PickTarget pick{out.plane.ptr<float>(), out.confidence.ptr<float>(), confidence_scale};
   if (!o.semi_global) {  // the (box-filtered) costs are the sums: picked from the volume itself
     sums->clear();       // not used (its capacity stays in the pool)
     tbb::parallel_for(0, v.height, [&](int y) {
@@ -1756,14 +1761,12 @@ Winners AggregateAndPick(const CostVolume& v, const cv::Mat& gray, const EngineO
         const size_t pixel = static_cast<size_t>(y) * v.width + x;
         if (!v.Matched(pixel)) continue;
         std::copy(v.At(x, y), v.At(x, y) + v.stride, s.begin());
-        WinnerOf(s.data(), PadAndMinimum(s.data(), v.planes, v.stride), v.planes, v.At(x, y), confidence_scale,
-                 out.plane.ptr<float>(y) + x, out.confidence.ptr<float>(y) + x);
+        pick.Pick(s.data(), v.planes, v.stride, v.At(x, y), pixel);
       }
     });
     return out;
   }
   SgmPass(v, gray, o, +1, false, sums);
-  const PickTarget pick{out.plane.ptr<float>(), out.confidence.ptr<float>(), confidence_scale};
   SgmPass(v, gray, o, -1, true, sums, &pick);
   return out;
 }
