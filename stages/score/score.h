@@ -53,10 +53,18 @@ struct ImageScore {
   double gains[3] = {1, 1, 1};  // B, G, R gains applied (1 without gain correction)
 };
 
+// Working images of the SSIM computation (ten doubles a pixel), reused from one ScoreImage call to
+// the next when the caller keeps them: a fresh full-size image costs its page faults at first
+// touch, most of the scoring time on photo-sized renders.
+struct SsimBuffers {
+  cv::Mat a, b, aa, bb, ab, mu_a, mu_b, mu_aa, mu_bb, mu_ab;
+};
+
 // `real`, `rendered`: CV_8UC3 of one size; `coverage`: CV_8UC1, nonzero where covered; `mask`:
 // CV_8UC1 (nonzero = foreground) or empty. Throws std::invalid_argument on size mismatch.
+// `buffers`: optional, see SsimBuffers (one set per thread).
 ImageScore ScoreImage(const cv::Mat& real, const cv::Mat& rendered, const cv::Mat& coverage, const cv::Mat& mask,
-                      const ScoreOptions& options);
+                      const ScoreOptions& options, SsimBuffers* buffers = nullptr);
 
 // real | rendered | |real - rendered| * error_gain (uncovered pixels of the error panel dark blue).
 cv::Mat SideBySide(const cv::Mat& real, const cv::Mat& rendered, const cv::Mat& coverage, int error_gain);

@@ -6,6 +6,8 @@
 // Masks, first found: ground_truth/masks/<image>.png (synth), heldout/masks/<image>.png
 // (silhouettes stage), masks/<image>.png.
 #include <spdlog/spdlog.h>
+#include <tbb/enumerable_thread_specific.h>
+#include <tbb/parallel_for.h>
 #include <Eigen/Eigenvalues>
 #include <Eigen/Cholesky>
 
@@ -138,8 +140,31 @@ class ScoreStage : public Stage {
                           {"heldout", context.heldout_images},
                           {"proxies", nlohmann::json::object()}};
     fs::create_directories(ws.Path("scores"));
+    // Every rendered view of every proxy, scored in parallel (each reads its own files and writes
+    // its own side-by-side image), then gathered in the order renders.json gives.
+    const nlohmann::json proxies = renders.value("proxies", nlohmann::json::array());
+    struct Item {
+      std::string proxy, image;
+      nlohmann::json info;
+    };
+    std::vector<Item> items;
+    for (const nlohmann::json& proxy : proxies) {
+      if (proxy.value("status", "") != "rendered") continue;
+      const std::string name = proxy.value("name", "");
+      fs::create_directories(ws.Path("scores/" + name));
+      const nlohmann::json views = proxy.value("views", nlohmann::json::object());  // named: items() refers to it
+      for (const auto& [image_name, info] : views.items()) {
+        items.push_back({name, image_name, info});
+      }
+    }
+    std::vector<nlohmann::json> results(items.size());
+    tbb::enumerable_thread_specific<SsimBuffers> buffers;  // freed when the stage is done
+    tbb::parallel_for(size_t{0}, items.size(), [&](size_t i) {
+      results[i] = ScoreView(context, options, items[i].proxy, items[i].image, items[i].info, model, training_centers,
+                             training_names, scene_center, &buffers.local());
+    });
     size_t scored = 0;
-    for (const nlohmann::json& proxy : renders.value("proxies", nlohmann::json::array())) {
+    for (const nlohmann::json& proxy : proxies) {
       const std::string name = proxy.value("name", "");
       if (proxy.value("status", "") != "rendered") {
         spdlog::warn("[score] proxy {} was not rendered ({}); no scores for it", name, proxy.value("reason", "?"));
@@ -147,13 +172,7 @@ class ScoreStage : public Stage {
         continue;
       }
       nlohmann::json views = nlohmann::json::object();
-      fs::create_directories(ws.Path("scores/" + name));
-      const nlohmann::json rendered_views = proxy.value("views", nlohmann::json::object());
-      for (const auto& [image_name, info] : rendered_views.items()) {
-        views[image_name] = ScoreView(context, options, name, image_name, info, model, training_centers,
-                                      training_names, scene_center);
-        ++scored;
-      }
+      for (; scored < items.size() && items[scored].proxy == name; ++scored) views[items[scored].image] = results[scored];
       const double near = options.near_angle_deg;
       const auto is_near = [near](const nlohmann::json& v) {
         return v.contains("nearest_training_angle_deg") && v["nearest_training_angle_deg"].get<double>() < near;
@@ -195,7 +214,8 @@ class ScoreStage : public Stage {
   static nlohmann::json ScoreView(const StageContext& context, const ScoreOptions& options, const std::string& proxy,
                                   const std::string& image_name, const nlohmann::json& info, const SparseModel& model,
                                   const std::vector<Eigen::Vector3d>& training_centers,
-                                  const std::vector<std::string>& training_names, const Eigen::Vector3d& scene_center) {
+                                  const std::vector<std::string>& training_names, const Eigen::Vector3d& scene_center,
+                                  SsimBuffers* buffers) {
     const Workspace& ws = context.workspace;
     // The render as renders.json lists it (its file name is render's, not rebuilt here from the
     // image name); older renders.json files without the entry used renders/<proxy>/<stem>.png.
@@ -237,7 +257,7 @@ class ScoreStage : public Stage {
       v["mask"] = std::string(folder) + "/" + image_name + ".png";
       break;
     }
-    const ImageScore score = ScoreImage(real, rendered, coverage, mask, options);
+    const ImageScore score = ScoreImage(real, rendered, coverage, mask, options, buffers);
     // A render that covers no pixel has no PSNR or SSIM (ScoreImage's 0 is not a score): they are
     // left out, so the means run over the views that have them, as for photo_*; coverage says 0.
     if (score.all.pixels > 0) {
@@ -277,7 +297,7 @@ class ScoreStage : public Stage {
       if (filled.size() != real.size() || filled_coverage.size() != real.size() || filled_coverage.type() != CV_8UC1) {
         throw InputError(filled_path + ": size differs from the photo " + real_path + "; re-run the render stage");
       }
-      const ImageScore filled_score = ScoreImage(real, filled, filled_coverage, mask, options);
+      const ImageScore filled_score = ScoreImage(real, filled, filled_coverage, mask, options, buffers);
       if (filled_score.all.pixels > 0) {
         v["filled_psnr"] = filled_score.all.psnr;
         v["filled_ssim"] = filled_score.all.ssim;

@@ -113,6 +113,50 @@ TEST(ScoreImage, PhotoScoreCountsHolesAsBlack) {
   EXPECT_EQ(error.rfind("photo_threshold:", 0), 0u) << error;
 }
 
+// SSIM as Wang et al. define it (11x11 Gaussian window, sigma 1.5, C1 = (0.01 L)^2, C2 = (0.03 L)^2,
+// mean over the channels), written with OpenCV's matrix expressions, averaged over the pixels whose
+// window lies inside the image (a fully covered render).
+double ReferenceSsim(const cv::Mat& a8, const cv::Mat& b8) {
+  const double c1 = (0.01 * 255) * (0.01 * 255), c2 = (0.03 * 255) * (0.03 * 255);
+  std::vector<cv::Mat> ca, cb;
+  cv::split(a8, ca);
+  cv::split(b8, cb);
+  cv::Mat mean = cv::Mat::zeros(a8.size(), CV_64F);
+  for (size_t c = 0; c < ca.size(); ++c) {
+    cv::Mat a, b, mu_a, mu_b, aa, bb, ab;
+    ca[c].convertTo(a, CV_64F);
+    cb[c].convertTo(b, CV_64F);
+    cv::GaussianBlur(a, mu_a, cv::Size(11, 11), 1.5);
+    cv::GaussianBlur(b, mu_b, cv::Size(11, 11), 1.5);
+    cv::GaussianBlur(a.mul(a), aa, cv::Size(11, 11), 1.5);
+    cv::GaussianBlur(b.mul(b), bb, cv::Size(11, 11), 1.5);
+    cv::GaussianBlur(a.mul(b), ab, cv::Size(11, 11), 1.5);
+    const cv::Mat var_a = aa - mu_a.mul(mu_a), var_b = bb - mu_b.mul(mu_b), cov = ab - mu_a.mul(mu_b);
+    cv::Mat ssim;
+    cv::divide((2 * mu_a.mul(mu_b) + c1).mul(2 * cov + c2), (mu_a.mul(mu_a) + mu_b.mul(mu_b) + c1).mul(var_a + var_b + c2), ssim);
+    mean += ssim / static_cast<double>(ca.size());
+  }
+  return cv::mean(mean(cv::Rect(5, 5, a8.cols - 10, a8.rows - 10)))[0];
+}
+
+// The stage's SSIM follows the definition, and working images reused across calls of different
+// sizes (as the stage's threads reuse theirs) change nothing.
+TEST(ScoreImage, SsimFollowsTheDefinitionWithReusedBuffers) {
+  SsimBuffers buffers;
+  for (const cv::Size size : {cv::Size(64, 48), cv::Size(37, 53), cv::Size(64, 48)}) {
+    const cv::Mat real = Noise(size.width, size.height, 5);
+    cv::Mat rendered;
+    cv::GaussianBlur(real, rendered, cv::Size(3, 3), 0.8);  // a softer render, partly correlated
+    rendered += cv::Scalar(3, 0, 7);
+    const cv::Mat coverage(size, CV_8UC1, cv::Scalar(255));
+    const double expected = ReferenceSsim(real, rendered);
+    EXPECT_GT(expected, 0.2);
+    EXPECT_LT(expected, 0.95);
+    EXPECT_NEAR(ScoreImage(real, rendered, coverage, cv::Mat(), ScoreOptions(), &buffers).all.ssim, expected, 1e-12);
+    EXPECT_NEAR(ScoreImage(real, rendered, coverage, cv::Mat(), ScoreOptions()).all.ssim, expected, 1e-12);
+  }
+}
+
 TEST(ScoreImage, RejectsSizeMismatch) {
   EXPECT_THROW(ScoreImage(Noise(8, 8, 1), Noise(9, 8, 1), cv::Mat(8, 8, CV_8UC1), cv::Mat(), ScoreOptions()),
                std::invalid_argument);
