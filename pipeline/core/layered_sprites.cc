@@ -41,19 +41,20 @@ double LayerSet::Depth(size_t k, int x, int y) const {
 
 namespace {
 
-// One layer as a triangle mesh in world coordinates: a vertex per sprite pixel with alpha > 0,
+// One layer as a triangle mesh in world coordinates, into scratch.mesh with scratch.rgba per
+// vertex (premultiplied colour, 0-255, and alpha, 0-1): a vertex per sprite pixel with alpha > 0,
 // two triangles per 2x2 block whose corners are all in the sprite and whose depths agree.
-struct LayerMesh {
-  TriangleMesh mesh;
-  std::vector<Eigen::Vector4f> rgba;  // per vertex: premultiplied colour (0-255) and alpha (0-1)
-};
-
-LayerMesh BuildLayerMesh(const LayerSet& set, size_t k, double max_depth_step) {
+void BuildLayerMesh(const LayerSet& set, size_t k, double max_depth_step, CompositeScratch* scratch) {
   const SpriteLayer& layer = set.layers[k];
   const int width = layer.rgba.cols, height = layer.rgba.rows;
-  LayerMesh out;
-  std::vector<int> index(static_cast<size_t>(width) * height, -1);
-  std::vector<float> depth(index.size(), 0.f);
+  TriangleMesh& mesh = scratch->mesh;
+  std::vector<int>& index = scratch->index;
+  std::vector<float>& depth = scratch->vertex_depth;
+  mesh.vertices.clear();
+  mesh.faces.clear();
+  scratch->rgba.clear();
+  index.assign(static_cast<size_t>(width) * height, -1);
+  depth.assign(index.size(), 0.f);
   const Eigen::Matrix3d world_from_cam = set.cam_from_world.R().transpose();
   const Eigen::Vector3d centre = -(world_from_cam * set.cam_from_world.translation);
   for (int y = 0; y < height; ++y) {
@@ -63,11 +64,11 @@ LayerMesh BuildLayerMesh(const LayerSet& set, size_t k, double max_depth_step) {
       const double z = set.Depth(k, x, y);
       if (z <= 0) continue;
       const Eigen::Vector3d point = centre + world_from_cam * (z * set.camera.CamFromImg(Eigen::Vector2d(x + 0.5, y + 0.5)));
-      index[static_cast<size_t>(y) * width + x] = static_cast<int>(out.mesh.vertices.size());
+      index[static_cast<size_t>(y) * width + x] = static_cast<int>(mesh.vertices.size());
       depth[static_cast<size_t>(y) * width + x] = static_cast<float>(z);
-      out.mesh.vertices.push_back(point.cast<float>());
+      mesh.vertices.push_back(point.cast<float>());
       const float a = row[x][3] / 255.0f;
-      out.rgba.emplace_back(a * row[x][0], a * row[x][1], a * row[x][2], a);
+      scratch->rgba.emplace_back(a * row[x][0], a * row[x][1], a * row[x][2], a);
     }
   }
   auto close = [&](float a, float b) { return std::abs(a - b) <= max_depth_step * std::min(a, b); };
@@ -77,36 +78,40 @@ LayerMesh BuildLayerMesh(const LayerSet& set, size_t k, double max_depth_step) {
       const int a = index[i00], b = index[i10], c = index[i01], d = index[i11];
       // Two triangles (a, c, d) and (a, d, b) when present and without a depth step.
       if (a >= 0 && c >= 0 && d >= 0 && close(depth[i00], depth[i01]) && close(depth[i00], depth[i11])) {
-        out.mesh.faces.emplace_back(a, c, d);
+        mesh.faces.emplace_back(a, c, d);
       }
       if (a >= 0 && d >= 0 && b >= 0 && close(depth[i00], depth[i11]) && close(depth[i00], depth[i10])) {
-        out.mesh.faces.emplace_back(a, d, b);
+        mesh.faces.emplace_back(a, d, b);
       }
     }
   }
-  return out;
 }
 
 }  // namespace
 
-RgbaImage CompositeLayers(const LayerSet& set, const Camera& camera, const Rigid3d& cam_from_world, double max_depth_step) {
+RgbaImage CompositeLayers(const LayerSet& set, const Camera& camera, const Rigid3d& cam_from_world, double max_depth_step,
+                          CompositeScratch* scratch_in) {
+  CompositeScratch own;
+  CompositeScratch& scratch = scratch_in != nullptr ? *scratch_in : own;
   const int width = camera.width, height = camera.height;
   const size_t pixels = static_cast<size_t>(width) * height;
   const size_t count = set.layers.size();
   // Per layer, its colour, alpha and depth in the desired view.
-  std::vector<std::vector<Eigen::Vector4f>> drawn(count);
-  std::vector<std::vector<float>> depth(count);
+  std::vector<std::vector<Eigen::Vector4f>>& drawn = scratch.drawn;
+  std::vector<std::vector<float>>& depth = scratch.depth;
+  if (drawn.size() < count) drawn.resize(count), depth.resize(count);
   for (size_t k = 0; k < count; ++k) {
-    const LayerMesh layer = BuildLayerMesh(set, k, max_depth_step);
+    BuildLayerMesh(set, k, max_depth_step, &scratch);
     drawn[k].assign(pixels, Eigen::Vector4f::Zero());
     depth[k].assign(pixels, 0.f);
-    if (layer.mesh.faces.empty()) continue;
-    const RasterResult raster = Rasterize(layer.mesh, camera, cam_from_world);
+    if (scratch.mesh.faces.empty()) continue;
+    Rasterize(scratch.mesh, camera, cam_from_world, RasterizeOptions(), &scratch.raster);
+    const RasterResult& raster = scratch.raster;
     tbb::parallel_for(0, height, [&](int y) {
       for (int x = 0; x < width; ++x) {
         const size_t i = static_cast<size_t>(y) * width + x;
         if (raster.face_id[i] < 0) continue;
-        drawn[k][i] = InterpolateAttribute(raster, layer.mesh, layer.rgba, x, y);
+        drawn[k][i] = InterpolateAttribute(raster, scratch.mesh, scratch.rgba, x, y);
         depth[k][i] = raster.depth.At(x, y);
       }
     });

@@ -176,14 +176,25 @@ Intrinsics IntrinsicsOf(const Camera& camera) {
 
 RasterResult Rasterize(const TriangleMesh& mesh, const Camera& camera, const Rigid3d& cam_from_world,
                        const RasterizeOptions& options) {
+  RasterResult result;
+  Rasterize(mesh, camera, cam_from_world, options, &result);
+  return result;
+}
+
+void Rasterize(const TriangleMesh& mesh, const Camera& camera, const Rigid3d& cam_from_world,
+               const RasterizeOptions& options, RasterResult* out) {
   if (!(options.near_z > 0.0)) {
     throw InputError("Rasterize: near_z must be > 0 (got " + std::to_string(options.near_z) + ")");
   }
   const Intrinsics k = IntrinsicsOf(camera);
-  RasterResult result;
-  result.depth = DepthMap(k.width, k.height, 1, 0.f);
-  result.face_id.assign(static_cast<size_t>(k.width) * k.height, -1);
-  result.barycentric = FloatMap(k.width, k.height, 3, 0.f);
+  RasterResult& result = *out;
+  const size_t pixels = static_cast<size_t>(k.width) * k.height;
+  for (FloatMap* map : {&result.depth, &result.barycentric}) {
+    map->width = k.width, map->height = k.height;
+    map->channels = map == &result.depth ? 1 : 3;
+    map->data.assign(pixels * map->channels, 0.f);
+  }
+  result.face_id.assign(pixels, -1);
 
   const Eigen::Matrix3d rotation = cam_from_world.R();
   std::vector<Eigen::Vector3d> points_in_cam(mesh.vertices.size());
@@ -208,7 +219,6 @@ RasterResult Rasterize(const TriangleMesh& mesh, const Camera& camera, const Rig
       RasterizeTriangle(tri, static_cast<int>(f), k, &result);
     }
   }
-  return result;
 }
 
 }  // namespace ibmr

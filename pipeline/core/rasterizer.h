@@ -28,6 +28,10 @@ struct RasterResult {
 // Rasterizes `mesh` seen by `camera` (intrinsics; distortion ignored) at pose `cam_from_world`.
 RasterResult Rasterize(const TriangleMesh& mesh, const Camera& camera, const Rigid3d& cam_from_world,
                        const RasterizeOptions& options = RasterizeOptions());
+// The same into `out`, whose buffers are reused when they hold enough (a caller drawing many
+// meshes saves their allocation and first touches).
+void Rasterize(const TriangleMesh& mesh, const Camera& camera, const Rigid3d& cam_from_world,
+               const RasterizeOptions& options, RasterResult* out);
 
 // Perspective-correct interpolation of a per-vertex attribute at a covered pixel.
 template <typename T>

@@ -87,6 +87,26 @@ TEST(Rasterizer, FrontoParallelQuadHasExactDepth) {
   }
 }
 
+// A result reused for another mesh and another image size holds that raster alone, as a fresh one.
+TEST(Rasterizer, AReusedResultEqualsAFreshOne) {
+  RasterResult reused;
+  const TriangleMesh cube = SubdividedCube(3);
+  const Rigid3d pose(Eigen::Quaterniond(Eigen::AngleAxisd(0.4, Eigen::Vector3d(1, 1, 0).normalized())), Eigen::Vector3d(0, 0, 6));
+  const TriangleMesh quad = Quad({-1, -1, 4}, {1, -1, 4}, {1, 1, 4}, {-1, 1, 4});
+  for (const auto& [mesh, camera] : std::vector<std::pair<TriangleMesh, Camera>>{
+           {cube, Camera::Pinhole(80, 60, 70, 70, 40, 30)}, {quad, Camera::Pinhole(50, 70, 60, 60, 25, 35)}, {cube, Camera::Pinhole(30, 20, 25, 25, 15, 10)}}) {
+    Rasterize(mesh, camera, pose, RasterizeOptions(), &reused);
+    const RasterResult fresh = Rasterize(mesh, camera, pose);
+    EXPECT_GT(CountCovered(fresh), 0);
+    EXPECT_EQ(reused.depth.width, fresh.depth.width);
+    EXPECT_EQ(reused.depth.height, fresh.depth.height);
+    EXPECT_EQ(reused.depth.data, fresh.depth.data);
+    EXPECT_EQ(reused.face_id, fresh.face_id);
+    EXPECT_EQ(reused.barycentric.channels, 3);
+    EXPECT_EQ(reused.barycentric.data, fresh.barycentric.data);
+  }
+}
+
 TEST(Rasterizer, TiltedPlaneDepthAtPixelCentres) {
   // Plane z = 4 + x in the camera frame; the ray (dx, dy, 1) meets it at z = 4 / (1 - dx).
   const Camera camera = Camera::Pinhole(160, 120, 100, 100, 80, 60);

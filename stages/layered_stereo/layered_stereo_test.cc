@@ -311,6 +311,39 @@ TEST(CompositeLayers, OrderIsBackToFrontForAnyDesiredView) {
   EXPECT_NEAR(mixed.alpha.at<float>(10, 10), 1.f, 1e-5);
 }
 
+// A scratch kept across calls (as the layer count's held-out renders keep one) changes nothing:
+// sets with more and fewer layers, views of other sizes, a sprite with holes, against fresh
+// buffers, to the bit.
+TEST(CompositeLayers, ReusedScratchDrawsLikeFreshBuffers) {
+  LayerSet set;
+  set.camera = Camera::Pinhole(40, 30, 40, 40, 20, 15);
+  set.cam_from_world = Rigid3d();
+  for (int k = 0; k < 3; ++k) {
+    SpriteLayer layer;
+    layer.normal = Eigen::Vector3d(0.1 * k, 0, 1).normalized();
+    layer.offset = 2.0 + k;
+    layer.rgba = cv::Mat(30, 40, CV_8UC4);
+    cv::randu(layer.rgba, cv::Scalar::all(0), cv::Scalar::all(256));
+    layer.rgba(cv::Rect(5 * k, 3, 10, 8)).setTo(cv::Scalar::all(0));  // a hole: alpha 0
+    set.layers.push_back(layer);
+  }
+  const Eigen::Matrix3d turn = Eigen::AngleAxisd(0.1, Eigen::Vector3d::UnitY()).toRotationMatrix();
+  const std::vector<std::pair<Camera, Rigid3d>> views = {{Camera::Pinhole(36, 28, 35, 35, 18, 14), Rigid3d()},
+                                                         {Camera::Pinhole(50, 20, 40, 40, 25, 10), Rigid3d(turn, Eigen::Vector3d(0.2, 0, 0))},
+                                                         {Camera::Pinhole(36, 28, 35, 35, 18, 14), Rigid3d(turn, Eigen::Vector3d(-0.1, 0.1, 0))}};
+  CompositeScratch scratch;
+  for (size_t round = 0; round < 2 * views.size(); ++round) {
+    LayerSet subset = set;
+    subset.layers.resize(1 + round % 3);
+    const auto& [camera, pose] = views[round % views.size()];
+    const RgbaImage fresh = CompositeLayers(subset, camera, pose);
+    const RgbaImage reused = CompositeLayers(subset, camera, pose, kLayerMaxDepthStep, &scratch);
+    EXPECT_GT(cv::countNonZero(fresh.alpha), 0);
+    EXPECT_EQ(cv::norm(fresh.color, reused.color, cv::NORM_INF), 0.0) << "round " << round;
+    EXPECT_EQ(cv::norm(fresh.alpha, reused.alpha, cv::NORM_INF), 0.0) << "round " << round;
+  }
+}
+
 TEST(LayerSetFiles, WrittenAndReadBackAndABrokenOneIsNamed) {
   const std::string folder = (std::filesystem::temp_directory_path() / ("ibmr_layers_" + std::to_string(::getpid()))).string();
   LayerSet set;

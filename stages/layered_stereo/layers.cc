@@ -455,6 +455,7 @@ LayerCountCurve ChooseLayerCount(const LayerView& reference, const std::vector<c
   std::vector<std::vector<RgbaImage>> renders(counts, std::vector<RgbaImage>(neighbours.size()));
   std::vector<cv::Mat> plane_z;
   for (const WorldPlane& plane : planes) plane_z.push_back(PlaneDepthMap(reference, plane));
+  CompositeScratch scratch;  // one set of drawing buffers for all the renders below
   for (size_t j = 0; j < neighbours.size(); ++j) {
     std::vector<const LayerView*> others;
     for (size_t i = 0; i < neighbours.size(); ++i) {
@@ -466,7 +467,7 @@ LayerCountCurve ChooseLayerCount(const LayerView& reference, const std::vector<c
       const std::vector<WorldPlane> subset(planes.begin(), planes.begin() + static_cast<long>(c) + 1);
       const cv::Mat labels = AssignFromCosts(reference, costs, static_cast<int>(c) + 1, options);
       const LayerSet set = SpritesFromPlaneDepths(reference, others, subset, plane_z, labels, options);
-      renders[c][j] = CompositeLayers(set, neighbours[j]->camera, neighbours[j]->cam_from_world);
+      renders[c][j] = CompositeLayers(set, neighbours[j]->camera, neighbours[j]->cam_from_world, kLayerMaxDepthStep, &scratch);
     }
   }
   // The error of every count over one region per neighbour: the pixels any count covers.

@@ -39,8 +39,9 @@ RenderResult LayersRenderer::Render(const Camera& camera, const Rigid3d& cam_fro
   cv::Mat weights(height, width, CV_32F, cv::Scalar::all(0));     // sum of w * alpha
   cv::Mat alpha(height, width, CV_32F, cv::Scalar::all(0));       // largest alpha
   const double soft = 0.5 * M_PI / 180.0;
+  CompositeScratch scratch;  // the references' drawings share their buffers
   for (const auto& [angle, i] : nearest) {
-    const RgbaImage drawn = CompositeLayers(sets_[i], camera, cam_from_world);
+    const RgbaImage drawn = CompositeLayers(sets_[i], camera, cam_from_world, kLayerMaxDepthStep, &scratch);
     const float w = static_cast<float>(1.0 / ((angle + soft) * (angle + soft)));
     for (int y = 0; y < height; ++y) {
       const cv::Vec3f* c = drawn.color.ptr<cv::Vec3f>(y);
