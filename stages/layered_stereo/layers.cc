@@ -85,17 +85,24 @@ cv::Mat PlaneDepthMap(const LayerView& reference, const WorldPlane& plane) {
   return z;
 }
 
+// The views' colours as floats (CV_32FC3), converted once for all the planes and offsets a
+// caller warps them through.
+std::vector<cv::Mat> FloatImages(const std::vector<const LayerView*>& views) {
+  std::vector<cv::Mat> out(views.size());
+  for (size_t i = 0; i < views.size(); ++i) views[i]->image.convertTo(out[i], CV_32FC3);
+  return out;
+}
+
 // Per pixel, the mean absolute colour difference between the reference and the neighbour warped
 // through the plane; NaN where the neighbour does not reach, and where the plane's point lies
 // behind either camera (the homography would mirror it into the neighbour's image: the floor
 // ahead of a camera that moves forward lies behind the camera in front).
-cv::Mat WarpDifference(const LayerView& reference, const LayerView& neighbour, const WorldPlane& plane,
-                       const cv::Mat& reference_float) {
-  cv::Mat source, warped;
-  neighbour.image.convertTo(source, CV_32FC3);
+cv::Mat WarpDifference(const LayerView& reference, const LayerView& neighbour, const cv::Mat& neighbour_float,
+                       const WorldPlane& plane, const cv::Mat& reference_float) {
+  cv::Mat warped;
   const float nan = std::numeric_limits<float>::quiet_NaN();
   const cv::Matx33d h = PlaneHomography(reference, neighbour, plane);
-  cv::warpPerspective(source, warped, h, reference.image.size(), cv::INTER_LINEAR | cv::WARP_INVERSE_MAP,
+  cv::warpPerspective(neighbour_float, warped, h, reference.image.size(), cv::INTER_LINEAR | cv::WARP_INVERSE_MAP,
                       cv::BORDER_CONSTANT, cv::Scalar::all(nan));
   // At pixel (x, y) the homography's third coordinate is z_neighbour / z_reference, and
   // n_c . K^-1 (x + 0.5, y + 0.5, 1) has the sign of d_c where the plane lies in front of the reference.
@@ -125,10 +132,13 @@ cv::Mat WarpDifference(const LayerView& reference, const LayerView& neighbour, c
 // Per pixel, how well the neighbours warped through a plane agree with the reference: the mean of
 // the two best neighbours' colour differences (one neighbour that an occluder hides does not veto),
 // max_cost where none reaches, box-filtered 5x5.
-cv::Mat PhotoCost(const LayerView& reference, const std::vector<const LayerView*>& neighbours, const WorldPlane& plane,
-                  const cv::Mat& reference_float, const LayeredOptions& options) {
+cv::Mat PhotoCost(const LayerView& reference, const std::vector<const LayerView*>& neighbours,
+                  const std::vector<cv::Mat>& neighbours_float, const WorldPlane& plane, const cv::Mat& reference_float,
+                  const LayeredOptions& options) {
   std::vector<cv::Mat> differences;
-  for (const LayerView* n : neighbours) differences.push_back(WarpDifference(reference, *n, plane, reference_float));
+  for (size_t i = 0; i < neighbours.size(); ++i) {
+    differences.push_back(WarpDifference(reference, *neighbours[i], neighbours_float[i], plane, reference_float));
+  }
   cv::Mat photo(reference.image.size(), CV_32F);
   for (int y = 0; y < photo.rows; ++y) {
     float* out = photo.ptr<float>(y);
@@ -157,11 +167,12 @@ std::vector<cv::Mat> DataCosts(const LayerView& reference, const std::vector<con
                                std::vector<cv::Mat>* plane_depths) {
   cv::Mat reference_float;
   reference.image.convertTo(reference_float, CV_32FC3);
+  const std::vector<cv::Mat> neighbours_float = FloatImages(neighbours);
   std::vector<cv::Mat> costs(planes.size());
   plane_depths->assign(planes.size(), cv::Mat());
   tbb::parallel_for(size_t{0}, planes.size(), [&](size_t l) {
     (*plane_depths)[l] = PlaneDepthMap(reference, planes[l]);
-    cv::Mat photo = PhotoCost(reference, neighbours, planes[l], reference_float, options);
+    cv::Mat photo = PhotoCost(reference, neighbours, neighbours_float, planes[l], reference_float, options);
     const cv::Mat& plane_z = (*plane_depths)[l];
     for (int y = 0; y < photo.rows; ++y) {
       float* out = photo.ptr<float>(y);
@@ -191,8 +202,9 @@ std::vector<cv::Mat> DataCosts(const LayerView& reference, const std::vector<con
 // pixel of the layer: the cheapest of `residual_steps` deltas spread over [-max_residual,
 // max_residual], refined by a parabola through its neighbours; NaN where no neighbour reaches
 // or the minimum lies on the range's end (no evidence of a surface inside it).
-cv::Mat SweepResidual(const LayerView& reference, const std::vector<const LayerView*>& neighbours, const WorldPlane& plane,
-                      const cv::Mat& own, const cv::Mat& reference_float, const LayeredOptions& options) {
+cv::Mat SweepResidual(const LayerView& reference, const std::vector<const LayerView*>& neighbours,
+                      const std::vector<cv::Mat>& neighbours_float, const WorldPlane& plane, const cv::Mat& own,
+                      const cv::Mat& reference_float, const LayeredOptions& options) {
   const int steps = options.residual_steps;
   const Eigen::Vector3d centre = -(reference.cam_from_world.R().transpose() * reference.cam_from_world.translation);
   const double plane_from_centre = plane.offset - plane.normal.dot(centre);
@@ -206,7 +218,7 @@ cv::Mat SweepResidual(const LayerView& reference, const std::vector<const LayerV
   for (int k = 0; k < steps; ++k) {
     WorldPlane scaled = plane;
     scaled.offset = plane.normal.dot(centre) + (1 + delta_of(k)) * plane_from_centre;
-    const cv::Mat cost = PhotoCost(reference, neighbours, scaled, reference_float, options);
+    const cv::Mat cost = PhotoCost(reference, neighbours, neighbours_float, scaled, reference_float, options);
     for (int y = 0; y < size.height; ++y) {
       const uint8_t* mine = own.ptr<uint8_t>(y);
       const float* c = cost.ptr<float>(y);
@@ -436,9 +448,11 @@ LayerSet BuildSprites(const LayerView& reference, const std::vector<const LayerV
   if (options.residual_steps > 0 && !neighbours.empty()) {
     cv::Mat reference_float;
     reference.image.convertTo(reference_float, CV_32FC3);
+    const std::vector<cv::Mat> neighbours_float = FloatImages(neighbours);
     swept.resize(planes.size());
     tbb::parallel_for(size_t{0}, planes.size(), [&](size_t l) {
-      swept[l] = SweepResidual(reference, neighbours, planes[l], labels == static_cast<int>(l), reference_float, options);
+      swept[l] = SweepResidual(reference, neighbours, neighbours_float, planes[l], labels == static_cast<int>(l), reference_float,
+                               options);
     });
   }
   return SpritesFromPlaneDepths(reference, neighbours, planes, plane_z, labels, options, swept);

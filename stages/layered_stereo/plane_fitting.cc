@@ -165,8 +165,12 @@ struct PlaneResidual {
 
 // A hypothesis' support: the size of the largest 8-connected region of its inliers among
 // `coarse` (samples on a grid of 2 sampling steps, marked in `mask`, which has that grid's size).
+// No region is larger than the inliers: when they are no more than `to_beat` (the best support so
+// far), their count is returned without finding the regions, as it cannot win either (most
+// hypotheses; the regions' labelling was a sixth of layered_stereo's time). `labels`: the
+// labelling's working image, reused.
 size_t RegionSupport(const std::vector<Sample>& samples, const std::vector<size_t>& coarse, const WorldPlane& plane,
-                     double tolerance, int cell, cv::Mat* mask) {
+                     double tolerance, int cell, size_t to_beat, cv::Mat* mask, cv::Mat* labels) {
   mask->setTo(0);
   size_t inliers = 0;
   for (size_t i : coarse) {
@@ -174,10 +178,9 @@ size_t RegionSupport(const std::vector<Sample>& samples, const std::vector<size_
     mask->at<uchar>(samples[i].y / cell, samples[i].x / cell) = 255;
     ++inliers;
   }
-  if (inliers == 0) return 0;
-  cv::Mat labels;
+  if (inliers <= to_beat) return inliers;
   int area = 0;
-  LargestComponent(*mask, &labels, &area);
+  LargestComponent(*mask, labels, &area);
   return static_cast<size_t>(area);
 }
 
@@ -197,7 +200,7 @@ std::vector<WorldPlane> FitPlanesRansac(const LayerView& reference, const Layere
   // still serves as a layer for the scattered surfaces it passes through (the count selection
   // decides whether it stays).
   const int cell = 2 * options.sample_step;
-  cv::Mat mask(reference.depth.rows / cell + 1, reference.depth.cols / cell + 1, CV_8U);
+  cv::Mat mask(reference.depth.rows / cell + 1, reference.depth.cols / cell + 1, CV_8U), labels;
   // One round of sequential RANSAC: the best hypothesis, refitted, and its inlier count.
   auto find_plane = [&](bool by_region, size_t* support) {
     std::uniform_int_distribution<size_t> pick(0, samples.size() - 1);
@@ -219,7 +222,7 @@ std::vector<WorldPlane> FitPlanesRansac(const LayerView& reference, const Layere
       if (i == j || j == k || i == k || !PlaneThrough(samples[i].point, samples[j].point, samples[k].point, &candidate)) continue;
       size_t score = 0;
       if (by_region) {
-        score = RegionSupport(samples, coarse, candidate, options.plane_tolerance, cell, &mask);
+        score = RegionSupport(samples, coarse, candidate, options.plane_tolerance, cell, best_score, &mask, &labels);
       } else {
         for (size_t c : coarse) score += OnPlane(candidate, samples[c], options.plane_tolerance);
       }
