@@ -68,20 +68,11 @@ struct RgbaImage {
   cv::Mat alpha;  // CV_32F in [0, 1]
 };
 
-// Draws every layer of `set` in the view (camera, cam_from_world) and composites them per pixel
-// back to front by their depth there. `max_depth_step` (relative) stops triangles between sprite
-// pixels whose depths differ by more than that fraction. Returns premultiplied colour and alpha.
-// `scratch` (optional): working memory kept by a caller that composites many times (see
-// CompositeScratch).
-constexpr double kLayerMaxDepthStep = 0.05;
-struct CompositeScratch;
-RgbaImage CompositeLayers(const LayerSet& set, const Camera& camera, const Rigid3d& cam_from_world,
-                          double max_depth_step = kLayerMaxDepthStep, CompositeScratch* scratch = nullptr);
-
-// CompositeLayers' working memory: each layer's mesh, raster, colour and depth in the view (about
-// 30 bytes a pixel a layer). A caller that composites many sets (the layer count's held-out
-// predictions: a few dozen a view) keeps one, so that these buffers are allocated and first
-// touched once instead of every time (page faults were a quarter of layered_stereo's time).
+// CompositeLayers' working memory: each layer's colour and depth in the view (20 bytes a pixel a
+// layer), the raster (20 bytes a pixel) and a layer's mesh (about 36 bytes a sprite pixel). A
+// caller that composites many sets (the layer count's held-out predictions: a few dozen a view)
+// keeps one, so that these buffers are allocated and first touched once instead of every time
+// (page faults were a quarter of layered_stereo's time).
 struct CompositeScratch {
   TriangleMesh mesh;
   std::vector<Eigen::Vector4f> rgba;
@@ -91,6 +82,16 @@ struct CompositeScratch {
   std::vector<std::vector<Eigen::Vector4f>> drawn;
   std::vector<std::vector<float>> depth;
 };
+
+// Relative depth step between neighbouring sprite pixels beyond which no triangle joins them.
+constexpr double kLayerMaxDepthStep = 0.05;
+
+// Draws every layer of `set` in the view (camera, cam_from_world) and composites them per pixel
+// back to front by their depth there. `max_depth_step` (relative) stops triangles between sprite
+// pixels whose depths differ by more than that fraction. Returns premultiplied colour and alpha.
+// `scratch` (optional): working memory kept by a caller that composites many times.
+RgbaImage CompositeLayers(const LayerSet& set, const Camera& camera, const Rigid3d& cam_from_world,
+                          double max_depth_step = kLayerMaxDepthStep, CompositeScratch* scratch = nullptr);
 
 // The alpha of a sprite's seam: the pixels of other layers next to its own, which it covers so
 // that a novel view that pulls the layers apart shows no crack. Drawn as opaque as the rest (to

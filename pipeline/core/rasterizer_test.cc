@@ -87,14 +87,16 @@ TEST(Rasterizer, FrontoParallelQuadHasExactDepth) {
   }
 }
 
-// A result reused for another mesh and another image size holds that raster alone, as a fresh one.
+// A result reused for another mesh, at the same image size or another, holds that raster alone, as
+// a fresh one.
 TEST(Rasterizer, AReusedResultEqualsAFreshOne) {
   RasterResult reused;
   const TriangleMesh cube = SubdividedCube(3);
   const Rigid3d pose(Eigen::Quaterniond(Eigen::AngleAxisd(0.4, Eigen::Vector3d(1, 1, 0).normalized())), Eigen::Vector3d(0, 0, 6));
   const TriangleMesh quad = Quad({-1, -1, 4}, {1, -1, 4}, {1, 1, 4}, {-1, 1, 4});
   for (const auto& [mesh, camera] : std::vector<std::pair<TriangleMesh, Camera>>{
-           {cube, Camera::Pinhole(80, 60, 70, 70, 40, 30)}, {quad, Camera::Pinhole(50, 70, 60, 60, 25, 35)}, {cube, Camera::Pinhole(30, 20, 25, 25, 15, 10)}}) {
+           {cube, Camera::Pinhole(80, 60, 70, 70, 40, 30)}, {quad, Camera::Pinhole(80, 60, 70, 70, 40, 30)},  // same size
+           {quad, Camera::Pinhole(50, 70, 60, 60, 25, 35)}, {cube, Camera::Pinhole(30, 20, 25, 25, 15, 10)}}) {
     Rasterize(mesh, camera, pose, RasterizeOptions(), &reused);
     const RasterResult fresh = Rasterize(mesh, camera, pose);
     EXPECT_GT(CountCovered(fresh), 0);

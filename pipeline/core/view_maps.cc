@@ -95,6 +95,9 @@ Eigen::Vector2d MapDirection(const Eigen::Matrix3d& frame, const Eigen::Vector3d
 void BuildGrid(int grid, FaceViewMap* face, const std::vector<float>& penalty) {
   face->nearest.clear();
   if (face->views.size() < 2) return;
+  if (face->directions.size() > 256) {  // `nearest` holds entries as bytes
+    throw std::invalid_argument("BuildGrid: " + std::to_string(face->directions.size()) + " views, at most 256 fit a grid");
+  }
   if (!penalty.empty() && penalty.size() != face->views.size()) {
     throw std::invalid_argument("BuildGrid: " + std::to_string(penalty.size()) + " penalties for " +
                                 std::to_string(face->views.size()) + " views");

@@ -13,6 +13,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <random>
 
 #include "pipeline/core/errors.h"
@@ -166,6 +167,48 @@ TEST(ViewMaps, PenaltyMovesTheBoundaryTowardThePartlySeenView) {
   BuildGrid(grid, &face, {0.f, 100.f});  // never nearer: every sample the whole view's
   EXPECT_EQ(std::count(face.nearest.begin(), face.nearest.end(), 1), 0);
   EXPECT_THROW(BuildGrid(grid, &face, {0.f}), std::invalid_argument);
+}
+
+// BuildGrid against the grid's definition, sample by sample: each sample takes the view nearest
+// to it (plus its penalty), the first one on a tie; random directions with duplicates (exact ties)
+// and penalties, 2 to 40 views, odd and even grids.
+TEST(BuildGrid, EverySampleTakesTheNearestViewTiesToTheFirst) {
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<float> coordinate(-3.2f, 3.2f), extra(0.f, 0.8f);
+  for (int round = 0; round < 40; ++round) {
+    const int grid = 9 + round % 20, views = 2 + round % 39;
+    FaceViewMap face;
+    std::vector<float> penalty;
+    for (int k = 0; k < views; ++k) {
+      face.views.push_back(static_cast<uint16_t>(k));
+      if (k > 0 && k % 3 == 0) {
+        face.directions.push_back(face.directions[k - 1]);  // the same direction again: a tie
+      } else {
+        face.directions.emplace_back(coordinate(rng), coordinate(rng));
+      }
+      penalty.push_back(round % 2 ? extra(rng) : 0.f);
+    }
+    BuildGrid(grid, &face, round % 4 == 0 ? std::vector<float>{} : penalty);
+    ASSERT_EQ(face.nearest.size(), static_cast<size_t>(grid) * grid);
+    for (int j = 0; j < grid; ++j) {
+      for (int i = 0; i < grid; ++i) {
+        const Eigen::Vector2f sample(static_cast<float>(-M_PI + 2 * M_PI * i / (grid - 1)),
+                                     static_cast<float>(-M_PI + 2 * M_PI * j / (grid - 1)));
+        int best = 0;
+        float best_distance = std::numeric_limits<float>::max();
+        for (int k = 0; k < views; ++k) {
+          float d = (face.directions[k] - sample).norm();
+          if (round % 4 != 0) d += penalty[k];
+          if (d < best_distance) best_distance = d, best = k;
+        }
+        ASSERT_EQ(face.nearest[static_cast<size_t>(j) * grid + i], best) << "round " << round << " sample " << i << "," << j;
+      }
+    }
+  }
+  FaceViewMap many;
+  many.directions.assign(257, Eigen::Vector2f::Zero());
+  many.views.assign(257, 0);
+  EXPECT_THROW(BuildGrid(8, &many), std::invalid_argument);  // entries are bytes
 }
 
 class ViewMapsFile : public ::testing::Test {

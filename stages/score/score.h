@@ -57,7 +57,7 @@ struct ImageScore {
 // the next when the caller keeps them: a fresh full-size image costs its page faults at first
 // touch, most of the scoring time on photo-sized renders.
 struct SsimBuffers {
-  cv::Mat a, b, aa, bb, ab, mu_a, mu_b, mu_aa, mu_bb, mu_ab;
+  cv::Mat a, b, aa, bb, ab, mu_a, mu_b, blur_aa, blur_bb, blur_ab;  // blur_*: the products' Gaussian means
 };
 
 // `real`, `rendered`: CV_8UC3 of one size; `coverage`: CV_8UC1, nonzero where covered; `mask`:

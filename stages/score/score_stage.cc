@@ -8,6 +8,7 @@
 #include <spdlog/spdlog.h>
 #include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
 #include <Eigen/Eigenvalues>
 #include <Eigen/Cholesky>
 
@@ -148,7 +149,9 @@ class ScoreStage : public Stage {
       nlohmann::json info;
     };
     std::vector<Item> items;
+    std::vector<size_t> first_item;  // per proxy of renders.json, its first item (the next proxy's ends it)
     for (const nlohmann::json& proxy : proxies) {
+      first_item.push_back(items.size());
       if (proxy.value("status", "") != "rendered") continue;
       const std::string name = proxy.value("name", "");
       fs::create_directories(ws.Path("scores/" + name));
@@ -157,14 +160,20 @@ class ScoreStage : public Stage {
         items.push_back({name, image_name, info});
       }
     }
+    first_item.push_back(items.size());
     std::vector<nlohmann::json> results(items.size());
     tbb::enumerable_thread_specific<SsimBuffers> buffers;  // freed when the stage is done
     tbb::parallel_for(size_t{0}, items.size(), [&](size_t i) {
-      results[i] = ScoreView(context, options, items[i].proxy, items[i].image, items[i].info, model, training_centers,
-                             training_names, scene_center, &buffers.local());
+      // Isolated: while this view's OpenCV calls wait for parallel work, this thread takes no other
+      // view (which would use the same buffers).
+      tbb::this_task_arena::isolate([&] {
+        results[i] = ScoreView(context, options, items[i].proxy, items[i].image, items[i].info, model, training_centers,
+                               training_names, scene_center, &buffers.local());
+      });
     });
-    size_t scored = 0;
-    for (const nlohmann::json& proxy : proxies) {
+    const size_t scored = items.size();
+    for (size_t p = 0; p < proxies.size(); ++p) {
+      const nlohmann::json& proxy = proxies[p];
       const std::string name = proxy.value("name", "");
       if (proxy.value("status", "") != "rendered") {
         spdlog::warn("[score] proxy {} was not rendered ({}); no scores for it", name, proxy.value("reason", "?"));
@@ -172,7 +181,7 @@ class ScoreStage : public Stage {
         continue;
       }
       nlohmann::json views = nlohmann::json::object();
-      for (; scored < items.size() && items[scored].proxy == name; ++scored) views[items[scored].image] = results[scored];
+      for (size_t i = first_item[p]; i < first_item[p + 1]; ++i) views[items[i].image] = results[i];
       const double near = options.near_angle_deg;
       const auto is_near = [near](const nlohmann::json& v) {
         return v.contains("nearest_training_angle_deg") && v["nearest_training_angle_deg"].get<double>() < near;

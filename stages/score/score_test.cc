@@ -143,8 +143,9 @@ double ReferenceSsim(const cv::Mat& a8, const cv::Mat& b8) {
 // sizes (as the stage's threads reuse theirs) change nothing.
 TEST(ScoreImage, SsimFollowsTheDefinitionWithReusedBuffers) {
   SsimBuffers buffers;
-  for (const cv::Size size : {cv::Size(64, 48), cv::Size(37, 53), cv::Size(64, 48)}) {
-    const cv::Mat real = Noise(size.width, size.height, 5);
+  int seed = 5;
+  for (const cv::Size size : {cv::Size(64, 48), cv::Size(64, 48), cv::Size(37, 53), cv::Size(64, 48)}) {
+    const cv::Mat real = Noise(size.width, size.height, seed++);  // other images at the same size too
     cv::Mat rendered;
     cv::GaussianBlur(real, rendered, cv::Size(3, 3), 0.8);  // a softer render, partly correlated
     rendered += cv::Scalar(3, 0, 7);
@@ -155,6 +156,19 @@ TEST(ScoreImage, SsimFollowsTheDefinitionWithReusedBuffers) {
     EXPECT_NEAR(ScoreImage(real, rendered, coverage, cv::Mat(), ScoreOptions(), &buffers).all.ssim, expected, 1e-12);
     EXPECT_NEAR(ScoreImage(real, rendered, coverage, cv::Mat(), ScoreOptions()).all.ssim, expected, 1e-12);
   }
+  // A render that is not black where uncovered: the photo score's second SSIM map (holes black)
+  // is computed while the first is in use, with the same buffers.
+  const cv::Mat real = Noise(64, 48, 11);
+  const cv::Mat rendered = Noise(64, 48, 12);
+  cv::Mat coverage(48, 64, CV_8UC1, cv::Scalar(0));
+  coverage(cv::Rect(0, 0, 40, 48)).setTo(255);
+  ScoreOptions every;
+  every.photo_threshold = -1;
+  const ImageScore reused = ScoreImage(real, rendered, coverage, cv::Mat(), every, &buffers);
+  const ImageScore fresh = ScoreImage(real, rendered, coverage, cv::Mat(), every);
+  EXPECT_EQ(reused.all.ssim, fresh.all.ssim);
+  EXPECT_EQ(reused.photo.ssim, fresh.photo.ssim);
+  EXPECT_NE(reused.photo.ssim, reused.all.ssim);
 }
 
 TEST(ScoreImage, RejectsSizeMismatch) {
