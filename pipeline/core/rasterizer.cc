@@ -189,11 +189,13 @@ void Rasterize(const TriangleMesh& mesh, const Camera& camera, const Rigid3d& ca
   const Intrinsics k = IntrinsicsOf(camera);
   RasterResult& result = *out;
   const size_t pixels = static_cast<size_t>(k.width) * k.height;
-  for (FloatMap* map : {&result.depth, &result.barycentric}) {
-    map->width = k.width, map->height = k.height;
-    map->channels = map == &result.depth ? 1 : 3;
-    map->data.assign(pixels * map->channels, 0.f);
-  }
+  // Sized and cleared in place: a reused result keeps its buffers.
+  const auto clear = [&](FloatMap* map, int channels) {
+    map->width = k.width, map->height = k.height, map->channels = channels;
+    map->data.assign(pixels * channels, 0.f);
+  };
+  clear(&result.depth, 1);
+  clear(&result.barycentric, 3);
   result.face_id.assign(pixels, -1);
 
   const Eigen::Matrix3d rotation = cam_from_world.R();
