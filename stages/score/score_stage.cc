@@ -7,13 +7,13 @@
 // (silhouettes stage), masks/<image>.png.
 #include <spdlog/spdlog.h>
 #include <tbb/enumerable_thread_specific.h>
-#include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
 #include <Eigen/Eigenvalues>
 #include <Eigen/Cholesky>
 
 #include <filesystem>
 #include <limits>
+#include <map>
 
 #include "pipeline/core/optical_axes.h"
 #include "pipeline/core/atomic_file.h"
@@ -21,6 +21,7 @@
 #include "pipeline/core/errors.h"
 #include "pipeline/core/image_io.h"
 #include "pipeline/core/json_file.h"
+#include "pipeline/core/per_view.h"
 #include "pipeline/core/stage_api.h"
 #include "stages/score/score.h"
 
@@ -99,6 +100,15 @@ class ScoreStage : public Stage {
     return outputs;
   }
 
+  // One render's scoring at its peak, about 120 bytes a pixel: the photo, render, coverage, mask
+  // and side-by-side images (about 20) and the SSIM's working images (SsimBuffers, ten of doubles,
+  // and its map: 88), which stay with the thread for its next render. On the Sceaux castle's
+  // 1600x1202 renders (estimate 220 MB): 216 MB above the stage's start with one render in
+  // flight, 412 MB with two.
+  double ViewMemoryMb(const StageContext& context) const override {
+    return LargestTrainingImage(context).Pixels() * 120.0 / 1048576.0;
+  }
+
   void Run(StageContext& context) const override {
     const ScoreOptions options = ToOptions(context.params);
     const Workspace& ws = context.workspace;
@@ -141,36 +151,50 @@ class ScoreStage : public Stage {
                           {"heldout", context.heldout_images},
                           {"proxies", nlohmann::json::object()}};
     fs::create_directories(ws.Path("scores"));
-    // Every rendered view of every proxy, scored in parallel (each reads its own files and writes
-    // its own side-by-side image), then gathered in the order renders.json gives.
+    // Every rendered view of every proxy is an item of the per-view loop, named <proxy>/<image>:
+    // scored in parallel (each reads its own files and writes its own side-by-side image), as many
+    // at once as the memory budget holds (ViewMemoryMb), marked done as it finishes (a stopped run
+    // resumes there), then gathered in the order renders.json gives.
     const nlohmann::json proxies = renders.value("proxies", nlohmann::json::array());
     struct Item {
       std::string proxy, image;
       nlohmann::json info;
     };
     std::vector<Item> items;
+    std::vector<std::string> item_names;
     std::vector<size_t> first_item;  // per proxy of renders.json, its first item (the next proxy's ends it)
-    for (const nlohmann::json& proxy : proxies) {
+    std::map<std::string, size_t> item_of;
+    for (size_t p = 0; p < proxies.size(); ++p) {
+      const nlohmann::json& proxy = proxies[p];
       first_item.push_back(items.size());
       if (proxy.value("status", "") != "rendered") continue;
       const std::string name = proxy.value("name", "");
       fs::create_directories(ws.Path("scores/" + name));
       const nlohmann::json views = proxy.value("views", nlohmann::json::object());  // named: items() refers to it
       for (const auto& [image_name, info] : views.items()) {
+        std::string item_name = name + "/" + image_name;
+        // Two proxies of one name (renders.json allows it) stay apart.
+        if (item_of.count(item_name)) item_name = name + "#" + std::to_string(p) + "/" + image_name;
+        item_of[item_name] = items.size();
         items.push_back({name, image_name, info});
+        item_names.push_back(item_name);
       }
     }
     first_item.push_back(items.size());
-    std::vector<nlohmann::json> results(items.size());
-    tbb::enumerable_thread_specific<SsimBuffers> buffers;  // freed when the stage is done
-    tbb::parallel_for(size_t{0}, items.size(), [&](size_t i) {
+    tbb::enumerable_thread_specific<SsimBuffers> buffers;  // one set per thread scoring; freed when the stage is done
+    const PerViewSummary summary = ForEachView(context, "score", item_names, [&](const std::string& item_name) {
+      const Item& item = items[item_of.at(item_name)];
+      nlohmann::json result;
       // Isolated: while this view's OpenCV calls wait for parallel work, this thread takes no other
       // view (which would use the same buffers).
       tbb::this_task_arena::isolate([&] {
-        results[i] = ScoreView(context, options, items[i].proxy, items[i].image, items[i].info, model, training_centers,
-                               training_names, scene_center, &buffers.local());
+        result = ScoreView(context, options, item.proxy, item.image, item.info, model, training_centers, training_names,
+                           scene_center, &buffers.local());
       });
+      return result;
     });
+    std::vector<nlohmann::json> results;
+    for (const std::string& item_name : item_names) results.push_back(summary.pieces.at(item_name));
     const size_t scored = items.size();
     for (size_t p = 0; p < proxies.size(); ++p) {
       const nlohmann::json& proxy = proxies[p];

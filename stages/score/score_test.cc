@@ -16,6 +16,7 @@
 #include "pipeline/core/errors.h"
 #include "pipeline/core/image_io.h"
 #include "pipeline/core/stage_api.h"
+#include "pipeline/core/view_checkpoint.h"
 
 namespace fs = std::filesystem;
 
@@ -350,6 +351,85 @@ TEST(ScoreStage, ScoresWhatRendersJsonListsAndLeavesUncoveredViewsOutOfMeans) {
     EXPECT_NE(message.find("renders/plane/v3.png"), std::string::npos) << message;
     EXPECT_NE(message.find("re-run the render stage"), std::string::npos) << message;
   }
+  fs::remove_all(root);
+}
+
+// A workspace of `count` views on a ring (64x48 noise photos), each rendered exactly by the
+// proxy "plane"; returns the stage context for it.
+StageContext ExactRendersWorkspace(const fs::path& root, int count) {
+  fs::remove_all(root);
+  fs::create_directories(root / "images");
+  fs::create_directories(root / "renders/plane");
+  SparseModel model;
+  model.cameras[1] = Camera::Pinhole(64, 48, 60, 60, 32, 24);
+  nlohmann::json views = nlohmann::json::object();
+  StageContext context;
+  for (int i = 0; i < count; ++i) {
+    Image image;
+    image.image_id = i + 1;
+    image.camera_id = 1;
+    image.name = "v" + std::to_string(i) + ".png";
+    const double a = 2 * M_PI / count * i;
+    image.cam_from_world = LookAt(Eigen::Vector3d(3 * std::cos(a), 3 * std::sin(a), 1), Eigen::Vector3d::Zero(),
+                                  Eigen::Vector3d(0, 0, 1));
+    model.images[image.image_id] = image;
+    WriteImage((root / "images" / image.name).string(), Noise(64, 48, i));
+    const std::string render = "renders/plane/v" + std::to_string(i) + ".png";
+    WriteImage((root / render).string(), Noise(64, 48, i));
+    WriteImage((root / ("renders/plane/v" + std::to_string(i) + ".coverage.png")).string(),
+               cv::Mat(48, 64, CV_8UC1, cv::Scalar(255)));
+    views[image.name] = {{"sources", 3}, {"render", render}};
+    context.heldout_images.insert(image.name);
+  }
+  WriteSparseModelText((root / "sparse").string(), model);
+  const nlohmann::json summary = {
+      {"primary", "plane"},
+      {"proxies", nlohmann::json::array({{{"name", "plane"}, {"status", "rendered"}, {"views", views}}})}};
+  WriteFileAtomic((root / "renders/renders.json").string(), summary.dump());
+  context.workspace = Workspace(root.string());
+  context.role = HoldoutRole::kScoring;
+  context.params.Set("gain_correction", false);
+  context.params.Set("near_angle_deg", 1.0);
+  context.params.Set("error_gain", int64_t{4});
+  context.params.Set("photo_threshold", int64_t{20});
+  return context;
+}
+
+// The renders are the stage's per-view items (<proxy>/<image>): scored one at a time when the
+// budget says so, each marked done with its scores, and a run stopped part-way resumes from the
+// marks (a marked render is not scored again; a mark under another key does not count).
+TEST(ScoreStage, ScoresRendersAsPerViewItemsThatResume) {
+  const fs::path root = fs::temp_directory_path() / ("ibmr_score_items_test_" + std::to_string(::getpid()));
+  StageContext context = ExactRendersWorkspace(root, 3);
+  StageRegistry registry;
+  RegisterStage_score(&registry);
+  const Stage* stage = registry.Find("score");
+  // About 120 bytes a pixel of the largest view.
+  EXPECT_NEAR(stage->ViewMemoryMb(context), 64 * 48 * 120.0 / 1048576.0, 1e-9);
+  NullProgress progress;
+  context.progress = &progress;
+  context.max_views_in_flight = 1;
+  context.checkpoint = ViewCheckpoint((root / "records/score.views").string(), "key-1");
+  stage->Run(context);
+  for (const char* name : {"v0.png", "v1.png", "v2.png"}) {
+    EXPECT_TRUE(fs::exists(root / "records/score.views/plane" / (std::string(name) + ".done"))) << name;
+  }
+  auto read_psnr = [&](const std::string& view) {
+    const nlohmann::json out = nlohmann::json::parse(std::ifstream((root / "scores/heldout.json").string()));
+    return out["proxies"]["plane"]["views"][view]["psnr"].get<double>();
+  };
+  EXPECT_EQ(read_psnr("v1.png"), 100.0);
+  // A mark with other scores stands for the render's scoring: the stage takes them as they are.
+  nlohmann::json piece = nlohmann::json::parse(std::ifstream((root / "scores/heldout.json").string()))["proxies"]["plane"]["views"]["v1.png"];
+  piece["psnr"] = 12.5;
+  context.checkpoint.MarkDone("plane/v1.png", piece);
+  stage->Run(context);
+  EXPECT_EQ(read_psnr("v1.png"), 12.5);
+  EXPECT_EQ(read_psnr("v0.png"), 100.0);
+  // Another key (changed inputs or parameters): every render is scored again.
+  context.checkpoint = ViewCheckpoint((root / "records/score.views").string(), "key-2");
+  stage->Run(context);
+  EXPECT_EQ(read_psnr("v1.png"), 100.0);
   fs::remove_all(root);
 }
 
