@@ -55,10 +55,10 @@ void SetUpLogging(const std::string& workspace) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  ibmr::ConfigureHeap(argv);  // first: it may start the program again (see process_memory.h)
   // stderr from the start: spdlog's own default logger writes to stdout, where a warning before
   // the workspace's log is set up corrupted `ibmr export snakemake CONFIG > Snakefile` and `status`.
   SetUpLogging("");
-  ibmr::ConfigureHeap();  // see process_memory.h
   CLI::App app{"ibmr: photographs to 3D models and image-based renderings, stage by stage"};
   app.require_subcommand(1);
 

@@ -26,7 +26,7 @@ double PeakResidentMb() {
 }  // namespace
 
 int main(int argc, char** argv) {
-  ibmr::ConfigureHeap();  // as ibmr does (pipeline/core/process_memory.h)
+  ibmr::ConfigureHeap(argv);  // as ibmr does (pipeline/core/process_memory.h)
   using namespace ibmr;
   if (argc > 1 && argv[1][0] == '-') {
     std::cout << "usage: bench_carve [OUT.json [MAX_LEVEL (9)]]   levels 5..MAX_LEVEL on the synthetic ring\n";

@@ -191,7 +191,7 @@ nlohmann::json MachineLimit(int threads) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  ibmr::ConfigureHeap();  // as ibmr does (pipeline/core/process_memory.h)
+  ibmr::ConfigureHeap(argv);  // as ibmr does (pipeline/core/process_memory.h)
   std::string out = "bench_plane_sweep.json", only, work = (fs::temp_directory_path() / "ibmr_bench_plane_sweep").string();
   int threads = 2;
   double threshold = -1;

@@ -83,7 +83,7 @@ double Median(std::vector<double> v) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  ibmr::ConfigureHeap();  // as ibmr does (pipeline/core/process_memory.h)
+  ibmr::ConfigureHeap(argv);  // as ibmr does (pipeline/core/process_memory.h)
   std::string data = std::string(IBMR_SHARED_DIR) + "/datasets/middlebury_stereo_classic";
   std::string out = "bench_stereo_pair.json";
   int repeat = 5, threads = 2;

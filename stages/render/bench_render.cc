@@ -71,7 +71,7 @@ ibmr::TriangleMesh GridPlane(int cells) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  ibmr::ConfigureHeap();  // as ibmr does (pipeline/core/process_memory.h)
+  ibmr::ConfigureHeap(argv);  // as ibmr does (pipeline/core/process_memory.h)
   int threads = 2, width = 640, height = 480;
   std::string out;
   for (int i = 1; i + 1 < argc; i += 2) {
