@@ -2,9 +2,14 @@
 #include "pipeline/core/process_memory.h"
 
 #include <malloc.h>
+#include <sys/auxv.h>
 #include <unistd.h>
+#if defined(__GLIBC__)
+#include <gnu/libc-version.h>
+#endif
 
 #include <algorithm>
+#include <cstdio>
 #include <cstdlib>
 #include <fstream>
 #include <string>
@@ -23,60 +28,87 @@ double KilobyteLineMb(const char* file, const std::string& name) {
   return 0;
 }
 
-// Set in the environment of the second start: "1:" and the user's GLIBC_TUNABLES, or "0:" when
-// the user had none.
+// Set in the environment of the second start: "<pid>:1:" and the user's GLIBC_TUNABLES, or
+// "<pid>:0:" when the user had none. The pid (an exec keeps it) tells the second start from a
+// program that merely inherited the variable.
 constexpr const char* kRestartMarker = "IBMR_HEAP_RESTARTED";
 constexpr const char* kTunable = "glibc.malloc.hugetlb";
 
-// Whether the kernel gives transparent huge pages to memory that asks ("always" or "madvise").
-bool TransparentHugePagesOnRequest() {
+// Whether the kernel gives transparent huge pages only to memory that asks (madvise mode): in
+// "always" mode every large block gets them anyway, in "never" (or without THP) none does.
+bool HugePagesOnlyOnRequest() {
   std::ifstream in("/sys/kernel/mm/transparent_hugepage/enabled");
   std::string modes;
   std::getline(in, modes);
-  return modes.find("[always]") != std::string::npos || modes.find("[madvise]") != std::string::npos;
+  return modes.find("[madvise]") != std::string::npos;
 }
 
-// See ConfigureHeap.
-void RunAgainWithHugePageHeap(char** argv) {
 #if defined(__linux__) && defined(__GLIBC__)
-  if (const char* marker = std::getenv(kRestartMarker)) {
-    // The second start: glibc has read the tunable; give the user's environment back.
-    const std::string previous = marker;
-    if (previous.rfind("1:", 0) == 0) {
-      setenv("GLIBC_TUNABLES", previous.substr(2).c_str(), 1);
-    } else {
-      unsetenv("GLIBC_TUNABLES");
-    }
-    unsetenv(kRestartMarker);
-    return;
-  }
-  const char* wanted = std::getenv("IBMR_HUGE_PAGES");
-  if (argv == nullptr || argv[0] == nullptr || (wanted != nullptr && std::string(wanted) == "0")) return;
-  const char* tunables = std::getenv("GLIBC_TUNABLES");
-  const std::string user = tunables ? tunables : "";
-  if (user.find(kTunable) != std::string::npos || !TransparentHugePagesOnRequest()) return;
-  const std::string marker = (tunables ? "1:" : "0:") + user;
-  const std::string with_huge_pages = user + (user.empty() ? "" : ":") + kTunable + "=1";
-  if (setenv(kRestartMarker, marker.c_str(), 1) != 0 || setenv("GLIBC_TUNABLES", with_huge_pages.c_str(), 1) != 0) return;
-  execv("/proc/self/exe", argv);
-  // Still here: the exec failed (no /proc, say); go on with the heap as it is.
-  if (tunables) {
-    setenv("GLIBC_TUNABLES", user.c_str(), 1);
+// glibc 2.35 introduced the tunable; older ones ignore it.
+bool GlibcHasHugePageTunable() {
+  int major = 0, minor = 0;
+  return std::sscanf(gnu_get_libc_version(), "%d.%d", &major, &minor) == 2 && (major > 2 || (major == 2 && minor >= 35));
+}
+
+void RestoreTunables(bool had, const std::string& value) {
+  if (had) {
+    setenv("GLIBC_TUNABLES", value.c_str(), 1);
   } else {
     unsetenv("GLIBC_TUNABLES");
   }
+}
+#endif
+
+// See ConfigureHeap. True in the second start.
+bool RunAgainWithHugePageHeap(char** argv) {
+#if defined(__linux__) && defined(__GLIBC__)
+  const std::string pid = std::to_string(::getpid()) + ":";
+  if (const char* marker = std::getenv(kRestartMarker)) {
+    const std::string value = marker;
+    unsetenv(kRestartMarker);
+    if (value.rfind(pid, 0) == 0) {
+      // The second start: glibc has read the tunable; give the user's environment back.
+      RestoreTunables(value.compare(pid.size(), 2, "1:") == 0, value.substr(std::min(value.size(), pid.size() + 2)));
+      return true;
+    }
+  }
+  const char* wanted = std::getenv("IBMR_HUGE_PAGES");
+  if (argv == nullptr || argv[0] == nullptr || (wanted != nullptr && std::string(wanted) == "0")) return false;
+  const char* tunables = std::getenv("GLIBC_TUNABLES");
+  const std::string user = tunables ? tunables : "";
+  if (user.find(kTunable) != std::string::npos || !HugePagesOnlyOnRequest() || !GlibcHasHugePageTunable()) return false;
+  // Started through the dynamic loader (`ld-linux.so ibmr ...`: no interpreter of its own) or
+  // under valgrind (which would not follow): the program is not ours to start again.
+  const char* preload = std::getenv("LD_PRELOAD");
+  if (getauxval(AT_BASE) == 0 || (preload != nullptr && std::string(preload).find("vgpreload") != std::string::npos)) return false;
+  // The program's own path, not /proc/self/exe: the kernel names a process after the file it
+  // runs (`ps`, `pidof ibmr`).
+  char path[4096];
+  const ssize_t length = readlink("/proc/self/exe", path, sizeof(path) - 1);
+  if (length <= 0) return false;
+  path[length] = '\0';
+  const std::string marker = pid + (tunables ? "1:" : "0:") + user;
+  const std::string with_huge_pages = user + (user.empty() ? "" : ":") + kTunable + "=1";
+  if (setenv(kRestartMarker, marker.c_str(), 1) == 0 && setenv("GLIBC_TUNABLES", with_huge_pages.c_str(), 1) == 0) {
+    execv(path, argv);
+  }
+  // Still here: the exec failed; go on with the heap as it is.
+  RestoreTunables(tunables != nullptr, user);
   unsetenv(kRestartMarker);
+  return false;
 #else
   (void)argv;
+  return false;
 #endif
 }
 
 }  // namespace
 
-void ConfigureHeap(char** argv) {
-  RunAgainWithHugePageHeap(argv);
-  mallopt(M_MMAP_THRESHOLD, 1 << 20);
+bool ConfigureHeap(char** argv) {
+  const bool restarted = RunAgainWithHugePageHeap(argv);
+  mallopt(M_MMAP_THRESHOLD, 2 << 20);
   mallopt(M_TOP_PAD, 64 << 20);
+  return restarted;
 }
 
 double ResidentMemoryMb() { return KilobyteLineMb("/proc/self/status", "VmRSS:"); }

@@ -7,21 +7,22 @@ namespace ibmr {
 // The heap settings of the programs that run stages (ibmr, the benchmarks): call first in main,
 // before any thread starts, with main's argv.
 //
-// Huge pages: on Linux with glibc, the program runs itself again (execv of /proc/self/exe, the
-// same process id and arguments) once, with GLIBC_TUNABLES=glibc.malloc.hugetlb=1 added to the
-// environment, so that glibc's malloc asks for transparent huge pages (madvise) on the blocks it
-// maps (2 MB and more) and on its heap's growth. A first touch then faults in one 2 MB page
-// instead of 512 small ones; on a virtual machine, where each fault is dear, stages spend a fifth
-// to a half of their time there otherwise. Sceaux castle, 9 views at 1600x1202, 2 cores:
-// plane_sweep 13.4-14.9 -> 10.7-10.9 s, multi_depth 9.5-10.0 -> 6.9-7.1 s, fuse 5.6 -> 2.8 s,
-// render 34.1-35.9 -> 23.3-23.7 s (peaks up to 15% higher). The tunable can only be set before
-// the program starts (glibc reads it at load time), hence the second start. The process restores
-// GLIBC_TUNABLES to what it was, so the programs it runs (COLMAP) see the user's environment.
-// Nothing happens when the user's GLIBC_TUNABLES already names glibc.malloc.hugetlb, when the
-// system has transparent huge pages "never" or none, when IBMR_HUGE_PAGES=0 (to measure without),
-// or when the exec fails (the program then goes on as it is).
+// Huge pages: on Linux with glibc 2.35 or later and transparent huge pages in "madvise" mode (the
+// default: only memory that asks gets them), the program runs itself again, once (execv of its
+// own file, with the same arguments and process id), with glibc.malloc.hugetlb=1 added to
+// GLIBC_TUNABLES, so that glibc's malloc asks for huge pages (madvise) on the blocks it maps (2 MB
+// and more) and on its heap's growth. A first touch then faults in one 2 MB page instead of 512
+// small ones; on a virtual machine, where each fault is dear, stages spent a fifth to a half of
+// their time there. Sceaux castle, 9 views at 1600x1202, 2 cores, alternated: plane_sweep to
+// score 157-161 -> 123-125 s, fuse 5.4-6.0 -> 2.3-2.4 s, render 30.2-30.9 -> 19.5-20.0 s, outputs
+// identical, peaks -5 to +12%. The tunable is read when the program loads, hence the second
+// start. That start restores GLIBC_TUNABLES to what it was, so the programs ibmr runs (COLMAP)
+// see the user's environment. No second start when the user's GLIBC_TUNABLES names
+// glibc.malloc.hugetlb already, when IBMR_HUGE_PAGES=0 (to measure without), when the program was
+// started through the dynamic loader or under valgrind, or when the exec fails (the program then
+// goes on as it is). Returns true in the second start.
 //
-// Large buffers (a view's maps, a cost volume band, a render target: 1 MB and more) get
+// Large buffers (a view's maps, a cost volume band, a render target: 2 MB and more) get
 // their own mappings and go back to the system when freed: glibc otherwise raises that threshold
 // to the largest block freed so far (up to 32 MB), after which such buffers stay resident after
 // being freed (the full-size castle's render peaked 800 MB higher after other stages ran in the
@@ -30,7 +31,12 @@ namespace ibmr {
 // a virtual machine every page the heap got back from the system again cost a page fault (half
 // of multi_depth's time on templeRing: 6.1 -> 3.2 s; plane_sweep 12.7 -> 9.1 s, fuse 5.1 -> 3.9 s;
 // fuse's peak 245 -> 317 MB). The runner's malloc_trim after each stage releases the spare.
-void ConfigureHeap(char** argv);
+// The threshold is the huge page's size: glibc asks huge pages only for mapped blocks that large,
+// so that a smaller mapped block (layered_stereo's 800x600 float images, 1.9 MB) cost 469 faults
+// of 4 kB each time; from the heap it is reused without any. Sceaux castle as above (1 MB -> 2 MB,
+// alternated): plane_sweep to score 117-128 -> 108-113 s, layered_stereo 50.8-56.8 -> 40.4-42.5 s,
+// peaks up to 10% higher (score 583-600 -> 639-668 MB).
+bool ConfigureHeap(char** argv);
 
 // Resident memory of this process now (VmRSS), MB.
 double ResidentMemoryMb();

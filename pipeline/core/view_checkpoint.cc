@@ -13,8 +13,17 @@
 namespace ibmr {
 namespace {
 
+// The mark of a view inside `folder`. A view name may hold folders (an image in a subfolder), but
+// an absolute one or one with a ".." step would put its mark outside: refused.
 std::string MarkPath(const std::string& folder, const std::string& view) {
-  return (std::filesystem::path(folder) / (view + ".done")).string();
+  const std::filesystem::path relative(view + ".done");
+  bool escapes = view.empty() || relative.is_absolute();
+  for (const auto& step : relative) escapes = escapes || step == "..";
+  if (escapes) {
+    throw InputError("view name '" + view + "' cannot name a mark inside " + folder +
+                     " (empty, absolute or with a '..' step); rename the image or the model's entry");
+  }
+  return (std::filesystem::path(folder) / relative).string();
 }
 
 }  // namespace

@@ -8,6 +8,7 @@
 #include <filesystem>
 
 #include "pipeline/core/atomic_file.h"
+#include "pipeline/core/errors.h"
 #include "tests/scratch_dir.h"
 
 namespace ibmr {
@@ -45,6 +46,25 @@ TEST(ViewCheckpoint, KeepsTheViewsPieceExactly) {
   EXPECT_FALSE(ViewCheckpoint(folder, "other").Piece("sub/a.png").has_value());
   WriteFileAtomic(folder + "/b.done", "k");  // a mark of the old plain-text layout, or garbage
   EXPECT_FALSE(checkpoint.Done("b")) << "an unreadable mark means the view is done again";
+}
+
+// A name whose mark would land outside the folder is refused, by name, before anything is written.
+TEST(ViewCheckpoint, RefusesNamesThatLeaveTheFolder) {
+  const fs::path root = MakeTestDir("escape");
+  const ViewCheckpoint checkpoint((root / "records" / "score.views").string(), "k");
+  for (const std::string name : {"/abs.png", "../up.png", "sub/../../up.png", ""}) {
+    try {
+      checkpoint.MarkDone(name);
+      ADD_FAILURE() << "'" << name << "' was marked";
+    } catch (const InputError& e) {
+      EXPECT_NE(std::string(e.what()).find("'" + name + "'"), std::string::npos) << e.what();
+    }
+    EXPECT_THROW(checkpoint.Done(name), InputError) << name;
+  }
+  EXPECT_FALSE(fs::exists(root / "up.png.done"));
+  EXPECT_FALSE(fs::exists(root / "records" / "up.png.done"));
+  checkpoint.MarkDone("plane/sub/v0.png");  // folders inside are fine
+  EXPECT_TRUE(checkpoint.Done("plane/sub/v0.png"));
 }
 
 TEST(ViewCheckpoint, ClearRemovesTheFolder) {

@@ -14,6 +14,7 @@
 #include <filesystem>
 #include <limits>
 #include <map>
+#include <set>
 
 #include "pipeline/core/optical_axes.h"
 #include "pipeline/core/atomic_file.h"
@@ -151,7 +152,8 @@ class ScoreStage : public Stage {
                           {"heldout", context.heldout_images},
                           {"proxies", nlohmann::json::object()}};
     fs::create_directories(ws.Path("scores"));
-    // Every rendered view of every proxy is an item of the per-view loop, named <proxy>/<image>:
+    // Every rendered view of every proxy is an item of the per-view loop, named <proxy>/<image>
+    // (a proxy name listed twice is refused: render never writes one):
     // scored in parallel (each reads its own files and writes its own side-by-side image), as many
     // at once as the memory budget holds (ViewMemoryMb), marked done as it finishes (a stopped run
     // resumes there), then gathered in the order renders.json gives.
@@ -164,17 +166,20 @@ class ScoreStage : public Stage {
     std::vector<std::string> item_names;
     std::vector<size_t> first_item;  // per proxy of renders.json, its first item (the next proxy's ends it)
     std::map<std::string, size_t> item_of;
+    std::set<std::string> proxy_names;
     for (size_t p = 0; p < proxies.size(); ++p) {
       const nlohmann::json& proxy = proxies[p];
       first_item.push_back(items.size());
       if (proxy.value("status", "") != "rendered") continue;
       const std::string name = proxy.value("name", "");
+      if (name.empty() || name.find('/') != std::string::npos || name == "." || name == ".." || !proxy_names.insert(name).second) {
+        throw InputError(ws.Path("renders/renders.json") + ": a rendered proxy named '" + name +
+                         "' (empty, a path, or listed twice: its scores would mix); re-run the render stage");
+      }
       fs::create_directories(ws.Path("scores/" + name));
       const nlohmann::json views = proxy.value("views", nlohmann::json::object());  // named: items() refers to it
       for (const auto& [image_name, info] : views.items()) {
-        std::string item_name = name + "/" + image_name;
-        // Two proxies of one name (renders.json allows it) stay apart.
-        if (item_of.count(item_name)) item_name = name + "#" + std::to_string(p) + "/" + image_name;
+        const std::string item_name = name + "/" + image_name;
         item_of[item_name] = items.size();
         items.push_back({name, image_name, info});
         item_names.push_back(item_name);

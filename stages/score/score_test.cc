@@ -430,6 +430,16 @@ TEST(ScoreStage, ScoresRendersAsPerViewItemsThatResume) {
   context.checkpoint = ViewCheckpoint((root / "records/score.views").string(), "key-2");
   stage->Run(context);
   EXPECT_EQ(read_psnr("v1.png"), 100.0);
+  // A renders.json (edited by hand) listing one proxy name twice: refused, not mixed.
+  nlohmann::json renders = nlohmann::json::parse(std::ifstream((root / "renders/renders.json").string()));
+  renders["proxies"].push_back(renders["proxies"][0]);
+  WriteFileAtomic((root / "renders/renders.json").string(), renders.dump());
+  try {
+    stage->Run(context);
+    ADD_FAILURE() << "a proxy listed twice was scored";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("listed twice"), std::string::npos) << e.what();
+  }
   fs::remove_all(root);
 }
 
