@@ -28,9 +28,8 @@ double KilobyteLineMb(const char* file, const std::string& name) {
   return 0;
 }
 
-// Set in the environment of the second start: "<pid>:1:" and the user's GLIBC_TUNABLES, or
-// "<pid>:0:" when the user had none. The pid (an exec keeps it) tells the second start from a
-// program that merely inherited the variable.
+// Set in the environment of the second start: the pid (an exec keeps it), which tells the second
+// start from a program that merely inherited the variable.
 constexpr const char* kRestartMarker = "IBMR_HEAP_RESTARTED";
 constexpr const char* kTunable = "glibc.malloc.hugetlb";
 
@@ -62,15 +61,14 @@ void RestoreTunables(bool had, const std::string& value) {
 // See ConfigureHeap. True in the second start.
 bool RunAgainWithHugePageHeap(char** argv) {
 #if defined(__linux__) && defined(__GLIBC__)
-  const std::string pid = std::to_string(::getpid()) + ":";
+  const std::string pid = std::to_string(::getpid());
   if (const char* marker = std::getenv(kRestartMarker)) {
-    const std::string value = marker;
+    const bool ours = pid == marker;
     unsetenv(kRestartMarker);
-    if (value.rfind(pid, 0) == 0) {
-      // The second start: glibc has read the tunable; give the user's environment back.
-      RestoreTunables(value.compare(pid.size(), 2, "1:") == 0, value.substr(std::min(value.size(), pid.size() + 2)));
-      return true;
-    }
+    // The second start: glibc has read the tunable, which stays in the environment for the
+    // programs this one runs (COLMAP's feature extraction gains as much; a child ibmr needs no
+    // second start).
+    if (ours) return true;
   }
   const char* wanted = std::getenv("IBMR_HUGE_PAGES");
   if (argv == nullptr || argv[0] == nullptr || (wanted != nullptr && std::string(wanted) == "0")) return false;
@@ -87,9 +85,8 @@ bool RunAgainWithHugePageHeap(char** argv) {
   const ssize_t length = readlink("/proc/self/exe", path, sizeof(path) - 1);
   if (length <= 0) return false;
   path[length] = '\0';
-  const std::string marker = pid + (tunables ? "1:" : "0:") + user;
   const std::string with_huge_pages = user + (user.empty() ? "" : ":") + kTunable + "=1";
-  if (setenv(kRestartMarker, marker.c_str(), 1) == 0 && setenv("GLIBC_TUNABLES", with_huge_pages.c_str(), 1) == 0) {
+  if (setenv(kRestartMarker, pid.c_str(), 1) == 0 && setenv("GLIBC_TUNABLES", with_huge_pages.c_str(), 1) == 0) {
     execv(path, argv);
   }
   // Still here: the exec failed; go on with the heap as it is.
