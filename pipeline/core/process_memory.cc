@@ -33,6 +33,7 @@ double KilobyteLineMb(const char* file, const std::string& name) {
 constexpr const char* kRestartMarker = "IBMR_HEAP_RESTARTED";
 constexpr const char* kTunable = "glibc.malloc.hugetlb";
 
+#if defined(__linux__) && defined(__GLIBC__)
 // Whether the kernel gives transparent huge pages only to memory that asks (madvise mode): in
 // "always" mode every large block gets them anyway, in "never" (or without THP) none does.
 bool HugePagesOnlyOnRequest() {
@@ -42,19 +43,10 @@ bool HugePagesOnlyOnRequest() {
   return modes.find("[madvise]") != std::string::npos;
 }
 
-#if defined(__linux__) && defined(__GLIBC__)
 // glibc 2.35 introduced the tunable; older ones ignore it.
 bool GlibcHasHugePageTunable() {
   int major = 0, minor = 0;
   return std::sscanf(gnu_get_libc_version(), "%d.%d", &major, &minor) == 2 && (major > 2 || (major == 2 && minor >= 35));
-}
-
-void RestoreTunables(bool had, const std::string& value) {
-  if (had) {
-    setenv("GLIBC_TUNABLES", value.c_str(), 1);
-  } else {
-    unsetenv("GLIBC_TUNABLES");
-  }
 }
 #endif
 
@@ -89,8 +81,12 @@ bool RunAgainWithHugePageHeap(char** argv) {
   if (setenv(kRestartMarker, pid.c_str(), 1) == 0 && setenv("GLIBC_TUNABLES", with_huge_pages.c_str(), 1) == 0) {
     execv(path, argv);
   }
-  // Still here: the exec failed; go on with the heap as it is.
-  RestoreTunables(tunables != nullptr, user);
+  // Still here: the exec failed; go on with the heap and the environment as they were.
+  if (tunables != nullptr) {
+    setenv("GLIBC_TUNABLES", user.c_str(), 1);
+  } else {
+    unsetenv("GLIBC_TUNABLES");
+  }
   unsetenv(kRestartMarker);
   return false;
 #else

@@ -153,10 +153,10 @@ class ScoreStage : public Stage {
                           {"proxies", nlohmann::json::object()}};
     fs::create_directories(ws.Path("scores"));
     // Every rendered view of every proxy is an item of the per-view loop, named <proxy>/<image>
-    // (a proxy name listed twice is refused: render never writes one):
-    // scored in parallel (each reads its own files and writes its own side-by-side image), as many
-    // at once as the memory budget holds (ViewMemoryMb), marked done as it finishes (a stopped run
-    // resumes there), then gathered in the order renders.json gives.
+    // (proxy names are unique: render never writes one twice). Items are scored in parallel (each
+    // reads its own files and writes its own side-by-side image), as many at once as the memory
+    // budget holds (ViewMemoryMb), marked done as they finish (a stopped run resumes there), then
+    // gathered in the order renders.json gives.
     const nlohmann::json proxies = renders.value("proxies", nlohmann::json::array());
     struct Item {
       std::string proxy, image;
@@ -167,8 +167,7 @@ class ScoreStage : public Stage {
     std::vector<size_t> first_item;  // per proxy of renders.json, its first item (the next proxy's ends it)
     std::map<std::string, size_t> item_of;
     std::set<std::string> proxy_names;
-    for (size_t p = 0; p < proxies.size(); ++p) {
-      const nlohmann::json& proxy = proxies[p];
+    for (const nlohmann::json& proxy : proxies) {
       first_item.push_back(items.size());
       if (proxy.value("status", "") != "rendered") continue;
       const std::string name = proxy.value("name", "");
@@ -198,8 +197,6 @@ class ScoreStage : public Stage {
       });
       return result;
     });
-    std::vector<nlohmann::json> results;
-    for (const std::string& item_name : item_names) results.push_back(summary.pieces.at(item_name));
     const size_t scored = items.size();
     for (size_t p = 0; p < proxies.size(); ++p) {
       const nlohmann::json& proxy = proxies[p];
@@ -210,7 +207,7 @@ class ScoreStage : public Stage {
         continue;
       }
       nlohmann::json views = nlohmann::json::object();
-      for (size_t i = first_item[p]; i < first_item[p + 1]; ++i) views[items[i].image] = results[i];
+      for (size_t i = first_item[p]; i < first_item[p + 1]; ++i) views[items[i].image] = summary.pieces.at(item_names[i]);
       const double near = options.near_angle_deg;
       const auto is_near = [near](const nlohmann::json& v) {
         return v.contains("nearest_training_angle_deg") && v["nearest_training_angle_deg"].get<double>() < near;
