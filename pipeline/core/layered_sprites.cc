@@ -1,6 +1,7 @@
 // Layered sprites with depth: drawing, compositing and files (layered_sprites.h).
 #include "pipeline/core/layered_sprites.h"
 
+#include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 
 #include <Eigen/Geometry>
@@ -89,58 +90,87 @@ void BuildLayerMesh(const LayerSet& set, size_t k, double max_depth_step, Compos
 
 }  // namespace
 
-RgbaImage CompositeLayers(const LayerSet& set, const Camera& camera, const Rigid3d& cam_from_world, double max_depth_step,
-                          CompositeScratch* scratch_in) {
+void CompositeLayerRows(const LayerSet& set, const Camera& camera, const Rigid3d& cam_from_world, double max_depth_step,
+                        CompositeScratch* scratch_in, const CompositedRow& row) {
   CompositeScratch own;
   CompositeScratch& scratch = scratch_in != nullptr ? *scratch_in : own;
   const int width = camera.width, height = camera.height;
-  const size_t pixels = static_cast<size_t>(width) * height;
   const size_t count = set.layers.size();
-  // Per layer, its colour, alpha and depth in the desired view.
-  std::vector<std::vector<Eigen::Vector4f>>& drawn = scratch.drawn;
-  std::vector<std::vector<float>>& depth = scratch.depth;
-  if (drawn.size() < count) drawn.resize(count), depth.resize(count);
+  // Per layer, its colour, alpha and depth in the desired view where it covers a pixel.
+  std::vector<LayerFragments>& drawn = scratch.drawn;
+  if (drawn.size() < count) drawn.resize(count);
   for (size_t k = 0; k < count; ++k) {
+    LayerFragments& layer = drawn[k];
+    layer.row_start.assign(static_cast<size_t>(height) + 1, 0);
     BuildLayerMesh(set, k, max_depth_step, &scratch);
-    drawn[k].assign(pixels, Eigen::Vector4f::Zero());
-    depth[k].assign(pixels, 0.f);
-    if (scratch.mesh.faces.empty()) continue;
+    if (scratch.mesh.faces.empty()) {
+      layer.column.clear(), layer.rgba.clear(), layer.depth.clear();
+      continue;
+    }
     Rasterize(scratch.mesh, camera, cam_from_world, RasterizeOptions(), &scratch.raster);
     const RasterResult& raster = scratch.raster;
+    // The covered pixels of each row, then their offsets, then the fragments themselves.
     tbb::parallel_for(0, height, [&](int y) {
+      const int* face = raster.face_id.data() + static_cast<size_t>(y) * width;
+      layer.row_start[static_cast<size_t>(y) + 1] = static_cast<size_t>(std::count_if(face, face + width, [](int f) { return f >= 0; }));
+    });
+    for (int y = 0; y < height; ++y) layer.row_start[static_cast<size_t>(y) + 1] += layer.row_start[y];
+    const size_t fragments = layer.row_start.back();
+    layer.column.resize(fragments);
+    layer.rgba.resize(fragments);
+    layer.depth.resize(fragments);
+    tbb::parallel_for(0, height, [&](int y) {
+      size_t f = layer.row_start[y];
       for (int x = 0; x < width; ++x) {
-        const size_t i = static_cast<size_t>(y) * width + x;
-        if (raster.face_id[i] < 0) continue;
-        drawn[k][i] = InterpolateAttribute(raster, scratch.mesh, scratch.rgba, x, y);
-        depth[k][i] = raster.depth.At(x, y);
+        if (raster.face_id[static_cast<size_t>(y) * width + x] < 0) continue;
+        layer.column[f] = x;
+        layer.rgba[f] = InterpolateAttribute(raster, scratch.mesh, scratch.rgba, x, y);
+        layer.depth[f] = raster.depth.At(x, y);
+        ++f;
       }
     });
   }
-  RgbaImage out;
-  out.color = cv::Mat(height, width, CV_32FC3, cv::Scalar::all(0));
-  out.alpha = cv::Mat(height, width, CV_32F, cv::Scalar::all(0));
-  tbb::parallel_for(0, height, [&](int y) {
+  tbb::parallel_for(tbb::blocked_range<int>(0, height), [&](const tbb::blocked_range<int>& rows) {
     std::vector<std::pair<float, int>> order;
     order.reserve(count);
-    cv::Vec3f* color = out.color.ptr<cv::Vec3f>(y);
-    float* alpha = out.alpha.ptr<float>(y);
-    for (int x = 0; x < width; ++x) {
-      const size_t i = static_cast<size_t>(y) * width + x;
-      order.clear();
-      for (size_t k = 0; k < count; ++k) {
-        if (depth[k][i] > 0) order.emplace_back(depth[k][i], static_cast<int>(k));
+    // Each layer's next fragment on the row, and the fragment it has at the current pixel.
+    std::vector<size_t> next(count), at(count);
+    std::vector<cv::Vec3f> color(static_cast<size_t>(width));
+    std::vector<float> alpha(static_cast<size_t>(width));
+    for (int y = rows.begin(); y < rows.end(); ++y) {
+      for (size_t k = 0; k < count; ++k) next[k] = drawn[k].row_start[y];
+      for (int x = 0; x < width; ++x) {
+        order.clear();
+        for (size_t k = 0; k < count; ++k) {
+          const LayerFragments& layer = drawn[k];
+          if (next[k] == layer.row_start[static_cast<size_t>(y) + 1] || layer.column[next[k]] != x) continue;
+          at[k] = next[k]++;
+          if (layer.depth[at[k]] > 0) order.emplace_back(layer.depth[at[k]], static_cast<int>(k));
+        }
+        // Back to front: the farthest first; each nearer layer goes over what is behind it.
+        std::sort(order.begin(), order.end(), [](const auto& a, const auto& b) { return a.first > b.first; });
+        Eigen::Vector4f acc = Eigen::Vector4f::Zero();
+        for (const auto& [z, k] : order) {
+          const Eigen::Vector4f& front = drawn[k].rgba[at[k]];
+          const float a = std::clamp(front[3], 0.f, 1.f);
+          acc = front + (1.f - a) * acc;
+        }
+        color[x] = cv::Vec3f(acc[0], acc[1], acc[2]);
+        alpha[x] = std::clamp(acc[3], 0.f, 1.f);
       }
-      // Back to front: the farthest first; each nearer layer goes over what is behind it.
-      std::sort(order.begin(), order.end(), [](const auto& a, const auto& b) { return a.first > b.first; });
-      Eigen::Vector4f acc = Eigen::Vector4f::Zero();
-      for (const auto& [z, k] : order) {
-        const Eigen::Vector4f& front = drawn[k][i];
-        const float a = std::clamp(front[3], 0.f, 1.f);
-        acc = front + (1.f - a) * acc;
-      }
-      color[x] = cv::Vec3f(acc[0], acc[1], acc[2]);
-      alpha[x] = std::clamp(acc[3], 0.f, 1.f);
+      row(y, color.data(), alpha.data());
     }
+  });
+}
+
+RgbaImage CompositeLayers(const LayerSet& set, const Camera& camera, const Rigid3d& cam_from_world, double max_depth_step,
+                          CompositeScratch* scratch) {
+  RgbaImage out;
+  out.color = cv::Mat(camera.height, camera.width, CV_32FC3);
+  out.alpha = cv::Mat(camera.height, camera.width, CV_32F);
+  CompositeLayerRows(set, camera, cam_from_world, max_depth_step, scratch, [&](int y, const cv::Vec3f* color, const float* alpha) {
+    std::copy(color, color + camera.width, out.color.ptr<cv::Vec3f>(y));
+    std::copy(alpha, alpha + camera.width, out.alpha.ptr<float>(y));
   });
   return out;
 }

@@ -29,6 +29,7 @@
 
 #include <Eigen/Core>
 #include <cstdint>
+#include <functional>
 #include <nlohmann/json.hpp>
 #include <opencv2/core.hpp>
 #include <string>
@@ -68,19 +69,31 @@ struct RgbaImage {
   cv::Mat alpha;  // CV_32F in [0, 1]
 };
 
-// CompositeLayers' working memory: each layer's colour and depth in the view (20 bytes a pixel a
-// layer), the raster (20 bytes a pixel) and a layer's mesh (about 36 bytes a sprite pixel). A
-// caller that composites many sets (the layer count's held-out predictions: a few dozen a view)
-// keeps one, so that these buffers are allocated and first touched once instead of every time
-// (page faults were a quarter of layered_stereo's time).
+// One layer drawn in a view, only where it covers a pixel (row by row, left to right): the
+// columns, premultiplied colour and alpha, and depth of its covered pixels, row y's at
+// [row_start[y], row_start[y + 1]). A layer covers part of a view (the castle's sets cover each
+// pixel 1.3-1.8 times over 3-6 layers): 24 bytes a covered pixel, where an image per layer would
+// take 20 bytes a pixel of the view for every layer (the full-size castle's render peaked at
+// 4.8 GB with those).
+struct LayerFragments {
+  std::vector<size_t> row_start;
+  std::vector<int> column;
+  std::vector<Eigen::Vector4f> rgba;
+  std::vector<float> depth;
+};
+
+// CompositeLayers' working memory: each layer's drawing (LayerFragments), the raster (20 bytes a
+// pixel) and a layer's mesh (about 36 bytes a sprite pixel). A caller that composites many sets
+// (the layer count's held-out predictions: a few dozen a view) keeps one, so that these buffers
+// are allocated and first touched once instead of every time (page faults were a quarter of
+// layered_stereo's time).
 struct CompositeScratch {
   TriangleMesh mesh;
   std::vector<Eigen::Vector4f> rgba;
   std::vector<int> index;
   std::vector<float> vertex_depth;
   RasterResult raster;
-  std::vector<std::vector<Eigen::Vector4f>> drawn;
-  std::vector<std::vector<float>> depth;
+  std::vector<LayerFragments> drawn;
 };
 
 // Relative depth step between neighbouring sprite pixels beyond which no triangle joins them.
@@ -92,6 +105,13 @@ constexpr double kLayerMaxDepthStep = 0.05;
 // `scratch` (optional): working memory kept by a caller that composites many times.
 RgbaImage CompositeLayers(const LayerSet& set, const Camera& camera, const Rigid3d& cam_from_world,
                           double max_depth_step = kLayerMaxDepthStep, CompositeScratch* scratch = nullptr);
+
+// CompositeLayers without the image: each composited row (premultiplied colour and alpha, `width`
+// pixels) goes to `row` as soon as it is done, from several threads at once (each row once), for a
+// caller that blends it into buffers of its own (16 bytes a pixel less).
+using CompositedRow = std::function<void(int y, const cv::Vec3f* color, const float* alpha)>;
+void CompositeLayerRows(const LayerSet& set, const Camera& camera, const Rigid3d& cam_from_world, double max_depth_step,
+                        CompositeScratch* scratch, const CompositedRow& row);
 
 // The alpha of a sprite's seam: the pixels of other layers next to its own, which it covers so
 // that a novel view that pulls the layers apart shows no crack. Drawn as opaque as the rest (to

@@ -13,6 +13,10 @@ Eigen::Vector3d CentreOf(const Rigid3d& cam_from_world) { return -(cam_from_worl
 LayersRenderer::LayersRenderer(std::vector<LayerSet> sets, int references, const Eigen::Vector3d& scene_centre)
     : sets_(std::move(sets)), references_(std::max(1, references)), centre_(scene_centre) {}
 
+LayersRenderer::LayersRenderer(std::vector<LayerSet> headers, std::vector<std::string> folders, int references,
+                               const Eigen::Vector3d& scene_centre)
+    : sets_(std::move(headers)), folders_(std::move(folders)), references_(std::max(1, references)), centre_(scene_centre) {}
+
 size_t LayersRenderer::Layers() const {
   size_t count = 0;
   for (const LayerSet& set : sets_) count += set.layers.size();
@@ -41,11 +45,9 @@ RenderResult LayersRenderer::Render(const Camera& camera, const Rigid3d& cam_fro
   const double soft = 0.5 * M_PI / 180.0;
   CompositeScratch scratch;  // the references' drawings share their buffers
   for (const auto& [angle, i] : nearest) {
-    const RgbaImage drawn = CompositeLayers(sets_[i], camera, cam_from_world, kLayerMaxDepthStep, &scratch);
     const float w = static_cast<float>(1.0 / ((angle + soft) * (angle + soft)));
-    for (int y = 0; y < height; ++y) {
-      const cv::Vec3f* c = drawn.color.ptr<cv::Vec3f>(y);
-      const float* a = drawn.alpha.ptr<float>(y);
+    // Each composited row goes into the blend at once.
+    auto blend = [&](int y, const cv::Vec3f* c, const float* a) {
       cv::Vec3f* acc = weighted.ptr<cv::Vec3f>(y);
       float* wsum = weights.ptr<float>(y);
       float* amax = alpha.ptr<float>(y);
@@ -55,6 +57,11 @@ RenderResult LayersRenderer::Render(const Camera& camera, const Rigid3d& cam_fro
         wsum[x] += w * a[x];
         amax[x] = std::max(amax[x], a[x]);
       }
+    };
+    if (folders_.empty()) {
+      CompositeLayerRows(sets_[i], camera, cam_from_world, kLayerMaxDepthStep, &scratch, blend);
+    } else {
+      CompositeLayerRows(ReadLayerSet(folders_[i]), camera, cam_from_world, kLayerMaxDepthStep, &scratch, blend);
     }
   }
   RenderResult result;

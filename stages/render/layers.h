@@ -20,17 +20,26 @@ namespace ibmr {
 class LayersRenderer {
  public:
   // `scene_centre`: the point the desired views look at (angles between rays to it).
+  // `sets` in memory, sprites included.
   LayersRenderer(std::vector<LayerSet> sets, int references, const Eigen::Vector3d& scene_centre);
+  // `headers`: each set as ReadLayerSet gives it, without its sprites and residual depth (the
+  // planes, camera and pose choose the references); a set's files are read again from
+  // `folders[i]` each time a desired view is drawn from it. The full-size Sceaux castle's nine
+  // sets hold 1.7 GB of sprites, of which a view uses two.
+  LayersRenderer(std::vector<LayerSet> headers, std::vector<std::string> folders, int references,
+                 const Eigen::Vector3d& scene_centre);
   // At the camera's size: colour (not premultiplied) and coverage 255 where alpha >= 0.5.
   // `exclude_image` non-empty: the reference set of that image is never used (leave-one-out: a
   // training view rendered without its own layers, which reproduce its photo at angle 0).
+  // Throws InputError or IoError (naming the file) when a set read from its folder is unreadable.
   RenderResult Render(const Camera& camera, const Rigid3d& cam_from_world, const std::string& exclude_image = {}) const;
   size_t Sets() const { return sets_.size(); }
   bool HasSet(const std::string& image) const;
   size_t Layers() const;
 
  private:
-  std::vector<LayerSet> sets_;
+  std::vector<LayerSet> sets_;       // whole, or headers when folders_ is not empty
+  std::vector<std::string> folders_;
   int references_;
   Eigen::Vector3d centre_;
 };

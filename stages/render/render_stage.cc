@@ -211,40 +211,58 @@ class RenderStage : public Stage {
     std::sort(names.begin(), names.end());
     return names;
   }
-  // One view's buffers at the supersampled size, for the model that needs the most (models run
-  // one after the other): ULR, splats and texture models 88 bytes per supersampled pixel (colour,
-  // depth, weights and blend accumulators), as measured on the full-size Sceaux castle (2832x2128,
-  // supersample 2: 2.0 GB a view besides the 0.4 GB of sources and program). `layers` needs
-  // 40 + 20 L bytes, L the layers of one reference set: per layer its drawn premultiplied colour
-  // and alpha (16) and depth (4) in CompositeLayers, besides the blend accumulators (20), one
-  // RasterResult (20) and the composite and output images: 240 bytes at L = 10.
+  // One view's buffers, for the model that needs the most (models run one after the other): ULR,
+  // splats and texture models 88 bytes per supersampled pixel (colour, depth, weights and blend
+  // accumulators), as measured on the full-size Sceaux castle (2832x2128, supersample 2: 2.0 GB a
+  // view besides the 0.4 GB of sources and program). `layers`, at the supersampled size: 44 bytes a
+  // pixel (the raster 20, the blend's sums 20, the drawn image 4) and 24 for each layer drawn over
+  // it (LayerFragments), counted as the sets' largest depth complexity (their layers' pixels over
+  // the sprite size: 1.3-1.8 on the castle) and a quarter more, as a desired view sees the layers
+  // from elsewhere; at the sprites' size (the training images'), the `layers_references` sets a
+  // view reads (8 bytes a pixel a layer) and one layer's mesh (60 bytes a pixel at most). The
+  // castle at full size: 2.9 GB estimated, 2.4 GB measured.
   double ViewMemoryMb(const StageContext& context) const override {
     const double pixels = LargestTrainingImage(context).Pixels();
     const double factor = static_cast<double>(context.params.Int("supersample"));
-    double bytes = 88.0;
+    double bytes = pixels * factor * factor * 88.0;
     for (const std::string& entry : context.params.StringList("proxies")) {
       const ProxySpec spec = ParseProxy(entry, context.workspace);
-      if (spec.kind == ModelKind::kLayers) bytes = std::max(bytes, 40.0 + 20.0 * LargestLayerCount(spec.path));
+      if (spec.kind != ModelKind::kLayers) continue;
+      const LayerSetsExtent extent = LargestLayerSets(spec.path);
+      const double references = static_cast<double>(context.params.Int("layers_references"));
+      bytes = std::max(bytes, pixels * factor * factor * (44.0 + 24.0 * std::min<double>(extent.layers, 1.25 * extent.complexity)) +
+                                  pixels * (references * 8.0 * extent.layers + 60.0));
     }
-    return pixels * factor * factor * bytes / 1048576.0;
+    return bytes / 1048576.0;
   }
-  // The most layers in one reference set under `folder` (layers/<image>/layers.json, small files),
-  // or layered_stereo's largest max_layers (16) when there is none yet (planned before that stage
-  // runs) or one cannot be read: an estimate must not fall short.
-  static int LargestLayerCount(const std::string& folder) {
+  // The most layers in one reference set under `folder` (layers/<image>/layers.json, small files)
+  // and the largest depth complexity (a set's layers' pixels over its sprite size), or
+  // layered_stereo's largest max_layers (16) for both when there is none yet (planned before that
+  // stage runs) or one cannot be read: an estimate must not fall short.
+  struct LayerSetsExtent {
+    int layers = 0;
+    double complexity = 0;
+  };
+  static LayerSetsExtent LargestLayerSets(const std::string& folder) {
     constexpr int kMaxLayers = 16;
-    int largest = 0;
+    const LayerSetsExtent unknown{kMaxLayers, kMaxLayers};
+    LayerSetsExtent largest;
     std::error_code ec;
     for (fs::recursive_directory_iterator it(folder, ec), end; !ec && it != end; it.increment(ec)) {
       if (it->path().filename() != "layers.json") continue;
       try {
         const nlohmann::json j = nlohmann::json::parse(ReadFile(it->path().string()));
-        largest = std::max(largest, static_cast<int>(j.at("layers").size()));
+        const double area = j.at("width").get<double>() * j.at("height").get<double>();
+        double covered = 0;
+        for (const auto& layer : j.at("layers")) covered += layer.at("pixels").get<double>();
+        if (!(area > 0)) return unknown;
+        largest.layers = std::max(largest.layers, static_cast<int>(j.at("layers").size()));
+        largest.complexity = std::max(largest.complexity, covered / area);
       } catch (const std::exception&) {
-        return kMaxLayers;
+        return unknown;
       }
     }
-    return ec || largest == 0 ? kMaxLayers : largest;
+    return ec || largest.layers == 0 ? unknown : largest;
   }
   // The photographed views to render: render.views, else the held-out ones.
   static std::vector<std::string> PhotoViewNames(const StageContext& context) {
@@ -682,14 +700,20 @@ class RenderStage : public Stage {
         throw InputError("render: plane proxy: no sparse points and the training optical axes are parallel; "
                          "list a mesh proxy instead");
       }
-      // Layers: every training view's layers/<image>/ that exists.
+      // Layers: every training view's layers/<image>/ that exists, each read whole here (so that a
+      // broken set skips the model before any view is drawn) and kept as its header only: a view
+      // reads the sets it is drawn from again.
       std::unique_ptr<LayersRenderer> layered;
       if (spec.kind == ModelKind::kLayers) {
         std::vector<LayerSet> sets;
+        std::vector<std::string> folders;
         try {
           for (const std::string& name : training) {
             const std::string folder = spec.path + "/" + name;
-            if (fs::exists(folder + "/layers.json")) sets.push_back(ReadLayerSet(folder));
+            if (!fs::exists(folder + "/layers.json")) continue;
+            sets.push_back(ReadLayerSet(folder));
+            for (SpriteLayer& layer : sets.back().layers) layer.rgba.release(), layer.residual.release();
+            folders.push_back(folder);
           }
         } catch (const InputError& e) {
           skip(e.what());
@@ -708,7 +732,8 @@ class RenderStage : public Stage {
           for (const Eigen::Vector3d& p : sparse_points) centre += p;
           centre /= static_cast<double>(sparse_points.size());
         }
-        layered = std::make_unique<LayersRenderer>(std::move(sets), static_cast<int>(context.params.Int("layers_references")), centre);
+        layered = std::make_unique<LayersRenderer>(std::move(sets), std::move(folders),
+                                                   static_cast<int>(context.params.Int("layers_references")), centre);
         pj["reference_views"] = layered->Sets();
       }
       const auto start = std::chrono::steady_clock::now();

@@ -10,6 +10,7 @@
 #include <filesystem>
 #include <fstream>
 #include <limits>
+#include <unistd.h>
 #include <nlohmann/json.hpp>
 
 #include "pipeline/core/colmap_text_io.h"
@@ -674,6 +675,64 @@ TEST(Layers, ExcludedReferenceSetIsNotUsed) {
   EXPECT_GT(with_self.image.at<cv::Vec3b>(centre)[2], 200);  // its own (red) layer dominates at angle 0
   ASSERT_EQ(without.coverage.at<uint8_t>(centre), 255);
   EXPECT_EQ(without.image.at<cv::Vec3b>(centre), cv::Vec3b(255, 0, 0));  // only b's (blue) layer
+}
+
+// A renderer that reads its reference sets from their folders for each view (the stage's way:
+// only the sets a view is drawn from are in memory) draws what the sets in memory draw, two
+// layers overlapping; a set whose sprite went missing is an IoError naming the file.
+TEST(Layers, SetsReadFromTheirFoldersDrawAsTheSetsInMemory) {
+  const Camera camera = Camera::Pinhole(40, 30, 36, 36, 20, 15);
+  const auto set_at = [&](const std::string& name, const Eigen::Vector3d& eye) {
+    LayerSet set;
+    set.image = name;
+    set.camera = camera;
+    set.cam_from_world = LookAt(eye, Eigen::Vector3d(eye.x(), eye.y(), 4), Eigen::Vector3d(0, -1, 0));
+    SpriteLayer back, front;
+    back.normal = front.normal = Eigen::Vector3d::UnitZ();
+    back.offset = 4;   // the plane z = 4, all of the view, a gradient
+    front.offset = 3;  // z = 3, the left half, nearer
+    back.rgba = cv::Mat(30, 40, CV_8UC4);
+    front.rgba = cv::Mat(30, 40, CV_8UC4, cv::Scalar(0, 0, 0, 0));
+    for (int y = 0; y < 30; ++y) {
+      for (int x = 0; x < 40; ++x) {
+        back.rgba.at<cv::Vec4b>(y, x) = cv::Vec4b(static_cast<uint8_t>(6 * x), static_cast<uint8_t>(8 * y), 90, 255);
+        if (x < 20) front.rgba.at<cv::Vec4b>(y, x) = cv::Vec4b(30, 200, static_cast<uint8_t>(10 * y), 255);
+      }
+    }
+    set.layers = {back, front};
+    return set;
+  };
+  std::vector<LayerSet> sets = {set_at("a.png", {0, 0, 0}), set_at("b.png", {0.3, 0, 0})};
+  const fs::path root = fs::temp_directory_path() / ("ibmr_layers_folders_" + std::to_string(::getpid()));
+  fs::remove_all(root);
+  std::vector<LayerSet> headers;
+  std::vector<std::string> folders;
+  for (const LayerSet& set : sets) {
+    folders.push_back((root / set.image).string());
+    WriteLayerSet(folders.back(), set);
+    headers.push_back(ReadLayerSet(folders.back()));
+    for (SpriteLayer& layer : headers.back().layers) layer.rgba.release(), layer.residual.release();
+  }
+  const LayersRenderer in_memory(sets, 2, Eigen::Vector3d(0, 0, 4));
+  const LayersRenderer from_folders(headers, folders, 2, Eigen::Vector3d(0, 0, 4));
+  const Rigid3d between = LookAt({0.12, 0.05, 0}, Eigen::Vector3d(0.12, 0.05, 4), Eigen::Vector3d(0, -1, 0));
+  const RenderResult expected = in_memory.Render(camera, between);
+  const RenderResult drawn = from_folders.Render(camera, between);
+  ASSERT_GT(expected.covered_pixels, 1000);
+  EXPECT_EQ(drawn.covered_pixels, expected.covered_pixels);
+  EXPECT_EQ(cv::norm(drawn.image, expected.image, cv::NORM_INF), 0);
+  EXPECT_EQ(cv::norm(drawn.coverage, expected.coverage, cv::NORM_INF), 0);
+  // The front layer hides the back one on the left: its green shows there.
+  EXPECT_GT(drawn.image.at<cv::Vec3b>(15, 5)[1], 190);
+
+  fs::remove(root / "b.png" / "layer_1.png");
+  try {
+    from_folders.Render(camera, between);
+    ADD_FAILURE() << "a missing sprite must be an IoError";
+  } catch (const IoError& e) {
+    EXPECT_NE(std::string(e.what()).find("layer_1.png"), std::string::npos) << e.what();
+  }
+  fs::remove_all(root);
 }
 
 }  // namespace
