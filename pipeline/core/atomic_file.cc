@@ -59,6 +59,20 @@ void CommitTemporary(const std::string& tmp_path, const std::string& path) {
     std::remove(tmp_path.c_str());
     throw IoError("cannot rename " + tmp_path + " to " + path + ": " + reason);
   }
+  // The new name is an entry of the folder, which reaches the disk on its own schedule: flushed
+  // too, so that what is written after this file (the stage's record saying it is done, a view's
+  // mark) never reaches the disk before it does. After a power cut the record could otherwise say
+  // done over the old file.
+  const std::string folder = fs::path(path).has_parent_path() ? fs::path(path).parent_path().string() : ".";
+  const int dir = ::open(folder.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+  if (dir < 0) return;  // a folder that cannot be opened for reading: the rename stands as it is
+  const bool dir_synced = ::fsync(dir) == 0 || errno == EINVAL || errno == ENOTSUP || errno == EBADF;
+  const std::string dir_error = dir_synced ? "" : ErrnoText();
+  ::close(dir);
+  if (!dir_synced) {
+    throw IoError("cannot write " + path + ": its folder's new entry did not reach the disk (" + dir_error +
+                  "); check the disk, then run again");
+  }
 }
 
 // "dir/x.png" -> "dir/x.tmp<pid>.png": the extension stays last so that writers choosing a

@@ -1,5 +1,6 @@
 // Tests for atomic writes: contents, parent folders, no temporaries left behind, the extension
-// kept by WriteViaTemporary, errors that name the path, and a flush to the disk that fails.
+// kept by WriteViaTemporary, errors that name the path, a flush to the disk that fails, and the
+// folder's entry flushed after the data.
 #include "pipeline/core/atomic_file.h"
 
 #include <gtest/gtest.h>
@@ -11,16 +12,26 @@
 #include <filesystem>
 #include <fstream>
 #include <functional>
+#include <string>
+#include <vector>
 
 #include "pipeline/core/errors.h"
 #include "tests/scratch_dir.h"
 
 // This program's fsync (it takes the place of the C library's for the code linked in): fails as a
 // full disk does while `fail_fsync`, else makes the system call.
-static std::atomic<bool> fail_fsync{false};
+// With `record_fsync`, it also notes what each flush was of (the path behind the descriptor); with
+// `fail_folder_fsync`, a flush of a folder fails as an I/O error.
+static std::atomic<bool> fail_fsync{false}, fail_folder_fsync{false}, record_fsync{false};
+static std::vector<std::string> flushed;
 extern "C" int fsync(int fd) {
-  if (fail_fsync) {
-    errno = ENOSPC;
+  char target[4096] = {0};
+  const std::string link = "/proc/self/fd/" + std::to_string(fd);
+  const ssize_t length = ::readlink(link.c_str(), target, sizeof(target) - 1);
+  const std::string path = length > 0 ? std::string(target, static_cast<size_t>(length)) : std::string();
+  if (record_fsync) flushed.push_back(path);
+  if (fail_fsync || (fail_folder_fsync && std::filesystem::is_directory(path))) {
+    errno = fail_fsync ? ENOSPC : EIO;
     return -1;
   }
   return static_cast<int>(::syscall(SYS_fsync, fd));
@@ -76,6 +87,31 @@ TEST(AtomicFile, AFailedFlushKeepsThePreviousFileAndNamesIt) {
   EXPECT_EQ(ReadFile(path), "good");
   EXPECT_EQ(ReadFile(image), "good too");
   EXPECT_EQ(CountFiles(dir), 2) << "a temporary was left behind";
+}
+
+// The rename is flushed too: the folder's entry after the file's data, so that a later write (a
+// stage's record saying it is done) cannot reach the disk before the new name does; a folder that
+// cannot be flushed fails the write, naming the file.
+TEST(AtomicFile, TheFoldersNewEntryIsFlushedAfterTheData) {
+  const fs::path dir = MakeTestDir("folder_flush");
+  const std::string path = (dir / "sub" / "record.json").string();
+  flushed.clear();
+  record_fsync = true;
+  WriteFileAtomic(path, "done");
+  record_fsync = false;
+  ASSERT_EQ(flushed.size(), 2u);
+  EXPECT_NE(flushed[0].find("record.json.tmp."), std::string::npos) << flushed[0];
+  EXPECT_EQ(fs::path(flushed[1]), fs::canonical(dir / "sub"));
+  fail_folder_fsync = true;
+  try {
+    WriteViaTemporary(path, [](const std::string& tmp) { std::ofstream(tmp) << "again"; });
+    ADD_FAILURE() << "a folder that cannot be flushed must fail the write";
+  } catch (const IoError& e) {
+    EXPECT_NE(std::string(e.what()).find(path), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("folder's new entry"), std::string::npos) << e.what();
+  }
+  fail_folder_fsync = false;
+  EXPECT_EQ(CountFiles(dir), 1) << "a temporary was left behind";
 }
 
 TEST(AtomicFile, ReadMissingNamesPath) {
