@@ -41,6 +41,7 @@ sweep::EngineOptions ToEngine(const PlaneSweepOptions& o) {
   e.p1 = o.p1;
   e.p2 = o.p2;
   e.p2_gamma = o.p2_gamma;
+  e.sgm_threads = o.sgm_threads;
   return e;
 }
 
@@ -109,6 +110,7 @@ bool PlaneSweepOptions::Check(std::string* error) const {
   if (cost == MatchCost::kZncc && window_radius < 1)
     return Fail(error, "window_radius", "must be >= 1 for the zncc cost", window_radius);
   if (sgm_paths != 4 && sgm_paths != 8) return Fail(error, "sgm_paths", "must be 4 or 8", sgm_paths);
+  if (sgm_threads != 1 && sgm_threads != 2) return Fail(error, "sgm_threads", "must be 1 or 2", sgm_threads);
   if (p1 < 0 || p1 > 2000) return Fail(error, "p1", "must be in [0, 2000]", p1);
   if (p2 < p1 || p2 > 6000) return Fail(error, "p2", "must be in [p1, 6000]", p2);
   if (!(p2_gamma >= 0)) return Fail(error, "p2_gamma", "must be >= 0", p2_gamma);

@@ -58,6 +58,10 @@ struct PlaneSweepOptions {
   // the reference is swept in bands of rows, each with kBandContextRows of context above and below
   // (see PlaneSweep); within the limit the image is swept whole.
   int max_view_memory_mb = 1024;
+  // Threads each semi-global pass steps its paths on, 1 or 2 (EngineOptions::sgm_threads): 2 for
+  // a view swept while no other is (the stage's memory budget holds one view at a time). The
+  // depth maps are the same.
+  int sgm_threads = 1;
   // Two-view only.
   bool lr_check = true;           // left-right consistency check
   int lr_tolerance = 1;           // pixels

@@ -253,6 +253,8 @@ class PlaneSweepStage : public Stage {
         if (census_cost) reference.census = census.Get(name);
         PlaneSweepOptions view_options = options;
         view_options.best_k = std::min<int>(options.best_k, static_cast<int>(neighbours.size()));
+        // One view at a time (the memory budget): its semi-global passes take both cores.
+        if (context.max_views_in_flight == 1 && tbb::this_task_arena::max_concurrency() >= 2) view_options.sgm_threads = 2;
         PixelDepthBounds bounds;
         const bool per_pixel = hull_ranges && source == "hull" && !hull.faces.empty();
         if (per_pixel) {

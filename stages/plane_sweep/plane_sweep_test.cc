@@ -614,7 +614,8 @@ TEST(SweepEngine, UnmatchedPixelsLeaveTheMatchedSumsAndHaveNoWinner) {
 // Picking each pixel's winner in the backward pass (the multi-view stage's path) gives the winners
 // and certainties of the sums stored and then searched, on every build, with unmatched pixels,
 // with few planes and many, 4 and 8 paths, without the semi-global passes, and with a sums buffer
-// that holds an earlier call's values.
+// that holds an earlier call's values; and so do the passes with their paths split over two
+// threads (sgm_threads 2), whose sums are those of one thread.
 TEST(SweepEngine, PickingWinnersInTheBackwardPassEqualsSearchingTheSums) {
   const int w = 29, h = 13;
   cv::RNG rng(9);
@@ -636,23 +637,37 @@ TEST(SweepEngine, PickingWinnersInTheBackwardPassEqualsSearchingTheSums) {
         sweep::Aggregated aggregated;
         sweep::Aggregate(volume, gray, options, &aggregated, /*one_buffer=*/true);
         const sweep::Winners want = sweep::WinnerTakeAll(aggregated, &volume, 0.5);
-        LargeBuffer<uint16_t> sums(volume.data.size());
-        for (uint16_t& v : sums) v = static_cast<uint16_t>(rng.uniform(0, 65536));
-        const sweep::Winners have = sweep::AggregateAndPick(volume, gray, options, 0.5, &sums);
-        EXPECT_EQ(sums.empty(), paths == 0);  // without semi-global passes the volume is picked from
-        size_t differ = 0, winners = 0, graded = 0;
-        for (int y = 0; y < h; ++y) {
-          for (int x = 0; x < w; ++x) {
-            const float confidence = have.confidence.at<float>(y, x);
-            differ += have.plane.at<float>(y, x) != want.plane.at<float>(y, x);
-            differ += confidence != want.confidence.at<float>(y, x);
-            winners += have.plane.at<float>(y, x) >= 0;
-            graded += confidence > 0 && confidence < 1;  // neither clamped end: the scale matters
+        for (int threads : {1, 2}) {
+          SCOPED_TRACE("threads " + std::to_string(threads));
+          options.sgm_threads = threads;
+          if (threads == 2 && paths > 0) {
+            sweep::Aggregated split;
+            sweep::Aggregate(volume, gray, options, &split, /*one_buffer=*/true);
+            size_t sums_differ = 0;
+            for (size_t pixel = 0; pixel < static_cast<size_t>(w) * h; ++pixel) {
+              if (!volume.Matched(pixel)) continue;
+              for (int d = 0; d < planes; ++d) sums_differ += split.Sum(pixel, d) != aggregated.Sum(pixel, d);
+            }
+            EXPECT_EQ(sums_differ, 0u);
           }
+          LargeBuffer<uint16_t> sums(volume.data.size());
+          for (uint16_t& v : sums) v = static_cast<uint16_t>(rng.uniform(0, 65536));
+          const sweep::Winners have = sweep::AggregateAndPick(volume, gray, options, 0.5, &sums);
+          EXPECT_EQ(sums.empty(), paths == 0);  // without semi-global passes the volume is picked from
+          size_t differ = 0, winners = 0, graded = 0;
+          for (int y = 0; y < h; ++y) {
+            for (int x = 0; x < w; ++x) {
+              const float confidence = have.confidence.at<float>(y, x);
+              differ += have.plane.at<float>(y, x) != want.plane.at<float>(y, x);
+              differ += confidence != want.confidence.at<float>(y, x);
+              winners += have.plane.at<float>(y, x) >= 0;
+              graded += confidence > 0 && confidence < 1;  // neither clamped end: the scale matters
+            }
+          }
+          EXPECT_EQ(differ, 0u);
+          EXPECT_EQ(winners, static_cast<size_t>(w) * h - unmatched);
+          EXPECT_GT(graded, 0u);
         }
-        EXPECT_EQ(differ, 0u);
-        EXPECT_EQ(winners, static_cast<size_t>(w) * h - unmatched);
-        EXPECT_GT(graded, 0u);
       }
     }
   }

@@ -41,6 +41,10 @@ struct EngineOptions {
   int p1 = 120;              // small-jump penalty, cost units
   int p2 = 900;              // large-jump penalty, cost units
   double p2_gamma = 12.0;    // P2 is divided by (1 + |grey step| / gamma); 0: constant P2
+  // 2: each semi-global pass steps its paths on two threads (the row path, the one from above and
+  // one diagonal on a helper thread, the other diagonal a row behind), for a sweep that has the
+  // cores to itself (one view in flight when memory is short); the same sums and winners as 1.
+  int sgm_threads = 1;
 };
 
 // Cost volume: layout [y][x][plane], `stride` >= planes (multiple of 16, padding at kMaxCost).
@@ -146,7 +150,8 @@ Winners WinnerTakeAll(const Aggregated& aggregated, const CostVolume* data_cost,
 // once instead of storing the sum. Without semi-global passes the winners come from the volume
 // itself and `sums` is left empty. Same winners and certainties. The picking runs inside the
 // backward pass, on one thread (WinnerTakeAll's search is spread over the rows): for callers
-// that keep the cores busy with several sweeps, as the multi-view stage does.
+// that keep the cores busy with several sweeps, as the multi-view stage does; with
+// options.sgm_threads 2 each pass's paths are split over two threads (one sweep at a time).
 Winners AggregateAndPick(const CostVolume& volume, const cv::Mat& reference_gray, const EngineOptions& options,
                          double confidence_scale, LargeBuffer<uint16_t>* sums);
 

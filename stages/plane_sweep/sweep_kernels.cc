@@ -30,10 +30,12 @@
 
 #include <algorithm>
 #include <array>
+#include <atomic>
 #include <cmath>
 #include <cstddef>
 #include <cstring>
 #include <limits>
+#include <thread>
 #include <opencv2/imgproc.hpp>
 #if defined(__SSE4_1__)  // x86-64-v2, the baseline of every build on x86
 #include <smmintrin.h>
@@ -550,17 +552,42 @@ void SgmPassPerPath(const CostVolume& v, const cv::Mat& gray, const EngineOption
   }
 }
 
-// One pass over the image in scan order `s` (+1: top-left to bottom-right; -1: reverse) along the
-// paths arriving from the previous pixel and, when `diagonals`, the previous row's three pixels
-// (else only the one above); `out` receives the sum of those paths or, `accumulate`, has it added
-// (with `pick`, as SgmPassPerPath: the completed sum gives the winner and is not stored).
+// Rows of a pass handed from one thread to another (SgmPassPaths with two threads): the thread
+// stepping some of a pixel's paths publishes how many rows it has finished; the one stepping the
+// others, which adds to the same sums after it, waits for the row before it starts it.
+struct RowHandOff {
+  std::atomic<int> rows_done{0};
+  void Publish(int rows) { rows_done.store(rows, std::memory_order_release); }
+  void AwaitRow(int row) const {
+    while (rows_done.load(std::memory_order_acquire) <= row) {
+#if defined(__x86_64__)
+      _mm_pause();
+#endif
+    }
+  }
+};
+
+// One pass over the image in scan order `s` (+1: top-left to bottom-right; -1: reverse) along
+// some of its paths: the one from the previous pixel on the row (kRowPath) and those from the
+// previous row's pixels whose x offsets (times s) kFromRow holds as bits: bit 0 (x - s), bit 1
+// (x), bit 2 (x + s). `out` receives the sum of those paths or, `accumulate`, has it added (with
+// `pick`, as SgmPassPerPath: the completed sum gives the winner and is not stored). `publish`
+// (optional) receives each finished row; `await` (optional): each row starts once that hand-off
+// has it (the other paths' thread has assigned or added its sums there).
 // The cost and sum entries of the pixel kPrefetchPixels ahead are fetched early: the backward
 // pass walks the volume from its end, and waiting on those loads had been the largest stall.
 constexpr int kPrefetchPixels = 6;
-template <int kRowPaths, class V>
-void SgmPassFused(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, int s, bool accumulate,
-                  LargeBuffer<uint16_t>* out, const PickTarget* pick) {
-  constexpr int K = 1 + kRowPaths;  // the row path, then the paths from the previous row
+template <bool kRowPath, int kFromRow, class V>
+void SgmPassPaths(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, int s, bool accumulate,
+                  LargeBuffer<uint16_t>* out, const PickTarget* pick, RowHandOff* publish = nullptr,
+                  const RowHandOff* await = nullptr) {
+  constexpr int kRowPaths = __builtin_popcount(kFromRow);
+  constexpr int K = (kRowPath ? 1 : 0) + kRowPaths;  // the row path first, then the paths from the previous row
+  constexpr int kRow = kRowPath ? 1 : 0;
+  int dx_of[3] = {0, 0, 0};  // the k-th path from the previous row: x offset in units of s
+  for (int bit = 0, k = 0; bit < 3; ++bit) {
+    if (kFromRow & (1 << bit)) dx_of[k++] = bit - 1;
+  }
   const int w = v.width, h = v.height, n = v.stride, ps = n + 2;
   if (!accumulate) out->resize(v.data.size());  // every matched pixel's entries are assigned
   // Two of each (previous and current), swapped as pointers (swapping the vectors themselves made
@@ -580,35 +607,36 @@ void SgmPassFused(const CostVolume& v, const cv::Mat& gray, const EngineOptions&
   int16_t min_prev[K], min_out[K], p2[K];
   int16_t left_min = 0;
   for (int yi = 0; yi < h; ++yi) {
+    if (await != nullptr) await->AwaitRow(yi);
     const int y = s > 0 ? yi : h - 1 - yi;
     const uint8_t* g = gray.ptr<uint8_t>(y);
     const uint8_t* gp = yi > 0 ? gray.ptr<uint8_t>(y - s) : nullptr;
     for (int xi = 0; xi < w; ++xi) {
       const int x = s > 0 ? xi : w - 1 - xi;
-      // From the previous pixel on the row.
-      prev[0] = xi == 0 ? start.data() + 1 : left + 1;
-      min_prev[0] = xi == 0 ? 0 : left_min;
-      p2[0] = xi == 0 ? 0 : p2_table[std::abs(g[x] - g[x - s])];
-      cur[0] = left_cur + 1;
-      // From the previous row: (x - s, y - s), (x, y - s), (x + s, y - s), or only (x, y - s).
+      if constexpr (kRowPath) {  // from the previous pixel on the row
+        prev[0] = xi == 0 ? start.data() + 1 : left + 1;
+        min_prev[0] = xi == 0 ? 0 : left_min;
+        p2[0] = xi == 0 ? 0 : p2_table[std::abs(g[x] - g[x - s])];
+        cur[0] = left_cur + 1;
+      }
+      // From the previous row: (x - s, y - s), (x, y - s), (x + s, y - s), those in kFromRow.
       for (int k = 0; k < kRowPaths; ++k) {
-        const int dx = kRowPaths == 3 ? (k - 1) * s : 0;
-        const int xs = x + dx;
-        cur[1 + k] = cur_row + (static_cast<size_t>(k) * w + x) * ps + 1;
+        const int xs = x + dx_of[k] * s;
+        cur[kRow + k] = cur_row + (static_cast<size_t>(k) * w + x) * ps + 1;
         if (yi == 0 || xs < 0 || xs >= w) {
-          prev[1 + k] = start.data() + 1;
-          min_prev[1 + k] = 0;
-          p2[1 + k] = 0;
+          prev[kRow + k] = start.data() + 1;
+          min_prev[kRow + k] = 0;
+          p2[kRow + k] = 0;
         } else {
-          prev[1 + k] = prev_row + (static_cast<size_t>(k) * w + xs) * ps + 1;
-          min_prev[1 + k] = prev_min[static_cast<size_t>(k) * w + xs];
-          p2[1 + k] = p2_table[std::abs(g[x] - gp[xs])];
+          prev[kRow + k] = prev_row + (static_cast<size_t>(k) * w + xs) * ps + 1;
+          min_prev[kRow + k] = prev_min[static_cast<size_t>(k) * w + xs];
+          p2[kRow + k] = p2_table[std::abs(g[x] - gp[xs])];
         }
       }
       const size_t pixel = static_cast<size_t>(y) * w + x;
       const bool matched = v.Matched(pixel);
       uint16_t* sum = matched ? out->data() + pixel * n : discarded.data();
-      if (matched && pick != nullptr) {  // the forward pass's sums, completed here and not stored
+      if (matched && pick != nullptr) {  // the sums so far, completed here and not stored
         std::memcpy(pixel_sums.data(), sum, sizeof(uint16_t) * n);
         sum = pixel_sums.data();
       }
@@ -627,13 +655,46 @@ void SgmPassFused(const CostVolume& v, const cv::Mat& gray, const EngineOptions&
       if (matched && pick != nullptr) {
         pick->Pick(sum, v.planes, n, v.At(x, y), pixel);
       }
-      left_min = min_out[0];
-      std::swap(left, left_cur);
-      for (int k = 0; k < kRowPaths; ++k) cur_min[static_cast<size_t>(k) * w + x] = min_out[1 + k];
+      if constexpr (kRowPath) {
+        left_min = min_out[0];
+        std::swap(left, left_cur);
+      }
+      for (int k = 0; k < kRowPaths; ++k) cur_min[static_cast<size_t>(k) * w + x] = min_out[kRow + k];
     }
     std::swap(prev_row, cur_row);
     std::swap(prev_min, cur_min);
+    if (publish != nullptr) publish->Publish(yi + 1);
   }
+}
+
+// A pass's paths split over two threads (EngineOptions::sgm_threads): the row path and those from
+// the pixels above and above-behind (x - s) on a thread of its own, which assigns (or adds to) the
+// sums row by row, and the other diagonal on the calling thread, a row behind, which adds to them
+// (or, with `pick`, completes them into the winners: the picking weighs about two paths; with 4
+// paths: the row path, then the one from above). On the full-size Sceaux castle, one view in
+// flight, the diagonals and the picking on one thread took twice the other's time.
+// The sums wrap as uint16 whatever the order: the same sums and winners as SgmPassPaths with all
+// paths at once. The helper is a thread of its own, not a TBB task: the calling thread waits on
+// it, which a task that no worker had picked up yet would never end.
+template <class V>
+void SgmPassTwoThreads(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, int s, bool accumulate,
+                       LargeBuffer<uint16_t>* out, const PickTarget* pick) {
+  if (!accumulate) out->resize(v.data.size());  // before either thread takes its address
+  RowHandOff first;
+  const bool eight = o.paths == 8;
+  std::thread helper([&] {
+    if (eight) {
+      SgmPassPaths<true, 0b011, V>(v, gray, o, s, accumulate, out, nullptr, &first);
+    } else {
+      SgmPassPaths<true, 0, V>(v, gray, o, s, accumulate, out, nullptr, &first);
+    }
+  });
+  if (eight) {
+    SgmPassPaths<false, 0b100, V>(v, gray, o, s, true, out, pick, nullptr, &first);
+  } else {
+    SgmPassPaths<false, 0b010, V>(v, gray, o, s, true, out, pick, nullptr, &first);
+  }
+  helper.join();
 }
 
 // One semi-global pass, into `out` or (`accumulate`) added to it, or (`pick`) completed into each
@@ -647,12 +708,16 @@ void SgmPassFused(const CostVolume& v, const cv::Mat& gray, const EngineOptions&
 void SgmPass(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, int s, bool accumulate, LargeBuffer<uint16_t>* out,
              const PickTarget* pick = nullptr) {
   const bool wide = v.stride % kLanesOf<WideLanes> == 0;
-  if (v.stride > 64 && !IBMR_SWEEP_AVX512) {
+  if (o.sgm_threads == 2 && v.height > 1) {
+    wide ? SgmPassTwoThreads<WideLanes>(v, gray, o, s, accumulate, out, pick) : SgmPassTwoThreads<Lanes>(v, gray, o, s, accumulate, out, pick);
+  } else if (v.stride > 64 && !IBMR_SWEEP_AVX512) {
     wide ? SgmPassPerPath<WideLanes>(v, gray, o, s, accumulate, out, pick) : SgmPassPerPath<Lanes>(v, gray, o, s, accumulate, out, pick);
   } else if (o.paths == 8) {
-    wide ? SgmPassFused<3, WideLanes>(v, gray, o, s, accumulate, out, pick) : SgmPassFused<3, Lanes>(v, gray, o, s, accumulate, out, pick);
+    wide ? SgmPassPaths<true, 0b111, WideLanes>(v, gray, o, s, accumulate, out, pick)
+         : SgmPassPaths<true, 0b111, Lanes>(v, gray, o, s, accumulate, out, pick);
   } else {
-    wide ? SgmPassFused<1, WideLanes>(v, gray, o, s, accumulate, out, pick) : SgmPassFused<1, Lanes>(v, gray, o, s, accumulate, out, pick);
+    wide ? SgmPassPaths<true, 0b010, WideLanes>(v, gray, o, s, accumulate, out, pick)
+         : SgmPassPaths<true, 0b010, Lanes>(v, gray, o, s, accumulate, out, pick);
   }
 }
 
