@@ -63,7 +63,8 @@ void CommitTemporary(const std::string& tmp_path, const std::string& path) {
   // too, so that what is written after this file (the stage's record saying it is done, a view's
   // mark) never reaches the disk before it does. After a power cut the record could otherwise say
   // done over the old file.
-  const std::string folder = fs::path(path).has_parent_path() ? fs::path(path).parent_path().string() : ".";
+  const fs::path parent = fs::path(path).parent_path();
+  const std::string folder = parent.empty() ? "." : parent.string();
   const int dir = ::open(folder.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
   if (dir < 0) return;  // a folder that cannot be opened for reading: the rename stands as it is
   const bool dir_synced = ::fsync(dir) == 0 || errno == EINVAL || errno == ENOTSUP || errno == EBADF;

@@ -104,6 +104,12 @@ bool ConfigureHeap(char** argv) {
   return restarted;
 }
 
+void ReleaseFreeHeap() {
+#if defined(__GLIBC__)
+  malloc_trim(0);
+#endif
+}
+
 double ResidentMemoryMb() { return KilobyteLineMb("/proc/self/status", "VmRSS:"); }
 
 double AvailableMemoryMb() { return KilobyteLineMb("/proc/meminfo", "MemAvailable:"); }

@@ -5,7 +5,6 @@
 #include <spdlog/spdlog.h>
 #include <tbb/global_control.h>
 #include <tbb/task_arena.h>
-#include <malloc.h>
 
 #include <algorithm>
 #include <chrono>
@@ -317,7 +316,7 @@ bool Runner::Execute(const Stage& stage, StageContext& context, const std::strin
   // Give the heap the stage freed back to the system, so that the next stage's peak carries
   // less of it (Sceaux at 1600 px: score 577 -> 366 MB after render). Not all of it: the
   // full-size castle's render still peaks at 3235 MB after surfels, against 2408 MB alone.
-  malloc_trim(0);
+  ReleaseFreeHeap();
   record.wall_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - wall_start).count();
   record.cpu_seconds = CpuSeconds() - cpu_start;
   record.peak_memory_mb = PeakMemoryMb();

@@ -46,7 +46,6 @@
 // Views whose images share a stem are refused (their files would collide), as are two proxies with
 // one name.
 #include <spdlog/spdlog.h>
-#include <malloc.h>
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
@@ -63,6 +62,7 @@
 #include "pipeline/core/image_io.h"
 #include "pipeline/core/per_view.h"
 #include "pipeline/core/ply_io.h"
+#include "pipeline/core/process_memory.h"
 #include "pipeline/core/stage_api.h"
 #include "pipeline/core/textured_mesh.h"
 #include "pipeline/core/undistorted_cameras.h"
@@ -594,7 +594,7 @@ class RenderStage : public Stage {
     for (const std::string& entry : context.params.StringList("proxies")) {
       // What the last proxy's model held goes back to the system before the next one loads (the
       // full-size castle: 1130 -> 577 MB held before the layers, after the splats' 20 M samples).
-      malloc_trim(0);
+      ReleaseFreeHeap();
       const ProxySpec spec = ParseProxy(entry, context.workspace);
       const bool is_mesh = spec.kind == ModelKind::kMesh;
       nlohmann::json pj = {{"name", spec.name},
