@@ -41,27 +41,29 @@ for i in $(seq 1 "$N"); do
   IBMR_WORKSPACE="$WS" setsid "$IBMR" run "$CONFIG" --from "$stage" --force >"$WORK/killed.log" 2>&1 &
   pid=$!
   sleep "$delay"
+  how="finished before its kill at ${delay} s"  # the delay can outlast the run
   if kill -0 "$pid" 2>/dev/null; then
     kill -KILL -- -"$pid" 2>/dev/null || kill -KILL "$pid" 2>/dev/null || true
     kills=$((kills + 1))
+    how="killed after ${delay} s"
   fi
   wait "$pid" 2>/dev/null || true
   if ! IBMR_WORKSPACE="$WS" "$IBMR" run "$CONFIG" >"$WORK/resume.log" 2>&1; then
-    echo "soak: round $i (run from $stage killed after ${delay} s): the plain run failed:" >&2
+    echo "soak: round $i (run from $stage $how): the plain run failed:" >&2
     tail -20 "$WORK/resume.log" >&2
     exit 1
   fi
   resumes=$((resumes + 1))
   leftovers=$(find "$WS" -regextype posix-extended -regex '.*\.tmp\.?[0-9]+(\.[^./]+)?$' | head -5 || true)
   if [ -n "$leftovers" ]; then
-    echo "soak: round $i (run from $stage killed after ${delay} s): temporaries left: $leftovers" >&2
+    echo "soak: round $i (run from $stage $how): temporaries left: $leftovers" >&2
     exit 1
   fi
   if ! outputs "$WS" | diff -q - "$WORK/reference.sums" >/dev/null; then
-    echo "soak: round $i (run from $stage killed after ${delay} s): outputs differ from the uninterrupted run:" >&2
+    echo "soak: round $i (run from $stage $how): outputs differ from the uninterrupted run:" >&2
     outputs "$WS" | diff - "$WORK/reference.sums" | head -10 >&2
     exit 1
   fi
-  echo "soak: round $i: run from $stage killed after ${delay} s, resumed, outputs identical"
+  echo "soak: round $i: run from $stage $how, resumed, outputs identical"
 done
 echo "soak: $N rounds, $kills kills, $resumes successful resumes, outputs identical, no temporary left"
