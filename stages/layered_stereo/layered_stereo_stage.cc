@@ -41,12 +41,27 @@ class LayeredStereoStage : public Stage {
   bool Shardable() const override { return true; }
   double ViewMemoryMb(const StageContext& context) const override {
     const double pixels = LargestTrainingImage(context).Pixels();
-    // Photos and depth of the view and its neighbours (7 bytes a pixel each), per plane a cost, a
-    // depth and the warped neighbours (4 + 4 + 12 per neighbour), and the renders of the count
-    // selection (16 per plane and neighbour).
     const double layers = static_cast<double>(context.params.Int("max_layers"));
-    const double neighbours = static_cast<double>(context.params.Int("num_neighbors"));
-    const double bytes = pixels * (7.0 * (neighbours + 1) + layers * (8.0 + 12.0 * neighbours) + 16.0 * layers * neighbours);
+    const double n = static_cast<double>(context.params.Int("num_neighbors"));
+    const double scale = context.params.Double("selection_scale");
+    const double threads = 2;  // planes costed at once (DataCosts' parallel loop) on this machine's cores
+    // Bytes a pixel of the view at the largest moment of each step (layers.cc):
+    //  - the costs at full size (AssignPixels): the view's and its neighbours' photos and depths
+    //    (7 bytes each), the photos as floats (12 each), a cost and a plane depth per plane (8),
+    //    and for each plane being costed one difference per neighbour plus a warp and the cost
+    //    itself (4 n + 16); the residual sweep adds a depth per plane (4);
+    //  - the count selection, on the views scaled by selection_scale (scale^2 of the pixels): the
+    //    same costs there, and a float RGBA render per count and neighbour (16 l n), while the
+    //    full-size inputs stay loaded.
+    // The sprites themselves (8 a layer) come after the costs are freed. Sceaux castle at 1600 px
+    // (1.92 Mpx, 6 layers, 4 neighbours): 479 MB estimated; measured 462 MB above the start with
+    // one view in flight and 406 MB a view with two (the old count, which held every plane's
+    // warped neighbours at once, gave 1485 MB and kept the full-size run to one view at a time).
+    const double costs = 19.0 * (n + 1) + 8.0 * layers + threads * (4.0 * n + 16.0) +
+                         (context.params.Int("residual_steps") > 0 ? 4.0 * layers : 0.0);
+    const double selection = 7.0 * (n + 1) +
+                             scale * scale * (19.0 * n + 8.0 * layers + threads * (4.0 * n + 12.0) + 16.0 * layers * n);
+    const double bytes = pixels * std::max(costs, selection);
     return pixels > 0 ? bytes / 1048576.0 + 100.0 : 0.0;
   }
 

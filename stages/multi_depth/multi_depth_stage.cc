@@ -77,10 +77,16 @@ class MultiDepthStage : public Stage {
   bool Shardable() const override { return true; }
   double ViewMemoryMb(const StageContext& context) const override {
     const double pixels = LargestTrainingImage(context).Pixels();
-    // The key view's depth, normals and confidence (20 bytes per pixel), each neighbour's depth and
-    // confidence (8; the neighbour cache holds about one more view's worth per view in flight),
-    // the result (20), and the program. 640x480: 132 MB estimated, 150 MB measured.
-    const double bytes = pixels * (20.0 + 8.0 * context.params.Int("max_neighbors") + 20.0);
+    // Bytes a pixel (multi_depth.cc): the key view's depth, normals and confidence (20), each
+    // neighbour's depth and confidence (8; the neighbour cache holds about one more view's worth
+    // per view in flight), the result (20), the key's pixel rays (12), each neighbour's samples
+    // warped into the key (4), the first pass's depth and the mask of pixels near it (5), and
+    // the program. Sceaux castle at 1600 px (1.92 Mpx, 8 neighbours): 395 MB estimated, 342 MB
+    // measured above the start with one view in flight and 256 MB a view with two (they share
+    // the cache); the count without the rays, warps and first pass gave 291 MB, short of the
+    // one-view figure by 15%.
+    const double neighbours = static_cast<double>(context.params.Int("max_neighbors"));
+    const double bytes = pixels * (20.0 + 8.0 * (neighbours + 1) + 20.0 + 12.0 + 4.0 * neighbours + 5.0);
     return pixels > 0 ? bytes / 1048576.0 + 100.0 : 0.0;
   }
 
