@@ -8,6 +8,8 @@
 #include <chrono>
 #include <cmath>
 #include <limits>
+#include <stdexcept>
+#include <string>
 #include <opencv2/imgproc.hpp>
 
 namespace ibmr {
@@ -258,7 +260,11 @@ cv::Mat SweepResidual(const LayerView& reference, const std::vector<const LayerV
 namespace {
 
 // Labels from the first `count` planes' data costs: the cheapest, then ICM with the Potts term.
+// At most this many labels (LayeredOptions::max_layers' range).
+constexpr int kMaxLabels = 16;
+
 cv::Mat AssignFromCosts(const LayerView& reference, const std::vector<cv::Mat>& costs, int count, const LayeredOptions& options) {
+  if (count > kMaxLabels) throw std::invalid_argument("AssignFromCosts: " + std::to_string(count) + " planes, at most 16");
   const int width = reference.image.cols, height = reference.image.rows;
   cv::Mat labels(height, width, CV_32S, cv::Scalar::all(-1));
   if (count == 0) return labels;
@@ -277,19 +283,30 @@ cv::Mat AssignFromCosts(const LayerView& reference, const std::vector<cv::Mat>& 
     }
   }
   // ICM on data + Potts, red-black so that the result does not depend on the thread schedule.
+  const float smoothness = static_cast<float>(options.smoothness);
   for (int sweep = 0; sweep < options.icm_sweeps; ++sweep) {
     for (int parity = 0; parity < 2; ++parity) {
       tbb::parallel_for(0, height, [&](int y) {
         int* row = labels.ptr<int>(y);
+        const int* above = y > 0 ? labels.ptr<int>(y - 1) : nullptr;
+        const int* below = y + 1 < height ? labels.ptr<int>(y + 1) : nullptr;
+        const float* cost_rows[kMaxLabels];
+        for (int l = 0; l < count; ++l) cost_rows[l] = costs[l].ptr<float>(y);
         for (int x = (y + parity) % 2; x < width; x += 2) {
           if (row[x] < 0) continue;
-          int around[4] = {x > 0 ? row[x - 1] : -2, x + 1 < width ? row[x + 1] : -2,
-                           y > 0 ? labels.ptr<int>(y - 1)[x] : -2, y + 1 < height ? labels.ptr<int>(y + 1)[x] : -2};
+          const int around[4] = {x > 0 ? row[x - 1] : -2, x + 1 < width ? row[x + 1] : -2, above ? above[x] : -2,
+                                 below ? below[x] : -2};
+          // The Potts term of label l: smoothness once for each labelled neighbour with another
+          // label, added one at a time as a sum of equal terms (the same float whatever the order).
+          int labelled = 0;
+          for (const int a : around) labelled += a >= 0;
           int best = row[x];
           float best_cost = std::numeric_limits<float>::infinity();
           for (int l = 0; l < count; ++l) {
-            float c = costs[l].at<float>(y, x);
-            for (const int a : around) c += (a >= 0 && a != l) ? static_cast<float>(options.smoothness) : 0.f;
+            float c = cost_rows[l][x];
+            int others = labelled;
+            for (const int a : around) others -= a == l;
+            for (int k = 0; k < others; ++k) c += smoothness;
             if (c < best_cost) best_cost = c, best = l;
           }
           row[x] = best;
@@ -303,15 +320,24 @@ cv::Mat AssignFromCosts(const LayerView& reference, const std::vector<cv::Mat>& 
   for (int pass = 0; pass < 2; ++pass) {
     const cv::Mat before = labels.clone();
     tbb::parallel_for(2, height - 2, [&](int y) {
-      std::vector<int> votes(static_cast<size_t>(count) + 1);
+      int votes[kMaxLabels + 1];
+      const int* rows[5];
+      for (int dy = -2; dy <= 2; ++dy) rows[dy + 2] = before.ptr<int>(y + dy);
+      int* out = labels.ptr<int>(y);
       for (int x = 2; x < width - 2; ++x) {
-        std::fill(votes.begin(), votes.end(), 0);
-        for (int dy = -2; dy <= 2; ++dy) {
-          const int* row = before.ptr<int>(y + dy);
-          for (int dx = -2; dx <= 2; ++dx) ++votes[static_cast<size_t>(row[x + dx] + 1)];
+        // A window of one label (most of them) keeps it: nothing to count.
+        const int centre = rows[2][x];
+        bool uniform = true;
+        for (int r = 0; r < 5 && uniform; ++r) {
+          for (int dx = -2; dx <= 2; ++dx) uniform &= rows[r][x + dx] == centre;
         }
-        const int winner = static_cast<int>(std::max_element(votes.begin(), votes.end()) - votes.begin()) - 1;
-        if (votes[static_cast<size_t>(winner + 1)] >= 13) labels.at<int>(y, x) = winner;
+        if (uniform) continue;
+        std::fill(votes, votes + count + 1, 0);
+        for (int r = 0; r < 5; ++r) {
+          for (int dx = -2; dx <= 2; ++dx) ++votes[rows[r][x + dx] + 1];
+        }
+        const int winner = static_cast<int>(std::max_element(votes, votes + count + 1) - votes) - 1;
+        if (votes[winner + 1] >= 13) out[x] = winner;
       }
     });
   }
