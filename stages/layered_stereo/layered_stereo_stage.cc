@@ -4,6 +4,7 @@
 // RGBA sprites, residual depth, the combined depth map, and the held-out error against the layer
 // count. Also registers the two-view method "layered" (layered_pair.h) for `ibmr stereo-pair`.
 #include <spdlog/spdlog.h>
+#include <tbb/task_arena.h>
 
 #include <algorithm>
 #include <filesystem>
@@ -44,7 +45,8 @@ class LayeredStereoStage : public Stage {
     const double layers = static_cast<double>(context.params.Int("max_layers"));
     const double n = static_cast<double>(context.params.Int("num_neighbors"));
     const double scale = context.params.Double("selection_scale");
-    const double threads = 2;  // planes costed at once (DataCosts' parallel loop) on this machine's cores
+    // Planes costed at once (DataCosts' parallel loop over the planes): 2 on two cores.
+    const double threads = std::min(layers, static_cast<double>(std::max(1, tbb::this_task_arena::max_concurrency())));
     // Bytes a pixel of the view at the largest moment of each step (layers.cc):
     //  - the costs at full size (AssignPixels): the view's and its neighbours' photos and depths
     //    (7 bytes each), the photos as floats (12 each), a cost and a plane depth per plane (8),

@@ -259,12 +259,12 @@ cv::Mat SweepResidual(const LayerView& reference, const std::vector<const LayerV
 
 namespace {
 
-// Labels from the first `count` planes' data costs: the cheapest, then ICM with the Potts term.
 // At most this many labels (LayeredOptions::max_layers' range).
 constexpr int kMaxLabels = 16;
 
+// Labels from the first `count` planes' data costs: the cheapest, then ICM with the Potts term.
 cv::Mat AssignFromCosts(const LayerView& reference, const std::vector<cv::Mat>& costs, int count, const LayeredOptions& options) {
-  if (count > kMaxLabels) throw std::invalid_argument("AssignFromCosts: " + std::to_string(count) + " planes, at most 16");
+  if (count > kMaxLabels) throw std::invalid_argument("AssignFromCosts: " + std::to_string(count) + " planes, at most " + std::to_string(kMaxLabels));
   const int width = reference.image.cols, height = reference.image.rows;
   cv::Mat labels(height, width, CV_32S, cv::Scalar::all(-1));
   if (count == 0) return labels;
