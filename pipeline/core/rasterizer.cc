@@ -11,6 +11,10 @@
 // z, renormalised; 1 / sum(weight / z) is exactly the ray-plane intersection depth.
 #include "pipeline/core/rasterizer.h"
 
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
+
 #include <algorithm>
 #include <cmath>
 #include <limits>
@@ -112,9 +116,10 @@ ScreenVertex Project(const ClipVertex& v, const Intrinsics& k) {
   return {k.fx * v.point.x() * inv_z + k.cx, k.fy * v.point.y() * inv_z + k.cy, inv_z};
 }
 
-// Rasterizes one clipped triangle of face `face_id`; `weights[i]` maps vertex i of this
-// triangle to the original face's vertices.
-void RasterizeTriangle(const ClipVertex tri[3], int face_id, const Intrinsics& k, RasterResult* result) {
+// Rasterizes the rows [row_lo, row_hi) of one clipped triangle of face `face_id`; `weights[i]`
+// maps vertex i of this triangle to the original face's vertices.
+void RasterizeTriangle(const ClipVertex tri[3], int face_id, const Intrinsics& k, int row_lo, int row_hi,
+                       RasterResult* result) {
   const ScreenVertex v[3] = {Project(tri[0], k), Project(tri[1], k), Project(tri[2], k)};
   const double area = (v[1].x - v[0].x) * (v[2].y - v[0].y) - (v[1].y - v[0].y) * (v[2].x - v[0].x);
   if (!(std::abs(area) > 0.0)) return;  // degenerate (or NaN)
@@ -130,7 +135,7 @@ void RasterizeTriangle(const ClipVertex tri[3], int face_id, const Intrinsics& k
   // beyond 2^31 pixels, where the cast to int is undefined (in practice INT_MIN, which made the
   // loop below run ~2^31 columns per row). The negated comparisons also reject NaN bounds.
   const double x0 = std::max(0.0, std::ceil(min_x - 0.5)), x1 = std::min(k.width - 1.0, std::floor(max_x - 0.5));
-  const double y0 = std::max(0.0, std::ceil(min_y - 0.5)), y1 = std::min(k.height - 1.0, std::floor(max_y - 0.5));
+  const double y0 = std::max<double>(row_lo, std::ceil(min_y - 0.5)), y1 = std::min<double>(row_hi - 1.0, std::floor(max_y - 0.5));
   if (!(x0 <= x1) || !(y0 <= y1)) return;  // off-screen
   const int c0 = static_cast<int>(x0), c1 = static_cast<int>(x1);
   const int r0 = static_cast<int>(y0), r1 = static_cast<int>(y1);
@@ -186,6 +191,7 @@ void Rasterize(const TriangleMesh& mesh, const Camera& camera, const Rigid3d& ca
   if (!(options.near_z > 0.0)) {
     throw InputError("Rasterize: near_z must be > 0 (got " + std::to_string(options.near_z) + ")");
   }
+  if (options.row_bands < 0) throw InputError("Rasterize: row_bands must be >= 0 (got " + std::to_string(options.row_bands) + ")");
   const Intrinsics k = IntrinsicsOf(camera);
   RasterResult& result = *out;
   const size_t pixels = static_cast<size_t>(k.width) * k.height;
@@ -199,28 +205,57 @@ void Rasterize(const TriangleMesh& mesh, const Camera& camera, const Rigid3d& ca
   result.face_id.assign(pixels, -1);
 
   const Eigen::Matrix3d rotation = cam_from_world.R();
-  std::vector<Eigen::Vector3d> points_in_cam(mesh.vertices.size());
-  for (size_t i = 0; i < mesh.vertices.size(); ++i) {
-    points_in_cam[i] = rotation * mesh.vertices[i].cast<double>() + cam_from_world.translation;
-  }
-  const int num_vertices = static_cast<int>(mesh.vertices.size());
-  for (size_t f = 0; f < mesh.faces.size(); ++f) {
-    const Eigen::Vector3i& face = mesh.faces[f];
-    if ((face.array() < 0).any() || (face.array() >= num_vertices).any()) continue;
-    ClipVertex in[3];
-    for (int i = 0; i < 3; ++i) in[i] = {points_in_cam[face[i]], Eigen::Vector3d::Unit(i)};
-    if (options.cull_backfaces) {
-      // Facing away when the normal of the counter-clockwise face points away from the centre.
-      const Eigen::Vector3d normal = (in[1].point - in[0].point).cross(in[2].point - in[0].point);
-      if (normal.dot(in[0].point) >= 0.0) continue;
+  const size_t num_vertices = mesh.vertices.size();
+  std::vector<Eigen::Vector3d> points_in_cam(num_vertices);
+  // The row each vertex projects to (NaN before the near plane: its faces are never skipped).
+  std::vector<double> row_of(num_vertices);
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, num_vertices, 4096), [&](const tbb::blocked_range<size_t>& range) {
+    for (size_t i = range.begin(); i < range.end(); ++i) {
+      points_in_cam[i] = rotation * mesh.vertices[i].cast<double>() + cam_from_world.translation;
+      const double z = points_in_cam[i].z();
+      row_of[i] = z >= options.near_z ? k.fy * points_in_cam[i].y() / z + k.cy : std::numeric_limits<double>::quiet_NaN();
     }
-    ClipVertex polygon[4];
-    const int n = ClipNear(in, options.near_z, polygon);
-    for (int t = 1; t + 1 < n; ++t) {
-      const ClipVertex tri[3] = {polygon[0], polygon[t], polygon[t + 1]};
-      RasterizeTriangle(tri, static_cast<int>(f), k, &result);
+  });
+  // The faces drawn into the rows [row_lo, row_hi), in the mesh's order.
+  const auto draw_rows = [&](int row_lo, int row_hi) {
+    for (size_t f = 0; f < mesh.faces.size(); ++f) {
+      const Eigen::Vector3i& face = mesh.faces[f];
+      if ((face.array() < 0).any() || (face.array() >= static_cast<int>(num_vertices)).any()) continue;
+      // Skipped when its vertices' rows, widened by two, miss the band; a face with a vertex
+      // before the near plane is clipped first and never skipped here.
+      const double r0 = row_of[face[0]], r1 = row_of[face[1]], r2 = row_of[face[2]];
+      if (!std::isnan(r0) && !std::isnan(r1) && !std::isnan(r2) &&
+          (std::max({r0, r1, r2}) + 2 < row_lo || std::min({r0, r1, r2}) - 2 > row_hi)) continue;
+      ClipVertex in[3];
+      for (int i = 0; i < 3; ++i) in[i] = {points_in_cam[face[i]], Eigen::Vector3d::Unit(i)};
+      if (options.cull_backfaces) {
+        // Facing away when the normal of the counter-clockwise face points away from the centre.
+        const Eigen::Vector3d normal = (in[1].point - in[0].point).cross(in[2].point - in[0].point);
+        if (normal.dot(in[0].point) >= 0.0) continue;
+      }
+      ClipVertex polygon[4];
+      const int n = ClipNear(in, options.near_z, polygon);
+      for (int t = 1; t + 1 < n; ++t) {
+        const ClipVertex tri[3] = {polygon[0], polygon[t], polygon[t + 1]};
+        RasterizeTriangle(tri, static_cast<int>(f), k, row_lo, row_hi, &result);
+      }
     }
+  };
+  // Bands of rows on the threads: each pixel is written by one band, which takes the faces in the
+  // mesh's order as one pass over the image does, so the result is the same to the bit
+  // (Rasterizer.BandsOfRowsDrawAsOnePass). A small mesh or image is drawn in one pass. Each band
+  // reads every face's rows; a face is set up in the bands it reaches (one or two, mostly).
+  const int threads = std::max(1, tbb::this_task_arena::max_concurrency());
+  const int automatic = mesh.faces.size() < 4096 || k.height < 64 ? 1 : std::min(4 * threads, k.height / 16);
+  const int bands = std::min(options.row_bands > 0 ? options.row_bands : automatic, k.height);
+  if (bands <= 1) {
+    draw_rows(0, k.height);
+    return;
   }
+  tbb::parallel_for(0, bands, [&](int b) {
+    draw_rows(static_cast<int>(static_cast<int64_t>(b) * k.height / bands),
+              static_cast<int>(static_cast<int64_t>(b + 1) * k.height / bands));
+  });
 }
 
 }  // namespace ibmr

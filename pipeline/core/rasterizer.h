@@ -17,6 +17,9 @@ namespace ibmr {
 struct RasterizeOptions {
   double near_z = 1e-3;  // scene units; geometry closer than this is clipped
   bool cull_backfaces = false;  // drop faces whose vertices appear clockwise in the image
+  // Bands of rows drawn in parallel, the same image to the bit; 0: four a thread for a mesh of
+  // 4096 faces or more (else one), 1: one pass.
+  int row_bands = 0;
 };
 
 struct RasterResult {

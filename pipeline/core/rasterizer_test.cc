@@ -275,6 +275,48 @@ TEST(Rasterizer, ClipsTrianglesCrossingTheNearPlane) {
   EXPECT_GT(checked_out, 1000);
 }
 
+TEST(Rasterizer, BandsOfRowsDrawAsOnePass) {
+  // A subdivided cube seen from outside (6144 faces, so the automatic choice uses bands), plus a
+  // duplicate of each face at the same depth (ties go to the first face), a large triangle across
+  // every band and one crossing the near plane: bands of any count give one pass's image.
+  const Camera camera = Camera::Pinhole(173, 131, 120, 118, 85.3, 66.1);
+  const Rigid3d cam_from_world = LookAt({2.6, -1.9, 3.1}, {0.1, 0.2, -0.1}, {0, -1, 0});
+  TriangleMesh mesh = SubdividedCube(32);
+  const size_t cube_faces = mesh.faces.size();
+  for (size_t f = 0; f < cube_faces; f += 3) mesh.faces.push_back(mesh.faces[f]);
+  const Eigen::Vector3d centre = cam_from_world.Inverse().translation;
+  const Eigen::Matrix3d world_from_cam = cam_from_world.R().transpose();
+  auto world = [&](double x, double y, double z) -> Eigen::Vector3f {
+    return (centre + world_from_cam * Eigen::Vector3d(x, y, z)).cast<float>();
+  };
+  const int base = static_cast<int>(mesh.vertices.size());
+  mesh.vertices.push_back(world(-9, -7, 8.3));  // behind the cube, over every row
+  mesh.vertices.push_back(world(9, -6.5, 8.6));
+  mesh.vertices.push_back(world(0.2, 8, 8.4));
+  mesh.vertices.push_back(world(-1.4, -0.9, 1.5));  // at the left, in front of the cube
+  mesh.vertices.push_back(world(-0.9, -0.8, 1.5));
+  mesh.vertices.push_back(world(-1.2, 0.9, -1.0));  // behind the camera
+  mesh.faces.emplace_back(base, base + 1, base + 2);
+  mesh.faces.emplace_back(base + 3, base + 4, base + 5);
+  ASSERT_GE(mesh.faces.size(), 4096u);
+  RasterizeOptions one;
+  one.near_z = 0.2;
+  one.row_bands = 1;
+  const RasterResult reference = Rasterize(mesh, camera, cam_from_world, one);
+  ASSERT_GT(CountCovered(reference), 3000);
+  for (const int face : {static_cast<int>(mesh.faces.size()) - 2, static_cast<int>(mesh.faces.size()) - 1}) {
+    EXPECT_GT(std::count(reference.face_id.begin(), reference.face_id.end(), face), 20) << "face " << face << " is drawn";
+  }
+  for (const int bands : {0, 2, 7, 131, 500}) {
+    RasterizeOptions options = one;
+    options.row_bands = bands;
+    const RasterResult banded = Rasterize(mesh, camera, cam_from_world, options);
+    EXPECT_EQ(banded.face_id, reference.face_id) << bands << " bands";
+    EXPECT_EQ(banded.depth.data, reference.depth.data) << bands << " bands";
+    EXPECT_EQ(banded.barycentric.data, reference.barycentric.data) << bands << " bands";
+  }
+}
+
 TEST(Rasterizer, BarycentricsReproduceTheSurfacePoint) {
   const Camera camera = Camera::Pinhole(160, 120, 150, 140, 79.2, 61.7);
   const Rigid3d cam_from_world = LookAt({-2.2, 1.5, -2.9}, {0.2, -0.1, 0.3}, {0, -1, 0});
@@ -338,6 +380,9 @@ TEST(Rasterizer, RejectsBadInputs) {
   options.near_z = 0;
   EXPECT_THROW(Rasterize(mesh, Camera::Pinhole(10, 10, 10, 10, 5, 5), Rigid3d(), options), InputError);
   EXPECT_THROW(Rasterize(mesh, Camera::Pinhole(0, 10, 10, 10, 5, 5), Rigid3d()), InputError);
+  RasterizeOptions bands;
+  bands.row_bands = -1;
+  EXPECT_THROW(Rasterize(mesh, Camera::Pinhole(10, 10, 10, 10, 5, 5), Rigid3d(), bands), InputError);
 }
 
 }  // namespace
