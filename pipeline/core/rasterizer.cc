@@ -8,7 +8,9 @@
 // canonical order, so the two faces sharing an edge see bit-identical values of opposite sign,
 // and a centre exactly on the edge goes to one side only (a top-left style tie rule on the edge
 // direction). Depth and barycentrics are perspective-correct: screen-space weights divided by
-// z, renormalised; 1 / sum(weight / z) is exactly the ray-plane intersection depth.
+// z, renormalised; 1 / sum(weight / z) is exactly the ray-plane intersection depth. Large meshes
+// are drawn in bands of rows on several threads, each band taking every face that reaches it in
+// the mesh's order, so that the z-test's ties go the same way as in one pass.
 #include "pipeline/core/rasterizer.h"
 
 #include <tbb/blocked_range.h>
@@ -17,6 +19,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <limits>
 #include <string>
 
