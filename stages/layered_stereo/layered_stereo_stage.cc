@@ -59,10 +59,10 @@ class LayeredStereoStage : public Stage {
     // (1.92 Mpx, 6 layers, 4 neighbours): 479 MB estimated; measured 462 MB above the start with
     // one view in flight and 406 MB a view with two (the old count, which held every plane's
     // warped neighbours at once, gave 1485 MB and kept the full-size run to one view at a time).
-    const double costs = 19.0 * (n + 1) + 8.0 * layers + threads * (4.0 * n + 16.0) +
-                         (context.params.Int("residual_steps") > 0 ? 4.0 * layers : 0.0);
-    const double selection = 7.0 * (n + 1) +
-                             scale * scale * (19.0 * n + 8.0 * layers + threads * (4.0 * n + 12.0) + 16.0 * layers * n);
+    // DataCosts against `others` neighbours; the count selection holds each neighbour out in turn.
+    const auto data_costs = [&](double others) { return 19.0 * (others + 1) + 8.0 * layers + threads * (4.0 * others + 16.0); };
+    const double costs = data_costs(n) + (context.params.Int("residual_steps") > 0 ? 4.0 * layers : 0.0);
+    const double selection = 7.0 * (n + 1) + scale * scale * (data_costs(n - 1) + 16.0 * layers * n);
     const double bytes = pixels * std::max(costs, selection);
     return pixels > 0 ? bytes / 1048576.0 + 100.0 : 0.0;
   }
