@@ -96,38 +96,47 @@ void CompositeLayerRows(const LayerSet& set, const Camera& camera, const Rigid3d
   CompositeScratch& scratch = scratch_in != nullptr ? *scratch_in : own;
   const int width = camera.width, height = camera.height;
   const size_t count = set.layers.size();
-  // Per layer, its colour, alpha and depth in the desired view where it covers a pixel.
+  // Each layer drawn a window of rows at a time (RasterizeWindows): the raster holds one window,
+  // its covered pixels go to that window's fragments of the layer, drawn[w * count + k].
+  const int window_rows = std::max(16, static_cast<int>(std::min<int64_t>(height, scratch.window_bytes / (20 * static_cast<int64_t>(std::max(1, width))))));
+  const int windows = (height + window_rows - 1) / window_rows;
   std::vector<LayerFragments>& drawn = scratch.drawn;
-  if (drawn.size() < count) drawn.resize(count);
+  if (drawn.size() < count * windows) drawn.resize(count * windows);
   for (size_t k = 0; k < count; ++k) {
-    LayerFragments& layer = drawn[k];
-    layer.row_start.assign(static_cast<size_t>(height) + 1, 0);
     BuildLayerMesh(set, k, max_depth_step, &scratch);
     if (scratch.mesh.faces.empty()) {
-      layer.column.clear(), layer.rgba.clear(), layer.depth.clear();
+      for (int w = 0; w < windows; ++w) {
+        LayerFragments& layer = drawn[w * count + k];
+        layer.row_start.assign(static_cast<size_t>(window_rows) + 1, 0);
+        layer.column.clear(), layer.rgba.clear(), layer.depth.clear();
+      }
       continue;
     }
-    Rasterize(scratch.mesh, camera, cam_from_world, RasterizeOptions(), &scratch.raster);
-    const RasterResult& raster = scratch.raster;
-    // The covered pixels of each row, then their offsets, then the fragments themselves.
-    tbb::parallel_for(0, height, [&](int y) {
-      const int* face = raster.face_id.data() + static_cast<size_t>(y) * width;
-      layer.row_start[static_cast<size_t>(y) + 1] = static_cast<size_t>(std::count_if(face, face + width, [](int f) { return f >= 0; }));
-    });
-    for (int y = 0; y < height; ++y) layer.row_start[static_cast<size_t>(y) + 1] += layer.row_start[y];
-    const size_t fragments = layer.row_start.back();
-    layer.column.resize(fragments);
-    layer.rgba.resize(fragments);
-    layer.depth.resize(fragments);
-    tbb::parallel_for(0, height, [&](int y) {
-      size_t f = layer.row_start[y];
-      for (int x = 0; x < width; ++x) {
-        if (raster.face_id[static_cast<size_t>(y) * width + x] < 0) continue;
-        layer.column[f] = x;
-        layer.rgba[f] = InterpolateAttribute(raster, scratch.mesh, scratch.rgba, x, y);
-        layer.depth[f] = raster.depth.At(x, y);
-        ++f;
-      }
+    RasterizeWindows(scratch.mesh, camera, cam_from_world, RasterizeOptions(), window_rows, &scratch.raster,
+                     [&](int first_row, const RasterResult& raster) {
+      LayerFragments& layer = drawn[first_row / window_rows * count + k];
+      const int rows = raster.depth.height;
+      layer.row_start.assign(static_cast<size_t>(window_rows) + 1, 0);
+      // The covered pixels of each row, then their offsets, then the fragments themselves.
+      tbb::parallel_for(0, rows, [&](int y) {
+        const int* face = raster.face_id.data() + static_cast<size_t>(y) * width;
+        layer.row_start[static_cast<size_t>(y) + 1] = static_cast<size_t>(std::count_if(face, face + width, [](int f) { return f >= 0; }));
+      });
+      for (int y = 0; y < window_rows; ++y) layer.row_start[static_cast<size_t>(y) + 1] += layer.row_start[y];
+      const size_t fragments = layer.row_start.back();
+      layer.column.resize(fragments);
+      layer.rgba.resize(fragments);
+      layer.depth.resize(fragments);
+      tbb::parallel_for(0, rows, [&](int y) {
+        size_t f = layer.row_start[y];
+        for (int x = 0; x < width; ++x) {
+          if (raster.face_id[static_cast<size_t>(y) * width + x] < 0) continue;
+          layer.column[f] = x;
+          layer.rgba[f] = InterpolateAttribute(raster, scratch.mesh, scratch.rgba, x, y);
+          layer.depth[f] = raster.depth.At(x, y);
+          ++f;
+        }
+      });
     });
   }
   tbb::parallel_for(tbb::blocked_range<int>(0, height), [&](const tbb::blocked_range<int>& rows) {
@@ -138,12 +147,15 @@ void CompositeLayerRows(const LayerSet& set, const Camera& camera, const Rigid3d
     std::vector<cv::Vec3f> color(static_cast<size_t>(width));
     std::vector<float> alpha(static_cast<size_t>(width));
     for (int y = rows.begin(); y < rows.end(); ++y) {
-      for (size_t k = 0; k < count; ++k) next[k] = drawn[k].row_start[y];
+      // The window's fragments of each layer, and the row's place in the window.
+      const LayerFragments* window = drawn.data() + y / window_rows * count;
+      const size_t r = static_cast<size_t>(y % window_rows);
+      for (size_t k = 0; k < count; ++k) next[k] = window[k].row_start[r];
       for (int x = 0; x < width; ++x) {
         order.clear();
         for (size_t k = 0; k < count; ++k) {
-          const LayerFragments& layer = drawn[k];
-          if (next[k] == layer.row_start[static_cast<size_t>(y) + 1] || layer.column[next[k]] != x) continue;
+          const LayerFragments& layer = window[k];
+          if (next[k] == layer.row_start[r + 1] || layer.column[next[k]] != x) continue;
           at[k] = next[k]++;
           if (layer.depth[at[k]] > 0) order.emplace_back(layer.depth[at[k]], static_cast<int>(k));
         }
@@ -151,7 +163,7 @@ void CompositeLayerRows(const LayerSet& set, const Camera& camera, const Rigid3d
         std::sort(order.begin(), order.end(), [](const auto& a, const auto& b) { return a.first > b.first; });
         Eigen::Vector4f acc = Eigen::Vector4f::Zero();
         for (const auto& [z, k] : order) {
-          const Eigen::Vector4f& front = drawn[k].rgba[at[k]];
+          const Eigen::Vector4f& front = window[k].rgba[at[k]];
           const float a = std::clamp(front[3], 0.f, 1.f);
           acc = front + (1.f - a) * acc;
         }

@@ -69,9 +69,9 @@ struct RgbaImage {
   cv::Mat alpha;  // CV_32F in [0, 1]
 };
 
-// One layer drawn in a view, only where it covers a pixel (row by row, left to right): the
-// columns, premultiplied colour and alpha, and depth of its covered pixels, row y's at
-// [row_start[y], row_start[y + 1]). A layer covers part of a view (the castle's sets cover each
+// One layer drawn in a window of rows of a view, only where it covers a pixel (row by row, left
+// to right): the columns, premultiplied colour and alpha, and depth of its covered pixels, the
+// window's row y's at [row_start[y], row_start[y + 1]). A layer covers part of a view (the castle's sets cover each
 // pixel 1.3-1.8 times over 3-6 layers): 24 bytes a covered pixel, where an image per layer would
 // take 20 bytes a pixel of the view for every layer (the full-size castle's render peaked at
 // 4.8 GB with those).
@@ -82,12 +82,18 @@ struct LayerFragments {
   std::vector<float> depth;
 };
 
-// CompositeLayers' working memory: each layer's drawing (LayerFragments), the raster (20 bytes a
-// pixel) and a layer's mesh (about 36 bytes a sprite pixel). A caller that composites many sets
+// The raster CompositeLayers draws a layer into: a window of rows of this many bytes (20 a pixel),
+// not the whole view (480 MB for the full-size Sceaux castle supersampled twice).
+constexpr int64_t kCompositeWindowBytes = int64_t{64} << 20;
+
+// CompositeLayers' working memory: each layer's drawing (LayerFragments, a window of rows
+// each), the raster of a window of rows (kCompositeWindowBytes) and a layer's mesh (about 36
+// bytes a sprite pixel). A caller that composites many sets
 // (the layer count's held-out predictions: a few dozen a view) keeps one, so that these buffers
 // are allocated and first touched once instead of every time (page faults were a quarter of
 // layered_stereo's time).
 struct CompositeScratch {
+  int64_t window_bytes = kCompositeWindowBytes;  // the raster's size, at least 16 rows
   TriangleMesh mesh;
   std::vector<Eigen::Vector4f> rgba;
   std::vector<int> index;

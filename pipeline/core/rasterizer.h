@@ -5,6 +5,7 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <functional>
 #include <vector>
 
 #include "pipeline/core/camera.h"
@@ -36,7 +37,20 @@ RasterResult Rasterize(const TriangleMesh& mesh, const Camera& camera, const Rig
 void Rasterize(const TriangleMesh& mesh, const Camera& camera, const Rigid3d& cam_from_world,
                const RasterizeOptions& options, RasterResult* out);
 
-// Perspective-correct interpolation of a per-vertex attribute at a covered pixel.
+// The image's rows a window at a time: rows [first_row, first_row + window_rows) (fewer in the
+// last window) into `window` (depth.height: the window's rows; its row r - first_row holds the
+// image's row r), handed to `visit` before the next window is drawn, in order of first_row. Each
+// pixel gets the values Rasterize gives it, to the bit (the faces meet each pixel in the mesh's
+// order); the vertices are transformed once. For a caller that reduces each window as it comes (a
+// layer's covered pixels) and so never holds the whole image's raster: 20 bytes a pixel, 480 MB
+// at 5664 x 4256. `window_rows` >= 1 (InputError otherwise); the image's height: one window.
+using RasterWindowVisitor = std::function<void(int first_row, const RasterResult& window)>;
+void RasterizeWindows(const TriangleMesh& mesh, const Camera& camera, const Rigid3d& cam_from_world,
+                      const RasterizeOptions& options, int window_rows, RasterResult* window,
+                      const RasterWindowVisitor& visit);
+
+// Perspective-correct interpolation of a per-vertex attribute at a covered pixel (x, y) of the
+// raster (a window's own rows: its row y is the image's row first_row + y).
 template <typename T>
 T InterpolateAttribute(const RasterResult& raster, const TriangleMesh& mesh, const std::vector<T>& attribute,
                        int x, int y) {

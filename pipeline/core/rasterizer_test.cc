@@ -275,46 +275,91 @@ TEST(Rasterizer, ClipsTrianglesCrossingTheNearPlane) {
   EXPECT_GT(checked_out, 1000);
 }
 
+// A subdivided cube seen from outside (6144 faces, so the automatic choice uses bands), plus a
+// duplicate of each face at the same depth (ties go to the first face), a large triangle across
+// every row and one crossing the near plane (near_z 0.2); the last two faces are those two.
+struct TiesScene {
+  Camera camera = Camera::Pinhole(173, 131, 120, 118, 85.3, 66.1);
+  Rigid3d cam_from_world = LookAt({2.6, -1.9, 3.1}, {0.1, 0.2, -0.1}, {0, -1, 0});
+  TriangleMesh mesh;
+  RasterizeOptions one_pass;
+
+  TiesScene() {
+    mesh = SubdividedCube(32);
+    const size_t cube_faces = mesh.faces.size();
+    for (size_t f = 0; f < cube_faces; f += 3) mesh.faces.push_back(mesh.faces[f]);
+    const Eigen::Vector3d centre = cam_from_world.Inverse().translation;
+    const Eigen::Matrix3d world_from_cam = cam_from_world.R().transpose();
+    auto world = [&](double x, double y, double z) -> Eigen::Vector3f {
+      return (centre + world_from_cam * Eigen::Vector3d(x, y, z)).cast<float>();
+    };
+    const int base = static_cast<int>(mesh.vertices.size());
+    mesh.vertices.push_back(world(-9, -7, 8.3));  // behind the cube, over every row
+    mesh.vertices.push_back(world(9, -6.5, 8.6));
+    mesh.vertices.push_back(world(0.2, 8, 8.4));
+    mesh.vertices.push_back(world(-1.4, -0.9, 1.5));  // at the left, in front of the cube
+    mesh.vertices.push_back(world(-0.9, -0.8, 1.5));
+    mesh.vertices.push_back(world(-1.2, 0.9, -1.0));  // behind the camera
+    mesh.faces.emplace_back(base, base + 1, base + 2);
+    mesh.faces.emplace_back(base + 3, base + 4, base + 5);
+    one_pass.near_z = 0.2;
+    one_pass.row_bands = 1;
+  }
+};
+
 TEST(Rasterizer, BandsOfRowsDrawAsOnePass) {
-  // A subdivided cube seen from outside (6144 faces, so the automatic choice uses bands), plus a
-  // duplicate of each face at the same depth (ties go to the first face), a large triangle across
-  // every band and one crossing the near plane: bands of any count give one pass's image.
-  const Camera camera = Camera::Pinhole(173, 131, 120, 118, 85.3, 66.1);
-  const Rigid3d cam_from_world = LookAt({2.6, -1.9, 3.1}, {0.1, 0.2, -0.1}, {0, -1, 0});
-  TriangleMesh mesh = SubdividedCube(32);
-  const size_t cube_faces = mesh.faces.size();
-  for (size_t f = 0; f < cube_faces; f += 3) mesh.faces.push_back(mesh.faces[f]);
-  const Eigen::Vector3d centre = cam_from_world.Inverse().translation;
-  const Eigen::Matrix3d world_from_cam = cam_from_world.R().transpose();
-  auto world = [&](double x, double y, double z) -> Eigen::Vector3f {
-    return (centre + world_from_cam * Eigen::Vector3d(x, y, z)).cast<float>();
-  };
-  const int base = static_cast<int>(mesh.vertices.size());
-  mesh.vertices.push_back(world(-9, -7, 8.3));  // behind the cube, over every row
-  mesh.vertices.push_back(world(9, -6.5, 8.6));
-  mesh.vertices.push_back(world(0.2, 8, 8.4));
-  mesh.vertices.push_back(world(-1.4, -0.9, 1.5));  // at the left, in front of the cube
-  mesh.vertices.push_back(world(-0.9, -0.8, 1.5));
-  mesh.vertices.push_back(world(-1.2, 0.9, -1.0));  // behind the camera
-  mesh.faces.emplace_back(base, base + 1, base + 2);
-  mesh.faces.emplace_back(base + 3, base + 4, base + 5);
-  ASSERT_GE(mesh.faces.size(), 4096u);
-  RasterizeOptions one;
-  one.near_z = 0.2;
-  one.row_bands = 1;
-  const RasterResult reference = Rasterize(mesh, camera, cam_from_world, one);
+  const TiesScene scene;
+  ASSERT_GE(scene.mesh.faces.size(), 4096u);
+  const RasterResult reference = Rasterize(scene.mesh, scene.camera, scene.cam_from_world, scene.one_pass);
   ASSERT_GT(CountCovered(reference), 3000);
-  for (const int face : {static_cast<int>(mesh.faces.size()) - 2, static_cast<int>(mesh.faces.size()) - 1}) {
+  const int faces = static_cast<int>(scene.mesh.faces.size());
+  for (const int face : {faces - 2, faces - 1}) {
     EXPECT_GT(std::count(reference.face_id.begin(), reference.face_id.end(), face), 20) << "face " << face << " is drawn";
   }
   for (const int bands : {0, 2, 7, 131, 500}) {
-    RasterizeOptions options = one;
+    RasterizeOptions options = scene.one_pass;
     options.row_bands = bands;
-    const RasterResult banded = Rasterize(mesh, camera, cam_from_world, options);
+    const RasterResult banded = Rasterize(scene.mesh, scene.camera, scene.cam_from_world, options);
     EXPECT_EQ(banded.face_id, reference.face_id) << bands << " bands";
     EXPECT_EQ(banded.depth.data, reference.depth.data) << bands << " bands";
     EXPECT_EQ(banded.barycentric.data, reference.barycentric.data) << bands << " bands";
   }
+}
+
+TEST(Rasterizer, WindowsOfRowsDrawAsOnePass) {
+  // Windows of any height, each drawn in automatic bands, put together give one pass's image; the
+  // windows come in order, cover every row once, and hold only their own rows.
+  const TiesScene scene;
+  const int width = scene.camera.width, height = scene.camera.height;
+  const RasterResult reference = Rasterize(scene.mesh, scene.camera, scene.cam_from_world, scene.one_pass);
+  for (const int window_rows : {1, 5, 16, 64, 130, 131, 1000}) {
+    RasterizeOptions options = scene.one_pass;
+    options.row_bands = 0;
+    std::vector<int> face_id;
+    std::vector<float> depth, barycentric(3 * static_cast<size_t>(width) * height);
+    int next_row = 0;
+    RasterResult window;
+    RasterizeWindows(scene.mesh, scene.camera, scene.cam_from_world, options, window_rows, &window,
+                     [&](int first_row, const RasterResult& drawn) {
+      ASSERT_EQ(first_row, next_row);
+      ASSERT_EQ(drawn.depth.height, std::min(window_rows, height - first_row));
+      ASSERT_EQ(drawn.face_id.size(), static_cast<size_t>(width) * drawn.depth.height);
+      face_id.insert(face_id.end(), drawn.face_id.begin(), drawn.face_id.end());
+      depth.insert(depth.end(), drawn.depth.data.begin(), drawn.depth.data.end());
+      for (int y = 0; y < drawn.depth.height; ++y)
+        for (int x = 0; x < width; ++x)
+          for (int c = 0; c < 3; ++c) barycentric[c * static_cast<size_t>(width) * height + static_cast<size_t>(first_row + y) * width + x] = drawn.barycentric.At(x, y, c);
+      next_row = first_row + drawn.depth.height;
+    });
+    EXPECT_EQ(next_row, height) << window_rows << " rows a window";
+    EXPECT_EQ(face_id, reference.face_id) << window_rows << " rows a window";
+    EXPECT_EQ(depth, reference.depth.data) << window_rows << " rows a window";
+    EXPECT_EQ(barycentric, reference.barycentric.data) << window_rows << " rows a window";
+  }
+  RasterResult window;
+  EXPECT_THROW(RasterizeWindows(scene.mesh, scene.camera, scene.cam_from_world, scene.one_pass, 0, &window,
+                                [](int, const RasterResult&) {}),
+               InputError);
 }
 
 TEST(Rasterizer, BarycentricsReproduceTheSurfacePoint) {

@@ -311,10 +311,11 @@ TEST(CompositeLayers, OrderIsBackToFrontForAnyDesiredView) {
   EXPECT_NEAR(mixed.alpha.at<float>(10, 10), 1.f, 1e-5);
 }
 
-// A scratch kept across calls (as the layer count's held-out renders keep one) changes nothing:
-// sets with more and fewer layers, views of other sizes, a sprite with holes, against fresh
-// buffers, to the bit.
-TEST(CompositeLayers, ReusedScratchDrawsLikeFreshBuffers) {
+// A scratch kept across calls (as the layer count's held-out renders keep one) changes nothing,
+// nor does drawing in windows of 16 rows (the smallest) instead of one: sets with more and fewer
+// layers, views of other sizes (one of 4 windows, the last short), a sprite with holes, against
+// fresh buffers, to the bit.
+TEST(CompositeLayers, ReusedScratchAndWindowsOfRowsDrawLikeFreshBuffers) {
   LayerSet set;
   set.camera = Camera::Pinhole(40, 30, 40, 40, 20, 15);
   set.cam_from_world = Rigid3d();
@@ -330,17 +331,22 @@ TEST(CompositeLayers, ReusedScratchDrawsLikeFreshBuffers) {
   const Eigen::Matrix3d turn = Eigen::AngleAxisd(0.1, Eigen::Vector3d::UnitY()).toRotationMatrix();
   const std::vector<std::pair<Camera, Rigid3d>> views = {{Camera::Pinhole(36, 28, 35, 35, 18, 14), Rigid3d()},
                                                          {Camera::Pinhole(50, 20, 40, 40, 25, 10), Rigid3d(turn, Eigen::Vector3d(0.2, 0, 0))},
-                                                         {Camera::Pinhole(36, 28, 35, 35, 18, 14), Rigid3d(turn, Eigen::Vector3d(-0.1, 0.1, 0))}};
-  CompositeScratch scratch;
+                                                         {Camera::Pinhole(36, 28, 35, 35, 18, 14), Rigid3d(turn, Eigen::Vector3d(-0.1, 0.1, 0))},
+                                                         {Camera::Pinhole(40, 61, 38, 38, 20, 30), Rigid3d(turn.transpose(), Eigen::Vector3d(0, 0.1, 0))}};
+  CompositeScratch scratch, windows;
+  windows.window_bytes = 1;  // 16 rows a window
   for (size_t round = 0; round < 2 * views.size(); ++round) {
     LayerSet subset = set;
     subset.layers.resize(1 + round % 3);
     const auto& [camera, pose] = views[round % views.size()];
     const RgbaImage fresh = CompositeLayers(subset, camera, pose);
     const RgbaImage reused = CompositeLayers(subset, camera, pose, kLayerMaxDepthStep, &scratch);
+    const RgbaImage windowed = CompositeLayers(subset, camera, pose, kLayerMaxDepthStep, &windows);
     EXPECT_GT(cv::countNonZero(fresh.alpha), 0);
     EXPECT_EQ(cv::norm(fresh.color, reused.color, cv::NORM_INF), 0.0) << "round " << round;
     EXPECT_EQ(cv::norm(fresh.alpha, reused.alpha, cv::NORM_INF), 0.0) << "round " << round;
+    EXPECT_EQ(cv::norm(fresh.color, windowed.color, cv::NORM_INF), 0.0) << "round " << round;
+    EXPECT_EQ(cv::norm(fresh.alpha, windowed.alpha, cv::NORM_INF), 0.0) << "round " << round;
   }
 }
 

@@ -60,6 +60,7 @@
 #include "pipeline/core/atomic_file.h"
 #include "pipeline/core/errors.h"
 #include "pipeline/core/image_io.h"
+#include "pipeline/core/layered_sprites.h"
 #include "pipeline/core/per_view.h"
 #include "pipeline/core/ply_io.h"
 #include "pipeline/core/process_memory.h"
@@ -215,13 +216,14 @@ class RenderStage : public Stage {
   // One view's buffers, for the model that needs the most (models run one after the other): ULR,
   // splats and texture models 88 bytes per supersampled pixel (colour, depth, weights and blend
   // accumulators), as measured on the full-size Sceaux castle (2832x2128, supersample 2: 2.0 GB a
-  // view besides the 0.4 GB of sources and program). `layers`, at the supersampled size: 44 bytes a
-  // pixel (the raster 20, the blend's sums 20, the drawn image 4) and 24 for each layer drawn over
-  // it (LayerFragments), counted as the sets' largest depth complexity (their layers' pixels over
-  // the sprite size: 1.3-1.8 on the castle) and a quarter more, as a desired view sees the layers
-  // from elsewhere; at the sprites' size (the training images'), the `layers_references` sets a
-  // view reads (8 bytes a pixel a layer) and one layer's mesh (60 bytes a pixel at most). The
-  // castle at full size: 3180 MB estimated, 2425 MB measured (the layers alone).
+  // view besides the 0.4 GB of sources and program). `layers`, at the supersampled size: 24 bytes a
+  // pixel (the blend's sums 20, the drawn image 4), the raster of a window of rows
+  // (kCompositeWindowBytes) and 24 bytes for each layer drawn over a pixel (LayerFragments),
+  // counted as the sets' largest depth complexity (their layers' pixels over the sprite size:
+  // 1.3-1.8 on the castle) and a quarter more, as a desired view sees the layers from elsewhere; at
+  // the sprites' size (the training images'), the `layers_references` sets a view reads (8 bytes a
+  // pixel a layer) and one layer's mesh (60 bytes a pixel at most). The castle at full size: 2976
+  // MB estimated, 2260 MB measured (the layers alone, with the plane that fills their holes).
   double ViewMemoryMb(const StageContext& context) const override {
     const double pixels = LargestTrainingImage(context).Pixels();
     const double factor = static_cast<double>(context.params.Int("supersample"));
@@ -231,8 +233,8 @@ class RenderStage : public Stage {
       if (spec.kind != ModelKind::kLayers) continue;
       const LayerSetsExtent extent = LargestLayerSets(spec.path);
       const double references = static_cast<double>(context.params.Int("layers_references"));
-      bytes = std::max(bytes, pixels * factor * factor * (44.0 + 24.0 * std::min<double>(extent.layers, 1.25 * extent.complexity)) +
-                                  pixels * (references * 8.0 * extent.layers + 60.0));
+      bytes = std::max(bytes, pixels * factor * factor * (24.0 + 24.0 * std::min<double>(extent.layers, 1.25 * extent.complexity)) +
+                                  static_cast<double>(kCompositeWindowBytes) + pixels * (references * 8.0 * extent.layers + 60.0));
     }
     return bytes / 1048576.0;
   }
