@@ -10,6 +10,7 @@
 #include <limits>
 
 #include "pipeline/core/depth_normals.h"
+#include "pipeline/core/large_buffer.h"
 
 namespace ibmr {
 
@@ -29,7 +30,7 @@ constexpr float kRimWeight = 0.05f;
 // One sample as the desired camera sees it.
 struct Projected {
   float u, v, z;     // pixel coordinates (COLMAP convention: pixel centres at +0.5) and depth
-  float radius;      // half the bounding box's height in pixels (negative: not drawn)
+  float radius;      // half the bounding box's height in pixels
   float half_width;  // half the bounding box's width in pixels
   float q00, q01, q11;  // the footprint ellipse's conic: d2 = q00 dx^2 + 2 q01 dx dy + q11 dy^2 < 1
   float confidence;
@@ -288,168 +289,189 @@ SplatImage RenderSplats(const SplatCloud& cloud, const Camera& camera, const Rig
   const float epsilon_angle = static_cast<float>(epsilon);
   const int k = options.k;
 
-  // 1. Project every sample (parallel); samples outside the image or facing away are marked by
-  //    a negative radius.
-  std::vector<Projected> projected(cloud.size());
-  tbb::parallel_for(tbb::blocked_range<size_t>(0, cloud.size()), [&](const tbb::blocked_range<size_t>& range) {
-    for (size_t i = range.begin(); i < range.end(); ++i) {
-      Projected& s = projected[i];
-      s.radius = -1;
-      if (exclude_source >= 0 && cloud.source[i] == exclude_source) continue;  // leave-one-out
-      const Eigen::Vector3f& p = cloud.positions[i];
-      const Eigen::Vector3f x = rotation * p + translation;
-      if (!(x.z() > 0)) continue;
-      const Eigen::Vector3f to_desired = desired_center - p;
-      const Eigen::Vector3f& n = cloud.normals[i];
-      // A disc (or a depth sample's tangent plane) seen from behind is not drawn; a small margin
-      // keeps noisy normals at grazing angles.
-      if (n.dot(to_desired) < -0.1f * to_desired.norm()) continue;
-      s.u = fx * x.x() / x.z() + cx;
-      s.v = fy * x.y() / x.z() + cy;
-      s.z = x.z();
-      Eigen::Vector3f a, b;
-      if (FootprintAxes(cloud, i, max_stretch, &a, &b)) {
-        // J = d(u, v)/dX at x times the rotated axes: the ellipse's columns in pixels.
-        const float iz = 1.f / x.z();
-        const Eigen::Vector3f ra = rotation * a * radius_scale, rb = rotation * b * radius_scale;
-        const float ja0 = fx * iz * (ra.x() - x.x() * iz * ra.z()), ja1 = fy * iz * (ra.y() - x.y() * iz * ra.z());
-        const float jb0 = fx * iz * (rb.x() - x.x() * iz * rb.z()), jb1 = fy * iz * (rb.y() - x.y() * iz * rb.z());
-        SetEllipse(ja0 * ja0 + jb0 * jb0, ja0 * ja1 + jb0 * jb1, ja1 * ja1 + jb1 * jb1, kMinRadius, max_radius, &s);
-      } else {
-        const float r = radius_scale * focal * cloud.footprint[i] / x.z();
-        SetEllipse(r * r, 0.f, r * r, kMinRadius, max_radius, &s);
-      }
-      if (s.u + s.half_width < 0 || s.v + s.radius < 0 || s.u - s.half_width > width || s.v - s.radius > height ||
-          !std::isfinite(s.u) || !std::isfinite(s.v)) {
-        s.radius = -1;
-        continue;
-      }
-      s.angle = 0;
-      s.source = cloud.source[i];
-      if (s.source >= 0) {
-        const Eigen::Vector3f to_source = cloud.source_centers[s.source] - p;
-        s.angle = std::atan2(to_source.cross(to_desired).norm(), to_source.dot(to_desired));
-      }
-      s.confidence = cloud.confidence[i];
-      s.sample = static_cast<uint32_t>(i);
-    }
-  });
-
-  // 2. Bin the samples by bands of rows (counting sort; a splat spanning two bands is in both).
+  // The image is drawn in passes over bands of rows, each holding only the projected samples that
+  // reach its rows (48 bytes each): a full-size castle view draws nearly all of its 20 M samples,
+  // 985 MB in one pass. A pass projects every sample again (the angle only for those it keeps).
   const int bands = (height + kBandRows - 1) / kBandRows;
   const auto row_range = [&](const Projected& s, int* y0, int* y1) {
     *y0 = std::max(0, static_cast<int>(std::ceil(s.v - s.radius - 0.5f)));
     *y1 = std::min(height - 1, static_cast<int>(std::floor(s.v + s.radius - 0.5f)));
   };
-  std::vector<uint32_t> band_start(bands + 1, 0);
-  for (const Projected& s : projected) {
-    if (s.radius < 0) continue;
-    int y0, y1;
-    row_range(s, &y0, &y1);
-    if (y0 > y1) continue;
-    for (int b = y0 / kBandRows; b <= y1 / kBandRows; ++b) ++band_start[b + 1];
-    ++out.splats_drawn;
-  }
-  for (int b = 0; b < bands; ++b) band_start[b + 1] += band_start[b];
-  std::vector<uint32_t> band_items(band_start[bands]);
-  {
-    std::vector<uint32_t> fill(band_start.begin(), band_start.end() - 1);
-    for (size_t i = 0; i < projected.size(); ++i) {
-      const Projected& s = projected[i];
-      if (s.radius < 0) continue;
+  const int passes = static_cast<int>(std::clamp<size_t>(
+      (cloud.size() * sizeof(Projected) + std::max<size_t>(1, options.pass_bytes) - 1) / std::max<size_t>(1, options.pass_bytes), 1,
+      static_cast<size_t>(bands)));
+  std::vector<size_t> band_covered(bands, 0), band_hits(bands, 0);
+  for (int pass = 0; pass < passes; ++pass) {
+    const int band0 = static_cast<int>(static_cast<int64_t>(pass) * bands / passes);
+    const int band1 = static_cast<int>(static_cast<int64_t>(pass + 1) * bands / passes);
+    // 1. Project every sample (parallel), keeping those drawn in this pass's bands: not those behind
+    //    the camera, facing away or outside the image. Blocks of samples keep theirs in order,
+    //    gathered into `projected` in the cloud's order.
+    constexpr size_t kProjectBlock = size_t{1} << 16;
+    const size_t blocks = (cloud.size() + kProjectBlock - 1) / kProjectBlock;
+    std::vector<std::vector<Projected>> kept(blocks);
+    tbb::parallel_for(size_t{0}, blocks, [&](size_t block) {
+      for (size_t i = block * kProjectBlock, end = std::min(cloud.size(), (block + 1) * kProjectBlock); i < end; ++i) {
+        Projected s;
+        if (exclude_source >= 0 && cloud.source[i] == exclude_source) continue;  // leave-one-out
+        const Eigen::Vector3f& p = cloud.positions[i];
+        const Eigen::Vector3f x = rotation * p + translation;
+        if (!(x.z() > 0)) continue;
+        const Eigen::Vector3f to_desired = desired_center - p;
+        const Eigen::Vector3f& n = cloud.normals[i];
+        // A disc (or a depth sample's tangent plane) seen from behind is not drawn; a small margin
+        // keeps noisy normals at grazing angles.
+        if (n.dot(to_desired) < -0.1f * to_desired.norm()) continue;
+        s.u = fx * x.x() / x.z() + cx;
+        s.v = fy * x.y() / x.z() + cy;
+        s.z = x.z();
+        Eigen::Vector3f a, b;
+        if (FootprintAxes(cloud, i, max_stretch, &a, &b)) {
+          // J = d(u, v)/dX at x times the rotated axes: the ellipse's columns in pixels.
+          const float iz = 1.f / x.z();
+          const Eigen::Vector3f ra = rotation * a * radius_scale, rb = rotation * b * radius_scale;
+          const float ja0 = fx * iz * (ra.x() - x.x() * iz * ra.z()), ja1 = fy * iz * (ra.y() - x.y() * iz * ra.z());
+          const float jb0 = fx * iz * (rb.x() - x.x() * iz * rb.z()), jb1 = fy * iz * (rb.y() - x.y() * iz * rb.z());
+          SetEllipse(ja0 * ja0 + jb0 * jb0, ja0 * ja1 + jb0 * jb1, ja1 * ja1 + jb1 * jb1, kMinRadius, max_radius, &s);
+        } else {
+          const float r = radius_scale * focal * cloud.footprint[i] / x.z();
+          SetEllipse(r * r, 0.f, r * r, kMinRadius, max_radius, &s);
+        }
+        if (s.u + s.half_width < 0 || s.v + s.radius < 0 || s.u - s.half_width > width || s.v - s.radius > height ||
+            !std::isfinite(s.u) || !std::isfinite(s.v)) {
+          continue;
+        }
+        int y0, y1;
+        row_range(s, &y0, &y1);
+        if (y0 > y1 || y0 / kBandRows >= band1 || y1 / kBandRows < band0) continue;
+        s.angle = 0;
+        s.source = cloud.source[i];
+        if (s.source >= 0) {
+          const Eigen::Vector3f to_source = cloud.source_centers[s.source] - p;
+          s.angle = std::atan2(to_source.cross(to_desired).norm(), to_source.dot(to_desired));
+        }
+        s.confidence = cloud.confidence[i];
+        s.sample = static_cast<uint32_t>(i);
+        kept[block].push_back(s);
+      }
+    });
+    std::vector<size_t> block_start(blocks + 1, 0);
+    for (size_t block = 0; block < blocks; ++block) block_start[block + 1] = block_start[block] + kept[block].size();
+    LargeBuffer<Projected> projected(block_start[blocks]);  // uninitialised: each block fills its part
+    tbb::parallel_for(size_t{0}, blocks, [&](size_t block) {
+      std::copy(kept[block].begin(), kept[block].end(), projected.begin() + static_cast<ptrdiff_t>(block_start[block]));
+      std::vector<Projected>().swap(kept[block]);
+    });
+
+    // 2. Bin the samples by this pass's bands of rows (counting sort; a splat spanning two bands is
+    //    in both); a sample counts as drawn in the pass of its first row.
+    std::vector<uint32_t> band_start(bands + 1, 0);
+    for (const Projected& s : projected) {
       int y0, y1;
       row_range(s, &y0, &y1);
-      if (y0 > y1) continue;
-      for (int b = y0 / kBandRows; b <= y1 / kBandRows; ++b) band_items[fill[b]++] = static_cast<uint32_t>(i);
+      for (int b = std::max(band0, y0 / kBandRows); b <= std::min(band1 - 1, y1 / kBandRows); ++b) ++band_start[b + 1];
+      out.splats_drawn += y0 / kBandRows >= band0;
     }
-  }
-
-  // 3. Per band: the front-most falloff depth, then the blend of every sample within the tolerance.
-  const float half_tolerance = static_cast<float>(options.depth_tolerance) * 0.5f;
-  const float band_tolerance = 1.f + static_cast<float>(options.depth_tolerance);
-  std::vector<size_t> band_covered(bands, 0), band_hits(bands, 0);
-  tbb::parallel_for(0, bands, [&](int band) {
-    const int row0 = band * kBandRows, row1 = std::min(height, row0 + kBandRows);
-    const size_t pixels = static_cast<size_t>(row1 - row0) * width;
-    std::vector<float> front(pixels, std::numeric_limits<float>::infinity());
-    std::vector<float> sum(4 * pixels, 0.f);  // B, G, R, weight
-    // Visits the pixel centres of splat `s` inside this band with (offset, squared normalised radius).
-    const auto for_pixels = [&](const Projected& s, auto&& visit) {
-      const int y0 = std::max(row0, static_cast<int>(std::ceil(s.v - s.radius - 0.5f)));
-      const int y1 = std::min(row1 - 1, static_cast<int>(std::floor(s.v + s.radius - 0.5f)));
-      const int x0 = std::max(0, static_cast<int>(std::ceil(s.u - s.half_width - 0.5f)));
-      const int x1 = std::min(width - 1, static_cast<int>(std::floor(s.u + s.half_width - 0.5f)));
-      for (int y = y0; y <= y1; ++y) {
-        const float dy = y + 0.5f - s.v;
-        const float row_term = s.q11 * dy * dy, cross = 2.f * s.q01 * dy;
-        for (int x = x0; x <= x1; ++x) {
-          const float dx = x + 0.5f - s.u;
-          const float d2 = (s.q00 * dx + cross) * dx + row_term;
-          if (d2 < 1.f) visit(static_cast<size_t>(y - row0) * width + x, d2);
+    for (int b = 0; b < bands; ++b) band_start[b + 1] += band_start[b];
+    std::vector<uint32_t> band_items(band_start[bands]);
+    {
+      std::vector<uint32_t> fill(band_start.begin(), band_start.end() - 1);
+      for (size_t i = 0; i < projected.size(); ++i) {
+        const Projected& s = projected[i];
+        int y0, y1;
+        row_range(s, &y0, &y1);
+        for (int b = std::max(band0, y0 / kBandRows); b <= std::min(band1 - 1, y1 / kBandRows); ++b) {
+          band_items[fill[b]++] = static_cast<uint32_t>(i);
         }
       }
-    };
-    const uint32_t first = band_start[band], last = band_start[band + 1];
-    // With k > 0, a pixel first picks its k nearest sources among every sample that lands on it;
-    // only their samples take part in the z test and the blend. Each source's depth map is one
-    // consistent surface, so an outlier of a distant view can neither hide nor tint the pixel.
-    std::vector<Nearest> nearest(k > 0 ? pixels : 0);
-    if (k > 0) {
+    }
+
+    // 3. Per band: the front-most falloff depth, then the blend of every sample within the tolerance.
+    const float half_tolerance = static_cast<float>(options.depth_tolerance) * 0.5f;
+    const float band_tolerance = 1.f + static_cast<float>(options.depth_tolerance);
+    tbb::parallel_for(band0, band1, [&](int band) {
+      const int row0 = band * kBandRows, row1 = std::min(height, row0 + kBandRows);
+      const size_t pixels = static_cast<size_t>(row1 - row0) * width;
+      std::vector<float> front(pixels, std::numeric_limits<float>::infinity());
+      std::vector<float> sum(4 * pixels, 0.f);  // B, G, R, weight
+      // Visits the pixel centres of splat `s` inside this band with (offset, squared normalised radius).
+      const auto for_pixels = [&](const Projected& s, auto&& visit) {
+        const int y0 = std::max(row0, static_cast<int>(std::ceil(s.v - s.radius - 0.5f)));
+        const int y1 = std::min(row1 - 1, static_cast<int>(std::floor(s.v + s.radius - 0.5f)));
+        const int x0 = std::max(0, static_cast<int>(std::ceil(s.u - s.half_width - 0.5f)));
+        const int x1 = std::min(width - 1, static_cast<int>(std::floor(s.u + s.half_width - 0.5f)));
+        for (int y = y0; y <= y1; ++y) {
+          const float dy = y + 0.5f - s.v;
+          const float row_term = s.q11 * dy * dy, cross = 2.f * s.q01 * dy;
+          for (int x = x0; x <= x1; ++x) {
+            const float dx = x + 0.5f - s.u;
+            const float d2 = (s.q00 * dx + cross) * dx + row_term;
+            if (d2 < 1.f) visit(static_cast<size_t>(y - row0) * width + x, d2);
+          }
+        }
+      };
+      const uint32_t first = band_start[band], last = band_start[band + 1];
+      // With k > 0, a pixel first picks its k nearest sources among every sample that lands on it;
+      // only their samples take part in the z test and the blend. Each source's depth map is one
+      // consistent surface, so an outlier of a distant view can neither hide nor tint the pixel.
+      std::vector<Nearest> nearest(k > 0 ? pixels : 0);
+      if (k > 0) {
+        for (uint32_t item = first; item < last; ++item) {
+          const Projected& s = projected[band_items[item]];
+          for_pixels(s, [&](size_t pixel, float) { nearest[pixel].Add(s.source, s.angle, k); });
+        }
+      }
+      const auto counts = [&](const Projected& s, size_t pixel) { return k == 0 || nearest[pixel].Has(s.source); };
       for (uint32_t item = first; item < last; ++item) {
         const Projected& s = projected[band_items[item]];
-        for_pixels(s, [&](size_t pixel, float) { nearest[pixel].Add(s.source, s.angle, k); });
+        for_pixels(s, [&](size_t pixel, float d2) {
+          if (counts(s, pixel)) front[pixel] = std::min(front[pixel], s.z * (1.f + half_tolerance * d2));
+        });
       }
-    }
-    const auto counts = [&](const Projected& s, size_t pixel) { return k == 0 || nearest[pixel].Has(s.source); };
-    for (uint32_t item = first; item < last; ++item) {
-      const Projected& s = projected[band_items[item]];
-      for_pixels(s, [&](size_t pixel, float d2) {
-        if (counts(s, pixel)) front[pixel] = std::min(front[pixel], s.z * (1.f + half_tolerance * d2));
-      });
-    }
-    const auto in_front = [&](const Projected& s, size_t pixel, float d2) {
-      return s.z * (1.f + half_tolerance * d2) <= front[pixel] * band_tolerance;
-    };
-    for (uint32_t item = first; item < last; ++item) {
-      const Projected& s = projected[band_items[item]];
-      const cv::Vec3b& color = cloud.colors[s.sample];
-      for_pixels(s, [&](size_t pixel, float d2) {
-        if (!counts(s, pixel) || !in_front(s, pixel, d2)) return;
-        float angle_weight;
-        if (k > 0) {
-          const Nearest& n = nearest[pixel];
-          // ULR [U 124-130]: threshold at the k-th smallest angle (pi when fewer sources see the
-          // pixel), weight (1 - angle / threshold) / angle.
-          const float threshold = n.count == k ? n.angle[k - 1] : static_cast<float>(M_PI);
-          angle_weight = std::max(0.f, 1.f - s.angle / threshold) / std::max(s.angle, epsilon_angle);
-          if (n.count == k && angle_weight <= 0 && n.angle[0] == threshold) angle_weight = 1.f;  // all equal
-        } else {
-          angle_weight = 1.f / (s.angle * s.angle + epsilon2);
+      const auto in_front = [&](const Projected& s, size_t pixel, float d2) {
+        return s.z * (1.f + half_tolerance * d2) <= front[pixel] * band_tolerance;
+      };
+      for (uint32_t item = first; item < last; ++item) {
+        const Projected& s = projected[band_items[item]];
+        const cv::Vec3b& color = cloud.colors[s.sample];
+        for_pixels(s, [&](size_t pixel, float d2) {
+          if (!counts(s, pixel) || !in_front(s, pixel, d2)) return;
+          float angle_weight;
+          if (k > 0) {
+            const Nearest& n = nearest[pixel];
+            // ULR [U 124-130]: threshold at the k-th smallest angle (pi when fewer sources see the
+            // pixel), weight (1 - angle / threshold) / angle.
+            const float threshold = n.count == k ? n.angle[k - 1] : static_cast<float>(M_PI);
+            angle_weight = std::max(0.f, 1.f - s.angle / threshold) / std::max(s.angle, epsilon_angle);
+            if (n.count == k && angle_weight <= 0 && n.angle[0] == threshold) angle_weight = 1.f;  // all equal
+          } else {
+            angle_weight = 1.f / (s.angle * s.angle + epsilon2);
+          }
+          const float w = s.confidence * angle_weight * (1.f - d2);
+          if (!(w > 0)) return;
+          float* acc = &sum[4 * pixel];
+          acc[0] += w * color[0];
+          acc[1] += w * color[1];
+          acc[2] += w * color[2];
+          acc[3] += w;
+          ++band_hits[band];
+        });
+      }
+      for (int y = row0; y < row1; ++y) {
+        cv::Vec3b* row = out.image.ptr<cv::Vec3b>(y);
+        uint8_t* covered = out.coverage.ptr<uint8_t>(y);
+        for (int x = 0; x < width; ++x) {
+          const size_t pixel = static_cast<size_t>(y - row0) * width + x;
+          const float* acc = &sum[4 * pixel];
+          if (!(acc[3] > 0)) continue;
+          for (int c = 0; c < 3; ++c) row[x][c] = cv::saturate_cast<uint8_t>(acc[c] / acc[3]);
+          covered[x] = 255;
+          out.depth.At(x, y) = front[pixel];
+          ++band_covered[band];
         }
-        const float w = s.confidence * angle_weight * (1.f - d2);
-        if (!(w > 0)) return;
-        float* acc = &sum[4 * pixel];
-        acc[0] += w * color[0];
-        acc[1] += w * color[1];
-        acc[2] += w * color[2];
-        acc[3] += w;
-        ++band_hits[band];
-      });
-    }
-    for (int y = row0; y < row1; ++y) {
-      cv::Vec3b* row = out.image.ptr<cv::Vec3b>(y);
-      uint8_t* covered = out.coverage.ptr<uint8_t>(y);
-      for (int x = 0; x < width; ++x) {
-        const size_t pixel = static_cast<size_t>(y - row0) * width + x;
-        const float* acc = &sum[4 * pixel];
-        if (!(acc[3] > 0)) continue;
-        for (int c = 0; c < 3; ++c) row[x][c] = cv::saturate_cast<uint8_t>(acc[c] / acc[3]);
-        covered[x] = 255;
-        out.depth.At(x, y) = front[pixel];
-        ++band_covered[band];
       }
-    }
-  });
+    });
+  }
   for (int b = 0; b < bands; ++b) {
     out.covered_pixels += band_covered[b];
     out.pixel_hits += band_hits[b];

@@ -69,6 +69,11 @@ struct SplatOptions {
                                     // 0.06 -> 25.4, 0.1 -> 25.3)
   double angle_epsilon_deg = 0.5;   // smallest angle counted (epipole consistency without a division by 0), in (0, 90]
   int k = 4;                        // sources blended per pixel, ULR's k; 0: every source, weight 1/angle^2, in [0, 8]
+  // RenderSplats draws the image in passes over bands of rows, a pass per this many bytes of the
+  // cloud's projected samples (48 a sample), so that a view holds that much of them at most, not a
+  // projection of every sample (985 MB for the full-size Sceaux castle's 20 M); the image is the
+  // same. Not a parameter of the stage; > 0.
+  size_t pass_bytes = size_t{384} << 20;
 
   bool Check(std::string* error) const;  // error starts with the YAML key
 };

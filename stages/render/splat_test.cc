@@ -223,6 +223,28 @@ TEST(Splat, DesiredCameraAtASourceReproducesItsImage) {
   EXPECT_GT(psnr, 40.0);
 }
 
+// Passes over bands of rows (SplatOptions::pass_bytes; 1 byte: a pass per band) draw the image of
+// one pass, to the bit, from a moved viewpoint where splats straddle the bands, with k = 4 and 0.
+TEST(Splat, PassesOverBandsOfRowsDrawAsOnePass) {
+  std::vector<DepthImage> images = {View({0, 0, 0}, true, "a"), View({0.3, 0, 0}, true, "b"),
+                                    View({-0.2, 0.2, 0}, true, "c")};
+  const SplatCloud cloud = CloudFromDepthImages(images);
+  for (const int k : {4, 0}) {
+    SplatOptions one, many;
+    one.k = many.k = k;
+    many.pass_bytes = 1;
+    const Rigid3d pose = At(Eigen::Vector3d(0.11, -0.07, 0.05));
+    const SplatImage a = RenderSplats(cloud, TestCamera(), pose, one), b = RenderSplats(cloud, TestCamera(), pose, many);
+    EXPECT_GT(a.covered_pixels, static_cast<size_t>(kWidth * kHeight / 2));
+    EXPECT_EQ(cv::norm(a.image, b.image, cv::NORM_INF), 0.0) << "k " << k;
+    EXPECT_EQ(cv::norm(a.coverage, b.coverage, cv::NORM_INF), 0.0) << "k " << k;
+    EXPECT_EQ(a.depth.data, b.depth.data) << "k " << k;
+    EXPECT_EQ(a.covered_pixels, b.covered_pixels);
+    EXPECT_EQ(a.splats_drawn, b.splats_drawn);
+    EXPECT_EQ(a.pixel_hits, b.pixel_hits);
+  }
+}
+
 // Leave-one-out (render.exclude_self): a training view rendered without its own samples is drawn
 // exactly as from a model built without its depth image; its photo (here a marker colour) shows
 // nowhere.
