@@ -98,7 +98,7 @@ void CompositeLayerRows(const LayerSet& set, const Camera& camera, const Rigid3d
   const size_t count = set.layers.size();
   // Each layer drawn a window of rows at a time (RasterizeWindows): the raster holds one window,
   // its covered pixels go to that window's fragments of the layer, drawn[w * count + k].
-  const int window_rows = std::max(16, static_cast<int>(std::min<int64_t>(height, scratch.window_bytes / (20 * static_cast<int64_t>(std::max(1, width))))));
+  const int window_rows = std::max(16, static_cast<int>(std::min<int64_t>(height, scratch.window_bytes / (kRasterBytesPerPixel * std::max(1, width)))));
   const int windows = (height + window_rows - 1) / window_rows;
   std::vector<LayerFragments>& drawn = scratch.drawn;
   if (drawn.size() < count * windows) drawn.resize(count * windows);

@@ -82,7 +82,7 @@ struct LayerFragments {
   std::vector<float> depth;
 };
 
-// The raster CompositeLayers draws a layer into: a window of rows of this many bytes (20 a pixel),
+// The raster CompositeLayers draws a layer into: a window of rows of this many bytes (kRasterBytesPerPixel a pixel),
 // not the whole view (480 MB for the full-size Sceaux castle supersampled twice).
 constexpr int64_t kCompositeWindowBytes = int64_t{64} << 20;
 

@@ -222,9 +222,12 @@ void RasterizeWindows(const TriangleMesh& mesh, const Camera& camera, const Rigi
   });
   // Face f's rows widened by two, [*lo, *hi], all rows for a face with a vertex before the near
   // plane (it is clipped first); false for an invalid face.
+  const auto valid_face = [&](const Eigen::Vector3i& face) {
+    return (face.array() >= 0).all() && (face.array() < static_cast<int>(num_vertices)).all();
+  };
   const auto face_rows = [&](size_t f, double* lo, double* hi) {
     const Eigen::Vector3i& face = mesh.faces[f];
-    if ((face.array() < 0).any() || (face.array() >= static_cast<int>(num_vertices)).any()) return false;
+    if (!valid_face(face)) return false;
     const double r0 = row_of[face[0]], r1 = row_of[face[1]], r2 = row_of[face[2]];
     if (std::isnan(r0) || std::isnan(r1) || std::isnan(r2)) {
       *lo = -std::numeric_limits<double>::infinity(), *hi = std::numeric_limits<double>::infinity();
@@ -316,7 +319,7 @@ void RasterizeWindows(const TriangleMesh& mesh, const Camera& camera, const Rigi
       for (size_t i = begin; i < end; ++i) {
         const size_t f = strips > 1 ? strip_faces[i] : i;
         const Eigen::Vector3i& face = mesh.faces[f];
-        if ((face.array() < 0).any() || (face.array() >= static_cast<int>(num_vertices)).any()) continue;
+        if (!valid_face(face)) continue;
         ClipVertex in[3];
         for (int j = 0; j < 3; ++j) in[j] = {points_in_cam[face[j]], Eigen::Vector3d::Unit(j)};
         if (options.cull_backfaces) {

@@ -5,6 +5,7 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <cstdint>
 #include <functional>
 #include <vector>
 
@@ -28,6 +29,8 @@ struct RasterResult {
   std::vector<int> face_id;    // width*height, row-major; -1 where uncovered
   FloatMap barycentric;        // 3 channels: perspective-correct weights of the face's vertices
 };
+// A RasterResult's bytes a pixel: depth, face id and three weights.
+constexpr int64_t kRasterBytesPerPixel = sizeof(float) + sizeof(int) + 3 * sizeof(float);
 
 // Rasterizes `mesh` seen by `camera` (intrinsics; distortion ignored) at pose `cam_from_world`.
 RasterResult Rasterize(const TriangleMesh& mesh, const Camera& camera, const Rigid3d& cam_from_world,

@@ -297,9 +297,9 @@ SplatImage RenderSplats(const SplatCloud& cloud, const Camera& camera, const Rig
     *y0 = std::max(0, static_cast<int>(std::ceil(s.v - s.radius - 0.5f)));
     *y1 = std::min(height - 1, static_cast<int>(std::floor(s.v + s.radius - 0.5f)));
   };
-  const int passes = static_cast<int>(std::clamp<size_t>(
-      (cloud.size() * sizeof(Projected) + std::max<size_t>(1, options.pass_bytes) - 1) / std::max<size_t>(1, options.pass_bytes), 1,
-      static_cast<size_t>(bands)));
+  const size_t pass_bytes = std::max<size_t>(1, options.pass_bytes);
+  const int passes = static_cast<int>(
+      std::clamp<size_t>((cloud.size() * sizeof(Projected) + pass_bytes - 1) / pass_bytes, 1, static_cast<size_t>(bands)));
   std::vector<size_t> band_covered(bands, 0), band_hits(bands, 0);
   for (int pass = 0; pass < passes; ++pass) {
     const int band0 = static_cast<int>(static_cast<int64_t>(pass) * bands / passes);
