@@ -581,12 +581,16 @@ class RenderStage : public Stage {
     std::map<std::string, RenderResult> background;
     if (context.params.String("background") == "plane" && plane_possible) {
       // In memory only (no per-view checkpoint): a resumed run needs it for every view it renders.
+      // Progress: at full size (the Sceaux castle) these take 10 s before any model starts.
       std::vector<RenderResult> results(desired.size());
+      context.progress->Begin("background (plane)", desired.size());
       tbb::parallel_for(size_t{0}, desired.size(), [&](size_t i) {
         std::string plane_kind;
         size_t used = 0;
         results[i] = render_ulr(sources, {}, desired[i], &plane_kind, &used);
+        context.progress->Advance(1, desired[i].stem);
       });
+      context.progress->End();
       for (size_t i = 0; i < desired.size(); ++i) background[desired[i].stem] = std::move(results[i]);
     }
 
@@ -983,11 +987,12 @@ class RenderStage : public Stage {
     }
     stats.skins = DetectSkins(&images, options, &stats.outliers);
     stats.merged = MergeTiles(&images, options);
-    *cloud = CloudFromDepthImages(images);
+    const size_t views = images.size();
+    *cloud = CloudFromDepthImages(std::move(images));
     stats.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
     spdlog::info("[render] splat_depth{} ({}): {} views, {} samples, {} skin connections, {} outliers, {} merged "
                  "away -> {} splats ({:.1f} s)",
-                 merge ? "_merged" : "", depth_type, images.size(), stats.drawable, stats.skins, stats.outliers, stats.merged,
+                 merge ? "_merged" : "", depth_type, views, stats.drawable, stats.skins, stats.outliers, stats.merged,
                  cloud->size(), stats.seconds);
     return stats;
   }

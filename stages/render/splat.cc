@@ -129,45 +129,90 @@ bool SplatOptions::Check(std::string* error) const {
   return true;
 }
 
-SplatCloud CloudFromDepthImages(const std::vector<DepthImage>& images) {
-  SplatCloud cloud;
-  for (size_t i = 0; i < images.size(); ++i) {
-    const DepthImage& image = images[i];
-    const Eigen::Matrix3f world_from_cam = image.cam_from_world.R().transpose().cast<float>();
-    const Eigen::Vector3f center = image.cam_from_world.Inverse().translation.cast<float>();
-    cloud.source_centers.push_back(center);
-    cloud.source_axes.push_back(world_from_cam);
-    const std::vector<Eigen::Vector3f> rays = PixelRays(image.camera, image.width(), image.height());
-    const float focal = static_cast<float>(std::sqrt(image.camera.FocalX() * image.camera.FocalY()));
-    for (int y = 0; y < image.height(); ++y) {
-      for (int x = 0; x < image.width(); ++x) {
-        const size_t k = static_cast<size_t>(y) * image.width() + x;
-        if (!image.flags.empty() && !IsDrawable(image.flags[k])) continue;
-        const float z = image.depth.data[k];
-        if (!IsValidDepth(z)) continue;
-        cloud.positions.push_back(world_from_cam * (rays[k] * z) + center);
-        Eigen::Vector3f normal = Eigen::Vector3f::Zero();
-        if (!image.normals.Empty()) {
-          const Eigen::Vector3f n(image.normals.At(x, y, 0), image.normals.At(x, y, 1), image.normals.At(x, y, 2));
-          if (n.squaredNorm() > 0.25f) normal = world_from_cam * n.normalized();
-        }
-        if (normal.squaredNorm() == 0) normal = world_from_cam * OneSidedNormal(image, rays, x, y);
-        cloud.normals.push_back(normal);
-        cloud.colors.push_back(image.image.at<cv::Vec3b>(y, x));
-        // A sample on the rim of its image's surface (a 4-neighbour without depth or across a depth
-        // step) has a pixel that straddles the silhouette: its colour is mixed with what lies
-        // behind. Seen from another view the rim is inside the object, so it is kept (it fills
-        // what nothing else covers) but weighs little against interior samples of other views.
-        bool rim = false;
-        for (const auto& [dx, dy] : {std::pair{1, 0}, {-1, 0}, {0, 1}, {0, -1}}) {
-          rim = rim || !Continuous(image, x, y, x + dx, y + dy);
-        }
-        cloud.confidence.push_back(std::max(image.Confidence(x, y), 1e-3f) * (rim ? kRimWeight : 1.f));
-        cloud.footprint.push_back(kHalfDiagonal * z / focal);
-        cloud.source.push_back(static_cast<int>(i));
+namespace {
+
+// Whether pixel k of `image` becomes a sample (CloudFromDepthImages' test).
+bool BecomesSample(const DepthImage& image, size_t k) {
+  return (image.flags.empty() || IsDrawable(image.flags[k])) && IsValidDepth(image.depth.data[k]);
+}
+
+size_t SampleCount(const DepthImage& image) {
+  size_t count = 0;
+  for (size_t k = 0; k < image.depth.data.size(); ++k) count += BecomesSample(image, k);
+  return count;
+}
+
+// Appends the samples of `image`, source `source`, to `cloud`.
+void AppendDepthImage(const DepthImage& image, int source, SplatCloud* cloud) {
+  const Eigen::Matrix3f world_from_cam = image.cam_from_world.R().transpose().cast<float>();
+  const Eigen::Vector3f center = image.cam_from_world.Inverse().translation.cast<float>();
+  cloud->source_centers.push_back(center);
+  cloud->source_axes.push_back(world_from_cam);
+  const std::vector<Eigen::Vector3f> rays = PixelRays(image.camera, image.width(), image.height());
+  const float focal = static_cast<float>(std::sqrt(image.camera.FocalX() * image.camera.FocalY()));
+  for (int y = 0; y < image.height(); ++y) {
+    for (int x = 0; x < image.width(); ++x) {
+      const size_t k = static_cast<size_t>(y) * image.width() + x;
+      if (!BecomesSample(image, k)) continue;
+      const float z = image.depth.data[k];
+      cloud->positions.push_back(world_from_cam * (rays[k] * z) + center);
+      Eigen::Vector3f normal = Eigen::Vector3f::Zero();
+      if (!image.normals.Empty()) {
+        const Eigen::Vector3f n(image.normals.At(x, y, 0), image.normals.At(x, y, 1), image.normals.At(x, y, 2));
+        if (n.squaredNorm() > 0.25f) normal = world_from_cam * n.normalized();
       }
+      if (normal.squaredNorm() == 0) normal = world_from_cam * OneSidedNormal(image, rays, x, y);
+      cloud->normals.push_back(normal);
+      cloud->colors.push_back(image.image.at<cv::Vec3b>(y, x));
+      // A sample on the rim of its image's surface (a 4-neighbour without depth or across a depth
+      // step) has a pixel that straddles the silhouette: its colour is mixed with what lies
+      // behind. Seen from another view the rim is inside the object, so it is kept (it fills
+      // what nothing else covers) but weighs little against interior samples of other views.
+      bool rim = false;
+      for (const auto& [dx, dy] : {std::pair{1, 0}, {-1, 0}, {0, 1}, {0, -1}}) {
+        rim = rim || !Continuous(image, x, y, x + dx, y + dy);
+      }
+      cloud->confidence.push_back(std::max(image.Confidence(x, y), 1e-3f) * (rim ? kRimWeight : 1.f));
+      cloud->footprint.push_back(kHalfDiagonal * z / focal);
+      cloud->source.push_back(source);
     }
   }
+}
+
+// A cloud whose per-sample arrays hold `samples` without growing (a vector that grows holds its old
+// and its new block at once, and up to twice what it needs after).
+SplatCloud ReservedCloud(size_t samples, size_t sources) {
+  SplatCloud cloud;
+  cloud.positions.reserve(samples);
+  cloud.normals.reserve(samples);
+  cloud.colors.reserve(samples);
+  cloud.confidence.reserve(samples);
+  cloud.footprint.reserve(samples);
+  cloud.source.reserve(samples);
+  cloud.source_centers.reserve(sources);
+  cloud.source_axes.reserve(sources);
+  return cloud;
+}
+
+}  // namespace
+
+SplatCloud CloudFromDepthImages(const std::vector<DepthImage>& images) {
+  size_t samples = 0;
+  for (const DepthImage& image : images) samples += SampleCount(image);
+  SplatCloud cloud = ReservedCloud(samples, images.size());
+  for (size_t i = 0; i < images.size(); ++i) AppendDepthImage(images[i], static_cast<int>(i), &cloud);
+  return cloud;
+}
+
+SplatCloud CloudFromDepthImages(std::vector<DepthImage>&& images) {
+  size_t samples = 0;
+  for (const DepthImage& image : images) samples += SampleCount(image);
+  SplatCloud cloud = ReservedCloud(samples, images.size());
+  for (size_t i = 0; i < images.size(); ++i) {
+    AppendDepthImage(images[i], static_cast<int>(i), &cloud);
+    images[i] = DepthImage();  // its pixels are in the cloud now
+  }
+  images.clear();
   return cloud;
 }
 

@@ -96,6 +96,35 @@ TEST(SplatOptions, DefaultsValidAndRangesChecked) {
   EXPECT_FALSE(d.Check(&error));
 }
 
+// The consuming form builds the same cloud as the copying one, sample for sample (flagged and
+// invalid pixels left out, sources in order, sized exactly), and frees the images.
+TEST(Splat, CloudFromConsumedImagesEqualsCloudFromCopies) {
+  std::vector<DepthImage> images = {View(Eigen::Vector3d::Zero(), true, "a"), View({0.3, 0, 0}, false, "b"),
+                                    View({-0.2, 0.1, 0}, true, "c")};
+  images[0].flags[5] |= kSampleMerged;
+  images[1].depth.At(7, 3) = 0.f;
+  images[2].flags.clear();  // no flags: every valid depth is a sample
+  images[2].depth.At(1, 1) = -1.f;
+  const SplatCloud copied = CloudFromDepthImages(images);
+  ASSERT_EQ(copied.size(), 3u * kWidth * kHeight - 3);
+  EXPECT_EQ(copied.positions.capacity(), copied.size());
+  std::vector<DepthImage> consumed = images;
+  const SplatCloud moved = CloudFromDepthImages(std::move(consumed));
+  EXPECT_TRUE(consumed.empty());
+  ASSERT_EQ(moved.size(), copied.size());
+  ASSERT_EQ(moved.source_centers.size(), 3u);
+  for (size_t i = 0; i < copied.size(); ++i) {
+    ASSERT_EQ(moved.positions[i], copied.positions[i]) << i;
+    ASSERT_EQ(moved.normals[i], copied.normals[i]) << i;
+    ASSERT_EQ(moved.colors[i], copied.colors[i]) << i;
+    ASSERT_EQ(moved.confidence[i], copied.confidence[i]) << i;
+    ASSERT_EQ(moved.footprint[i], copied.footprint[i]) << i;
+    ASSERT_EQ(moved.source[i], copied.source[i]) << i;
+  }
+  EXPECT_EQ(copied.source.front(), 0);
+  EXPECT_EQ(copied.source.back(), 2);
+}
+
 // A fronto-parallel plane seen at the source resolution: every pixel covered, each by at most two
 // splats on average, from the source's own viewpoint and from a slightly moved one.
 TEST(Splat, FrontoParallelPlaneHasNoHolesAndBoundedOverlap) {
