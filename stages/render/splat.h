@@ -95,7 +95,7 @@ struct SplatCloud {
 // The drawable samples of the depth images (normals from the images' normal maps, in world frame).
 SplatCloud CloudFromDepthImages(const std::vector<DepthImage>& images);
 // The same, freeing each image once its samples are in the cloud (`images` is left empty): the
-// full-size Sceaux castle's 9 depth images hold 1.3 GB beside the 20 M samples' 0.8 GB.
+// full-size Sceaux castle's 9 depth images hold 1.2 GB beside the 20 M samples' 0.8 GB.
 SplatCloud CloudFromDepthImages(std::vector<DepthImage>&& images);
 // Oriented discs from a surfel cloud (positions, normals, radius; colours and confidence when
 // present). Points without a radius get `default_radius`.
