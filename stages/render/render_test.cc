@@ -646,6 +646,42 @@ TEST(RenderStage, ARenderWithoutFillRemovesAnEarlierRunsFilledImages) {
   EXPECT_FALSE(summary["proxies"][0]["views"]["v0.png"].contains("filled"));
 }
 
+// With background: plane, the plane model takes the background's render (drawn once): the same
+// image, coverage and facts as the plane drawn on its own (background: none), for a held-out view
+// and for a training view left out of its own sources.
+TEST(RenderStage, PlaneModelFromTheBackgroundEqualsItsOwnRender) {
+  RenderWorkspace ws("plane_background", {});
+  TriangleMesh ground;
+  ground.vertices = {{-0.5, -0.5, 0}, {0.5, -0.5, 0}, {0.5, 0.5, 0}, {-0.5, 0.5, 0}};
+  ground.faces = {{0, 1, 2}, {0, 2, 3}};
+  fs::create_directories(ws.root / "ground_truth");
+  WriteMeshPly((ws.root / "ground_truth/mesh.ply").string(), ground);
+  ws.context.heldout_images = {"v0.png"};
+  ws.context.params.Set("views", std::vector<std::string>{"v0.png", "v3.png"});
+  ws.context.params.Set("proxies", std::vector<std::string>{"ground_truth/mesh.ply", "plane"});
+  const auto read = [&](const std::string& stem) {
+    return std::make_tuple(ReadImageColor((ws.root / ("renders/plane/" + stem + ".png")).string()),
+                           ReadImageUnchanged((ws.root / ("renders/plane/" + stem + ".coverage.png")).string()),
+                           nlohmann::json::parse(std::ifstream((ws.root / ("renders/plane/" + stem + ".json")).string())));
+  };
+  ws.stage->Run(ws.context);
+  ASSERT_TRUE(fs::exists(ws.root / "renders/ground_truth_mesh/v0.filled.png"));  // the background was drawn
+  const auto [image0, coverage0, facts0] = read("v0");
+  const auto [image3, coverage3, facts3] = read("v3");
+  ws.context.params.Set("background", std::string("none"));
+  ws.stage->Run(ws.context);
+  const auto [own_image0, own_coverage0, own_facts0] = read("v0");
+  const auto [own_image3, own_coverage3, own_facts3] = read("v3");
+  EXPECT_GT(cv::countNonZero(own_coverage0), 0);
+  EXPECT_EQ(cv::norm(image0, own_image0, cv::NORM_INF), 0);
+  EXPECT_EQ(cv::norm(coverage0, own_coverage0, cv::NORM_INF), 0);
+  EXPECT_EQ(facts0, own_facts0);
+  EXPECT_EQ(cv::norm(image3, own_image3, cv::NORM_INF), 0);
+  EXPECT_EQ(cv::norm(coverage3, own_coverage3, cv::NORM_INF), 0);
+  EXPECT_EQ(facts3, own_facts3);
+  EXPECT_EQ(facts3["sources"], 6);  // v3 left out of the 7 training views
+}
+
 // Leave-one-out for `layers`: a training view rendered with exclude_self does not use its own
 // reference set, which would reproduce its photo at angle 0.
 TEST(Layers, ExcludedReferenceSetIsNotUsed) {
