@@ -5,7 +5,8 @@
 //  * Middlebury templeSparseRing at full resolution: plane_sweep wall time (MVE dmrecon: 161.6 s),
 //    evaluations per second (over the stage's wall time, and over the CPU time of the evaluations
 //    alone: evaluations_per_second_all_threads), cost volume per view and peak memory, with the
-//    engine's build in use and again with the portable build;
+//    engine's build in use, again with the portable build, and again with the bilinear census
+//    cost (`bilinear`: the cost before the one along the epipolar lines; CensusSampling);
 //  * Middlebury dinoSparseRing (untextured): fraction of pixels kept at the confidence threshold,
 //    on the object (grey >= 40) and on the black background;
 //  * the machine's limit for the census cost (MachineLimit: how it is derived).
@@ -13,6 +14,7 @@
 //
 // Usage: bench_plane_sweep [--out FILE.json] [--threads N] [--only synth|temple|dino]
 //                          [--confidence-threshold T] [--work DIR] [--portable-too true|false]
+//                          [--census-sampling epipolar|bilinear] [--bilinear-too true|false]
 #include <tbb/global_control.h>
 
 #include <chrono>
@@ -83,7 +85,7 @@ nlohmann::json Summary(const nlohmann::json& metrics) {
   return out;
 }
 
-nlohmann::json Synth(Runner& runner, const std::string& dir, double threshold) {
+nlohmann::json Synth(Runner& runner, const std::string& dir, double threshold, const std::string& sampling) {
   const std::string ws = dir + "/synth";
   fs::remove_all(ws);
   Params synth = Defaults(*runner.registry.Find("synth"));
@@ -94,6 +96,7 @@ nlohmann::json Synth(Runner& runner, const std::string& dir, double threshold) {
   runner.Run(ws, "synth", synth);
   Params params = Defaults(*runner.registry.Find("plane_sweep"));
   params.Set("confidence_threshold", threshold);
+  params.Set("census_sampling", sampling);
   const nlohmann::json metrics = runner.Run(ws, "plane_sweep", params);
   const Workspace w(ws);
   size_t truth = 0, within = 0, kept = 0;
@@ -120,7 +123,7 @@ nlohmann::json Synth(Runner& runner, const std::string& dir, double threshold) {
 }
 
 nlohmann::json Middlebury(Runner& runner, const std::string& dir, const std::string& dataset,
-                          const std::vector<double>& box, double threshold) {
+                          const std::vector<double>& box, double threshold, const std::string& sampling) {
   const std::string ws = dir + "/" + dataset;
   fs::remove_all(ws);
   Params import = Defaults(*runner.registry.Find("import"));
@@ -131,6 +134,7 @@ nlohmann::json Middlebury(Runner& runner, const std::string& dir, const std::str
   params.Set("bounding_box", box);
   params.Set("depth_margin", 0.05);
   params.Set("confidence_threshold", threshold);
+  params.Set("census_sampling", sampling);
   const auto t0 = std::chrono::steady_clock::now();
   const nlohmann::json metrics = runner.Run(ws, "plane_sweep", params);
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
@@ -159,12 +163,12 @@ nlohmann::json Middlebury(Runner& runner, const std::string& dir, const std::str
   return out;
 }
 
-// The ceiling of the census cost on this machine, from the instruction mix: an evaluation
-// (bilinear census) reads four 64-bit codes of the neighbour (the XORs, POPCNTs and weights run
-// on ALU ports beside the loads), and a core issues at most 3 loads per cycle (AMD Zen 4, Intel
-// Golden Cove: 3 load ports), so a core does at most 0.75 evaluations per cycle. Times the
-// threads and the clock read from /proc/cpuinfo.
-nlohmann::json MachineLimit(int threads) {
+// The ceiling of the census cost on this machine, from the instruction mix: an evaluation reads
+// two 64-bit codes of the neighbour along the epipolar line (four for the bilinear cost; the
+// XORs, POPCNTs and weights run on ALU ports beside the loads), and a core issues at most 3 loads
+// per cycle (AMD Zen 3 to 5, Intel Golden Cove: 3 load ports), so a core does at most 1.5
+// evaluations per cycle (0.75 bilinear). Times the threads and the clock read from /proc/cpuinfo.
+nlohmann::json MachineLimit(int threads, const std::string& sampling) {
   double mhz = 0;
   std::string vendor;
   int family = 0;
@@ -179,13 +183,16 @@ nlohmann::json MachineLimit(int threads) {
   }
   // Loads a core issues per cycle: AMD family 23 (Zen 1 and 2) has two load ports, Zen 3 and later
   // (and Intel since Ice Lake) three.
-  const double loads_per_cycle = vendor == "AuthenticAMD" && family <= 23 ? 2 : 3, loads_per_evaluation = 4;
+  const double loads_per_cycle = vendor == "AuthenticAMD" && family <= 23 ? 2 : 3;
+  const double loads_per_evaluation = sampling == "bilinear" ? 4 : 2;
   const double limit = threads * mhz * 1e6 * loads_per_cycle / loads_per_evaluation;
   return {{"threads", threads}, {"cpu_mhz", mhz}, {"cpu_vendor", vendor}, {"cpu_family", family},
           {"loads_per_cycle_per_core", loads_per_cycle}, {"loads_per_evaluation", loads_per_evaluation},
           {"evaluations_per_second", limit},
-          {"derivation", "threads x clock x loads per cycle (2 on AMD family 23, else 3) / 4 neighbour codes per "
-                         "bilinear census evaluation (load-port bound; the XOR, POPCNT and weighting run on other ports)"}};
+          {"census_sampling", sampling},
+          {"derivation", "threads x clock x loads per cycle (2 on AMD family 23, else 3) / neighbour codes per census "
+                         "evaluation (2 along the epipolar line, 4 bilinear; load-port bound: the XOR, POPCNT and "
+                         "weighting run on other ports)"}};
 }
 
 }  // namespace
@@ -196,6 +203,8 @@ int main(int argc, char** argv) {
   int threads = 2;
   double threshold = -1;
   bool portable_too = true;  // templeSparseRing again on the portable build
+  bool bilinear_too = true;  // and with the bilinear census cost
+  std::string sampling = "epipolar";
   for (int i = 1; i + 1 < argc; i += 2) {
     const std::string key = argv[i];
     if (key == "--out") out = argv[i + 1];
@@ -204,8 +213,11 @@ int main(int argc, char** argv) {
     else if (key == "--work") work = argv[i + 1];
     else if (key == "--confidence-threshold") threshold = std::atof(argv[i + 1]);
     else if (key == "--portable-too") portable_too = std::string(argv[i + 1]) != "false";
+    else if (key == "--bilinear-too") bilinear_too = std::string(argv[i + 1]) != "false";
+    else if (key == "--census-sampling" && (std::string(argv[i + 1]) == "epipolar" || std::string(argv[i + 1]) == "bilinear"))
+      sampling = argv[i + 1];
     else {
-      std::cerr << "unknown option " << key << "\nusage: bench_plane_sweep [--out FILE] [--threads N] [--only synth|temple|dino] [--confidence-threshold T] [--work DIR] [--portable-too true|false]\n";
+      std::cerr << "unknown option " << key << "\nusage: bench_plane_sweep [--out FILE] [--threads N] [--only synth|temple|dino] [--confidence-threshold T] [--work DIR] [--portable-too true|false] [--census-sampling epipolar|bilinear] [--bilinear-too true|false]\n";
       return 2;
     }
   }
@@ -216,32 +228,43 @@ int main(int argc, char** argv) {
   RegisterStage_plane_sweep(&runner.registry);
   if (threshold < 0) threshold = Defaults(*runner.registry.Find("plane_sweep")).Double("confidence_threshold");
   fs::create_directories(work);
-  nlohmann::json report = {{"threads", threads}, {"confidence_threshold", threshold}};
+  nlohmann::json report = {{"threads", threads}, {"confidence_threshold", threshold}, {"census_sampling", sampling}};
   try {
-    if (only.empty() || only == "synth") report["synth"] = Synth(runner, work, threshold);
+    if (only.empty() || only == "synth") report["synth"] = Synth(runner, work, threshold, sampling);
     if (only.empty() || only == "temple") {
       const std::vector<double> box = {-0.073568, 0.021728, -0.012445, 0.028855, 0.181892, 0.062736};
-      report["temple"] = Middlebury(runner, work, "middlebury_templeSparseRing", box, threshold);
+      report["temple"] = Middlebury(runner, work, "middlebury_templeSparseRing", box, threshold, sampling);
       if (portable_too && sweep::ActiveIsa() != sweep::Isa::kPortable) {  // the same run on the portable build
         const sweep::Isa active = sweep::ActiveIsa();
         sweep::SetIsa(sweep::Isa::kPortable);
-        const nlohmann::json portable = Middlebury(runner, work, "middlebury_templeSparseRing", box, threshold);
+        const nlohmann::json portable = Middlebury(runner, work, "middlebury_templeSparseRing", box, threshold, sampling);
         sweep::SetIsa(active);
         report["temple"]["portable"] = {{"wall_seconds", portable["wall_seconds"]},
                                         {"evaluations_per_second", portable["plane_sweep"]["evaluations_per_second"]},
                                         {"fraction_kept_object", portable["fraction_kept_object"]}};
       }
+      if (bilinear_too && sampling != "bilinear") {  // the same run with the bilinear census cost
+        const nlohmann::json bilinear = Middlebury(runner, work, "middlebury_templeSparseRing", box, threshold, "bilinear");
+        const double ratio = bilinear["plane_sweep"]["evaluations_per_second"].get<double>() /
+                             report["temple"]["plane_sweep"]["evaluations_per_second"].get<double>();
+        report["temple"]["bilinear"] = {
+            {"wall_seconds", bilinear["wall_seconds"]},
+            {"evaluations_per_second", bilinear["plane_sweep"]["evaluations_per_second"]},
+            {"evaluations_per_second_all_threads", bilinear["plane_sweep"]["evaluations_per_second_all_threads"]},
+            {"fraction_kept_object", bilinear["fraction_kept_object"]},
+            {"throughput_ratio_to_epipolar", ratio}};
+      }
     }
     if (only.empty() || only == "dino")
       report["dino"] = Middlebury(runner, work, "middlebury_dinoSparseRing",
-                                  {-0.061897, -0.018874, -0.057845, 0.010897, 0.068227, 0.015495}, threshold);
+                                  {-0.061897, -0.018874, -0.057845, 0.010897, 0.068227, 0.015495}, threshold, sampling);
   } catch (const std::exception& e) {
     std::cerr << "bench_plane_sweep: " << e.what() << "\n";
     return 1;
   }
   report["mve_dmrecon_temple_full_seconds"] = 161.6;
   report["isa"] = sweep::IsaName(sweep::ActiveIsa());
-  report["machine_limit"] = MachineLimit(threads);
+  report["machine_limit"] = MachineLimit(threads, sampling);
   WriteFileAtomic(out, report.dump(2) + "\n");
   std::cout << "wrote " << out << "\n";
   return 0;

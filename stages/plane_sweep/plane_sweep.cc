@@ -34,6 +34,7 @@ sweep::EngineOptions ToEngine(const PlaneSweepOptions& o) {
                                         : sweep::Cost::kZncc;
   e.census_radius_x = o.census_radius_x;
   e.census_radius_y = o.census_radius_y;
+  e.census_sampling = o.census_bilinear ? sweep::CensusSampling::kBilinear : sweep::CensusSampling::kAlongEpipolar;
   e.window_radius = o.window_radius;
   e.best_k = o.best_k;
   e.semi_global = o.aggregation == CostAggregation::kSemiGlobal;

@@ -37,6 +37,9 @@ struct PlaneSweepOptions {
   MatchCost cost = MatchCost::kCensus;
   int census_radius_x = 4;        // census window half width, pixels; (2rx+1)(2ry+1) - 1 <= 64
   int census_radius_y = 3;        // census window half height, pixels
+  // The census cost between pixels: interpolated along the epipolar line (two codes, the default)
+  // or bilinearly (four codes; the cost before; sweep_engine.h, CensusSampling).
+  bool census_bilinear = false;
   int window_radius = 1;          // box window radius of the cost, pixels, in [0, 15] (ZNCC: >= 1)
   CostAggregation aggregation = CostAggregation::kSemiGlobal;
   int sgm_paths = 8;              // semi-global paths, 4 or 8

@@ -82,7 +82,9 @@ class PlaneSweepStage : public Stage {
   }
   // 2: hull bounds that reach the camera are not used; 3: fixed-point bilinear census weights (1/256 px),
   // per-pixel near bounds from hull/hull.ply
-  std::string Version() const override { return "4"; }  // 4: pixels too untextured to keep a depth are not matched
+  // 4: pixels too untextured to keep a depth are not matched; 5: the census cost interpolated along
+  // the epipolar lines (census_sampling: epipolar)
+  std::string Version() const override { return "5"; }
   HoldoutRole Role() const override { return HoldoutRole::kTrainingOnly; }
   bool Shardable() const override { return true; }
   double ViewMemoryMb(const StageContext& context) const override {
@@ -116,6 +118,9 @@ class PlaneSweepStage : public Stage {
         {"cost", ParamType::kString, "census", "Matching cost", kCostNames},
         {"census_radius_x", ParamType::kInt, s(d.census_radius_x), "Census half width, pixels"},
         {"census_radius_y", ParamType::kInt, s(d.census_radius_y), "Census half height, pixels"},
+        {"census_sampling", ParamType::kString, "epipolar",
+         "Census cost between pixels: linear along the epipolar line (2 codes) or bilinear (4 codes, slower)",
+         {"epipolar", "bilinear"}},
         {"window_radius", ParamType::kInt, s(d.window_radius), "Box window radius of the cost, pixels, [0, 15]"},
         {"aggregation", ParamType::kString, "semi_global", "Cost aggregation after the box window", kAggregationNames},
         {"sgm_paths", ParamType::kInt, s(d.sgm_paths), "Semi-global paths, 4 or 8"},
@@ -338,6 +343,7 @@ class PlaneSweepStage : public Stage {
     o.cost = cost == "sad" ? MatchCost::kSad : cost == "zncc" ? MatchCost::kZncc : MatchCost::kCensus;
     o.census_radius_x = static_cast<int>(p.Int("census_radius_x"));
     o.census_radius_y = static_cast<int>(p.Int("census_radius_y"));
+    o.census_bilinear = p.String("census_sampling") == "bilinear";
     o.window_radius = static_cast<int>(p.Int("window_radius"));
     o.aggregation = p.String("aggregation") == "box" ? CostAggregation::kBox : CostAggregation::kSemiGlobal;
     o.sgm_paths = static_cast<int>(p.Int("sgm_paths"));

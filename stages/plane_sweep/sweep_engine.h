@@ -30,10 +30,23 @@ constexpr uint16_t kMaxCost = 1023;
 
 enum class Cost { kCensus, kSad, kZncc };
 
+// How the census cost of a warped neighbour reads its codes around the correspondence (u, v),
+// which falls between pixels: the cost is the Hamming distances to the codes around it, weighted.
+//  * kAlongEpipolar: linearly between the two codes on either side along the axis (rows or
+//    columns) the neighbour's epipolar lines run closer to, at the nearest row (column) across
+//    it. From plane to plane the correspondence moves along the epipolar line, so the cost curve
+//    is as smooth in the plane index as the bilinear one's where it matters for the sub-plane
+//    parabola; across the line the nearest code is a fixed offset of at most half a pixel, which
+//    the census window's 9 x 7 pixels absorb. Half the codes, loads and popcounts of kBilinear.
+//  * kBilinear: the four codes around it, weighted bilinearly.
+// Rectified pairs (integer shifts) read one code either way.
+enum class CensusSampling { kAlongEpipolar, kBilinear };
+
 struct EngineOptions {
   Cost cost = Cost::kCensus;
   int census_radius_x = 4;   // census window half width (9x7 -> 62 bits)
   int census_radius_y = 3;
+  CensusSampling census_sampling = CensusSampling::kAlongEpipolar;
   int window_radius = 1;     // box aggregation radius per neighbour, pixels (0: none)
   int best_k = 2;            // per pixel and plane, average of the k lowest neighbour costs
   bool semi_global = true;   // false: box window only (winner-take-all on the box costs)

@@ -12,8 +12,8 @@
 //  * `avx512`: the same source under `#pragma GCC target` for AVX-512 (F, BW, DQ, VL, VPOPCNTDQ),
 //    where the compiler vectorises the 16-bit box loops over 32 lanes and the census cost uses
 //    the explicit VPOPCNTQ kernels below: a lane per reference pixel for warped neighbours (codes
-//    fetched by contiguous loads and permutes, BestKCostsAcrossPixels), a lane per plane with
-//    gathers otherwise.
+//    fetched by contiguous loads and permutes, BestKCostsAcrossPixels; two codes a lane when the
+//    cost is interpolated along one axis, CensusSampling), a lane per plane with gathers otherwise.
 // The semi-global steps and winner-take-all are written once over vectors of 16-bit lanes (8 in
 // the portable build, 16 in the AVX2 build, 16 or 32 in the AVX-512 build; see Lanes).
 // sweep_engine.cc picks one at run time. The pragma (not -march on the command line) keeps
@@ -882,6 +882,20 @@ void BoxFilterVolume(CostVolume* v, int r) {
 // top-left of the four codes around it (-1: outside the neighbour, or behind it) and the
 // bilinear weights of the right and lower codes in 1/256 (kWeightOne).
 constexpr int kWeightShift = 8, kWeightOne = 1 << kWeightShift;
+
+// Which way a neighbour's census cost is interpolated (CensusSampling): bilinearly, or linearly
+// along the rows (the nearest row: the lower weight is 0) or along the columns (the nearest
+// column: the right weight is 0). With a weight of 0 the bilinear formula gives the linear one's
+// integers, so every kernel computes the same costs whichever codes it reads.
+enum class TapAxis { kBoth, kRows, kColumns };
+
+// The largest correspondence coordinates (u, v) inside a neighbour of sw x sh codes: the four
+// codes from the top-left one exist. Rounding to the nearest row (column) reaches the next one
+// half a pixel sooner than truncating.
+inline void TapLimits(TapAxis axis, int sw, int sh, float* max_u, float* max_v) {
+  *max_u = static_cast<float>(sw - 1) - (axis == TapAxis::kColumns ? 0.5f : 0.f);
+  *max_v = static_cast<float>(sh - 1) - (axis == TapAxis::kRows ? 0.5f : 0.f);
+}
 struct Taps {
   std::vector<int32_t> index, wx, wy;
   void Resize(size_t n) {
@@ -892,14 +906,16 @@ struct Taps {
 };
 
 // The taps of plane p from its correspondence (u, v) (pixel centres at integers) and depth z: the
-// top-left code's index (-1 outside the neighbour or behind it) and the bilinear weights.
+// top-left code's index (-1 outside the neighbour or behind it) and the weights (`axis`).
 // Outside (even NaN) coordinates become 0 before the conversion, which stays defined.
-inline void StoreTap(float z, float u, float v, float max_u, float max_v, int sw, int p, Taps* taps) {
+inline void StoreTap(float z, float u, float v, float max_u, float max_v, int sw, int p, TapAxis axis, Taps* taps) {
   const bool inside = z > 0 && u >= 0 && v >= 0 && u < max_u && v < max_v;
   const float uc = inside ? u : 0.f, vc = inside ? v : 0.f;
-  const int x0 = static_cast<int>(uc), y0 = static_cast<int>(vc);
+  int x0 = static_cast<int>(uc), y0 = static_cast<int>(vc);
   taps->wx[p] = static_cast<int32_t>((uc - static_cast<float>(x0)) * kWeightOne + 0.5f);
   taps->wy[p] = static_cast<int32_t>((vc - static_cast<float>(y0)) * kWeightOne + 0.5f);
+  if (axis == TapAxis::kRows) y0 = static_cast<int>(vc + 0.5f), taps->wy[p] = 0;
+  if (axis == TapAxis::kColumns) x0 = static_cast<int>(uc + 0.5f), taps->wx[p] = 0;
   taps->index[p] = inside ? y0 * sw + x0 : -1;
 }
 
@@ -912,7 +928,7 @@ struct LaneTaps {
   __m512i column, row;  // of the top-left code (0 outside)
   __mmask16 inside;
 };
-inline LaneTaps TapsOf(__m512 z, __m512 u, __m512 v, float max_u, float max_v) {
+inline LaneTaps TapsOf(__m512 z, __m512 u, __m512 v, float max_u, float max_v, TapAxis axis) {
   const __m512 half = _mm512_set1_ps(0.5f), zero = _mm512_setzero_ps(), one = _mm512_set1_ps(static_cast<float>(kWeightOne));
   LaneTaps t;
   t.inside = _mm512_cmp_ps_mask(z, zero, _CMP_GT_OQ) & _mm512_cmp_ps_mask(u, zero, _CMP_GE_OQ) &
@@ -925,6 +941,8 @@ inline LaneTaps TapsOf(__m512 z, __m512 u, __m512 v, float max_u, float max_v) {
   t.wy = _mm512_cvttps_epi32(_mm512_add_ps(_mm512_mul_ps(ay, one), half));
   t.column = x0;
   t.row = y0;
+  if (axis == TapAxis::kRows) t.row = _mm512_cvttps_epi32(_mm512_add_ps(vc, half)), t.wy = _mm512_setzero_si512();
+  if (axis == TapAxis::kColumns) t.column = _mm512_cvttps_epi32(_mm512_add_ps(uc, half)), t.wx = _mm512_setzero_si512();
   return t;
 }
 
@@ -934,25 +952,29 @@ inline __m512i LaneIndex(const LaneTaps& t, int sw) {
 }
 
 // StoreTap for planes p..p+15, the same operations lane by lane.
-inline void StoreTaps16(__m512 z, __m512 u, __m512 v, float max_u, float max_v, int sw, int p, Taps* taps) {
-  const LaneTaps t = TapsOf(z, u, v, max_u, max_v);
+inline void StoreTaps16(__m512 z, __m512 u, __m512 v, float max_u, float max_v, int sw, int p, TapAxis axis, Taps* taps) {
+  const LaneTaps t = TapsOf(z, u, v, max_u, max_v, axis);
   _mm512_storeu_si512(taps->wx.data() + p, t.wx);
   _mm512_storeu_si512(taps->wy.data() + p, t.wy);
   _mm512_storeu_si512(taps->index.data() + p, _mm512_mask_blend_epi32(t.inside, _mm512_set1_epi32(-1), LaneIndex(t, sw)));
 }
 #elif IBMR_SWEEP_AVX2
 // StoreTap for planes p..p+7, the same operations lane by lane (the masks are all-ones lanes).
-inline void StoreTaps8(__m256 z, __m256 u, __m256 v, float max_u, float max_v, int sw, int p, Taps* taps) {
+inline void StoreTaps8(__m256 z, __m256 u, __m256 v, float max_u, float max_v, int sw, int p, TapAxis axis, Taps* taps) {
   const __m256 half = _mm256_set1_ps(0.5f), zero = _mm256_setzero_ps(), one = _mm256_set1_ps(static_cast<float>(kWeightOne));
   const __m256 inside = _mm256_and_ps(
       _mm256_and_ps(_mm256_and_ps(_mm256_cmp_ps(z, zero, _CMP_GT_OQ), _mm256_cmp_ps(u, zero, _CMP_GE_OQ)),
                     _mm256_and_ps(_mm256_cmp_ps(v, zero, _CMP_GE_OQ), _mm256_cmp_ps(u, _mm256_set1_ps(max_u), _CMP_LT_OQ))),
       _mm256_cmp_ps(v, _mm256_set1_ps(max_v), _CMP_LT_OQ));
   const __m256 uc = _mm256_and_ps(inside, u), vc = _mm256_and_ps(inside, v);  // outside (or NaN): 0
-  const __m256i x0 = _mm256_cvttps_epi32(uc), y0 = _mm256_cvttps_epi32(vc);
+  __m256i x0 = _mm256_cvttps_epi32(uc), y0 = _mm256_cvttps_epi32(vc);
   const __m256 ax = _mm256_sub_ps(uc, _mm256_cvtepi32_ps(x0)), ay = _mm256_sub_ps(vc, _mm256_cvtepi32_ps(y0));
-  _mm256_storeu_si256(reinterpret_cast<__m256i*>(taps->wx.data() + p), _mm256_cvttps_epi32(_mm256_add_ps(_mm256_mul_ps(ax, one), half)));
-  _mm256_storeu_si256(reinterpret_cast<__m256i*>(taps->wy.data() + p), _mm256_cvttps_epi32(_mm256_add_ps(_mm256_mul_ps(ay, one), half)));
+  __m256i wx = _mm256_cvttps_epi32(_mm256_add_ps(_mm256_mul_ps(ax, one), half));
+  __m256i wy = _mm256_cvttps_epi32(_mm256_add_ps(_mm256_mul_ps(ay, one), half));
+  if (axis == TapAxis::kRows) y0 = _mm256_cvttps_epi32(_mm256_add_ps(vc, half)), wy = _mm256_setzero_si256();
+  if (axis == TapAxis::kColumns) x0 = _mm256_cvttps_epi32(_mm256_add_ps(uc, half)), wx = _mm256_setzero_si256();
+  _mm256_storeu_si256(reinterpret_cast<__m256i*>(taps->wx.data() + p), wx);
+  _mm256_storeu_si256(reinterpret_cast<__m256i*>(taps->wy.data() + p), wy);
   const __m256i at = _mm256_add_epi32(_mm256_mullo_epi32(y0, _mm256_set1_epi32(sw)), x0);
   _mm256_storeu_si256(reinterpret_cast<__m256i*>(taps->index.data() + p),
                       _mm256_blendv_epi8(_mm256_set1_epi32(-1), at, _mm256_castps_si256(inside)));
@@ -962,8 +984,9 @@ inline void StoreTaps8(__m256 z, __m256 u, __m256 v, float max_u, float max_v, i
 // Taps of pixel centre (xc, yc) for planes p0..p1-1 (multiples of 16); `hom` holds the nine
 // homography entries as rows of `n` planes (padding planes all zero: outside). The float steps are
 // the same elementwise IEEE operations, in the same order, in both builds.
-void ComputeTaps(const float* hom, int n, int p0, int p1, float xc, float yc, int sw, int sh, Taps* taps) {
-  const float max_u = static_cast<float>(sw - 1), max_v = static_cast<float>(sh - 1);
+void ComputeTaps(const float* hom, int n, int p0, int p1, float xc, float yc, int sw, int sh, TapAxis axis, Taps* taps) {
+  float max_u, max_v;
+  TapLimits(axis, sw, sh, &max_u, &max_v);
 #if IBMR_SWEEP_AVX512
   const __m512 x = _mm512_set1_ps(xc), y = _mm512_set1_ps(yc), half = _mm512_set1_ps(0.5f);
   auto row = [&](int e, int p) { return _mm512_loadu_ps(hom + static_cast<size_t>(e) * n + p); };
@@ -972,7 +995,7 @@ void ComputeTaps(const float* hom, int n, int p0, int p1, float xc, float yc, in
     const __m512 un = _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(row(0, p), x), _mm512_mul_ps(row(1, p), y)), row(2, p));
     const __m512 vn = _mm512_add_ps(_mm512_add_ps(_mm512_mul_ps(row(3, p), x), _mm512_mul_ps(row(4, p), y)), row(5, p));
     StoreTaps16(z, _mm512_sub_ps(_mm512_div_ps(un, z), half), _mm512_sub_ps(_mm512_div_ps(vn, z), half), max_u, max_v, sw,
-                p, taps);
+                p, axis, taps);
   }
 #elif IBMR_SWEEP_AVX2
   const __m256 x = _mm256_set1_ps(xc), y = _mm256_set1_ps(yc), half = _mm256_set1_ps(0.5f);
@@ -982,14 +1005,14 @@ void ComputeTaps(const float* hom, int n, int p0, int p1, float xc, float yc, in
     const __m256 un = _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(row(0, p), x), _mm256_mul_ps(row(1, p), y)), row(2, p));
     const __m256 vn = _mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(row(3, p), x), _mm256_mul_ps(row(4, p), y)), row(5, p));
     StoreTaps8(z, _mm256_sub_ps(_mm256_div_ps(un, z), half), _mm256_sub_ps(_mm256_div_ps(vn, z), half), max_u, max_v, sw, p,
-               taps);
+               axis, taps);
   }
 #else
   for (int p = p0; p < p1; ++p) {
     const float z = hom[6 * n + p] * xc + hom[7 * n + p] * yc + hom[8 * n + p];
     const float u = (hom[0 * n + p] * xc + hom[1 * n + p] * yc + hom[2 * n + p]) / z - 0.5f;
     const float v = (hom[3 * n + p] * xc + hom[4 * n + p] * yc + hom[5 * n + p]) / z - 0.5f;
-    StoreTap(z, u, v, max_u, max_v, sw, p, taps);
+    StoreTap(z, u, v, max_u, max_v, sw, p, axis, taps);
   }
 #endif
 }
@@ -1056,8 +1079,9 @@ bool FindAffineFamily(const std::vector<Eigen::Matrix3d>& homographies, AffineFa
 }
 
 // ComputeTaps for an affine family (same outputs' meaning; the same float steps in both builds).
-void ComputeAffineTaps(const AffineFamily& f, int p0, int p1, float xc, float yc, int sw, int sh, Taps* taps) {
-  const float max_u = static_cast<float>(sw - 1), max_v = static_cast<float>(sh - 1);
+void ComputeAffineTaps(const AffineFamily& f, int p0, int p1, float xc, float yc, int sw, int sh, TapAxis axis, Taps* taps) {
+  float max_u, max_v;
+  TapLimits(axis, sw, sh, &max_u, &max_v);
   // Per pixel: the homogeneous image of the pixel under H_0, and its change per plane.
   const float u0 = f.base[0] * xc + f.base[1] * yc + f.base[2], du = f.step[0] * xc + f.step[1] * yc + f.step[2];
   const float v0 = f.base[3] * xc + f.base[4] * yc + f.base[5], dv = f.step[3] * xc + f.step[4] * yc + f.step[5];
@@ -1072,7 +1096,7 @@ void ComputeAffineTaps(const AffineFamily& f, int p0, int p1, float xc, float yc
     const __m512 z = _mm512_add_ps(z0v, _mm512_mul_ps(pf, dzv));
     const __m512 u = _mm512_sub_ps(_mm512_div_ps(_mm512_add_ps(u0v, _mm512_mul_ps(pf, duv)), z), half);
     const __m512 v = _mm512_sub_ps(_mm512_div_ps(_mm512_add_ps(v0v, _mm512_mul_ps(pf, dvv)), z), half);
-    StoreTaps16(z, u, v, max_u, max_v, sw, p, taps);
+    StoreTaps16(z, u, v, max_u, max_v, sw, p, axis, taps);
   }
 #elif IBMR_SWEEP_AVX2
   const __m256 half = _mm256_set1_ps(0.5f);
@@ -1084,13 +1108,13 @@ void ComputeAffineTaps(const AffineFamily& f, int p0, int p1, float xc, float yc
     const __m256 z = _mm256_add_ps(z0v, _mm256_mul_ps(pf, dzv));
     const __m256 u = _mm256_sub_ps(_mm256_div_ps(_mm256_add_ps(u0v, _mm256_mul_ps(pf, duv)), z), half);
     const __m256 v = _mm256_sub_ps(_mm256_div_ps(_mm256_add_ps(v0v, _mm256_mul_ps(pf, dvv)), z), half);
-    StoreTaps8(z, u, v, max_u, max_v, sw, p, taps);
+    StoreTaps8(z, u, v, max_u, max_v, sw, p, axis, taps);
   }
 #else
   for (int p = p0; p < p1; ++p) {
     const float pf = static_cast<float>(p);
     const float z = z0 + pf * dz;
-    StoreTap(z, (u0 + pf * du) / z - 0.5f, (v0 + pf * dv) / z - 0.5f, max_u, max_v, sw, p, taps);
+    StoreTap(z, (u0 + pf * du) / z - 0.5f, (v0 + pf * dv) / z - 0.5f, max_u, max_v, sw, p, axis, taps);
   }
 #endif
 }
@@ -1107,6 +1131,35 @@ inline __m256i BilinearCost(__m512i d00, __m512i d01, __m512i d10, __m512i d11, 
   return _mm512_cvtepi32_epi16(cost);
 }
 
+// Where the contiguous loads of a group of 16 lanes' codes start: each half's (8 lanes') window
+// starts at the lesser of its first and last lanes' column and row (a homography maps a run of
+// pixels to a run of codes in order, increasing or decreasing). `column` and `row`: each lane's
+// top-left code relative to its half's window; `fast`: the valid lanes within `max_column`
+// columns and 2 rows of it whose window's `rows_read` rows of 16 codes exist (sw * sh codes:
+// fewer than 2^31, as indices are int32); `second`: the lanes on the window's second row.
+struct LaneWindows {
+  __m512i column, row;
+  __mmask16 fast, second;
+  int starts[2];
+};
+inline LaneWindows WindowsOf(const LaneTaps& t, __mmask16 valid, int sw, int sh, int max_column, int rows_read) {
+  const __m512i first_lane = _mm512_set_epi32(8, 8, 8, 8, 8, 8, 8, 8, 0, 0, 0, 0, 0, 0, 0, 0);
+  const __m512i last_lane = _mm512_set_epi32(15, 15, 15, 15, 15, 15, 15, 15, 7, 7, 7, 7, 7, 7, 7, 7);
+  const __m512i x_min = _mm512_min_epi32(_mm512_permutexvar_epi32(first_lane, t.column), _mm512_permutexvar_epi32(last_lane, t.column));
+  const __m512i y_min = _mm512_min_epi32(_mm512_permutexvar_epi32(first_lane, t.row), _mm512_permutexvar_epi32(last_lane, t.row));
+  LaneWindows w;
+  w.column = _mm512_sub_epi32(t.column, x_min);
+  w.row = _mm512_sub_epi32(t.row, y_min);
+  const __m512i start = _mm512_add_epi32(_mm512_mullo_epi32(y_min, _mm512_set1_epi32(sw)), x_min);
+  w.fast = valid & _mm512_cmple_epu32_mask(w.column, _mm512_set1_epi32(max_column)) &
+           _mm512_cmple_epu32_mask(w.row, _mm512_set1_epi32(1)) &
+           _mm512_cmple_epi32_mask(start, _mm512_set1_epi32(sw * (sh - (rows_read - 1)) - 16));
+  w.second = _mm512_cmpgt_epi32_mask(w.row, _mm512_setzero_si512());
+  w.starts[0] = _mm_cvtsi128_si32(_mm512_castsi512_si128(start));
+  w.starts[1] = _mm_cvtsi128_si32(_mm512_extracti32x4_epi32(start, 2));
+  return w;
+}
+
 // Hamming distances between 16 reference codes (one a lane; `codes[0]` holds lanes 0-7,
 // `codes[1]` lanes 8-15) and the codes at index, index + 1, index + sw and index + sw + 1 of `t`'s
 // lanes, as 8 x int64 per half and tap: d[h][k] (any value in lanes not `valid`; Join packs two
@@ -1121,25 +1174,14 @@ inline void Distances(const __m512i codes[2], const LaneTaps& t, __mmask16 valid
                       __m512i d[2][4], const uint64_t** window) {
   *window = nullptr;
   auto count = [&](__m512i c, __m512i code) { return _mm512_popcnt_epi64(_mm512_xor_si512(c, code)); };
-  // Each half's window starts at the lesser of its first and last lanes' column and row (a
-  // homography maps a run of pixels to a run of codes in order, increasing or decreasing); every
-  // lane must then lie within 15 columns and 2 rows of it. The loads reach column x_min + 15 of
-  // row y_min + 2 (codes past a row's end are never picked).
-  const __m512i first_lane = _mm512_set_epi32(8, 8, 8, 8, 8, 8, 8, 8, 0, 0, 0, 0, 0, 0, 0, 0);
-  const __m512i last_lane = _mm512_set_epi32(15, 15, 15, 15, 15, 15, 15, 15, 7, 7, 7, 7, 7, 7, 7, 7);
-  const __m512i x_min = _mm512_min_epi32(_mm512_permutexvar_epi32(first_lane, t.column), _mm512_permutexvar_epi32(last_lane, t.column));
-  const __m512i y_min = _mm512_min_epi32(_mm512_permutexvar_epi32(first_lane, t.row), _mm512_permutexvar_epi32(last_lane, t.row));
-  const __m512i column = _mm512_sub_epi32(t.column, x_min), row = _mm512_sub_epi32(t.row, y_min);
-  const __m512i start = _mm512_add_epi32(_mm512_mullo_epi32(y_min, _mm512_set1_epi32(sw)), x_min);
-  // Codes up to start + 2 sw + 15 exist (sw * sh codes: fewer than 2^31, as indices are int32).
-  const __mmask16 fast = valid & _mm512_cmple_epu32_mask(column, _mm512_set1_epi32(14)) &
-                         _mm512_cmple_epu32_mask(row, _mm512_set1_epi32(1)) &
-                         _mm512_cmple_epi32_mask(start, _mm512_set1_epi32(sw * (sh - 2) - 16));
+  // Every lane within 15 columns and 2 rows of its half's window: the loads reach column
+  // x_min + 15 of row y_min + 2 (codes past a row's end are never picked).
+  const LaneWindows windows = WindowsOf(t, valid, sw, sh, 14, 3);
+  const __m512i column = windows.column;
+  const __mmask16 fast = windows.fast, second = windows.second;
+  const int* starts = windows.starts;
   // Lanes on the second row take it as their top and the third as their bottom (no branch: which
   // lanes do is as good as random from one plane to the next).
-  const __mmask16 second = _mm512_cmpgt_epi32_mask(row, _mm512_setzero_si512());
-  const int starts[2] = {_mm_cvtsi128_si32(_mm512_castsi512_si128(start)),
-                         _mm_cvtsi128_si32(_mm512_extracti32x4_epi32(start, 2))};
   for (int h = 0; h < 2; ++h) {
     const __mmask8 lanes = static_cast<__mmask8>(valid >> (8 * h));
     if (lanes == 0) {
@@ -1178,6 +1220,70 @@ inline void Distances(const __m512i codes[2], const LaneTaps& t, __mmask16 valid
   }
 }
 
+// Distances for a neighbour interpolated along one axis (TapAxis::kRows or kColumns): the codes
+// at each lane's index and the next one along the axis (index + 1, or index + sw), d[h][0] and
+// d[h][1] (Distances' other two are not needed: their weight is 0). Along the rows, each lane
+// reads one row, so the window is two rows of 16 codes (4 loads); along the columns, two rows, so
+// three rows as in Distances (6 loads). Either way half the permutes and popcounts of Distances.
+template <TapAxis kAxis>
+inline void DistancesAlongAxis(const __m512i codes[2], const LaneTaps& t, __mmask16 valid, const uint64_t* src, int sw, int sh,
+                               __m512i d[2][4], const uint64_t** window) {
+  constexpr bool kColumns = kAxis == TapAxis::kColumns;
+  *window = nullptr;
+  auto count = [&](__m512i c, __m512i code) { return _mm512_popcnt_epi64(_mm512_xor_si512(c, code)); };
+  // The loads reach column x_min + 15 of row y_min + 1 (along the columns: y_min + 2); along
+  // the rows a lane also reads the code right of its own, along the columns the one below.
+  const LaneWindows windows = WindowsOf(t, valid, sw, sh, kColumns ? 15 : 14, kColumns ? 3 : 2);
+  const __m512i column = windows.column;
+  const __mmask16 fast = windows.fast, second = windows.second;
+  const int* starts = windows.starts;
+  for (int h = 0; h < 2; ++h) {
+    const __mmask8 lanes = static_cast<__mmask8>(valid >> (8 * h));
+    if (lanes == 0) {
+      d[h][0] = d[h][1] = _mm512_setzero_si512();
+      continue;
+    }
+    if (static_cast<__mmask8>(fast >> (8 * h)) == 0xFF) {
+      const __m256i half_column = h == 0 ? _mm512_castsi512_si256(column) : _mm512_extracti64x4_epi64(column, 1);
+      const __m512i at = _mm512_cvtepi32_epi64(half_column);
+      const uint64_t* r = src + starts[h];
+      if (h == 0) *window = r;
+      const __mmask8 on_second = static_cast<__mmask8>(second >> (8 * h));
+      const __m512i a0 = _mm512_loadu_si512(r), a1 = _mm512_loadu_si512(r + 8);
+      const __m512i b0 = _mm512_loadu_si512(r + sw), b1 = _mm512_loadu_si512(r + sw + 8);
+      __m512i here, next;
+      if (kColumns) {
+        const __m512i c0 = _mm512_loadu_si512(r + 2 * static_cast<size_t>(sw)), c1 = _mm512_loadu_si512(r + 2 * static_cast<size_t>(sw) + 8);
+        const __m512i second_row = _mm512_permutex2var_epi64(b0, at, b1);
+        here = _mm512_mask_mov_epi64(_mm512_permutex2var_epi64(a0, at, a1), on_second, second_row);
+        next = _mm512_mask_mov_epi64(second_row, on_second, _mm512_permutex2var_epi64(c0, at, c1));
+      } else {
+        const __m512i right = _mm512_add_epi64(at, _mm512_set1_epi64(1));
+        here = _mm512_mask_mov_epi64(_mm512_permutex2var_epi64(a0, at, a1), on_second, _mm512_permutex2var_epi64(b0, at, b1));
+        next = _mm512_mask_mov_epi64(_mm512_permutex2var_epi64(a0, right, a1), on_second, _mm512_permutex2var_epi64(b0, right, b1));
+      }
+      d[h][0] = count(here, codes[h]);
+      d[h][1] = count(next, codes[h]);
+      continue;
+    }
+    const __m512i all = LaneIndex(t, sw);
+    const __m256i index = h == 0 ? _mm512_castsi512_si256(all) : _mm512_extracti64x4_epi64(all, 1);
+    for (int k = 0; k < 2; ++k) {
+      const __m256i at = _mm256_add_epi32(index, _mm256_set1_epi32(k == 0 ? 0 : kColumns ? sw : 1));
+      d[h][k] = count(_mm512_mask_i32gather_epi64(_mm512_setzero_si512(), lanes, at, src, 8), codes[h]);
+    }
+  }
+}
+
+// BilinearCost with one weight 0, `w` the other (the same integers: with wy = 0,
+// (256 top + 2^11) >> 12 = (top + 8) >> 4; with wx = 0, top = 256 d00 and bottom = 256 d10).
+inline __m256i LinearCost(__m512i d0, __m512i d1, __m512i w, __mmask16 valid) {
+  const __m512i round = _mm512_set1_epi32(1 << (kWeightShift - 5)), outside = _mm512_set1_epi32(kOutsideCost);
+  const __m512i top = _mm512_add_epi32(_mm512_slli_epi32(d0, kWeightShift), _mm512_mullo_epi32(_mm512_sub_epi32(d1, d0), w));
+  const __m512i cost = _mm512_mask_blend_epi32(valid, outside, _mm512_srai_epi32(_mm512_add_epi32(top, round), kWeightShift - 4));
+  return _mm512_cvtepi32_epi16(cost);
+}
+
 // The low halves of the 64-bit lanes of `low` and `high` as 16 x int32 (lanes 0-7 from `low`).
 inline __m512i Join(__m512i low, __m512i high) {
   const __m512i even = _mm512_set_epi32(30, 28, 26, 24, 22, 20, 18, 16, 14, 12, 10, 8, 6, 4, 2, 0);
@@ -1191,6 +1297,7 @@ struct LaneNeighbour {
   int width = 0, height = 0;
   const AffineFamily* family = nullptr;
   const float* hom = nullptr;
+  TapAxis axis = TapAxis::kBoth;
 };
 
 // Best-k census costs of 16 consecutive reference pixels x0..x0+15 of row y (the first `count` of
@@ -1257,7 +1364,9 @@ void BestKCostsAcrossPixels(const uint64_t* ref_codes, int count, const LaneNeig
         u = _mm512_sub_ps(_mm512_div_ps(image(m, 0), z), half);
         v = _mm512_sub_ps(_mm512_div_ps(image(m, 3), z), half);
       }
-      taps[i] = TapsOf(z, u, v, static_cast<float>(g.width - 1), static_cast<float>(g.height - 1));
+      float max_u, max_v;
+      TapLimits(g.axis, g.width, g.height, &max_u, &max_v);
+      taps[i] = TapsOf(z, u, v, max_u, max_v, g.axis);
     }
   };
   // The planes in a software pipeline: the taps of plane p + 1 are computed before plane p's codes
@@ -1279,7 +1388,13 @@ void BestKCostsAcrossPixels(const uint64_t* ref_codes, int count, const LaneNeig
       const __mmask16 valid = t.inside & exist;
       __m512i d[2][4];
       const uint64_t* window;
-      Distances(codes, t, valid, g.codes, g.width, g.height, d, &window);
+      if (g.axis == TapAxis::kRows) {
+        DistancesAlongAxis<TapAxis::kRows>(codes, t, valid, g.codes, g.width, g.height, d, &window);
+      } else if (g.axis == TapAxis::kColumns) {
+        DistancesAlongAxis<TapAxis::kColumns>(codes, t, valid, g.codes, g.width, g.height, d, &window);
+      } else {
+        Distances(codes, t, valid, g.codes, g.width, g.height, d, &window);
+      }
       if (window == nullptr) {
         previous_window[i] = -1;
       } else {
@@ -1296,7 +1411,10 @@ void BestKCostsAcrossPixels(const uint64_t* ref_codes, int count, const LaneNeig
         }
         previous_window[i] = window_offset;
       }
-      __m256i cost = BilinearCost(Join(d[0][0], d[1][0]), Join(d[0][1], d[1][1]), Join(d[0][2], d[1][2]), Join(d[0][3], d[1][3]), t.wx, t.wy, valid);
+      __m256i cost = g.axis != TapAxis::kBoth
+                         ? LinearCost(Join(d[0][0], d[1][0]), Join(d[0][1], d[1][1]), g.axis == TapAxis::kRows ? t.wx : t.wy, valid)
+                         : BilinearCost(Join(d[0][0], d[1][0]), Join(d[0][1], d[1][1]), Join(d[0][2], d[1][2]),
+                                               Join(d[0][3], d[1][3]), t.wx, t.wy, valid);
       if (k == nn) {
         total = _mm256_add_epi16(total, cost);  // at most 16 costs of 1024: no overflow
         continue;
@@ -1325,7 +1443,8 @@ void BestKCostsAcrossPixels(const uint64_t* ref_codes, int count, const LaneNeig
 // Census cost of every plane: Hamming distances between the reference code and the four codes
 // around the correspondence, interpolated bilinearly (a cost curve smooth in the plane index, for
 // sub-pixel accuracy), 16 units per bit: ((h00 (1-ax) + h01 ax)(1-ay) + (h10 (1-ax) + h11 ax) ay)
-// in fixed point, for planes p0..p1-1 (multiples of 16).
+// in fixed point, for planes p0..p1-1 (multiples of 16). Along one axis (TapAxis) one weight is 0
+// and the formula is the linear one: the codes of weight 0 are read (they exist) and cancel.
 void CensusCosts(uint64_t code, const uint64_t* src, int sw, const Taps& taps, int p0, int p1, uint16_t* out) {
 #if IBMR_SWEEP_AVX512
   const __m512i code_v = _mm512_set1_epi64(static_cast<long long>(code));
@@ -1427,9 +1546,29 @@ inline bool LimitToRange(int first, int last, int np, int stride, uint16_t* c) {
 // pixel is then limited to its range (LimitToRange, as ApplyRanges would, while its costs are in
 // the first-level cache; `unmatched` marks the empty ones). Returns the evaluations done (counted
 // per pixel over its own blocks) and the threads' CPU time spent on them.
+// The axis a neighbour's census cost is interpolated along (CensusSampling::kAlongEpipolar): the
+// one its correspondences move along more, from the first plane to the last, for the reference
+// pixel at the centre of the neighbour's image (the views of a sweep share a size in practice; a
+// fixed pixel, so that every part of a view chooses alike). Scalar double steps in a fixed order:
+// every build chooses the same.
+TapAxis InterpolationAxis(const std::vector<Eigen::Matrix3d>& homographies, int sw, int sh, CensusSampling sampling) {
+  if (sampling == CensusSampling::kBilinear || homographies.size() < 2) return TapAxis::kBoth;
+  const double x = 0.5 * sw, y = 0.5 * sh;
+  auto image = [&](const Eigen::Matrix3d& m, double* u, double* v) {
+    const double z = m(2, 0) * x + m(2, 1) * y + m(2, 2);
+    *u = (m(0, 0) * x + m(0, 1) * y + m(0, 2)) / z;
+    *v = (m(1, 0) * x + m(1, 1) * y + m(1, 2)) / z;
+  };
+  double u0, v0, u1, v1;
+  image(homographies.front(), &u0, &v0);
+  image(homographies.back(), &u1, &v1);
+  if (!std::isfinite(u0) || !std::isfinite(u1) || !std::isfinite(v0) || !std::isfinite(v1)) return TapAxis::kBoth;
+  return std::abs(u1 - u0) >= std::abs(v1 - v0) ? TapAxis::kRows : TapAxis::kColumns;
+}
+
 VolumeWork BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector<const std::vector<uint64_t>*>& src,
-                             const std::vector<Neighbour>& neighbours, int k, const PlaneRanges* ranges, cv::Point origin,
-                             CostVolume* v) {
+                             const std::vector<Neighbour>& neighbours, int k, CensusSampling sampling, const PlaneRanges* ranges,
+                             cv::Point origin, CostVolume* v) {
   const int w = v->width, h = v->height, np = v->planes, n = v->stride;
   const int nn = static_cast<int>(neighbours.size());
   // Homographies as float rows of n planes (padding planes zero); integer shifts detected for
@@ -1439,7 +1578,9 @@ VolumeWork BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector
   std::vector<std::vector<int>> shift(nn);
   std::vector<char> disparity_order(nn, 0), affine(nn, 0);
   std::vector<AffineFamily> family(nn);
+  std::vector<TapAxis> axis(nn);
   for (int i = 0; i < nn; ++i) {
+    axis[i] = InterpolationAxis(neighbours[i].homographies, neighbours[i].gray.cols, neighbours[i].gray.rows, sampling);
     bool all_shifts = true, in_order = true;
     for (int p = 0; p < np; ++p) {
       const Eigen::Matrix3d& m = neighbours[i].homographies[p];
@@ -1467,7 +1608,7 @@ VolumeWork BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector
   std::vector<LaneNeighbour> lane_neighbours(across_pixels ? nn : 0);
   for (size_t i = 0; i < lane_neighbours.size(); ++i) {
     lane_neighbours[i] = {src[i]->data(), neighbours[i].gray.cols, neighbours[i].gray.rows, affine[i] ? &family[i] : nullptr,
-                          hom[i].data()};
+                          hom[i].data(), axis[i]};
   }
 #endif
   if (ranges != nullptr) v->unmatched.assign(static_cast<size_t>(w) * h, 0);
@@ -1543,9 +1684,9 @@ VolumeWork BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector
                                  y + origin.y, sw, sh, c);
               } else {
                 if (affine[i]) {
-                  ComputeAffineTaps(family[i], p0, p1, (x + origin.x) + 0.5f, (y + origin.y) + 0.5f, sw, sh, &taps);
+                  ComputeAffineTaps(family[i], p0, p1, (x + origin.x) + 0.5f, (y + origin.y) + 0.5f, sw, sh, axis[i], &taps);
                 } else {
-                  ComputeTaps(hom[i].data(), n, p0, p1, (x + origin.x) + 0.5f, (y + origin.y) + 0.5f, sw, sh, &taps);
+                  ComputeTaps(hom[i].data(), n, p0, p1, (x + origin.x) + 0.5f, (y + origin.y) + 0.5f, sw, sh, axis[i], &taps);
                 }
                 CensusCosts(code, src[i]->data(), sw, taps, p0, p1, c);
               }
@@ -1691,7 +1832,8 @@ VolumeWork BuildCostVolume(const cv::Mat& ref, const std::vector<Neighbour>& nei
   }
   const int k = std::min(o.best_k, nn);
   if (o.cost == Cost::kCensus) {
-    const VolumeWork work = BuildCensusVolume(*reference_census, src_census, neighbours, k, ranges, origin, volume);
+    const VolumeWork work =
+        BuildCensusVolume(*reference_census, src_census, neighbours, k, o.census_sampling, ranges, origin, volume);
     BoxFilterVolume(volume, o.window_radius);
     return work;
   }
