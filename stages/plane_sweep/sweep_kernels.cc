@@ -1161,115 +1161,66 @@ inline LaneWindows WindowsOf(const LaneTaps& t, __mmask16 valid, int sw, int sh,
 }
 
 // Hamming distances between 16 reference codes (one a lane; `codes[0]` holds lanes 0-7,
-// `codes[1]` lanes 8-15) and the codes at index, index + 1, index + sw and index + sw + 1 of `t`'s
-// lanes, as 8 x int64 per half and tap: d[h][k] (any value in lanes not `valid`; Join packs two
-// halves into 16 x int32 with one permute). One plane maps neighbouring reference pixels to nearby
-// codes: when a half's 8 top-left codes lie within 15 columns and two rows of each other,
-// contiguous loads of 16 codes from the rows involved (three at most) and in-register permutes
-// fetch them, else gathers do. (Epipolar lines that are not horizontal cross rows often: on the
-// Middlebury temple ring, half of the groups of 8 span two rows.) Both halves' windows are found at
-// once, in vector registers. `window` receives the first code of the low half's loads, or null
-// when gathers fetched them.
+// `codes[1]` lanes 8-15) and the codes `t`'s lanes weigh (kAxis): at index, index + 1, index + sw
+// and index + sw + 1 (kBoth), at index and index + 1 (kRows: the lower codes' weight is 0) or at
+// index and index + sw (kColumns), as 8 x int64 per half and code: d[h][k] in that order (any
+// value in lanes not `valid`; Join packs two halves into 16 x int32 with one permute). One plane
+// maps neighbouring reference pixels to nearby codes: when a half's 8 top-left codes lie within
+// 15 columns and two rows of each other, contiguous loads of 16 codes from the rows involved
+// (three at most; two along the rows) and in-register permutes fetch them, else gathers do.
+// (Epipolar lines that are not horizontal cross rows often: on the Middlebury temple ring, half of
+// the groups of 8 span two rows.) Both halves' windows are found at once, in vector registers.
+// `window` receives the first code of the low half's loads, or null when gathers fetched them.
+template <TapAxis kAxis>
 inline void Distances(const __m512i codes[2], const LaneTaps& t, __mmask16 valid, const uint64_t* src, int sw, int sh,
                       __m512i d[2][4], const uint64_t** window) {
+  constexpr bool kRight = kAxis != TapAxis::kColumns;  // a lane reads the code right of its own
+  constexpr bool kBelow = kAxis != TapAxis::kRows;     // and the one below
+  constexpr int kCodes = kRight && kBelow ? 4 : 2;
   *window = nullptr;
   auto count = [&](__m512i c, __m512i code) { return _mm512_popcnt_epi64(_mm512_xor_si512(c, code)); };
-  // Every lane within 15 columns and 2 rows of its half's window: the loads reach column
-  // x_min + 15 of row y_min + 2 (codes past a row's end are never picked).
-  const LaneWindows windows = WindowsOf(t, valid, sw, sh, 14, 3);
+  // The loads reach column x_min + 15 of row y_min + 1, or y_min + 2 with the codes below (codes
+  // past a row's end are never picked).
+  const LaneWindows windows = WindowsOf(t, valid, sw, sh, kRight ? 14 : 15, kBelow ? 3 : 2);
   const __m512i column = windows.column;
-  const __mmask16 fast = windows.fast, second = windows.second;
-  const int* starts = windows.starts;
-  // Lanes on the second row take it as their top and the third as their bottom (no branch: which
-  // lanes do is as good as random from one plane to the next).
+  // Lanes on the window's second row take it as their own and the third as the one below (no
+  // branch: which lanes do is as good as random from one plane to the next).
   for (int h = 0; h < 2; ++h) {
     const __mmask8 lanes = static_cast<__mmask8>(valid >> (8 * h));
     if (lanes == 0) {
-      for (int k = 0; k < 4; ++k) d[h][k] = _mm512_setzero_si512();
+      for (int k = 0; k < kCodes; ++k) d[h][k] = _mm512_setzero_si512();
       continue;
     }
-    if (static_cast<__mmask8>(fast >> (8 * h)) == 0xFF) {
+    if (static_cast<__mmask8>(windows.fast >> (8 * h)) == 0xFF) {
       const __m256i half_column = h == 0 ? _mm512_castsi512_si256(column) : _mm512_extracti64x4_epi64(column, 1);
       const __m512i at = _mm512_cvtepi32_epi64(half_column);
       const __m512i right = _mm512_add_epi64(at, _mm512_set1_epi64(1));
-      const uint64_t* r = src + starts[h];
+      const uint64_t* r = src + windows.starts[h];
       if (h == 0) *window = r;
+      const __mmask8 on_second = static_cast<__mmask8>(windows.second >> (8 * h));
       const __m512i a0 = _mm512_loadu_si512(r), a1 = _mm512_loadu_si512(r + 8);
       const __m512i b0 = _mm512_loadu_si512(r + sw), b1 = _mm512_loadu_si512(r + sw + 8);
-      const __m512i c0 = _mm512_loadu_si512(r + 2 * static_cast<size_t>(sw)), c1 = _mm512_loadu_si512(r + 2 * static_cast<size_t>(sw) + 8);
-      const __mmask8 on_second = static_cast<__mmask8>(second >> (8 * h));
-      __m512i top = _mm512_permutex2var_epi64(a0, at, a1), top_right = _mm512_permutex2var_epi64(a0, right, a1);
-      __m512i low = _mm512_permutex2var_epi64(b0, at, b1), low_right = _mm512_permutex2var_epi64(b0, right, b1);
-      top = _mm512_mask_mov_epi64(top, on_second, low);
-      top_right = _mm512_mask_mov_epi64(top_right, on_second, low_right);
-      low = _mm512_mask_mov_epi64(low, on_second, _mm512_permutex2var_epi64(c0, at, c1));
-      low_right = _mm512_mask_mov_epi64(low_right, on_second, _mm512_permutex2var_epi64(c0, right, c1));
-      d[h][0] = count(top, codes[h]);
-      d[h][1] = count(top_right, codes[h]);
-      d[h][2] = count(low, codes[h]);
-      d[h][3] = count(low_right, codes[h]);
-      continue;
-    }
-    const __m512i all = LaneIndex(t, sw);
-    const __m256i index = h == 0 ? _mm512_castsi512_si256(all) : _mm512_extracti64x4_epi64(all, 1);
-    const int offsets[4] = {0, 1, sw, sw + 1};
-    for (int k = 0; k < 4; ++k) {
-      const __m256i at = _mm256_add_epi32(index, _mm256_set1_epi32(offsets[k]));
-      d[h][k] = count(_mm512_mask_i32gather_epi64(_mm512_setzero_si512(), lanes, at, src, 8), codes[h]);
-    }
-  }
-}
-
-// Distances for a neighbour interpolated along one axis (TapAxis::kRows or kColumns): the codes
-// at each lane's index and the next one along the axis (index + 1, or index + sw), d[h][0] and
-// d[h][1] (Distances' other two are not needed: their weight is 0). Along the rows, each lane
-// reads one row, so the window is two rows of 16 codes (4 loads); along the columns, two rows, so
-// three rows as in Distances (6 loads). Either way half the permutes and popcounts of Distances.
-template <TapAxis kAxis>
-inline void DistancesAlongAxis(const __m512i codes[2], const LaneTaps& t, __mmask16 valid, const uint64_t* src, int sw, int sh,
-                               __m512i d[2][4], const uint64_t** window) {
-  constexpr bool kColumns = kAxis == TapAxis::kColumns;
-  *window = nullptr;
-  auto count = [&](__m512i c, __m512i code) { return _mm512_popcnt_epi64(_mm512_xor_si512(c, code)); };
-  // The loads reach column x_min + 15 of row y_min + 1 (along the columns: y_min + 2); along
-  // the rows a lane also reads the code right of its own, along the columns the one below.
-  const LaneWindows windows = WindowsOf(t, valid, sw, sh, kColumns ? 15 : 14, kColumns ? 3 : 2);
-  const __m512i column = windows.column;
-  const __mmask16 fast = windows.fast, second = windows.second;
-  const int* starts = windows.starts;
-  for (int h = 0; h < 2; ++h) {
-    const __mmask8 lanes = static_cast<__mmask8>(valid >> (8 * h));
-    if (lanes == 0) {
-      d[h][0] = d[h][1] = _mm512_setzero_si512();
-      continue;
-    }
-    if (static_cast<__mmask8>(fast >> (8 * h)) == 0xFF) {
-      const __m256i half_column = h == 0 ? _mm512_castsi512_si256(column) : _mm512_extracti64x4_epi64(column, 1);
-      const __m512i at = _mm512_cvtepi32_epi64(half_column);
-      const uint64_t* r = src + starts[h];
-      if (h == 0) *window = r;
-      const __mmask8 on_second = static_cast<__mmask8>(second >> (8 * h));
-      const __m512i a0 = _mm512_loadu_si512(r), a1 = _mm512_loadu_si512(r + 8);
-      const __m512i b0 = _mm512_loadu_si512(r + sw), b1 = _mm512_loadu_si512(r + sw + 8);
-      __m512i here, next;
-      if (kColumns) {
-        const __m512i c0 = _mm512_loadu_si512(r + 2 * static_cast<size_t>(sw)), c1 = _mm512_loadu_si512(r + 2 * static_cast<size_t>(sw) + 8);
-        const __m512i second_row = _mm512_permutex2var_epi64(b0, at, b1);
-        here = _mm512_mask_mov_epi64(_mm512_permutex2var_epi64(a0, at, a1), on_second, second_row);
-        next = _mm512_mask_mov_epi64(second_row, on_second, _mm512_permutex2var_epi64(c0, at, c1));
-      } else {
-        const __m512i right = _mm512_add_epi64(at, _mm512_set1_epi64(1));
-        here = _mm512_mask_mov_epi64(_mm512_permutex2var_epi64(a0, at, a1), on_second, _mm512_permutex2var_epi64(b0, at, b1));
-        next = _mm512_mask_mov_epi64(_mm512_permutex2var_epi64(a0, right, a1), on_second, _mm512_permutex2var_epi64(b0, right, b1));
+      const __m512i second_row = _mm512_permutex2var_epi64(b0, at, b1);
+      int k = 0;
+      d[h][k++] = count(_mm512_mask_mov_epi64(_mm512_permutex2var_epi64(a0, at, a1), on_second, second_row), codes[h]);
+      const __m512i second_row_right = kRight ? _mm512_permutex2var_epi64(b0, right, b1) : second_row;
+      if (kRight) {
+        d[h][k++] = count(_mm512_mask_mov_epi64(_mm512_permutex2var_epi64(a0, right, a1), on_second, second_row_right), codes[h]);
       }
-      d[h][0] = count(here, codes[h]);
-      d[h][1] = count(next, codes[h]);
+      if (kBelow) {
+        const __m512i c0 = _mm512_loadu_si512(r + 2 * static_cast<size_t>(sw)), c1 = _mm512_loadu_si512(r + 2 * static_cast<size_t>(sw) + 8);
+        d[h][k++] = count(_mm512_mask_mov_epi64(second_row, on_second, _mm512_permutex2var_epi64(c0, at, c1)), codes[h]);
+        if (kRight) {
+          d[h][k++] = count(_mm512_mask_mov_epi64(second_row_right, on_second, _mm512_permutex2var_epi64(c0, right, c1)), codes[h]);
+        }
+      }
       continue;
     }
     const __m512i all = LaneIndex(t, sw);
     const __m256i index = h == 0 ? _mm512_castsi512_si256(all) : _mm512_extracti64x4_epi64(all, 1);
-    for (int k = 0; k < 2; ++k) {
-      const __m256i at = _mm256_add_epi32(index, _mm256_set1_epi32(k == 0 ? 0 : kColumns ? sw : 1));
+    const int offsets[4] = {0, kRight ? 1 : sw, sw, sw + 1};
+    for (int k = 0; k < kCodes; ++k) {
+      const __m256i at = _mm256_add_epi32(index, _mm256_set1_epi32(offsets[k]));
       d[h][k] = count(_mm512_mask_i32gather_epi64(_mm512_setzero_si512(), lanes, at, src, 8), codes[h]);
     }
   }
@@ -1389,11 +1340,11 @@ void BestKCostsAcrossPixels(const uint64_t* ref_codes, int count, const LaneNeig
       __m512i d[2][4];
       const uint64_t* window;
       if (g.axis == TapAxis::kRows) {
-        DistancesAlongAxis<TapAxis::kRows>(codes, t, valid, g.codes, g.width, g.height, d, &window);
+        Distances<TapAxis::kRows>(codes, t, valid, g.codes, g.width, g.height, d, &window);
       } else if (g.axis == TapAxis::kColumns) {
-        DistancesAlongAxis<TapAxis::kColumns>(codes, t, valid, g.codes, g.width, g.height, d, &window);
+        Distances<TapAxis::kColumns>(codes, t, valid, g.codes, g.width, g.height, d, &window);
       } else {
-        Distances(codes, t, valid, g.codes, g.width, g.height, d, &window);
+        Distances<TapAxis::kBoth>(codes, t, valid, g.codes, g.width, g.height, d, &window);
       }
       if (window == nullptr) {
         previous_window[i] = -1;
