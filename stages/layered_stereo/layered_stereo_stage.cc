@@ -7,6 +7,7 @@
 #include <tbb/task_arena.h>
 
 #include <algorithm>
+#include <cmath>
 #include <filesystem>
 #include <opencv2/imgproc.hpp>
 
@@ -269,6 +270,15 @@ class LayeredStereoStage : public Stage {
           }
           size_t unmatched = 0;
           for (const TruthPlane& layer : as_truth) unmatched += !near_enough(NearestTruthPlane(layer.plane, visible, centre), 5.0, 0.05);
+          // The share of the view with depth: RANSAC's samples come from it, so a plane needs
+          // min_layer_fraction of it (its pixel_fraction x depth_coverage / depth_fraction).
+          size_t with_depth_pixels = 0;
+          for (int y = 0; y < reference.depth.rows; ++y)
+            for (int x = 0; x < reference.depth.cols; ++x) {
+              const float z = reference.depth.at<float>(y, x);
+              with_depth_pixels += z > 0 && std::isfinite(z);
+            }
+          piece["depth_fraction"] = static_cast<double>(with_depth_pixels) / std::max(1, reference.depth.rows * reference.depth.cols);
           piece["truth_visible_planes"] = visible.size();
           piece["truth_planes_with_depth"] = with_depth;
           piece["truth_plane_errors"] = errors;

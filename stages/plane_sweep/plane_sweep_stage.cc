@@ -119,7 +119,7 @@ class PlaneSweepStage : public Stage {
         {"census_radius_x", ParamType::kInt, s(d.census_radius_x), "Census half width, pixels"},
         {"census_radius_y", ParamType::kInt, s(d.census_radius_y), "Census half height, pixels"},
         {"census_sampling", ParamType::kString, "epipolar",
-         "Census cost between pixels: linear along the epipolar line (2 codes) or bilinear (4 codes, slower)",
+         "Census cost between pixels: linear along the epipolar line (2 codes) or bilinear (4 codes; slower with AVX-512)",
          {"epipolar", "bilinear"}},
         {"window_radius", ParamType::kInt, s(d.window_radius), "Box window radius of the cost, pixels, [0, 15]"},
         {"aggregation", ParamType::kString, "semi_global", "Cost aggregation after the box window", kAggregationNames},

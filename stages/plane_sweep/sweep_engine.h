@@ -37,7 +37,8 @@ enum class Cost { kCensus, kSad, kZncc };
 //    it. From plane to plane the correspondence moves along the epipolar line, so the cost curve
 //    is as smooth in the plane index as the bilinear one's where it matters for the sub-plane
 //    parabola; across the line the nearest code is a fixed offset of at most half a pixel, which
-//    the census window's 9 x 7 pixels absorb. Half the codes, loads and popcounts of kBilinear.
+//    the census window's 9 x 7 pixels absorb. The AVX-512 build's lane kernel then reads half
+//    the codes of kBilinear (the other builds read four, two of them weighted 0: same costs).
 //  * kBilinear: the four codes around it, weighted bilinearly.
 // Rectified pairs (integer shifts) read one code either way.
 enum class CensusSampling { kAlongEpipolar, kBilinear };

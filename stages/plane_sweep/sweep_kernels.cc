@@ -914,8 +914,10 @@ inline void StoreTap(float z, float u, float v, float max_u, float max_v, int sw
   int x0 = static_cast<int>(uc), y0 = static_cast<int>(vc);
   taps->wx[p] = static_cast<int32_t>((uc - static_cast<float>(x0)) * kWeightOne + 0.5f);
   taps->wy[p] = static_cast<int32_t>((vc - static_cast<float>(y0)) * kWeightOne + 0.5f);
-  if (axis == TapAxis::kRows) y0 = static_cast<int>(vc + 0.5f), taps->wy[p] = 0;
-  if (axis == TapAxis::kColumns) x0 = static_cast<int>(uc + 0.5f), taps->wx[p] = 0;
+  // The nearest row (column), at most the one before the last: a coordinate just below the limit
+  // (sh - 1.5) can round up to the last one (at sh = 2, v + 0.5f gives 1 from 0.49999997).
+  if (axis == TapAxis::kRows) y0 = std::min(static_cast<int>(vc + 0.5f), static_cast<int>(max_v)), taps->wy[p] = 0;
+  if (axis == TapAxis::kColumns) x0 = std::min(static_cast<int>(uc + 0.5f), static_cast<int>(max_u)), taps->wx[p] = 0;
   taps->index[p] = inside ? y0 * sw + x0 : -1;
 }
 
@@ -941,8 +943,14 @@ inline LaneTaps TapsOf(__m512 z, __m512 u, __m512 v, float max_u, float max_v, T
   t.wy = _mm512_cvttps_epi32(_mm512_add_ps(_mm512_mul_ps(ay, one), half));
   t.column = x0;
   t.row = y0;
-  if (axis == TapAxis::kRows) t.row = _mm512_cvttps_epi32(_mm512_add_ps(vc, half)), t.wy = _mm512_setzero_si512();
-  if (axis == TapAxis::kColumns) t.column = _mm512_cvttps_epi32(_mm512_add_ps(uc, half)), t.wx = _mm512_setzero_si512();
+  if (axis == TapAxis::kRows) {  // StoreTap's steps
+    t.row = _mm512_min_epi32(_mm512_cvttps_epi32(_mm512_add_ps(vc, half)), _mm512_set1_epi32(static_cast<int>(max_v)));
+    t.wy = _mm512_setzero_si512();
+  }
+  if (axis == TapAxis::kColumns) {
+    t.column = _mm512_min_epi32(_mm512_cvttps_epi32(_mm512_add_ps(uc, half)), _mm512_set1_epi32(static_cast<int>(max_u)));
+    t.wx = _mm512_setzero_si512();
+  }
   return t;
 }
 
@@ -971,8 +979,14 @@ inline void StoreTaps8(__m256 z, __m256 u, __m256 v, float max_u, float max_v, i
   const __m256 ax = _mm256_sub_ps(uc, _mm256_cvtepi32_ps(x0)), ay = _mm256_sub_ps(vc, _mm256_cvtepi32_ps(y0));
   __m256i wx = _mm256_cvttps_epi32(_mm256_add_ps(_mm256_mul_ps(ax, one), half));
   __m256i wy = _mm256_cvttps_epi32(_mm256_add_ps(_mm256_mul_ps(ay, one), half));
-  if (axis == TapAxis::kRows) y0 = _mm256_cvttps_epi32(_mm256_add_ps(vc, half)), wy = _mm256_setzero_si256();
-  if (axis == TapAxis::kColumns) x0 = _mm256_cvttps_epi32(_mm256_add_ps(uc, half)), wx = _mm256_setzero_si256();
+  if (axis == TapAxis::kRows) {  // StoreTap's steps
+    y0 = _mm256_min_epi32(_mm256_cvttps_epi32(_mm256_add_ps(vc, half)), _mm256_set1_epi32(static_cast<int>(max_v)));
+    wy = _mm256_setzero_si256();
+  }
+  if (axis == TapAxis::kColumns) {
+    x0 = _mm256_min_epi32(_mm256_cvttps_epi32(_mm256_add_ps(uc, half)), _mm256_set1_epi32(static_cast<int>(max_u)));
+    wx = _mm256_setzero_si256();
+  }
   _mm256_storeu_si256(reinterpret_cast<__m256i*>(taps->wx.data() + p), wx);
   _mm256_storeu_si256(reinterpret_cast<__m256i*>(taps->wy.data() + p), wy);
   const __m256i at = _mm256_add_epi32(_mm256_mullo_epi32(y0, _mm256_set1_epi32(sw)), x0);
@@ -1492,11 +1506,6 @@ inline bool LimitToRange(int first, int last, int np, int stride, uint16_t* c) {
   return true;
 }
 
-// Census costs of all neighbours, combined by best-k: the mean of the k smallest costs per plane.
-// With `ranges`, only the blocks of 16 planes that meet a pixel's range are evaluated, and each
-// pixel is then limited to its range (LimitToRange, as ApplyRanges would, while its costs are in
-// the first-level cache; `unmatched` marks the empty ones). Returns the evaluations done (counted
-// per pixel over its own blocks) and the threads' CPU time spent on them.
 // The axis a neighbour's census cost is interpolated along (CensusSampling::kAlongEpipolar): the
 // one its correspondences move along more, from the first plane to the last, for the reference
 // pixel at the centre of the neighbour's image (the views of a sweep share a size in practice; a
@@ -1517,6 +1526,11 @@ TapAxis InterpolationAxis(const std::vector<Eigen::Matrix3d>& homographies, int 
   return std::abs(u1 - u0) >= std::abs(v1 - v0) ? TapAxis::kRows : TapAxis::kColumns;
 }
 
+// Census costs of all neighbours, combined by best-k: the mean of the k smallest costs per plane.
+// With `ranges`, only the blocks of 16 planes that meet a pixel's range are evaluated, and each
+// pixel is then limited to its range (LimitToRange, as ApplyRanges would, while its costs are in
+// the first-level cache; `unmatched` marks the empty ones). Returns the evaluations done (counted
+// per pixel over its own blocks) and the threads' CPU time spent on them.
 VolumeWork BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector<const std::vector<uint64_t>*>& src,
                              const std::vector<Neighbour>& neighbours, int k, CensusSampling sampling, const PlaneRanges* ranges,
                              cv::Point origin, CostVolume* v) {
