@@ -35,7 +35,7 @@ TEST(LayeredRoom, ThePlanesWithDepthAreRecoveredAndTheLayersPredictHeldOutViews)
     // Each true plane with depth on half its pixels has a layer, unless those pixels are fewer
     // than a layer needs (min_layer_fraction of the view's pixels with depth, which RANSAC
     // samples): the box's top, 2.5% of view 012 and half hidden, has depth on 0.496-0.5 of it
-    // depending on the sweep's sampling, 1.5% of the pixels with depth. Those covering 5% of the
+    // depending on the sweep's sampling, 1.7% of the pixels with depth. Those covering 5% of the
     // view have it within 1 degree and 1%.
     const double min_layer_fraction = record["params"]["min_layer_fraction"];
     const double depth_fraction = view["depth_fraction"];
