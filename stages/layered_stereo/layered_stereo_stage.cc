@@ -7,8 +7,8 @@
 #include <tbb/task_arena.h>
 
 #include <algorithm>
-#include <cmath>
 #include <filesystem>
+#include <limits>
 #include <opencv2/imgproc.hpp>
 
 #include "pipeline/core/colmap_array_io.h"
@@ -28,6 +28,8 @@ namespace fs = std::filesystem;
 namespace ibmr {
 
 namespace {
+
+constexpr float kInfinity = std::numeric_limits<float>::infinity();
 
 Eigen::Vector3d CentreOf(const Image& image) { return -(image.cam_from_world.R().transpose() * image.cam_from_world.translation); }
 Eigen::Vector3d AxisOf(const Image& image) { return image.cam_from_world.R().transpose() * Eigen::Vector3d::UnitZ(); }
@@ -272,12 +274,7 @@ class LayeredStereoStage : public Stage {
           for (const TruthPlane& layer : as_truth) unmatched += !near_enough(NearestTruthPlane(layer.plane, visible, centre), 5.0, 0.05);
           // The share of the view with depth: RANSAC's samples come from it, so a plane needs
           // min_layer_fraction of it (its pixel_fraction x depth_coverage / depth_fraction).
-          size_t with_depth_pixels = 0;
-          for (int y = 0; y < reference.depth.rows; ++y)
-            for (int x = 0; x < reference.depth.cols; ++x) {
-              const float z = reference.depth.at<float>(y, x);
-              with_depth_pixels += z > 0 && std::isfinite(z);
-            }
+          const int with_depth_pixels = cv::countNonZero((reference.depth > 0) & (reference.depth < kInfinity));
           piece["depth_fraction"] = static_cast<double>(with_depth_pixels) / std::max(1, reference.depth.rows * reference.depth.cols);
           piece["truth_visible_planes"] = visible.size();
           piece["truth_planes_with_depth"] = with_depth;

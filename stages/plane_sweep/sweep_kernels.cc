@@ -1136,13 +1136,18 @@ void ComputeAffineTaps(const AffineFamily& f, int p0, int p1, float xc, float yc
 #if IBMR_SWEEP_AVX512
 // The bilinear census cost of 16 lanes from the Hamming distances to the four codes around the
 // correspondence (CensusCosts' formula), kOutsideCost where not `valid`, as 16 x uint16.
+// a (1 - w) + b w in fixed point (w in 1/kWeightOne): a kWeightOne + (b - a) w.
+inline __m512i Lerp(__m512i a, __m512i b, __m512i w) {
+  return _mm512_add_epi32(_mm512_slli_epi32(a, kWeightShift), _mm512_mullo_epi32(_mm512_sub_epi32(b, a), w));
+}
+// A weighted sum of `shift` fractional bits as cost units (16 a bit), rounded; kOutsideCost where
+// not `valid`; as 16 x uint16.
+inline __m256i CostUnits(__m512i sum, int shift, __mmask16 valid) {
+  const __m512i round = _mm512_set1_epi32(1 << (shift - 5)), outside = _mm512_set1_epi32(kOutsideCost);
+  return _mm512_cvtepi32_epi16(_mm512_mask_blend_epi32(valid, outside, _mm512_srai_epi32(_mm512_add_epi32(sum, round), shift - 4)));
+}
 inline __m256i BilinearCost(__m512i d00, __m512i d01, __m512i d10, __m512i d11, __m512i wx, __m512i wy, __mmask16 valid) {
-  const __m512i round = _mm512_set1_epi32(1 << (2 * kWeightShift - 5)), outside = _mm512_set1_epi32(kOutsideCost);
-  const __m512i top = _mm512_add_epi32(_mm512_slli_epi32(d00, kWeightShift), _mm512_mullo_epi32(_mm512_sub_epi32(d01, d00), wx));
-  const __m512i bottom = _mm512_add_epi32(_mm512_slli_epi32(d10, kWeightShift), _mm512_mullo_epi32(_mm512_sub_epi32(d11, d10), wx));
-  const __m512i sum = _mm512_add_epi32(_mm512_slli_epi32(top, kWeightShift), _mm512_mullo_epi32(_mm512_sub_epi32(bottom, top), wy));
-  const __m512i cost = _mm512_mask_blend_epi32(valid, outside, _mm512_srai_epi32(_mm512_add_epi32(sum, round), 2 * kWeightShift - 4));
-  return _mm512_cvtepi32_epi16(cost);
+  return CostUnits(Lerp(Lerp(d00, d01, wx), Lerp(d10, d11, wx), wy), 2 * kWeightShift, valid);
 }
 
 // Where the contiguous loads of a group of 16 lanes' codes start: each half's (8 lanes') window
@@ -1243,10 +1248,7 @@ inline void Distances(const __m512i codes[2], const LaneTaps& t, __mmask16 valid
 // BilinearCost with one weight 0, `w` the other (the same integers: with wy = 0,
 // (256 top + 2^11) >> 12 = (top + 8) >> 4; with wx = 0, top = 256 d00 and bottom = 256 d10).
 inline __m256i LinearCost(__m512i d0, __m512i d1, __m512i w, __mmask16 valid) {
-  const __m512i round = _mm512_set1_epi32(1 << (kWeightShift - 5)), outside = _mm512_set1_epi32(kOutsideCost);
-  const __m512i top = _mm512_add_epi32(_mm512_slli_epi32(d0, kWeightShift), _mm512_mullo_epi32(_mm512_sub_epi32(d1, d0), w));
-  const __m512i cost = _mm512_mask_blend_epi32(valid, outside, _mm512_srai_epi32(_mm512_add_epi32(top, round), kWeightShift - 4));
-  return _mm512_cvtepi32_epi16(cost);
+  return CostUnits(Lerp(d0, d1, w), kWeightShift, valid);
 }
 
 // The low halves of the 64-bit lanes of `low` and `high` as 16 x int32 (lanes 0-7 from `low`).
@@ -1263,6 +1265,7 @@ struct LaneNeighbour {
   const AffineFamily* family = nullptr;
   const float* hom = nullptr;
   TapAxis axis = TapAxis::kBoth;
+  float max_u = 0, max_v = 0;  // TapLimits(axis, width, height)
 };
 
 // Best-k census costs of 16 consecutive reference pixels x0..x0+15 of row y (the first `count` of
@@ -1329,9 +1332,7 @@ void BestKCostsAcrossPixels(const uint64_t* ref_codes, int count, const LaneNeig
         u = _mm512_sub_ps(_mm512_div_ps(image(m, 0), z), half);
         v = _mm512_sub_ps(_mm512_div_ps(image(m, 3), z), half);
       }
-      float max_u, max_v;
-      TapLimits(g.axis, g.width, g.height, &max_u, &max_v);
-      taps[i] = TapsOf(z, u, v, max_u, max_v, g.axis);
+      taps[i] = TapsOf(z, u, v, g.max_u, g.max_v, g.axis);
     }
   };
   // The planes in a software pipeline: the taps of plane p + 1 are computed before plane p's codes
@@ -1574,6 +1575,7 @@ VolumeWork BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector
   for (size_t i = 0; i < lane_neighbours.size(); ++i) {
     lane_neighbours[i] = {src[i]->data(), neighbours[i].gray.cols, neighbours[i].gray.rows, affine[i] ? &family[i] : nullptr,
                           hom[i].data(), axis[i]};
+    TapLimits(axis[i], lane_neighbours[i].width, lane_neighbours[i].height, &lane_neighbours[i].max_u, &lane_neighbours[i].max_v);
   }
 #endif
   if (ranges != nullptr) v->unmatched.assign(static_cast<size_t>(w) * h, 0);
