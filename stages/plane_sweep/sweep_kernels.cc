@@ -1585,8 +1585,16 @@ VolumeWork BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector
   // over the chunk: the codes one neighbour's correspondences read for a chunk stay in the
   // first-level cache (pixel by pixel with every neighbour inside, the four neighbours' paths
   // together overflowed it). The lane kernel takes the chunk's 16 pixels at once.
+  // The rows come in tiles of 4-8 (simple_partitioner, grain 8), swept chunk by chunk down the
+  // tile's rows before the next chunk. The codes a chunk reads over all its planes form a strip
+  // along the epipolar lines, and the chunk below reads nearly the same strip. Where the lines run
+  // along the neighbour's columns (templeSparseRing: the strip spans ~100 rows of the neighbour, a
+  // few cache lines on each), the four neighbours' strips exceed the first-level cache but stay in
+  // the second-level one between the tile's rows. Row by row across the whole image, they were
+  // fetched from the third-level cache again for every row: 16% more time for the evaluations
+  // (830 -> 967 M/s over 4 alternated pairs), no change where the lines run along the rows.
   constexpr int kChunk = 16;
-  tbb::parallel_for(tbb::blocked_range<int>(0, h, 4), [&](const tbb::blocked_range<int>& rows) {
+  tbb::parallel_for(tbb::blocked_range<int>(0, h, 8), [&](const tbb::blocked_range<int>& rows) {
     const double started = ThreadCpuSeconds();
     // Per neighbour, n planes of kChunk pixels, [j][i][p]; across pixels, only the combined costs,
     // [p][j] in `lane_mean`.
@@ -1598,8 +1606,8 @@ VolumeWork BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector
     Taps taps;
     if (!across_pixels) taps.Resize(n);
     int64_t& done = evaluations.local();
-    for (int y = rows.begin(); y < rows.end(); ++y) {
-      for (int x0 = 0; x0 < w; x0 += kChunk) {
+    for (int x0 = 0; x0 < w; x0 += kChunk) {
+      for (int y = rows.begin(); y < rows.end(); ++y) {
         const int count = std::min(kChunk, w - x0);
         // The chunk's costs, into the volume.
         [&] {
@@ -1673,7 +1681,7 @@ VolumeWork BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector
       }
     }
     thread_seconds.local() += ThreadCpuSeconds() - started;
-  });
+  }, tbb::simple_partitioner());
   return {evaluations.combine(std::plus<int64_t>()), thread_seconds.combine(std::plus<double>())};
 }
 
