@@ -1189,14 +1189,12 @@ inline LaneWindows WindowsOf(const LaneTaps& t, __mmask16 valid, int sw, int sh,
 // (three at most; two along the rows) and in-register permutes fetch them, else gathers do.
 // (Epipolar lines that are not horizontal cross rows often: on the Middlebury temple ring, half of
 // the groups of 8 span two rows.) Both halves' windows are found at once, in vector registers.
-// `window` receives the first code of the low half's loads, or null when gathers fetched them.
 template <TapAxis kAxis>
 inline void Distances(const __m512i codes[2], const LaneTaps& t, __mmask16 valid, const uint64_t* src, int sw, int sh,
-                      __m512i d[2][4], const uint64_t** window) {
+                      __m512i d[2][4]) {
   constexpr bool kRight = kAxis != TapAxis::kColumns;  // a lane reads the code right of its own
   constexpr bool kBelow = kAxis != TapAxis::kRows;     // and the one below
   constexpr int kCodes = kRight && kBelow ? 4 : 2;
-  *window = nullptr;
   auto count = [&](__m512i c, __m512i code) { return _mm512_popcnt_epi64(_mm512_xor_si512(c, code)); };
   // The loads reach column x_min + 15 of row y_min + 1, or y_min + 2 with the codes below (codes
   // past a row's end are never picked).
@@ -1215,7 +1213,6 @@ inline void Distances(const __m512i codes[2], const LaneTaps& t, __mmask16 valid
       const __m512i at = _mm512_cvtepi32_epi64(half_column);
       const __m512i right = _mm512_add_epi64(at, _mm512_set1_epi64(1));
       const uint64_t* r = src + windows.starts[h];
-      if (h == 0) *window = r;
       const __mmask8 on_second = static_cast<__mmask8>(windows.second >> (8 * h));
       const __m512i a0 = _mm512_loadu_si512(r), a1 = _mm512_loadu_si512(r + 8);
       const __m512i b0 = _mm512_loadu_si512(r + sw), b1 = _mm512_loadu_si512(r + sw + 8);
@@ -1303,17 +1300,6 @@ void BestKCostsAcrossPixels(const uint64_t* ref_codes, int count, const LaneNeig
     affine[i] = {image(f->base, 0), image(f->step, 0), image(f->base, 3), image(f->step, 3), image(f->base, 6), image(f->step, 6)};
   }
   const __m512 k_float = _mm512_set1_ps(static_cast<float>(k));
-  // Prefetching: one plane moves the 16 pixels' window of codes along the epipolar line by about
-  // as much as the last did, often by a row (for nearly vertical lines), which the hardware
-  // prefetchers do not foresee as the neighbours take turns. Each neighbour's window of the next
-  // plane is fetched ahead, extrapolated from the low half's last two windows: three cache lines
-  // on each of three rows (the low half's 16 codes at any alignment and most of the high half's).
-  // -1: no window of the last plane (its loads were gathers).
-  ptrdiff_t previous_window[16], code_count[16];
-  for (int i = 0; i < nn; ++i) {
-    previous_window[i] = -1;
-    code_count[i] = static_cast<ptrdiff_t>(neighbours[i].width) * neighbours[i].height;
-  }
   // Every neighbour's taps of plane p, into `taps`.
   auto plane_taps = [&](int p, LaneTaps* taps) {
     const __m512 pf = _mm512_set1_ps(static_cast<float>(p));
@@ -1353,29 +1339,12 @@ void BestKCostsAcrossPixels(const uint64_t* ref_codes, int count, const LaneNeig
       const LaneTaps& t = taps[i];
       const __mmask16 valid = t.inside & exist;
       __m512i d[2][4];
-      const uint64_t* window;
       if (g.axis == TapAxis::kRows) {
-        Distances<TapAxis::kRows>(codes, t, valid, g.codes, g.width, g.height, d, &window);
+        Distances<TapAxis::kRows>(codes, t, valid, g.codes, g.width, g.height, d);
       } else if (g.axis == TapAxis::kColumns) {
-        Distances<TapAxis::kColumns>(codes, t, valid, g.codes, g.width, g.height, d, &window);
+        Distances<TapAxis::kColumns>(codes, t, valid, g.codes, g.width, g.height, d);
       } else {
-        Distances<TapAxis::kBoth>(codes, t, valid, g.codes, g.width, g.height, d, &window);
-      }
-      if (window == nullptr) {
-        previous_window[i] = -1;
-      } else {
-        // The window of the next plane: where this one moved from the last, once more. The last
-        // line fetched starts 16 codes past the third row's start and holds 8 codes.
-        const ptrdiff_t window_offset = window - g.codes, predicted = window_offset + (window_offset - previous_window[i]);
-        if (previous_window[i] >= 0 && predicted >= 0 && predicted + 2 * static_cast<ptrdiff_t>(g.width) + 24 <= code_count[i]) {
-          for (int row = 0; row < 3; ++row) {
-            const char* line = reinterpret_cast<const char*>(g.codes + predicted + static_cast<ptrdiff_t>(row) * g.width);
-            _mm_prefetch(line, _MM_HINT_T0);
-            _mm_prefetch(line + 64, _MM_HINT_T0);
-            _mm_prefetch(line + 128, _MM_HINT_T0);
-          }
-        }
-        previous_window[i] = window_offset;
+        Distances<TapAxis::kBoth>(codes, t, valid, g.codes, g.width, g.height, d);
       }
       __m256i cost = g.axis != TapAxis::kBoth
                          ? LinearCost(Join(d[0][0], d[1][0]), Join(d[0][1], d[1][1]), g.axis == TapAxis::kRows ? t.wx : t.wy, valid)
@@ -1499,6 +1468,7 @@ inline bool LimitToRange(int first, int last, int np, int stride, uint16_t* c) {
     std::fill(c, c + stride, kOutsideCost);
     return false;
   }
+  if (first == 0 && last == np - 1) return true;  // every plane in range: nothing to fill
   uint32_t sum = 0;
   for (int p = first; p <= last; ++p) sum += c[p];
   const uint16_t mean = static_cast<uint16_t>(sum / (last - first + 1));
