@@ -1265,6 +1265,9 @@ inline __m512i Join(__m512i low, __m512i high) {
   return _mm512_permutex2var_epi32(low, even, high);
 }
 
+// BestKCostsAcrossPixels' kAxisMode: a TapAxis (as int) that every neighbour has, or this.
+constexpr int kMixedAxes = 3;
+
 // A neighbour as BestKCostsAcrossPixels reads it: its codes, and its homographies, either an
 // affine family or rows of n planes.
 struct LaneNeighbour {
@@ -1284,8 +1287,9 @@ struct LaneNeighbour {
 // CensusCosts' integer formula, and the k lowest and their mean are the same integers as
 // BestKMean's, lane by lane: the results are identical to the other builds'. The neighbours'
 // costs of a plane never leave the registers. K: k fixed at compile time (1-3), so that the k
-// lowest stay in registers; K == 0: k = runtime_k.
-template <int K>
+// lowest stay in registers; K == 0: k = runtime_k. kAxisMode: the neighbours' TapAxis when they
+// all share one (as usual: the branches on it fold), else kMixedAxes.
+template <int K, int kAxisMode>
 void BestKCostsAcrossPixels(const uint64_t* ref_codes, int count, const LaneNeighbour* neighbours, int nn, int runtime_k,
                             int k_shift, int n, int p0, int p1, int x0, int y, uint16_t* out) {
   const int k = K > 0 ? K : runtime_k;
@@ -1329,7 +1333,7 @@ void BestKCostsAcrossPixels(const uint64_t* ref_codes, int count, const LaneNeig
         u = _mm512_sub_ps(_mm512_div_ps(image(m, 0), z), half);
         v = _mm512_sub_ps(_mm512_div_ps(image(m, 3), z), half);
       }
-      taps[i] = TapsOf(z, u, v, g.max_u, g.max_v, g.axis);
+      taps[i] = TapsOf(z, u, v, g.max_u, g.max_v, kAxisMode == kMixedAxes ? g.axis : static_cast<TapAxis>(kAxisMode));
     }
   };
   // The planes in a software pipeline: the taps of plane p + 1 are computed before plane p's codes
@@ -1350,15 +1354,16 @@ void BestKCostsAcrossPixels(const uint64_t* ref_codes, int count, const LaneNeig
       const LaneTaps& t = taps[i];
       const __mmask16 valid = t.inside & exist;
       __m512i d[2][4];
-      if (g.axis == TapAxis::kRows) {
+      const TapAxis axis = kAxisMode == kMixedAxes ? g.axis : static_cast<TapAxis>(kAxisMode);
+      if (axis == TapAxis::kRows) {
         Distances<TapAxis::kRows>(codes, t, valid, g.codes, g.width, g.height, d);
-      } else if (g.axis == TapAxis::kColumns) {
+      } else if (axis == TapAxis::kColumns) {
         Distances<TapAxis::kColumns>(codes, t, valid, g.codes, g.width, g.height, d);
       } else {
         Distances<TapAxis::kBoth>(codes, t, valid, g.codes, g.width, g.height, d);
       }
-      __m256i cost = g.axis != TapAxis::kBoth
-                         ? LinearCost(Join(d[0][0], d[1][0]), Join(d[0][1], d[1][1]), g.axis == TapAxis::kRows ? t.wx : t.wy, valid)
+      __m256i cost = axis != TapAxis::kBoth
+                         ? LinearCost(Join(d[0][0], d[1][0]), Join(d[0][1], d[1][1]), axis == TapAxis::kRows ? t.wx : t.wy, valid)
                          : BilinearCost(Join(d[0][0], d[1][0]), Join(d[0][1], d[1][1]), Join(d[0][2], d[1][2]),
                                                Join(d[0][3], d[1][3]), t.wx, t.wy, valid);
       if (k == nn) {
@@ -1548,10 +1553,20 @@ VolumeWork BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector
   bool across_pixels = IBMR_SWEEP_AVX512 != 0 && nn <= 16;
   for (int i = 0; i < nn; ++i) across_pixels &= shift[i].empty();
 #if IBMR_SWEEP_AVX512
-  auto* const lane_kernel = k == 1   ? &BestKCostsAcrossPixels<1>
-                            : k == 2 ? &BestKCostsAcrossPixels<2>
-                            : k == 3 ? &BestKCostsAcrossPixels<3>
-                                     : &BestKCostsAcrossPixels<0>;
+  // The kernel for k and the neighbours' interpolation axis (one for all, as usual, or mixed).
+  int axis_mode = nn > 0 ? static_cast<int>(axis[0]) : 0;
+  for (int i = 1; i < nn; ++i) axis_mode = axis[i] == axis[0] ? axis_mode : kMixedAxes;
+  auto kernel_for_axes = [axis_mode](auto k_constant) {
+    constexpr int kK = decltype(k_constant)::value;
+    return axis_mode == 0   ? &BestKCostsAcrossPixels<kK, 0>
+           : axis_mode == 1 ? &BestKCostsAcrossPixels<kK, 1>
+           : axis_mode == 2 ? &BestKCostsAcrossPixels<kK, 2>
+                            : &BestKCostsAcrossPixels<kK, kMixedAxes>;
+  };
+  auto* const lane_kernel = k == 1   ? kernel_for_axes(std::integral_constant<int, 1>())
+                            : k == 2 ? kernel_for_axes(std::integral_constant<int, 2>())
+                            : k == 3 ? kernel_for_axes(std::integral_constant<int, 3>())
+                                     : kernel_for_axes(std::integral_constant<int, 0>());
   std::vector<LaneNeighbour> lane_neighbours(across_pixels ? nn : 0);
   for (size_t i = 0; i < lane_neighbours.size(); ++i) {
     lane_neighbours[i] = {src[i]->data(), neighbours[i].gray.cols, neighbours[i].gray.rows, affine[i] ? &family[i] : nullptr,
