@@ -8,7 +8,6 @@
 
 #include <algorithm>
 #include <filesystem>
-#include <limits>
 #include <opencv2/imgproc.hpp>
 
 #include "pipeline/core/colmap_array_io.h"
@@ -28,8 +27,6 @@ namespace fs = std::filesystem;
 namespace ibmr {
 
 namespace {
-
-constexpr float kInfinity = std::numeric_limits<float>::infinity();
 
 Eigen::Vector3d CentreOf(const Image& image) { return -(image.cam_from_world.R().transpose() * image.cam_from_world.translation); }
 Eigen::Vector3d AxisOf(const Image& image) { return image.cam_from_world.R().transpose() * Eigen::Vector3d::UnitZ(); }
@@ -273,8 +270,9 @@ class LayeredStereoStage : public Stage {
           size_t unmatched = 0;
           for (const TruthPlane& layer : as_truth) unmatched += !near_enough(NearestTruthPlane(layer.plane, visible, centre), 5.0, 0.05);
           // The share of the view with depth: RANSAC's samples come from it, so a plane needs
-          // min_layer_fraction of it (its pixel_fraction x depth_coverage / depth_fraction).
-          const int with_depth_pixels = cv::countNonZero((reference.depth > 0) & (reference.depth < kInfinity));
+          // min_layer_fraction of it (its pixel_fraction x depth_coverage / depth_fraction). A
+          // LayerView's depth is finite, 0 where none (`load` above).
+          const int with_depth_pixels = cv::countNonZero(reference.depth > 0);
           piece["depth_fraction"] = static_cast<double>(with_depth_pixels) / std::max(1, reference.depth.rows * reference.depth.cols);
           piece["truth_visible_planes"] = visible.size();
           piece["truth_planes_with_depth"] = with_depth;
