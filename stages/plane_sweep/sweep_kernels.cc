@@ -908,16 +908,24 @@ struct Taps {
 // The taps of plane p from its correspondence (u, v) (pixel centres at integers) and depth z: the
 // top-left code's index (-1 outside the neighbour or behind it) and the weights (`axis`).
 // Outside (even NaN) coordinates become 0 before the conversion, which stays defined.
+// One coordinate c (every build takes these steps, lane by lane): across the axis (`nearest`),
+// the nearest code with weight 0, at most `max`, the one before the last: a coordinate just below
+// the limit (sh - 1.5) can round up to the last one (at sh = 2, v + 0.5f gives 1 from
+// 0.49999997); else the code below c and the next one's weight.
+inline void CoordinateTap(float c, float max, bool nearest, int* code, int32_t* weight) {
+  if (nearest) {
+    *code = std::min(static_cast<int>(c + 0.5f), static_cast<int>(max));
+    *weight = 0;
+  } else {
+    *code = static_cast<int>(c);
+    *weight = static_cast<int32_t>((c - static_cast<float>(*code)) * kWeightOne + 0.5f);
+  }
+}
 inline void StoreTap(float z, float u, float v, float max_u, float max_v, int sw, int p, TapAxis axis, Taps* taps) {
   const bool inside = z > 0 && u >= 0 && v >= 0 && u < max_u && v < max_v;
-  const float uc = inside ? u : 0.f, vc = inside ? v : 0.f;
-  int x0 = static_cast<int>(uc), y0 = static_cast<int>(vc);
-  taps->wx[p] = static_cast<int32_t>((uc - static_cast<float>(x0)) * kWeightOne + 0.5f);
-  taps->wy[p] = static_cast<int32_t>((vc - static_cast<float>(y0)) * kWeightOne + 0.5f);
-  // The nearest row (column), at most the one before the last: a coordinate just below the limit
-  // (sh - 1.5) can round up to the last one (at sh = 2, v + 0.5f gives 1 from 0.49999997).
-  if (axis == TapAxis::kRows) y0 = std::min(static_cast<int>(vc + 0.5f), static_cast<int>(max_v)), taps->wy[p] = 0;
-  if (axis == TapAxis::kColumns) x0 = std::min(static_cast<int>(uc + 0.5f), static_cast<int>(max_u)), taps->wx[p] = 0;
+  int x0, y0;
+  CoordinateTap(inside ? u : 0.f, max_u, axis == TapAxis::kColumns, &x0, &taps->wx[p]);
+  CoordinateTap(inside ? v : 0.f, max_v, axis == TapAxis::kRows, &y0, &taps->wy[p]);
   taps->index[p] = inside ? y0 * sw + x0 : -1;
 }
 
@@ -930,8 +938,7 @@ struct LaneTaps {
   __m512i column, row;  // of the top-left code (0 outside)
   __mmask16 inside;
 };
-// One coordinate c of 16 lanes (StoreTap's steps): across the axis (`nearest`), the nearest code
-// (at most `max`) with weight 0; else the code below c and the next one's weight.
+// CoordinateTap for 16 lanes.
 inline void CoordinateTap(__m512 c, float max, bool nearest, __m512i* code, __m512i* weight) {
   const __m512 half = _mm512_set1_ps(0.5f), one = _mm512_set1_ps(static_cast<float>(kWeightOne));
   if (nearest) {
@@ -977,26 +984,28 @@ inline void StoreTaps16(__m512 z, __m512 u, __m512 v, float max_u, float max_v, 
   _mm512_storeu_si512(taps->index.data() + p, _mm512_mask_blend_epi32(t.inside, _mm512_set1_epi32(-1), LaneIndex(t, sw)));
 }
 #elif IBMR_SWEEP_AVX2
+// CoordinateTap for 8 lanes.
+inline void CoordinateTap(__m256 c, float max, bool nearest, __m256i* code, __m256i* weight) {
+  const __m256 half = _mm256_set1_ps(0.5f), one = _mm256_set1_ps(static_cast<float>(kWeightOne));
+  if (nearest) {
+    *code = _mm256_min_epi32(_mm256_cvttps_epi32(_mm256_add_ps(c, half)), _mm256_set1_epi32(static_cast<int>(max)));
+    *weight = _mm256_setzero_si256();
+  } else {
+    *code = _mm256_cvttps_epi32(c);
+    *weight = _mm256_cvttps_epi32(_mm256_add_ps(_mm256_mul_ps(_mm256_sub_ps(c, _mm256_cvtepi32_ps(*code)), one), half));
+  }
+}
 // StoreTap for planes p..p+7, the same operations lane by lane (the masks are all-ones lanes).
 inline void StoreTaps8(__m256 z, __m256 u, __m256 v, float max_u, float max_v, int sw, int p, TapAxis axis, Taps* taps) {
-  const __m256 half = _mm256_set1_ps(0.5f), zero = _mm256_setzero_ps(), one = _mm256_set1_ps(static_cast<float>(kWeightOne));
+  const __m256 zero = _mm256_setzero_ps();
   const __m256 inside = _mm256_and_ps(
       _mm256_and_ps(_mm256_and_ps(_mm256_cmp_ps(z, zero, _CMP_GT_OQ), _mm256_cmp_ps(u, zero, _CMP_GE_OQ)),
                     _mm256_and_ps(_mm256_cmp_ps(v, zero, _CMP_GE_OQ), _mm256_cmp_ps(u, _mm256_set1_ps(max_u), _CMP_LT_OQ))),
       _mm256_cmp_ps(v, _mm256_set1_ps(max_v), _CMP_LT_OQ));
   const __m256 uc = _mm256_and_ps(inside, u), vc = _mm256_and_ps(inside, v);  // outside (or NaN): 0
-  __m256i x0 = _mm256_cvttps_epi32(uc), y0 = _mm256_cvttps_epi32(vc);
-  const __m256 ax = _mm256_sub_ps(uc, _mm256_cvtepi32_ps(x0)), ay = _mm256_sub_ps(vc, _mm256_cvtepi32_ps(y0));
-  __m256i wx = _mm256_cvttps_epi32(_mm256_add_ps(_mm256_mul_ps(ax, one), half));
-  __m256i wy = _mm256_cvttps_epi32(_mm256_add_ps(_mm256_mul_ps(ay, one), half));
-  if (axis == TapAxis::kRows) {  // StoreTap's steps
-    y0 = _mm256_min_epi32(_mm256_cvttps_epi32(_mm256_add_ps(vc, half)), _mm256_set1_epi32(static_cast<int>(max_v)));
-    wy = _mm256_setzero_si256();
-  }
-  if (axis == TapAxis::kColumns) {
-    x0 = _mm256_min_epi32(_mm256_cvttps_epi32(_mm256_add_ps(uc, half)), _mm256_set1_epi32(static_cast<int>(max_u)));
-    wx = _mm256_setzero_si256();
-  }
+  __m256i x0, y0, wx, wy;
+  CoordinateTap(uc, max_u, axis == TapAxis::kColumns, &x0, &wx);
+  CoordinateTap(vc, max_v, axis == TapAxis::kRows, &y0, &wy);
   _mm256_storeu_si256(reinterpret_cast<__m256i*>(taps->wx.data() + p), wx);
   _mm256_storeu_si256(reinterpret_cast<__m256i*>(taps->wy.data() + p), wy);
   const __m256i at = _mm256_add_epi32(_mm256_mullo_epi32(y0, _mm256_set1_epi32(sw)), x0);
