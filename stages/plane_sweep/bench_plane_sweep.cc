@@ -214,9 +214,13 @@ int main(int argc, char** argv) {
     else if (key == "--confidence-threshold") threshold = std::atof(argv[i + 1]);
     else if (key == "--portable-too") portable_too = std::string(argv[i + 1]) != "false";
     else if (key == "--bilinear-too") bilinear_too = std::string(argv[i + 1]) != "false";
-    else if (key == "--census-sampling" && (std::string(argv[i + 1]) == "epipolar" || std::string(argv[i + 1]) == "bilinear"))
+    else if (key == "--census-sampling") {
       sampling = argv[i + 1];
-    else {
+      if (sampling != "epipolar" && sampling != "bilinear") {
+        std::cerr << "bench_plane_sweep: --census-sampling must be epipolar or bilinear, got '" << sampling << "'\n";
+        return 2;
+      }
+    } else {
       std::cerr << "unknown option " << key << "\nusage: bench_plane_sweep [--out FILE] [--threads N] [--only synth|temple|dino] [--confidence-threshold T] [--work DIR] [--portable-too true|false] [--census-sampling epipolar|bilinear] [--bilinear-too true|false]\n";
       return 2;
     }
