@@ -484,18 +484,52 @@ struct PickTarget {
   }
 };
 
+// Where a pass keeps each matched pixel's sums in `out` (unmatched pixels' sums are never read):
+//  * pixel-indexed (Aggregate, whose winners are searched row by row afterwards): pixel * stride;
+//  * `matched_only` (AggregateAndPick, whose passes visit the pixels in scan order and back): the
+//    matched pixels one after the other in scan order, so that the sums take the matched pixels'
+//    share of the memory instead of the whole view's. On templeSparseRing about a third of a view
+//    is matched (the hull's bounds), and the rest of the pooled buffer's pages are never touched.
+// A pass counts the matched pixels as it goes: the first one (s = +1) from slot 0 up, the backward
+// one (s = -1) from the last slot down, so both reach a pixel at the same slot.
+struct SumSlots {
+  bool matched_only = false;
+  size_t count = 0;      // slots in `out`
+  ptrdiff_t next = 0;    // the next matched pixel's slot (matched_only)
+
+  SumSlots(const CostVolume& v, bool matched_only_, int s) : matched_only(matched_only_) {
+    const size_t pixels = static_cast<size_t>(v.width) * v.height;
+    count = matched_only && !v.unmatched.empty()
+                ? pixels - static_cast<size_t>(std::count(v.unmatched.begin(), v.unmatched.end(), uint8_t{1}))
+                : pixels;
+    next = s > 0 ? 0 : static_cast<ptrdiff_t>(count) - 1;
+  }
+  // The slot of matched pixel `pixel`, the next one in the pass's order `s`.
+  size_t Take(size_t pixel, int s) {
+    const size_t slot = matched_only ? static_cast<size_t>(next) : pixel;
+    next += s;
+    return slot;
+  }
+  // The slot `ahead` matched pixels on in the pass's order (for prefetching), or -1 past the end.
+  ptrdiff_t Ahead(size_t pixel, int s, int ahead) const {
+    const ptrdiff_t slot = (matched_only ? next : static_cast<ptrdiff_t>(pixel)) + static_cast<ptrdiff_t>(s) * ahead;
+    return slot >= 0 && slot < static_cast<ptrdiff_t>(count) ? slot : -1;
+  }
+};
+
 // One pass over the image in scan order `s` (+1: top-left to bottom-right; -1: reverse) along the
 // paths arriving from the previous pixel and, when `diagonals`, the previous row's three pixels
 // (else only the one above); `out` receives their sum or, `accumulate`, has it added, or, with
 // `pick`, a matched pixel's completed sum (`out`'s plus this pass's) gives its winner and is not
-// stored.
+// stored. `matched_only`: `out` holds the matched pixels' sums only (SumSlots).
 template <class V>
 void SgmPassPerPath(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, int s, bool accumulate,
-                    LargeBuffer<uint16_t>* out, const PickTarget* pick) {
+                    bool matched_only, LargeBuffer<uint16_t>* out, const PickTarget* pick) {
   const int w = v.width, h = v.height, n = v.stride, ps = n + 2;
   const bool diagonals = o.paths == 8;
+  SumSlots slots(v, matched_only, s);
   // A matched pixel's entries are assigned by the row path first.
-  if (!accumulate) out->resize(v.data.size());
+  if (!accumulate) out->resize(slots.count * n);
   const int ndir = diagonals ? 3 : 1;  // row paths: from (x - s, y - s), (x, y - s), (x + s, y - s)
   std::vector<int16_t> prev_row(static_cast<size_t>(ndir) * w * ps, kSentinel), cur_row(prev_row.size(), kSentinel);
   std::vector<int16_t> prev_min(static_cast<size_t>(ndir) * w, 0), cur_min(prev_min.size(), 0);
@@ -516,7 +550,7 @@ void SgmPassPerPath(const CostVolume& v, const cv::Mat& gray, const EngineOption
       const uint16_t* c = v.At(x, y);
       const size_t pixel = static_cast<size_t>(y) * w + x;
       const bool matched = v.Matched(pixel);
-      uint16_t* sum = matched ? out->data() + pixel * n : discarded.data();
+      uint16_t* sum = matched ? out->data() + slots.Take(pixel, s) * n : discarded.data();
       if (matched && pick != nullptr) {  // the forward pass's sums, completed here and not stored
         std::memcpy(pixel_sums.data(), sum, sizeof(uint16_t) * n);
         sum = pixel_sums.data();
@@ -571,7 +605,8 @@ struct RowHandOff {
 // some of its paths: the one from the previous pixel on the row (kRowPath) and those from the
 // previous row's pixels whose x offsets (times s) kFromRow holds as bits: bit 0 (x - s), bit 1
 // (x), bit 2 (x + s). `out` receives the sum of those paths or, `accumulate`, has it added (with
-// `pick`, as SgmPassPerPath: the completed sum gives the winner and is not stored). `publish`
+// `pick`, as SgmPassPerPath: the completed sum gives the winner and is not stored; `matched_only`
+// as there). `publish`
 // (optional) receives each finished row; `await` (optional): each row starts once that hand-off
 // has it (the other paths' thread has assigned or added its sums there).
 // The cost and sum entries of the pixel kPrefetchPixels ahead are fetched early: the backward
@@ -579,7 +614,7 @@ struct RowHandOff {
 constexpr int kPrefetchPixels = 6;
 template <bool kRowPath, int kFromRow, class V>
 void SgmPassPaths(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, int s, bool accumulate,
-                  LargeBuffer<uint16_t>* out, const PickTarget* pick, RowHandOff* publish = nullptr,
+                  bool matched_only, LargeBuffer<uint16_t>* out, const PickTarget* pick, RowHandOff* publish = nullptr,
                   const RowHandOff* await = nullptr) {
   constexpr int kRowPaths = __builtin_popcount(kFromRow);
   constexpr int K = (kRowPath ? 1 : 0) + kRowPaths;  // the row path first, then the paths from the previous row
@@ -589,7 +624,8 @@ void SgmPassPaths(const CostVolume& v, const cv::Mat& gray, const EngineOptions&
     if (kFromRow & (1 << bit)) dx_of[k++] = bit - 1;
   }
   const int w = v.width, h = v.height, n = v.stride, ps = n + 2;
-  if (!accumulate) out->resize(v.data.size());  // every matched pixel's entries are assigned
+  SumSlots slots(v, matched_only, s);
+  if (!accumulate) out->resize(slots.count * n);  // every matched pixel's entries are assigned
   // Two of each (previous and current), swapped as pointers (swapping the vectors themselves made
   // GCC 12 warn, falsely, of freeing a pointer into the middle of a block).
   const size_t row_size = static_cast<size_t>(kRowPaths) * w * ps, min_size = static_cast<size_t>(kRowPaths) * w;
@@ -635,17 +671,18 @@ void SgmPassPaths(const CostVolume& v, const cv::Mat& gray, const EngineOptions&
       }
       const size_t pixel = static_cast<size_t>(y) * w + x;
       const bool matched = v.Matched(pixel);
-      uint16_t* sum = matched ? out->data() + pixel * n : discarded.data();
+      const ptrdiff_t sums_ahead = slots.Ahead(pixel, s, kPrefetchPixels);
+      uint16_t* sum = matched ? out->data() + slots.Take(pixel, s) * n : discarded.data();
       if (matched && pick != nullptr) {  // the sums so far, completed here and not stored
         std::memcpy(pixel_sums.data(), sum, sizeof(uint16_t) * n);
         sum = pixel_sums.data();
       }
       if (xi + kPrefetchPixels < w) {
         const size_t ahead = (pixel + static_cast<ptrdiff_t>(s) * kPrefetchPixels) * n;
-        for (int line = 0; line < n; line += 32) {
-          __builtin_prefetch(v.data.data() + ahead + line, 0);
-          __builtin_prefetch(out->data() + ahead + line, 1);
-        }
+        for (int line = 0; line < n; line += 32) __builtin_prefetch(v.data.data() + ahead + line, 0);
+      }
+      if (sums_ahead >= 0) {
+        for (int line = 0; line < n; line += 32) __builtin_prefetch(out->data() + static_cast<size_t>(sums_ahead) * n + line, 1);
       }
       if (accumulate) {  // the same every pixel: a branch the predictor always gets right
         PathSteps<K, true, V>(v.At(x, y), n, prev, min_prev, p2, p1, cur, min_out, sum);
@@ -678,21 +715,21 @@ void SgmPassPaths(const CostVolume& v, const cv::Mat& gray, const EngineOptions&
 // it, which a task that no worker had picked up yet would never end.
 template <class V>
 void SgmPassTwoThreads(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, int s, bool accumulate,
-                       LargeBuffer<uint16_t>* out, const PickTarget* pick) {
-  if (!accumulate) out->resize(v.data.size());  // before either thread takes its address
+                       bool matched_only, LargeBuffer<uint16_t>* out, const PickTarget* pick) {
+  if (!accumulate) out->resize(SumSlots(v, matched_only, s).count * v.stride);  // before either thread takes its address
   RowHandOff first;
   const bool eight = o.paths == 8;
   std::thread helper([&] {
     if (eight) {
-      SgmPassPaths<true, 0b011, V>(v, gray, o, s, accumulate, out, nullptr, &first);
+      SgmPassPaths<true, 0b011, V>(v, gray, o, s, accumulate, matched_only, out, nullptr, &first);
     } else {
-      SgmPassPaths<true, 0, V>(v, gray, o, s, accumulate, out, nullptr, &first);
+      SgmPassPaths<true, 0, V>(v, gray, o, s, accumulate, matched_only, out, nullptr, &first);
     }
   });
   if (eight) {
-    SgmPassPaths<false, 0b100, V>(v, gray, o, s, true, out, pick, nullptr, &first);
+    SgmPassPaths<false, 0b100, V>(v, gray, o, s, true, matched_only, out, pick, nullptr, &first);
   } else {
-    SgmPassPaths<false, 0b010, V>(v, gray, o, s, true, out, pick, nullptr, &first);
+    SgmPassPaths<false, 0b010, V>(v, gray, o, s, true, matched_only, out, pick, nullptr, &first);
   }
   helper.join();
 }
@@ -705,19 +742,22 @@ void SgmPassTwoThreads(const CostVolume& v, const cv::Mat& gray, const EngineOpt
 // alternated: 1.52-1.54 s against 1.83-1.92), while the AVX2 and portable builds, with 16, do no
 // better that way (3.34-3.69 s against 3.38-3.49, and 5.60-6.35 against 5.35-5.93) and take one
 // loop per path. Both give the same sums.
-void SgmPass(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, int s, bool accumulate, LargeBuffer<uint16_t>* out,
-             const PickTarget* pick = nullptr) {
+void SgmPass(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, int s, bool accumulate, bool matched_only,
+             LargeBuffer<uint16_t>* out, const PickTarget* pick = nullptr) {
   const bool wide = v.stride % kLanesOf<WideLanes> == 0;
+  const bool m = matched_only;
   if (o.sgm_threads == 2 && v.height > 1) {
-    wide ? SgmPassTwoThreads<WideLanes>(v, gray, o, s, accumulate, out, pick) : SgmPassTwoThreads<Lanes>(v, gray, o, s, accumulate, out, pick);
+    wide ? SgmPassTwoThreads<WideLanes>(v, gray, o, s, accumulate, m, out, pick)
+         : SgmPassTwoThreads<Lanes>(v, gray, o, s, accumulate, m, out, pick);
   } else if (v.stride > 64 && !IBMR_SWEEP_AVX512) {
-    wide ? SgmPassPerPath<WideLanes>(v, gray, o, s, accumulate, out, pick) : SgmPassPerPath<Lanes>(v, gray, o, s, accumulate, out, pick);
+    wide ? SgmPassPerPath<WideLanes>(v, gray, o, s, accumulate, m, out, pick)
+         : SgmPassPerPath<Lanes>(v, gray, o, s, accumulate, m, out, pick);
   } else if (o.paths == 8) {
-    wide ? SgmPassPaths<true, 0b111, WideLanes>(v, gray, o, s, accumulate, out, pick)
-         : SgmPassPaths<true, 0b111, Lanes>(v, gray, o, s, accumulate, out, pick);
+    wide ? SgmPassPaths<true, 0b111, WideLanes>(v, gray, o, s, accumulate, m, out, pick)
+         : SgmPassPaths<true, 0b111, Lanes>(v, gray, o, s, accumulate, m, out, pick);
   } else {
-    wide ? SgmPassPaths<true, 0b010, WideLanes>(v, gray, o, s, accumulate, out, pick)
-         : SgmPassPaths<true, 0b010, Lanes>(v, gray, o, s, accumulate, out, pick);
+    wide ? SgmPassPaths<true, 0b010, WideLanes>(v, gray, o, s, accumulate, m, out, pick)
+         : SgmPassPaths<true, 0b010, Lanes>(v, gray, o, s, accumulate, m, out, pick);
   }
 }
 
@@ -1874,12 +1914,13 @@ void Aggregate(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o,
     return;
   }
   if (one_buffer) {
-    SgmPass(v, gray, o, +1, false, &result.a);
-    SgmPass(v, gray, o, -1, true, &result.a);
+    SgmPass(v, gray, o, +1, false, false, &result.a);
+    SgmPass(v, gray, o, -1, true, false, &result.a);
     LargeBuffer<uint16_t>().swap(result.b);  // pages a concurrent call may have left
     return;
   }
-  tbb::parallel_invoke([&] { SgmPass(v, gray, o, +1, false, &result.a); }, [&] { SgmPass(v, gray, o, -1, false, &result.b); });
+  tbb::parallel_invoke([&] { SgmPass(v, gray, o, +1, false, false, &result.a); },
+                      [&] { SgmPass(v, gray, o, -1, false, false, &result.b); });
 }
 
 Winners WinnerTakeAll(const Aggregated& ag, const CostVolume* data, double confidence_scale, bool right_winners) {
@@ -1955,8 +1996,8 @@ Winners AggregateAndPick(const CostVolume& v, const cv::Mat& gray, const EngineO
     });
     return out;
   }
-  SgmPass(v, gray, o, +1, false, sums);
-  SgmPass(v, gray, o, -1, true, sums, &pick);
+  SgmPass(v, gray, o, +1, false, true, sums);  // the matched pixels' sums only (SumSlots)
+  SgmPass(v, gray, o, -1, true, true, sums, &pick);
   return out;
 }
 
