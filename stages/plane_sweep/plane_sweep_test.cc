@@ -649,7 +649,8 @@ TEST(SweepEngine, UnmatchedPixelsLeaveTheMatchedSumsAndHaveNoWinner) {
 // and certainties of the sums stored and then searched, on every build, with unmatched pixels,
 // with few planes and many, 4 and 8 paths, without the semi-global passes, and with a sums buffer
 // that holds an earlier call's values; and so do the passes with their paths split over two
-// threads (sgm_threads 2), whose sums are those of one thread.
+// threads (sgm_threads 2), whose sums are those of one thread. The sums buffer then holds the
+// matched pixels' sums alone, in scan order.
 TEST(SweepEngine, PickingWinnersInTheBackwardPassEqualsSearchingTheSums) {
   const int w = 29, h = 13;
   cv::RNG rng(9);
@@ -688,6 +689,8 @@ TEST(SweepEngine, PickingWinnersInTheBackwardPassEqualsSearchingTheSums) {
           for (uint16_t& v : sums) v = static_cast<uint16_t>(rng.uniform(0, 65536));
           const sweep::Winners have = sweep::AggregateAndPick(volume, gray, options, 0.5, &sums);
           EXPECT_EQ(sums.empty(), paths == 0);  // without semi-global passes the volume is picked from
+          // The matched pixels' sums only (the unmatched ones' are never read).
+          if (paths > 0) EXPECT_EQ(sums.size(), (static_cast<size_t>(w) * h - unmatched) * volume.stride);
           size_t differ = 0, winners = 0, graded = 0;
           for (int y = 0; y < h; ++y) {
             for (int x = 0; x < w; ++x) {
