@@ -523,6 +523,90 @@ sweep::CostVolume RandomCostVolume(int w, int h, int planes, cv::RNG* rng) {
   return volume;
 }
 
+// With plane ranges that leave pixels unmatched, the volume stores only the pixels within the box
+// window of a matched one; every pixel, stored or not, reads the costs of the definition: the raw
+// costs limited to the pixel's range (the mean of its in-range costs outside it, kMaxCost on the
+// padding planes; kOutsideCost everywhere for an unmatched pixel), then the clipped box mean.
+TEST(SweepEngine, FarUnmatchedPixelsAreLeftOutWithoutChangingACost) {
+  const int w = 37, h = 141, planes = 20;
+  cv::RNG rng(6);
+  const cv::Mat ref = UniformNoise(w, h, &rng), other = UniformNoise(w, h, &rng);
+  sweep::Neighbour neighbour;
+  neighbour.gray = other;
+  for (int p = 0; p < planes; ++p) {
+    Eigen::Matrix3d m = Eigen::Matrix3d::Identity();
+    m(0, 2) = 0.37 * p - 3, m(1, 2) = 0.11 * p;
+    neighbour.homographies.push_back(m);
+  }
+  // Matched: two blobs and a scattering of single pixels, each with a range of its own.
+  sweep::PlaneRanges ranges;
+  ranges.first.assign(static_cast<size_t>(w) * h, 1);
+  ranges.last.assign(ranges.first.size(), 0);
+  for (int y = 0; y < h; ++y) {
+    for (int x = 0; x < w; ++x) {
+      const bool blob = (x - 10) * (x - 10) + (y - 30) * (y - 30) < 64 || (x > 25 && y > 90 && y < 110);
+      if (!blob && rng.uniform(0, 300) != 0) continue;
+      const size_t i = static_cast<size_t>(y) * w + x;
+      ranges.first[i] = static_cast<uint16_t>(rng.uniform(0, planes / 2));
+      ranges.last[i] = static_cast<uint16_t>(rng.uniform(ranges.first[i], planes + 3));  // past the last plane too
+    }
+  }
+  for (sweep::Isa isa : {sweep::Isa::kPortable, sweep::Isa::kAvx2, sweep::Isa::kAvx512}) {
+    if (!sweep::SetIsa(isa)) continue;
+    sweep::EngineOptions options;
+    options.window_radius = 0;
+    sweep::CostVolume raw;
+    sweep::BuildCostVolume(ref, {neighbour}, options, &raw);
+    const int n = raw.stride;
+    // The costs limited to each pixel's range.
+    std::vector<uint16_t> limited(static_cast<size_t>(w) * h * n);
+    for (int y = 0; y < h; ++y) {
+      for (int x = 0; x < w; ++x) {
+        const size_t i = static_cast<size_t>(y) * w + x;
+        uint16_t* c = limited.data() + i * n;
+        const int first = ranges.first[i], last = std::min<int>(ranges.last[i], planes - 1);
+        if (first > last) {
+          std::fill(c, c + n, static_cast<uint16_t>(600));  // kOutsideCost
+          continue;
+        }
+        uint32_t sum = 0;
+        for (int d = first; d <= last; ++d) sum += raw.At(x, y)[d];
+        for (int d = 0; d < n; ++d) {
+          c[d] = d >= planes ? sweep::kMaxCost
+                 : d < first || d > last ? static_cast<uint16_t>(sum / (last - first + 1))
+                                         : raw.At(x, y)[d];
+        }
+      }
+    }
+    for (int r : {0, 1, 2, 3}) {
+      SCOPED_TRACE(std::string(sweep::IsaName(isa)) + ", radius " + std::to_string(r));
+      options.window_radius = r;
+      sweep::CostVolume volume;
+      sweep::BuildCostVolume(ref, {neighbour}, options, &volume, &ranges);
+      size_t stored = 0, differ = 0;
+      for (int y = 0; y < h; ++y) {
+        for (int x = 0; x < w; ++x) {
+          stored += volume.Stored(static_cast<size_t>(y) * w + x);
+          const int x0 = std::max(0, x - r), x1 = std::min(w - 1, x + r);
+          const int y0 = std::max(0, y - r), y1 = std::min(h - 1, y + r);
+          const uint32_t area = static_cast<uint32_t>((x1 - x0 + 1) * (y1 - y0 + 1));
+          for (int d = 0; d < n; ++d) {
+            uint32_t sum = 0;
+            for (int yy = y0; yy <= y1; ++yy)
+              for (int xx = x0; xx <= x1; ++xx) sum += limited[(static_cast<size_t>(yy) * w + xx) * n + d];
+            const uint16_t want = area == 1 ? static_cast<uint16_t>(sum) : static_cast<uint16_t>((sum * ((1u << 16) / area + 1)) >> 16);
+            differ += volume.At(x, y)[d] != want;
+          }
+        }
+      }
+      EXPECT_EQ(differ, 0u);
+      EXPECT_LT(stored, static_cast<size_t>(w) * h / 2);  // most pixels are far from a matched one
+      EXPECT_EQ(volume.data.size(), stored * n);
+    }
+  }
+  sweep::SetIsa(sweep::BestIsa());
+}
+
 // The semi-global sums by their definition, path by path in plain integers (Hirschmueller, PAMI
 // 2008): L_r(p, d) = C(p, d) + min(L_r(p-r, d), L_r(p-r, d-1) + P1, L_r(p-r, d+1) + P1,
 // min_k L_r(p-r, k) + P2) - min_k L_r(p-r, k), with L_r = C where the path enters the image and P2

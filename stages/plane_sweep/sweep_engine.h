@@ -69,10 +69,21 @@ struct CostVolume {
   // PlaneRanges); empty: every pixel is. BuildCostVolume sets it. Such a pixel's costs still carry
   // the semi-global paths across it, but its own path sums are not kept and it has no winner.
   std::vector<uint8_t> unmatched;
+  // Where each pixel's costs lie in `data` (row-major, one entry per pixel), or kNotStored: the
+  // pixel's curve is `flat` (`stride` entries), which `data` does not repeat; empty: pixel p at
+  // p * stride. BuildCostVolume leaves out the unmatched pixels no matched one reaches through the
+  // box filter (their filtered curve stays flat), when plane ranges leave some out.
+  static constexpr uint32_t kNotStored = 0xFFFFFFFFu;
+  std::vector<uint32_t> slots;
+  std::vector<uint16_t> flat;
   bool Matched(size_t pixel) const { return unmatched.empty() || unmatched[pixel] == 0; }
-  uint16_t* At(int x, int y) { return data.data() + (static_cast<size_t>(y) * width + x) * stride; }
+  bool Stored(size_t pixel) const { return slots.empty() || slots[pixel] != kNotStored; }
+  // A pixel's costs; only a stored pixel's may be written (a pixel not stored points at `flat`).
+  uint16_t* At(int x, int y) { return const_cast<uint16_t*>(static_cast<const CostVolume&>(*this).At(x, y)); }
   const uint16_t* At(int x, int y) const {
-    return data.data() + (static_cast<size_t>(y) * width + x) * stride;
+    const size_t pixel = static_cast<size_t>(y) * width + x;
+    if (slots.empty()) return data.data() + pixel * stride;
+    return slots[pixel] != kNotStored ? data.data() + static_cast<size_t>(slots[pixel]) * stride : flat.data();
   }
 };
 

@@ -678,8 +678,8 @@ void SgmPassPaths(const CostVolume& v, const cv::Mat& gray, const EngineOptions&
         sum = pixel_sums.data();
       }
       if (xi + kPrefetchPixels < w) {
-        const size_t ahead = (pixel + static_cast<ptrdiff_t>(s) * kPrefetchPixels) * n;
-        for (int line = 0; line < n; line += 32) __builtin_prefetch(v.data.data() + ahead + line, 0);
+        const uint16_t* ahead = v.At(x + s * kPrefetchPixels, y);
+        for (int line = 0; line < n; line += 32) __builtin_prefetch(ahead + line, 0);
       }
       if (sums_ahead >= 0) {
         for (int line = 0; line < n; line += 32) __builtin_prefetch(out->data() + static_cast<size_t>(sums_ahead) * n + line, 1);
@@ -801,26 +801,31 @@ void BoxFilterVolume(CostVolume* v, int r) {
   // through memory: with few planes (a two-view pair's 16) the load of out(x - 1) waits on the
   // store just made, which the AVX-512 build could not forward (the box filter took 2.8 times
   // the portable build's samples on tsukuba). The sums are the same integers either way.
-  auto horizontal = [&](int y, uint16_t* __restrict out) {
-    const uint16_t* in = v->At(0, y);
+  // Row y's horizontal sums from its pixels' costs `at(x)`: a row of the volume in a piece, or, in a
+  // volume that leaves pixels out, through its slots (a stored pixel's neighbours on the row need not
+  // lie next to it in memory).
+  auto horizontal_from = [&](auto at, uint16_t* __restrict out) {
     if (r <= 2) {
       for (int x = 0; x < w; ++x) {
         uint16_t* __restrict o = out + static_cast<size_t>(x) * n;
-        const uint16_t* __restrict c = in + static_cast<size_t>(x) * n;
         if (x >= r && x + r < w) {  // the whole window: one pass over the planes
+          const uint16_t* __restrict a = at(x - 1);
+          const uint16_t* __restrict c = at(x);
+          const uint16_t* __restrict b = at(x + 1);
           if (r == 1) {
-            for (int d = 0; d < n; ++d) o[d] = static_cast<uint16_t>(c[d - n] + c[d] + c[d + n]);
+            for (int d = 0; d < n; ++d) o[d] = static_cast<uint16_t>(a[d] + c[d] + b[d]);
           } else {
-            for (int d = 0; d < n; ++d)
-              o[d] = static_cast<uint16_t>(c[d - 2 * n] + c[d - n] + c[d] + c[d + n] + c[d + 2 * n]);
+            const uint16_t* __restrict aa = at(x - 2);
+            const uint16_t* __restrict bb = at(x + 2);
+            for (int d = 0; d < n; ++d) o[d] = static_cast<uint16_t>(aa[d] + a[d] + c[d] + b[d] + bb[d]);
           }
           continue;
         }
         const int x0 = std::max(0, x - r), x1 = std::min(w - 1, x + r);  // clipped at the borders
-        const uint16_t* __restrict first = in + static_cast<size_t>(x0) * n;
+        const uint16_t* __restrict first = at(x0);
         std::copy(first, first + n, o);
         for (int xx = x0 + 1; xx <= x1; ++xx) {
-          const uint16_t* __restrict add = in + static_cast<size_t>(xx) * n;
+          const uint16_t* __restrict add = at(xx);
           for (int d = 0; d < n; ++d) o[d] = static_cast<uint16_t>(o[d] + add[d]);
         }
       }
@@ -828,16 +833,25 @@ void BoxFilterVolume(CostVolume* v, int r) {
     }
     std::fill(out, out + n, static_cast<uint16_t>(0));
     for (int x = 0; x <= std::min(r, w - 1); ++x) {
-      const uint16_t* add = in + static_cast<size_t>(x) * n;
+      const uint16_t* add = at(x);
       for (int d = 0; d < n; ++d) out[d] = static_cast<uint16_t>(out[d] + add[d]);
     }
     for (int x = 1; x < w; ++x) {
       uint16_t* __restrict o = out + static_cast<size_t>(x) * n;
       const uint16_t* __restrict left = o - n;
-      const uint16_t* __restrict add = in + static_cast<size_t>(std::min(x + r, w - 1)) * n;
-      const uint16_t* __restrict sub = in + static_cast<size_t>(std::max(x - r - 1, 0)) * n;
+      const uint16_t* __restrict add = at(std::min(x + r, w - 1));
+      const uint16_t* __restrict sub = at(std::max(x - r - 1, 0));
       const uint16_t keep_add = x + r < w ? 0xFFFF : 0, keep_sub = x - r - 1 >= 0 ? 0xFFFF : 0;
       for (int d = 0; d < n; ++d) o[d] = static_cast<uint16_t>(left[d] + (add[d] & keep_add) - (sub[d] & keep_sub));
+    }
+  };
+  const CostVolume& in = *v;
+  auto horizontal = [&](int y, uint16_t* __restrict out) {
+    if (in.slots.empty()) {
+      const uint16_t* row_costs = in.At(0, y);
+      horizontal_from([row_costs, n](int x) { return row_costs + static_cast<size_t>(x) * n; }, out);
+    } else {
+      horizontal_from([&in, y](int x) { return in.At(x, y); }, out);
     }
   };
   const int band_rows = std::max(16, std::min(64, (h + 7) / 8));
@@ -859,6 +873,18 @@ void BoxFilterVolume(CostVolume* v, int r) {
     const int first = band * band_rows, end = std::min(h, first + band_rows);
     const int ring_rows = 2 * r + 2;
     std::vector<uint16_t> ring(static_cast<size_t>(ring_rows) * row);
+    // Row y's output: in place, or, where the volume leaves pixels out, a row to copy the stored
+    // pixels' costs from (commit).
+    std::vector<uint16_t> out_row(v->slots.empty() ? 0 : row);
+    auto output = [&](int y) { return v->slots.empty() ? v->At(0, y) : out_row.data(); };
+    auto commit = [&](int y) {
+      if (v->slots.empty()) return;
+      for (int x = 0; x < w; ++x) {
+        if (!v->Stored(static_cast<size_t>(y) * w + x)) continue;
+        const uint16_t* filtered = out_row.data() + static_cast<size_t>(x) * n;
+        std::copy(filtered, filtered + n, v->At(x, y));
+      }
+    };
     std::vector<uint32_t> acc(r <= 3 ? 0 : row, 0u);  // the running vertical sum of wider windows
     // Row y's horizontal sums, made (from the band's own rows, still unfiltered) or taken (halo).
     auto take = [&](int y) {
@@ -878,7 +904,7 @@ void BoxFilterVolume(CostVolume* v, int r) {
         const int y0 = std::max(0, y - r), y1 = std::min(h - 1, y + r), ny = y1 - y0 + 1;
         const uint16_t* rows[7];
         for (int yy = y0; yy <= y1; ++yy) rows[yy - y0] = ring.data() + static_cast<size_t>(yy % ring_rows) * row;
-        uint16_t* out = v->At(0, y);
+        uint16_t* out = output(y);
         switch (ny) {
           case 1: BoxMeanRow<1>(rows, w, n, r, ny, out); break;
           case 2: BoxMeanRow<2>(rows, w, n, r, ny, out); break;
@@ -888,6 +914,7 @@ void BoxFilterVolume(CostVolume* v, int r) {
           case 6: BoxMeanRow<6>(rows, w, n, r, ny, out); break;
           default: BoxMeanRow<7>(rows, w, n, r, ny, out); break;
         }
+        commit(y);
       }
       return;
     }
@@ -905,7 +932,7 @@ void BoxFilterVolume(CostVolume* v, int r) {
         for (size_t i = 0; i < row; ++i) acc[i] -= in[i];
       }
       const int ny = std::min(h - 1, y + r) - std::max(0, y - r) + 1;
-      uint16_t* out = v->At(0, y);
+      uint16_t* out = output(y);
       for (int x = 0; x < w; ++x) {
         const uint32_t area = static_cast<uint32_t>(ny * (std::min(w - 1, x + r) - std::max(0, x - r) + 1));
         const uint32_t* a = acc.data() + static_cast<size_t>(x) * n;
@@ -914,6 +941,7 @@ void BoxFilterVolume(CostVolume* v, int r) {
         const uint32_t inv = (1u << 16) / area + 1;
         for (int d = 0; d < n; ++d) o[d] = static_cast<uint16_t>((a[d] * inv) >> 16);
       }
+      commit(y);
     }
   });
 }
@@ -1723,7 +1751,8 @@ VolumeWork BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector
         if (ranges == nullptr) continue;
         for (int j = 0; j < count; ++j) {
           const size_t pixel = static_cast<size_t>(y) * w + x0 + j;
-          v->unmatched[pixel] = !LimitToRange(ranges->first[pixel], ranges->last[pixel], np, n, v->At(x0 + j, y));
+          // A pixel left out of the volume is unmatched, its curve `flat` (LeaveOutFarUnmatched).
+          v->unmatched[pixel] = !v->Stored(pixel) || !LimitToRange(ranges->first[pixel], ranges->last[pixel], np, n, v->At(x0 + j, y));
         }
       }
     }
@@ -1807,6 +1836,52 @@ std::vector<uint64_t> CensusTransform(const cv::Mat& gray, int rx, int ry) {
   return codes;
 }
 
+namespace {
+
+// Whether the box filter of radius r (BoxFilterVolume's fixed-point mean, over every clipped
+// window's area) maps a window of kOutsideCost curves to kOutsideCost: then an unmatched pixel with
+// no matched one in its window keeps the flat curve LimitToRange gave it.
+bool FlatCurveSurvivesTheBox(int r) {
+  if (r <= 0) return true;
+  for (int ny = 1; ny <= 2 * r + 1; ++ny) {
+    for (int nx = 1; nx <= 2 * r + 1; ++nx) {
+      const uint64_t area = static_cast<uint64_t>(ny) * nx;
+      if (area == 1) continue;  // copied
+      if ((area * kOutsideCost * ((uint64_t{1} << 16) / area + 1)) >> 16 != kOutsideCost) return false;
+    }
+  }
+  return true;
+}
+
+// Leaves out of the volume the unmatched pixels (empty plane range) that no matched pixel reaches
+// through the box filter of radius r (none within r pixels in x and y): their filtered curve is
+// flat kOutsideCost, which `flat` holds once for all of them (the semi-global paths cross them
+// reading it). Sets the volume's slots (the stored pixels in row-major order) and returns how many
+// are stored. On templeSparseRing the part a view sweeps (the bounding box of its matched pixels)
+// holds large unmatched areas around the object: those pages are never touched.
+size_t LeaveOutFarUnmatched(const PlaneRanges& ranges, int r, CostVolume* v) {
+  const int w = v->width, h = v->height;
+  cv::Mat reached(h, w, CV_8U);
+  for (int y = 0; y < h; ++y) {
+    uint8_t* row = reached.ptr<uint8_t>(y);
+    for (int x = 0; x < w; ++x) {
+      const size_t pixel = static_cast<size_t>(y) * w + x;
+      row[x] = ranges.first[pixel] <= std::min<int>(ranges.last[pixel], v->planes - 1) ? 255 : 0;
+    }
+  }
+  if (r > 0) cv::dilate(reached, reached, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * r + 1, 2 * r + 1)));
+  v->slots.resize(static_cast<size_t>(w) * h);
+  uint32_t next = 0;
+  for (int y = 0; y < h; ++y) {
+    const uint8_t* row = reached.ptr<uint8_t>(y);
+    for (int x = 0; x < w; ++x) v->slots[static_cast<size_t>(y) * w + x] = row[x] != 0 ? next++ : CostVolume::kNotStored;
+  }
+  v->flat.assign(v->stride, kOutsideCost);
+  return next;
+}
+
+}  // namespace
+
 VolumeWork BuildCostVolume(const cv::Mat& ref, const std::vector<Neighbour>& neighbours, const EngineOptions& o,
                            CostVolume* volume, const PlaneRanges* ranges, const std::vector<uint64_t>* reference_census,
                            cv::Point origin) {
@@ -1817,11 +1892,20 @@ VolumeWork BuildCostVolume(const cv::Mat& ref, const std::vector<Neighbour>& nei
   volume->height = h;
   volume->planes = planes;
   volume->stride = RoundUp16(planes);
-  volume->data.resize(static_cast<size_t>(w) * h * volume->stride);
   volume->unmatched.clear();  // every pixel, unless the plane ranges leave some out
+  size_t stored = static_cast<size_t>(w) * h;
+  if (o.cost == Cost::kCensus && ranges != nullptr && FlatCurveSurvivesTheBox(o.window_radius)) {
+    stored = LeaveOutFarUnmatched(*ranges, o.window_radius, volume);
+  } else {
+    volume->slots.clear();
+    volume->flat.clear();
+  }
+  volume->data.resize(stored * volume->stride);
   if (volume->stride > planes) {
     tbb::parallel_for(0, h, [&](int y) {
-      for (int x = 0; x < w; ++x) std::fill(volume->At(x, y) + planes, volume->At(x, y) + volume->stride, kMaxCost);
+      for (int x = 0; x < w; ++x) {
+        if (volume->Stored(static_cast<size_t>(y) * w + x)) std::fill(volume->At(x, y) + planes, volume->At(x, y) + volume->stride, kMaxCost);
+      }
     });
   }
 
@@ -1909,7 +1993,16 @@ void Aggregate(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o,
   result.stride = v.stride;
   result.unmatched = v.unmatched;
   if (!o.semi_global) {
-    result.a = v.data;
+    if (v.slots.empty()) {
+      result.a = v.data;
+    } else {  // pixel-indexed, as WinnerTakeAll reads it
+      result.a.resize(static_cast<size_t>(v.width) * v.height * v.stride);
+      for (int y = 0; y < v.height; ++y) {
+        for (int x = 0; x < v.width; ++x) {
+          std::copy(v.At(x, y), v.At(x, y) + v.stride, result.a.data() + (static_cast<size_t>(y) * v.width + x) * v.stride);
+        }
+      }
+    }
     result.b.clear();
     return;
   }
