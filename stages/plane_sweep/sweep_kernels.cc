@@ -488,8 +488,8 @@ struct PickTarget {
 //  * pixel-indexed (Aggregate, whose winners are searched row by row afterwards): pixel * stride;
 //  * `matched_only` (AggregateAndPick, whose passes visit the pixels in scan order and back): the
 //    matched pixels one after the other in scan order, so that the sums take the matched pixels'
-//    share of the memory instead of the whole view's. On templeSparseRing about a third of a view
-//    is matched (the hull's bounds), and the rest of the pooled buffer's pages are never touched.
+//    share of the memory instead of the whole view's: on templeSparseRing the largest view's sums
+//    take 44 MB instead of 72, and the rest of the pooled buffer's pages are never touched.
 // A pass counts the matched pixels as it goes: the first one (s = +1) from slot 0 up, the backward
 // one (s = -1) from the last slot down, so both reach a pixel at the same slot.
 struct SumSlots {
@@ -605,10 +605,9 @@ struct RowHandOff {
 // some of its paths: the one from the previous pixel on the row (kRowPath) and those from the
 // previous row's pixels whose x offsets (times s) kFromRow holds as bits: bit 0 (x - s), bit 1
 // (x), bit 2 (x + s). `out` receives the sum of those paths or, `accumulate`, has it added (with
-// `pick`, as SgmPassPerPath: the completed sum gives the winner and is not stored; `matched_only`
-// as there). `publish`
-// (optional) receives each finished row; `await` (optional): each row starts once that hand-off
-// has it (the other paths' thread has assigned or added its sums there).
+// `pick` and `matched_only` as in SgmPassPerPath: the completed sum gives the winner and is not
+// stored). `publish` (optional) receives each finished row; `await` (optional): each row starts
+// once that hand-off has it (the other paths' thread has assigned or added its sums there).
 // The cost and sum entries of the pixel kPrefetchPixels ahead are fetched early: the backward
 // pass walks the volume from its end, and waiting on those loads had been the largest stall.
 constexpr int kPrefetchPixels = 6;
