@@ -602,6 +602,16 @@ TEST(SweepEngine, FarUnmatchedPixelsAreLeftOutWithoutChangingACost) {
       EXPECT_EQ(differ, 0u);
       EXPECT_LT(stored, static_cast<size_t>(w) * h / 2);  // most pixels are far from a matched one
       EXPECT_EQ(volume.data.size(), stored * n);
+      // Without semi-global passes the aggregate is the volume itself, pixel-indexed.
+      sweep::EngineOptions box_only = options;
+      box_only.semi_global = false;
+      sweep::Aggregated aggregated;
+      sweep::Aggregate(volume, ref, box_only, &aggregated);
+      size_t sums_differ = 0;
+      for (int y = 0; y < h; ++y)
+        for (int x = 0; x < w; ++x)
+          for (int d = 0; d < n; ++d) sums_differ += aggregated.Sum(static_cast<size_t>(y) * w + x, d) != volume.At(x, y)[d];
+      EXPECT_EQ(sums_differ, 0u);
     }
   }
   sweep::SetIsa(sweep::BestIsa());
