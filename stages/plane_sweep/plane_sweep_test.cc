@@ -460,6 +460,32 @@ TEST(SweepEngine, APartAtItsOriginMatchesLikeTheWholeView) {
   }
 }
 
+// A neighbour whose plane p shifts the image by (0.37 p - 3, 0.11 p): sub-pixel steps along both
+// axes, so every plane reads codes between pixels.
+sweep::Neighbour ShiftingNeighbour(const cv::Mat& gray, int planes) {
+  sweep::Neighbour neighbour;
+  neighbour.gray = gray;
+  for (int p = 0; p < planes; ++p) {
+    Eigen::Matrix3d m = Eigen::Matrix3d::Identity();
+    m(0, 2) = 0.37 * p - 3, m(1, 2) = 0.11 * p;
+    neighbour.homographies.push_back(m);
+  }
+  return neighbour;
+}
+
+// The box mean of entry d at (x, y) over the window of radius r clipped to w x h, of the costs
+// `cost(x, y, d)`, rounded by the engine's fixed-point reciprocal.
+template <class CostAt>
+uint16_t ClippedBoxMean(const CostAt& cost, int w, int h, int x, int y, int r, int d) {
+  const int x0 = std::max(0, x - r), x1 = std::min(w - 1, x + r);
+  const int y0 = std::max(0, y - r), y1 = std::min(h - 1, y + r);
+  const uint32_t area = static_cast<uint32_t>((x1 - x0 + 1) * (y1 - y0 + 1));
+  uint32_t sum = 0;
+  for (int yy = y0; yy <= y1; ++yy)
+    for (int xx = x0; xx <= x1; ++xx) sum += cost(xx, yy, d);
+  return static_cast<uint16_t>((sum * ((1u << 16) / area + 1)) >> 16);
+}
+
 // The box aggregation (in place, in bands of rows that share their edge rows) against its
 // definition: the mean of the unfiltered costs over the window clipped to the image, rounded by
 // the engine's fixed-point reciprocal. Tall enough for several bands, radii up to 3.
@@ -469,13 +495,7 @@ TEST(SweepEngine, BoxAggregationIsTheClippedWindowMean) {
   cv::RNG rng(4);
   rng.fill(ref, cv::RNG::UNIFORM, 0, 256);
   rng.fill(other, cv::RNG::UNIFORM, 0, 256);
-  sweep::Neighbour neighbour;
-  neighbour.gray = other;
-  for (int p = 0; p < planes; ++p) {
-    Eigen::Matrix3d m = Eigen::Matrix3d::Identity();
-    m(0, 2) = 0.37 * p - 3, m(1, 2) = 0.11 * p;
-    neighbour.homographies.push_back(m);
-  }
+  const sweep::Neighbour neighbour = ShiftingNeighbour(other, planes);
   for (sweep::Isa isa : {sweep::Isa::kPortable, sweep::Isa::kAvx2, sweep::Isa::kAvx512}) {
     if (!sweep::SetIsa(isa)) continue;
     SCOPED_TRACE(sweep::IsaName(isa));
@@ -487,20 +507,11 @@ TEST(SweepEngine, BoxAggregationIsTheClippedWindowMean) {
       options.window_radius = r;
       sweep::CostVolume box;
       sweep::BuildCostVolume(ref, {neighbour}, options, &box);
+      const auto raw_cost = [&](int x, int y, int d) { return raw.At(x, y)[d]; };
       size_t differ = 0;
-      for (int y = 0; y < h; ++y) {
-        for (int x = 0; x < w; ++x) {
-          const int x0 = std::max(0, x - r), x1 = std::min(w - 1, x + r);
-          const int y0 = std::max(0, y - r), y1 = std::min(h - 1, y + r);
-          const uint32_t area = static_cast<uint32_t>((x1 - x0 + 1) * (y1 - y0 + 1));
-          for (int d = 0; d < planes; ++d) {
-            uint32_t sum = 0;
-            for (int yy = y0; yy <= y1; ++yy)
-              for (int xx = x0; xx <= x1; ++xx) sum += raw.At(xx, yy)[d];
-            differ += box.At(x, y)[d] != static_cast<uint16_t>((sum * ((1u << 16) / area + 1)) >> 16);
-          }
-        }
-      }
+      for (int y = 0; y < h; ++y)
+        for (int x = 0; x < w; ++x)
+          for (int d = 0; d < planes; ++d) differ += box.At(x, y)[d] != ClippedBoxMean(raw_cost, w, h, x, y, r, d);
       EXPECT_EQ(differ, 0u) << "radius " << r;
     }
   }
@@ -530,14 +541,8 @@ sweep::CostVolume RandomCostVolume(int w, int h, int planes, cv::RNG* rng) {
 TEST(SweepEngine, FarUnmatchedPixelsAreLeftOutWithoutChangingACost) {
   const int w = 37, h = 141, planes = 20;
   cv::RNG rng(6);
-  const cv::Mat ref = UniformNoise(w, h, &rng), other = UniformNoise(w, h, &rng);
-  sweep::Neighbour neighbour;
-  neighbour.gray = other;
-  for (int p = 0; p < planes; ++p) {
-    Eigen::Matrix3d m = Eigen::Matrix3d::Identity();
-    m(0, 2) = 0.37 * p - 3, m(1, 2) = 0.11 * p;
-    neighbour.homographies.push_back(m);
-  }
+  const cv::Mat ref = UniformNoise(w, h, &rng);
+  const sweep::Neighbour neighbour = ShiftingNeighbour(UniformNoise(w, h, &rng), planes);
   // Matched: two blobs and a scattering of single pixels, each with a range of its own.
   sweep::PlaneRanges ranges;
   ranges.first.assign(static_cast<size_t>(w) * h, 1);
@@ -583,20 +588,12 @@ TEST(SweepEngine, FarUnmatchedPixelsAreLeftOutWithoutChangingACost) {
       options.window_radius = r;
       sweep::CostVolume volume;
       sweep::BuildCostVolume(ref, {neighbour}, options, &volume, &ranges);
+      const auto limited_cost = [&](int x, int y, int d) { return limited[(static_cast<size_t>(y) * w + x) * n + d]; };
       size_t stored = 0, differ = 0;
       for (int y = 0; y < h; ++y) {
         for (int x = 0; x < w; ++x) {
           stored += volume.Stored(static_cast<size_t>(y) * w + x);
-          const int x0 = std::max(0, x - r), x1 = std::min(w - 1, x + r);
-          const int y0 = std::max(0, y - r), y1 = std::min(h - 1, y + r);
-          const uint32_t area = static_cast<uint32_t>((x1 - x0 + 1) * (y1 - y0 + 1));
-          for (int d = 0; d < n; ++d) {
-            uint32_t sum = 0;
-            for (int yy = y0; yy <= y1; ++yy)
-              for (int xx = x0; xx <= x1; ++xx) sum += limited[(static_cast<size_t>(yy) * w + xx) * n + d];
-            const uint16_t want = area == 1 ? static_cast<uint16_t>(sum) : static_cast<uint16_t>((sum * ((1u << 16) / area + 1)) >> 16);
-            differ += volume.At(x, y)[d] != want;
-          }
+          for (int d = 0; d < n; ++d) differ += volume.At(x, y)[d] != ClippedBoxMean(limited_cost, w, h, x, y, r, d);
         }
       }
       EXPECT_EQ(differ, 0u);
