@@ -242,8 +242,13 @@ class LayeredStereoStage : public Stage {
           // camera's distance to the plane, recovered when within 1 degree and 1%. Layers near
           // no true plane are the curved objects' approximations, counted apart. Planes that the
           // depth map covers on at least half their pixels are the ones the layers can find.
+          // The share of the view with depth: RANSAC's samples come from it, so a plane needs
+          // min_layer_fraction of it (its pixel_fraction x depth_coverage / depth_fraction) to
+          // make a layer of its own. A LayerView's depth is finite, 0 where none (`load` above).
+          const double depth_fraction = static_cast<double>(cv::countNonZero(reference.depth > 0)) /
+                                        std::max(1, reference.depth.rows * reference.depth.cols);
           double worst_angle = 0, worst_offset = 0;
-          size_t recovered = 0, found = 0, with_depth = 0;
+          size_t recovered = 0, found = 0, with_depth = 0, with_support = 0, recovered_with_support = 0;
           nlohmann::json errors = nlohmann::json::array();
           std::vector<TruthPlane> as_truth;  // the layers, to find the nearest layer of a true plane
           for (const SpriteLayer& layer : result.layers.layers) as_truth.push_back({{layer.normal, layer.offset, 0}, 0});
@@ -252,7 +257,11 @@ class LayeredStereoStage : public Stage {
           };
           for (const TruthPlane& t : visible) {
             with_depth += t.depth_coverage >= 0.5;
-            nlohmann::json entry = {{"pixel_fraction", t.pixel_fraction}, {"depth_coverage", t.depth_coverage}};
+            // The plane's share of the pixels with depth (RANSAC's samples).
+            const double depth_share = depth_fraction > 0 ? t.pixel_fraction * t.depth_coverage / depth_fraction : 0.0;
+            const bool supported = t.depth_coverage >= 0.5 && depth_share >= options.min_layer_fraction;
+            with_support += supported;
+            nlohmann::json entry = {{"pixel_fraction", t.pixel_fraction}, {"depth_coverage", t.depth_coverage}, {"depth_share", depth_share}};
             const PlaneError e = NearestTruthPlane(t.plane, as_truth, centre);
             // Relative to the camera's distance to the true plane, like NearestTruthPlane's.
             const PlaneError back = e.truth < 0 ? PlaneError() : NearestTruthPlane(as_truth[e.truth].plane, {t}, centre);
@@ -261,6 +270,7 @@ class LayeredStereoStage : public Stage {
               worst_angle = std::max(worst_angle, back.angle_deg);
               worst_offset = std::max(worst_offset, back.offset_relative);
               recovered += near_enough(back, 1.0, 0.01);
+              recovered_with_support += supported && near_enough(back, 1.0, 0.01);
               entry.update({{"layer", e.truth}, {"angle_deg", back.angle_deg}, {"offset_relative", back.offset_relative}});
             } else {
               entry["layer"] = nullptr;  // not found
@@ -269,22 +279,24 @@ class LayeredStereoStage : public Stage {
           }
           size_t unmatched = 0;
           for (const TruthPlane& layer : as_truth) unmatched += !near_enough(NearestTruthPlane(layer.plane, visible, centre), 5.0, 0.05);
-          // The share of the view with depth: RANSAC's samples come from it, so a plane needs
-          // min_layer_fraction of it (its pixel_fraction x depth_coverage / depth_fraction). A
-          // LayerView's depth is finite, 0 where none (`load` above).
-          const int with_depth_pixels = cv::countNonZero(reference.depth > 0);
-          piece["depth_fraction"] = static_cast<double>(with_depth_pixels) / std::max(1, reference.depth.rows * reference.depth.cols);
+          piece["depth_fraction"] = depth_fraction;
           piece["truth_visible_planes"] = visible.size();
           piece["truth_planes_with_depth"] = with_depth;
           piece["truth_plane_errors"] = errors;
           piece["truth_found_planes"] = found;
           piece["truth_recovered_planes"] = recovered;
+          // Those with depth on at least min_layer_fraction of the view's pixels with depth: the
+          // planes large enough for a layer of their own.
+          piece["truth_planes_with_layer_support"] = with_support;
+          piece["truth_recovered_planes_with_layer_support"] = recovered_with_support;
           piece["layers_off_true_planes"] = unmatched;
           piece["truth_worst_angle_deg"] = worst_angle;
           piece["truth_worst_offset_relative"] = worst_offset;
-          spdlog::info("[layered_stereo] {}: {} true planes cover >= {:.0f}% of the view each ({} with depth on half their pixels); "
-                       "{} found, {} within 1 deg and 1%, worst {:.2f} deg, {:.2f}%; {} layers on no true plane",
-                       name, visible.size(), 100 * options.min_layer_fraction, with_depth, found, recovered, worst_angle,
+          spdlog::info("[layered_stereo] {}: {} true planes cover >= {:.0f}% of the view each ({} with depth on half their pixels, "
+                       "{} of those on {:.0f}% of the pixels with depth); {} found, {} within 1 deg and 1% ({} of the {}), "
+                       "worst {:.2f} deg, {:.2f}%; {} layers on no true plane",
+                       name, visible.size(), 100 * options.min_layer_fraction, with_depth, with_support,
+                       100 * options.min_layer_fraction, found, recovered, recovered_with_support, with_support, worst_angle,
                        100 * worst_offset, unmatched);
         }
       }
@@ -293,7 +305,7 @@ class LayeredStereoStage : public Stage {
     nlohmann::json per_view = nlohmann::json::object();
     double layers = 0, seconds = 0, worst_angle = 0, worst_offset = 0;
     size_t with_truth = 0, count_matches = 0, count_matches_with_depth = 0, truth_planes = 0, with_depth = 0, found = 0,
-           recovered = 0;
+           recovered = 0, with_support = 0, recovered_with_support = 0;
     for (const auto& [name, piece] : summary.pieces) {
       per_view[name] = piece;
       layers += piece.value("layers", 0);
@@ -306,6 +318,8 @@ class LayeredStereoStage : public Stage {
         with_depth += piece.value("truth_planes_with_depth", 0);
         found += piece.value("truth_found_planes", 0);
         recovered += piece.value("truth_recovered_planes", 0);
+        with_support += piece.value("truth_planes_with_layer_support", 0);
+        recovered_with_support += piece.value("truth_recovered_planes_with_layer_support", 0);
         worst_angle = std::max(worst_angle, piece.value("truth_worst_angle_deg", 0.0));
         worst_offset = std::max(worst_offset, piece.value("truth_worst_offset_relative", 0.0));
       }
@@ -318,6 +332,8 @@ class LayeredStereoStage : public Stage {
       context.metrics["truth_planes_with_depth"] = with_depth;
       context.metrics["truth_found_planes"] = found;
       context.metrics["truth_recovered_planes"] = recovered;
+      context.metrics["truth_planes_with_layer_support"] = with_support;  // min_layer_fraction of the depth samples
+      context.metrics["truth_recovered_planes_with_layer_support"] = recovered_with_support;
       context.metrics["truth_worst_angle_deg"] = worst_angle;  // over the found planes
       context.metrics["truth_worst_offset_relative"] = worst_offset;
     }
