@@ -324,7 +324,7 @@ PlaneSweepResult PlaneSweep(const SweepView& reference, const std::vector<SweepV
     for (int y = 0; y < h; ++y) {
       for (int x = 0; x < w; ++x) {
         const size_t i = static_cast<size_t>(y) * w + x;
-        if (ranges.first[i] > ranges.last[i]) continue;
+        if (ranges.Empty(i, np)) continue;
         x_lo = std::min(x_lo, x), x_hi = std::max(x_hi, x), y_lo = std::min(y_lo, y), y_hi = std::max(y_hi, y);
       }
     }

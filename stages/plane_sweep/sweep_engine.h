@@ -14,6 +14,7 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <algorithm>
 #include <cstdint>
 #include <memory>
 #include <opencv2/core.hpp>
@@ -107,6 +108,8 @@ struct Neighbour {
 // evaluated.
 struct PlaneRanges {
   std::vector<uint16_t> first, last;
+  // Whether `pixel` has no plane of the sweep's `planes` in its range (it is not matched).
+  bool Empty(size_t pixel, int planes) const { return first[pixel] > std::min<int>(last[pixel], planes - 1); }
 };
 
 // The matching costs' work in one volume: plane-pixel-neighbour evaluations done, and the CPU
@@ -172,8 +175,8 @@ Winners WinnerTakeAll(const Aggregated& aggregated, const CostVolume* data_cost,
 // The winners of Aggregate(one_buffer) and WinnerTakeAll(data_cost = volume), found without the
 // second pass over the sums: the forward pass stores the matched pixels' sums in `sums`, one after
 // the other in scan order (reused like Aggregated's buffers; a buffer with the capacity of a whole
-// view touches only the pages of the matched pixels' share), and the backward pass, which completes each matched pixel's sum, picks its winner at
-// once instead of storing the sum. Without semi-global passes the winners come from the volume
+// view touches only the pages of the matched pixels' share), and the backward pass, which
+// completes each matched pixel's sum, picks its winner at once instead of storing the sum. Without semi-global passes the winners come from the volume
 // itself and `sums` is left empty. Same winners and certainties. The picking runs inside the
 // backward pass, on one thread (WinnerTakeAll's search is spread over the rows): for callers
 // that keep the cores busy with several sweeps, as the multi-view stage does; with

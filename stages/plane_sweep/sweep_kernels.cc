@@ -765,6 +765,8 @@ void SgmPass(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, i
 // (exact enough for costs below 2^11 * area). With at most 7 rows of at most 7 costs of 1023 the
 // sums fit in 16 bits, and so does inv (area >= 2), so the product's high half is the 16-bit
 // multiply the vector units have; the values are those of a 32-bit running sum.
+// The fixed-point reciprocal of a box window's area: sum / area is (sum * inv) >> 16.
+inline uint32_t BoxReciprocal(uint32_t area) { return (1u << 16) / area + 1; }
 template <int kRows>
 void BoxMeanRow(const uint16_t* const* rows, int w, int n, int r, int ny, uint16_t* __restrict out) {
   for (int x = 0; x < w; ++x) {
@@ -775,7 +777,7 @@ void BoxMeanRow(const uint16_t* const* rows, int w, int n, int r, int ny, uint16
       std::copy(rows[0] + at, rows[0] + at + n, o);
       continue;
     }
-    const uint16_t inv = static_cast<uint16_t>((1u << 16) / area + 1);
+    const uint16_t inv = static_cast<uint16_t>(BoxReciprocal(area));
     for (int d = 0; d < n; ++d) {
       uint16_t sum = rows[0][at + d];
       for (int k = 1; k < kRows; ++k) sum = static_cast<uint16_t>(sum + rows[k][at + d]);
@@ -937,7 +939,7 @@ void BoxFilterVolume(CostVolume* v, int r) {
         const uint32_t* a = acc.data() + static_cast<size_t>(x) * n;
         uint16_t* o = out + static_cast<size_t>(x) * n;
         // Multiply by a fixed-point reciprocal (exact enough for costs below 2^11 * area).
-        const uint32_t inv = (1u << 16) / area + 1;
+        const uint32_t inv = BoxReciprocal(area);
         for (int d = 0; d < n; ++d) o[d] = static_cast<uint16_t>((a[d] * inv) >> 16);
       }
       commit(y);
@@ -1692,7 +1694,7 @@ VolumeWork BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector
             chunk_live[j] = true;
             if (ranges != nullptr) {
               const int first = ranges->first[pixel], last = ranges->last[pixel];
-              if (first > last || first >= np) {
+              if (ranges->Empty(pixel, np)) {
                 chunk_live[j] = false;
                 continue;
               }
@@ -1844,9 +1846,9 @@ bool FlatCurveSurvivesTheBox(int r) {
   if (r <= 0) return true;
   for (int ny = 1; ny <= 2 * r + 1; ++ny) {
     for (int nx = 1; nx <= 2 * r + 1; ++nx) {
-      const uint64_t area = static_cast<uint64_t>(ny) * nx;
+      const uint32_t area = static_cast<uint32_t>(ny * nx);
       if (area == 1) continue;  // copied
-      if ((area * kOutsideCost * ((uint64_t{1} << 16) / area + 1)) >> 16 != kOutsideCost) return false;
+      if ((uint64_t{area} * kOutsideCost * BoxReciprocal(area)) >> 16 != kOutsideCost) return false;
     }
   }
   return true;
@@ -1864,8 +1866,7 @@ size_t LeaveOutFarUnmatched(const PlaneRanges& ranges, int r, CostVolume* v) {
   for (int y = 0; y < h; ++y) {
     uint8_t* row = reached.ptr<uint8_t>(y);
     for (int x = 0; x < w; ++x) {
-      const size_t pixel = static_cast<size_t>(y) * w + x;
-      row[x] = ranges.first[pixel] <= std::min<int>(ranges.last[pixel], v->planes - 1) ? 255 : 0;
+      row[x] = ranges.Empty(static_cast<size_t>(y) * w + x, v->planes) ? 0 : 255;
     }
   }
   if (r > 0) cv::dilate(reached, reached, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * r + 1, 2 * r + 1)));
