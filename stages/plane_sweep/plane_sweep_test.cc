@@ -736,6 +736,93 @@ TEST(SweepEngine, UnmatchedPixelsLeaveTheMatchedSumsAndHaveNoWinner) {
   sweep::SetIsa(sweep::BestIsa());
 }
 
+// Paths cross the pixels a volume leaves out (its flat curve) without a step at each, yet every
+// matched pixel's sums and winner are those of the same volume with every pixel stored (the flat
+// curve repeated): on every build, 4 and 8 paths, one thread and two, in one buffer and two, with
+// P1 0 (erosion reaches every plane) and larger, P2 constant and by grey step. The left-out
+// pixels form gaps of 1 to 20 pixels between stored blocks (runs shorter and longer than a
+// path's P2 / P1 steps) and a wide border, as around an object; half the stored pixels have a
+// single deep minimum, which the steps across a run spread over the most planes.
+TEST(SweepEngine, PathsCrossLeftOutPixelsAsIfSteppedThroughEach) {
+  const int w = 47, h = 31;
+  cv::RNG rng(12);
+  const cv::Mat gray = UniformNoise(w, h, &rng);
+  for (int planes : {21, 128}) {
+    sweep::CostVolume all = RandomCostVolume(w, h, planes, &rng);
+    const uint16_t flat_cost = static_cast<uint16_t>(rng.uniform(0, static_cast<int>(sweep::kMaxCost) + 1));
+    std::vector<uint8_t> stored(static_cast<size_t>(w) * h, 0);
+    for (int y = 5; y < h - 4; ++y) {   // stored blocks of 3-9 columns with gaps of 1-20 between
+      for (int x = 6 + (y % 3); x < w - 5;) {
+        const int block = rng.uniform(3, 10), gap = rng.uniform(1, 21);
+        for (int i = x; i < std::min(x + block, w - 5); ++i) stored[static_cast<size_t>(y) * w + i] = 1;
+        x += block + gap;
+      }
+    }
+    for (int y = 0; y < h; ++y) stored[static_cast<size_t>(y) * w + 2] = y % 7 == 0;  // lone pixels in the border
+    all.unmatched.assign(static_cast<size_t>(w) * h, 1);
+    sweep::CostVolume some = all;
+    some.slots.assign(static_cast<size_t>(w) * h, sweep::CostVolume::kNotStored);
+    some.flat.assign(some.stride, flat_cost);
+    some.data.clear();
+    size_t left_out = 0;
+    for (size_t pixel = 0; pixel < stored.size(); ++pixel) {
+      uint16_t* c = all.data.data() + pixel * all.stride;
+      if (!stored[pixel]) {
+        std::fill(c, c + all.stride, flat_cost);
+        ++left_out;
+        continue;
+      }
+      if (rng.uniform(0, 2) == 0) {  // a single deep minimum, which the erosion spreads over the most planes
+        std::fill(c, c + planes, sweep::kMaxCost);
+        c[rng.uniform(0, planes)] = 0;
+      }
+      all.unmatched[pixel] = some.unmatched[pixel] = rng.uniform(0, 10) < 2;  // a few stored ones unmatched
+      some.slots[pixel] = static_cast<uint32_t>(some.data.size() / some.stride);
+      some.data.insert(some.data.end(), c, c + all.stride);
+    }
+    ASSERT_GT(left_out, stored.size() / 3);
+    for (sweep::Isa isa : {sweep::Isa::kPortable, sweep::Isa::kAvx2, sweep::Isa::kAvx512}) {
+      if (!sweep::SetIsa(isa)) continue;
+      for (int paths : {4, 8}) {
+        for (int p1 : {0, 120, 240}) {
+          for (double gamma : {0.0, 12.0}) {
+            for (int threads : {1, 2}) {
+              SCOPED_TRACE(std::string(sweep::IsaName(isa)) + ", planes " + std::to_string(planes) + ", paths " +
+                           std::to_string(paths) + ", p1 " + std::to_string(p1) + ", gamma " + std::to_string(gamma) +
+                           ", threads " + std::to_string(threads));
+              sweep::EngineOptions options;
+              options.paths = paths, options.p1 = p1, options.p2_gamma = gamma, options.sgm_threads = threads;
+              for (bool one_buffer : {false, true}) {
+                sweep::Aggregated expected, got;
+                sweep::Aggregate(all, gray, options, &expected, one_buffer);
+                sweep::Aggregate(some, gray, options, &got, one_buffer);
+                size_t differ = 0;
+                for (size_t pixel = 0; pixel < stored.size(); ++pixel) {
+                  if (!all.Matched(pixel)) continue;
+                  for (int d = 0; d < planes; ++d) differ += got.Sum(pixel, d) != expected.Sum(pixel, d);
+                }
+                EXPECT_EQ(differ, 0u) << (one_buffer ? "one buffer" : "two buffers");
+              }
+              LargeBuffer<uint16_t> sums_all, sums_some;
+              const sweep::Winners want = sweep::AggregateAndPick(all, gray, options, 3.0, &sums_all);
+              const sweep::Winners have = sweep::AggregateAndPick(some, gray, options, 3.0, &sums_some);
+              size_t differ = 0;
+              for (int y = 0; y < h; ++y) {
+                for (int x = 0; x < w; ++x) {
+                  differ += have.plane.at<float>(y, x) != want.plane.at<float>(y, x);
+                  differ += have.confidence.at<float>(y, x) != want.confidence.at<float>(y, x);
+                }
+              }
+              EXPECT_EQ(differ, 0u) << "winners";
+            }
+          }
+        }
+      }
+    }
+  }
+  sweep::SetIsa(sweep::BestIsa());
+}
+
 // Picking each pixel's winner in the backward pass (the multi-view stage's path) gives the winners
 // and certainties of the sums stored and then searched, on every build, with unmatched pixels,
 // with few planes and many, 4 and 8 paths, without the semi-global passes, and with a sums buffer

@@ -71,7 +71,8 @@ struct CostVolume {
   // the semi-global paths across it, but its own path sums are not kept and it has no winner.
   std::vector<uint8_t> unmatched;
   // Where each pixel's costs lie in `data` (row-major, one entry per pixel), or kNotStored: the
-  // pixel's curve is `flat` (`stride` entries), which `data` does not repeat; empty: pixel p at
+  // pixel's curve is `flat` (`stride` entries, all one cost: the semi-global passes step a path
+  // across a run of such pixels at once), which `data` does not repeat; empty: pixel p at
   // p * stride. BuildCostVolume leaves out the unmatched pixels no matched one reaches through the
   // box filter (their filtered curve stays flat), when plane ranges leave some out.
   static constexpr uint32_t kNotStored = 0xFFFFFFFFu;
