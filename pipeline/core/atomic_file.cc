@@ -87,12 +87,18 @@ std::string TemporaryKeepingExtension(const std::string& path) {
 }  // namespace
 
 void WriteFileAtomic(const std::string& path, const std::string& bytes) {
+  WriteFileAtomic(path, {std::string_view(bytes)});
+}
+
+void WriteFileAtomic(const std::string& path, std::initializer_list<std::string_view> pieces) {
   CreateParentFolders(path);
   const std::string tmp_path = path + ".tmp." + std::to_string(::getpid());
   std::FILE* file = std::fopen(tmp_path.c_str(), "wb");
   if (file == nullptr) throw IoError("cannot write " + path + " (temporary " + tmp_path + "): " + ErrnoText());
-  const size_t written = bytes.empty() ? 0 : std::fwrite(bytes.data(), 1, bytes.size(), file);
-  const bool write_ok = written == bytes.size();
+  bool write_ok = true;
+  for (const std::string_view piece : pieces) {
+    if (write_ok && !piece.empty()) write_ok = std::fwrite(piece.data(), 1, piece.size(), file) == piece.size();
+  }
   const std::string write_error = write_ok ? "" : ErrnoText();
   const bool close_ok = std::fclose(file) == 0;
   if (!write_ok || !close_ok) {

@@ -6,12 +6,18 @@
 #pragma once
 
 #include <functional>
+#include <initializer_list>
 #include <string>
+#include <string_view>
 
 namespace ibmr {
 
 // Writes `bytes` to `path` atomically; creates parent folders. Throws IoError.
 void WriteFileAtomic(const std::string& path, const std::string& bytes);
+// The same with the file's bytes in pieces, written one after the other (a header and a payload
+// that lives elsewhere: no copy of the whole into one string, whose fresh pages a multi-megabyte
+// map would first fault in and fill).
+void WriteFileAtomic(const std::string& path, std::initializer_list<std::string_view> pieces);
 // Calls `write(tmp_path)` to produce the file under a temporary name, then renames it onto
 // `path`. For writers that need a path of their own (cv::imwrite). Throws IoError.
 void WriteViaTemporary(const std::string& path, const std::function<void(const std::string& tmp_path)>& write);

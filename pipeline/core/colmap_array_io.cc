@@ -1,6 +1,6 @@
 // COLMAP's dense array files (depth and normal maps): "W&H&C&" in ASCII, then W*H*C float32
 // little-endian values, channel-planar. FloatMap uses the same planar order, so the payload is
-// copied as one block.
+// read and written as one block, straight from and to the map.
 #include "pipeline/core/colmap_array_io.h"
 
 #include <algorithm>
@@ -80,12 +80,9 @@ void WriteColmapArray(const std::string& path, const FloatMap& map) {
     throw IoError("cannot write " + path + ": the map is empty or its data size does not match " +
                   std::to_string(map.width) + "x" + std::to_string(map.height) + "x" + std::to_string(map.channels));
   }
-  std::string bytes = std::to_string(map.width) + "&" + std::to_string(map.height) + "&" +
-                      std::to_string(map.channels) + "&";
-  const size_t header = bytes.size();
-  bytes.resize(header + count * sizeof(float));
-  std::memcpy(&bytes[header], map.data.data(), count * sizeof(float));
-  WriteFileAtomic(path, bytes);
+  const std::string header = std::to_string(map.width) + "&" + std::to_string(map.height) + "&" +
+                             std::to_string(map.channels) + "&";
+  WriteFileAtomic(path, {header, std::string_view(reinterpret_cast<const char*>(map.data.data()), count * sizeof(float))});
 }
 
 FloatMap ReadColmapArrayMatching(const std::string& path, const FloatMap& depth, int channels) {
