@@ -634,7 +634,7 @@ class FlatRuns {
   FlatRuns(const CostVolume& v, int paths, int lines, int16_t p1)
       : n_(v.stride), lines_(lines), p1_(p1), flat_(v.flat.data()),
         frozen_(static_cast<size_t>(paths) * lines * n_), frozen_min_(static_cast<size_t>(paths) * lines),
-        thawed_(static_cast<size_t>(paths) * 2 * n_), discarded_(n_) {}
+        thawed_(lines > 0 ? static_cast<size_t>(paths) * 2 * n_ : 0), discarded_(lines > 0 ? n_ : 0) {}
   // A run of path k starts on line `line` from the state `state` (n entries; the start row's
   // zeros at a path's start) whose minimum is `state_min`.
   void Start(int k, int line, const int16_t* state, int16_t state_min) {
@@ -668,10 +668,12 @@ class FlatRuns {
   std::vector<uint16_t> discarded_;
 };
 
-template <bool kRowPath, int kFromRow, class V>
-void SgmPassPaths(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, int s, bool accumulate,
-                  bool matched_only, LargeBuffer<uint16_t>* out, const PickTarget* pick, RowHandOff* publish = nullptr,
-                  const RowHandOff* await = nullptr) {
+// kRuns: the volume leaves pixels out (FlatRuns); a template argument, so that the passes over
+// volumes that store every pixel (the two-view pairs) carry none of its bookkeeping.
+template <bool kRowPath, int kFromRow, class V, bool kRuns>
+void SgmPassPathsOf(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, int s, bool accumulate,
+                    bool matched_only, LargeBuffer<uint16_t>* out, const PickTarget* pick, RowHandOff* publish,
+                    const RowHandOff* await) {
   constexpr int kRowPaths = __builtin_popcount(kFromRow);
   constexpr int K = (kRowPath ? 1 : 0) + kRowPaths;  // the row path first, then the paths from the previous row
   constexpr int kRow = kRowPath ? 1 : 0;
@@ -702,7 +704,7 @@ void SgmPassPaths(const CostVolume& v, const cv::Mat& gray, const EngineOptions&
   // last stepped one (0: none, the state is stored) and their least P2. A run's line: the row
   // for the row path; for a path from the previous row, x + dx s yi, the same at every pixel of
   // the path, modulo w (the pixels of one row are on distinct lines).
-  const bool runs = !v.slots.empty();
+  constexpr bool runs = kRuns;
   FlatRuns<V> flat_runs(v, K, runs ? w : 0, p1);
   std::vector<int32_t> run_rows(runs ? 2 * min_size : 0, 0);
   std::vector<int16_t> cap_rows(runs ? 2 * min_size : 0, 0);
@@ -725,9 +727,11 @@ void SgmPassPaths(const CostVolume& v, const cv::Mat& gray, const EngineOptions&
         min_prev[0] = xi == 0 ? 0 : left_min;
         p2[0] = xi == 0 ? 0 : p2_table[std::abs(g[x] - g[x - s])];
         cur[0] = left_cur + 1;
-        run[0] = xi == 0 ? 0 : left_run;
-        cap[0] = left_cap;
-        line[0] = 0;
+        if constexpr (kRuns) {
+          run[0] = xi == 0 ? 0 : left_run;
+          cap[0] = left_cap;
+          line[0] = 0;
+        }
       }
       // From the previous row: (x - s, y - s), (x, y - s), (x + s, y - s), those in kFromRow.
       for (int k = 0; k < kRowPaths; ++k) {
@@ -737,20 +741,20 @@ void SgmPassPaths(const CostVolume& v, const cv::Mat& gray, const EngineOptions&
           prev[kRow + k] = start.data() + 1;
           min_prev[kRow + k] = 0;
           p2[kRow + k] = 0;
-          run[kRow + k] = 0;
+          if constexpr (kRuns) run[kRow + k] = 0;
         } else {
           prev[kRow + k] = prev_row + (static_cast<size_t>(k) * w + xs) * ps + 1;
           min_prev[kRow + k] = prev_min[static_cast<size_t>(k) * w + xs];
           p2[kRow + k] = p2_table[std::abs(g[x] - gp[xs])];
-          if (runs) {
+          if constexpr (kRuns) {
             run[kRow + k] = prev_run[static_cast<size_t>(k) * w + xs];
             cap[kRow + k] = prev_cap[static_cast<size_t>(k) * w + xs];
           }
         }
-        if (runs) line[kRow + k] = ((x + dx_of[k] * s * yi) % w + w) % w;
+        if constexpr (kRuns) line[kRow + k] = ((x + dx_of[k] * s * yi) % w + w) % w;
       }
       const size_t pixel = static_cast<size_t>(y) * w + x;
-      if (runs) {
+      if constexpr (kRuns) {
         if (!v.Stored(pixel)) {  // left out (and so not matched): each path's run grows
           for (int k = 0; k < K; ++k) {
             if (run[k] == 0) flat_runs.Start(k, line[k], prev[k], min_prev[k]);
@@ -803,6 +807,17 @@ void SgmPassPaths(const CostVolume& v, const cv::Mat& gray, const EngineOptions&
     std::swap(prev_run, cur_run);
     std::swap(prev_cap, cur_cap);
     if (publish != nullptr) publish->Publish(yi + 1);
+  }
+}
+
+template <bool kRowPath, int kFromRow, class V>
+void SgmPassPaths(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, int s, bool accumulate,
+                  bool matched_only, LargeBuffer<uint16_t>* out, const PickTarget* pick, RowHandOff* publish = nullptr,
+                  const RowHandOff* await = nullptr) {
+  if (v.slots.empty()) {
+    SgmPassPathsOf<kRowPath, kFromRow, V, false>(v, gray, o, s, accumulate, matched_only, out, pick, publish, await);
+  } else {
+    SgmPassPathsOf<kRowPath, kFromRow, V, true>(v, gray, o, s, accumulate, matched_only, out, pick, publish, await);
   }
 }
 
