@@ -626,7 +626,8 @@ constexpr int kPrefetchPixels = 6;
 // and its least P2, and the first stored pixel after the run takes min(m, that many) steps (at
 // least one) of the same formula on the flat curve with that cap: the same integers as a step at
 // every pixel. On templeSparseRing 40-50% of the part a view sweeps is left out, the background
-// around the object.
+// around the object. (SgmPassPerPath, the portable and AVX2 builds' loop for many planes, still
+// steps every pixel: the same sums.)
 template <class V>
 class FlatRuns {
  public:
@@ -704,12 +705,11 @@ void SgmPassPathsOf(const CostVolume& v, const cv::Mat& gray, const EngineOption
   // last stepped one (0: none, the state is stored) and their least P2. A run's line: the row
   // for the row path; for a path from the previous row, x + dx s yi, the same at every pixel of
   // the path, modulo w (the pixels of one row are on distinct lines).
-  constexpr bool runs = kRuns;
-  FlatRuns<V> flat_runs(v, K, runs ? w : 0, p1);
-  std::vector<int32_t> run_rows(runs ? 2 * min_size : 0, 0);
-  std::vector<int16_t> cap_rows(runs ? 2 * min_size : 0, 0);
-  int32_t *prev_run = run_rows.data(), *cur_run = prev_run + (runs ? min_size : 0);
-  int16_t *prev_cap = cap_rows.data(), *cur_cap = prev_cap + (runs ? min_size : 0);
+  FlatRuns<V> flat_runs(v, K, kRuns ? w : 0, p1);
+  std::vector<int32_t> run_rows(kRuns ? 2 * min_size : 0, 0);
+  std::vector<int16_t> cap_rows(kRuns ? 2 * min_size : 0, 0);
+  int32_t *prev_run = run_rows.data(), *cur_run = prev_run + (kRuns ? min_size : 0);
+  int16_t *prev_cap = cap_rows.data(), *cur_cap = prev_cap + (kRuns ? min_size : 0);
   int32_t left_run = 0;
   int16_t left_cap = 0;
   int32_t run[K];
