@@ -741,10 +741,12 @@ TEST(SweepEngine, UnmatchedPixelsLeaveTheMatchedSumsAndHaveNoWinner) {
 // curve repeated): on every build, 4 and 8 paths, one thread and two, in one buffer and two, with
 // P1 0 (erosion reaches every plane) and larger, P2 constant and by grey step. The left-out
 // pixels form gaps of 1 to 20 pixels between stored blocks (runs shorter and longer than a
-// path's P2 / P1 steps) and a wide border, as around an object; half the stored pixels have a
+// path's P2 / P1 steps), one of 43 (longer than a curve of 21 planes: with P1 0 the steps stop
+// at its length) and a wide border, as around an object; and with a flat curve of two costs
+// (stepped pixel by pixel); half the stored pixels have a
 // single deep minimum, which the steps across a run spread over the most planes.
 TEST(SweepEngine, PathsCrossLeftOutPixelsAsIfSteppedThroughEach) {
-  const int w = 47, h = 31;
+  const int w = 61, h = 31;
   cv::RNG rng(12);
   const cv::Mat gray = UniformNoise(w, h, &rng);
   for (int planes : {21, 128}) {
@@ -759,6 +761,7 @@ TEST(SweepEngine, PathsCrossLeftOutPixelsAsIfSteppedThroughEach) {
       }
     }
     for (int y = 0; y < h; ++y) stored[static_cast<size_t>(y) * w + 2] = y % 7 == 0;  // lone pixels in the border
+    for (int x = 0; x < w; ++x) stored[static_cast<size_t>(h / 2) * w + x] = x < 9 || x >= w - 9;  // a gap of 43 > 32 planes
     all.unmatched.assign(static_cast<size_t>(w) * h, 1);
     sweep::CostVolume some = all;
     some.slots.assign(static_cast<size_t>(w) * h, sweep::CostVolume::kNotStored);
@@ -819,6 +822,22 @@ TEST(SweepEngine, PathsCrossLeftOutPixelsAsIfSteppedThroughEach) {
         }
       }
     }
+    // A curve for the left-out pixels that is not one cost (no volume the engine builds has one):
+    // those pixels are stepped one by one, with the same sums as the volume storing them.
+    some.flat[3] = static_cast<uint16_t>(flat_cost / 2);
+    for (size_t pixel = 0; pixel < stored.size(); ++pixel) {
+      if (!stored[pixel]) all.data[pixel * all.stride + 3] = some.flat[3];
+    }
+    sweep::SetIsa(sweep::BestIsa());
+    sweep::Aggregated expected, got;
+    sweep::Aggregate(all, gray, sweep::EngineOptions(), &expected);
+    sweep::Aggregate(some, gray, sweep::EngineOptions(), &got);
+    size_t differ = 0;
+    for (size_t pixel = 0; pixel < stored.size(); ++pixel) {
+      if (!all.Matched(pixel)) continue;
+      for (int d = 0; d < planes; ++d) differ += got.Sum(pixel, d) != expected.Sum(pixel, d);
+    }
+    EXPECT_EQ(differ, 0u) << "a flat curve of two costs";
   }
   sweep::SetIsa(sweep::BestIsa());
 }

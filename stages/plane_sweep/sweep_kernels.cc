@@ -615,7 +615,8 @@ struct RowHandOff {
 constexpr int kPrefetchPixels = 6;
 
 // Semi-global paths across the pixels a volume leaves out, stepped at once at the end of each run
-// of them. A left-out pixel's curve is flat (c = kOutsideCost at every plane), so a path's step
+// of them. A left-out pixel's curve is flat (one cost c at every plane: kOutsideCost, as
+// BuildCostVolume leaves it; SgmPassPaths checks), so a path's step
 // there is L(p,d) = c + min(L'(d), L'(d-1) + P1, L'(d+1) + P1, P2) with L' = L(p-r) - min L(p-r):
 // an erosion of L' by P1 a plane, capped at P2. Erosion commutes with taking the minimum with a
 // constant, so after m such steps from the state S the path holds
@@ -665,7 +666,8 @@ class FlatRuns {
   int n_, lines_;
   int16_t p1_;
   const uint16_t* flat_;
-  std::vector<int16_t> frozen_, frozen_min_, thawed_;
+  LargeBuffer<int16_t> frozen_, frozen_min_;  // uninitialised: Start fills a line before Thaw reads it
+  std::vector<int16_t> thawed_;
   std::vector<uint16_t> discarded_;
 };
 
@@ -714,7 +716,7 @@ void SgmPassPathsOf(const CostVolume& v, const cv::Mat& gray, const EngineOption
   int16_t left_cap = 0;
   int32_t run[K];
   int16_t cap[K];
-  int line[K];
+  int run_line[K];
   for (int yi = 0; yi < h; ++yi) {
     if (await != nullptr) await->AwaitRow(yi);
     const int y = s > 0 ? yi : h - 1 - yi;
@@ -730,7 +732,7 @@ void SgmPassPathsOf(const CostVolume& v, const cv::Mat& gray, const EngineOption
         if constexpr (kRuns) {
           run[0] = xi == 0 ? 0 : left_run;
           cap[0] = left_cap;
-          line[0] = 0;
+          run_line[0] = 0;
         }
       }
       // From the previous row: (x - s, y - s), (x, y - s), (x + s, y - s), those in kFromRow.
@@ -751,13 +753,13 @@ void SgmPassPathsOf(const CostVolume& v, const cv::Mat& gray, const EngineOption
             cap[kRow + k] = prev_cap[static_cast<size_t>(k) * w + xs];
           }
         }
-        if constexpr (kRuns) line[kRow + k] = ((x + dx_of[k] * s * yi) % w + w) % w;
+        if constexpr (kRuns) run_line[kRow + k] = ((x + dx_of[k] * s * yi) % w + w) % w;
       }
       const size_t pixel = static_cast<size_t>(y) * w + x;
       if constexpr (kRuns) {
         if (!v.Stored(pixel)) {  // left out (and so not matched): each path's run grows
           for (int k = 0; k < K; ++k) {
-            if (run[k] == 0) flat_runs.Start(k, line[k], prev[k], min_prev[k]);
+            if (run[k] == 0) flat_runs.Start(k, run_line[k], prev[k], min_prev[k]);
             const int32_t length = run[k] == 0 ? 1 : std::min(run[k] + 1, int32_t{1} << 30);
             const int16_t least = run[k] == 0 ? p2[k] : std::min(cap[k], p2[k]);
             if (kRowPath && k == 0) {
@@ -769,7 +771,7 @@ void SgmPassPathsOf(const CostVolume& v, const cv::Mat& gray, const EngineOption
           continue;
         }
         for (int k = 0; k < K; ++k) {  // a run that ends here: the state at its last pixel
-          if (run[k] > 0) prev[k] = flat_runs.Thaw(k, line[k], run[k], cap[k], &min_prev[k]);
+          if (run[k] > 0) prev[k] = flat_runs.Thaw(k, run_line[k], run[k], cap[k], &min_prev[k]);
           if (k >= kRow) cur_run[static_cast<size_t>(k - kRow) * w + x] = 0;
         }
         left_run = 0;
@@ -814,7 +816,10 @@ template <bool kRowPath, int kFromRow, class V>
 void SgmPassPaths(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, int s, bool accumulate,
                   bool matched_only, LargeBuffer<uint16_t>* out, const PickTarget* pick, RowHandOff* publish = nullptr,
                   const RowHandOff* await = nullptr) {
-  if (v.slots.empty()) {
+  // (A volume built elsewhere with a curve for left-out pixels that is not one cost everywhere is
+  // stepped pixel by pixel: the same sums, through At.)
+  const bool one_cost = !v.flat.empty() && std::all_of(v.flat.begin(), v.flat.end(), [&](uint16_t c) { return c == v.flat[0]; });
+  if (v.slots.empty() || !one_cost) {
     SgmPassPathsOf<kRowPath, kFromRow, V, false>(v, gray, o, s, accumulate, matched_only, out, pick, publish, await);
   } else {
     SgmPassPathsOf<kRowPath, kFromRow, V, true>(v, gray, o, s, accumulate, matched_only, out, pick, publish, await);
