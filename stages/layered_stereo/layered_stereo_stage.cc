@@ -8,6 +8,7 @@
 
 #include <algorithm>
 #include <filesystem>
+#include <map>
 #include <opencv2/imgproc.hpp>
 
 #include "pipeline/core/colmap_array_io.h"
@@ -304,8 +305,15 @@ class LayeredStereoStage : public Stage {
     });
     nlohmann::json per_view = nlohmann::json::object();
     double layers = 0, seconds = 0, worst_angle = 0, worst_offset = 0;
-    size_t with_truth = 0, count_matches = 0, count_matches_with_depth = 0, truth_planes = 0, with_depth = 0, found = 0,
-           recovered = 0, with_support = 0, recovered_with_support = 0;
+    size_t with_truth = 0, count_matches = 0, count_matches_with_depth = 0;
+    // Plane counts summed over the views, under the per-view keys: the visible true planes, those
+    // with depth on half their pixels, those with a layer, those within 1 degree and 1%, and the
+    // last two over the planes with layer support (min_layer_fraction of the depth samples).
+    static constexpr const char* kSummedCounts[] = {"truth_visible_planes",   "truth_planes_with_depth",
+                                                    "truth_found_planes",     "truth_recovered_planes",
+                                                    "truth_planes_with_layer_support",
+                                                    "truth_recovered_planes_with_layer_support"};
+    std::map<std::string, size_t> totals;
     for (const auto& [name, piece] : summary.pieces) {
       per_view[name] = piece;
       layers += piece.value("layers", 0);
@@ -314,12 +322,7 @@ class LayeredStereoStage : public Stage {
         ++with_truth;
         count_matches += piece.value("truth_visible_planes", 0) == piece.value("layers", -1);
         count_matches_with_depth += piece.value("truth_planes_with_depth", 0) == piece.value("layers", -1);
-        truth_planes += piece.value("truth_visible_planes", 0);
-        with_depth += piece.value("truth_planes_with_depth", 0);
-        found += piece.value("truth_found_planes", 0);
-        recovered += piece.value("truth_recovered_planes", 0);
-        with_support += piece.value("truth_planes_with_layer_support", 0);
-        recovered_with_support += piece.value("truth_recovered_planes_with_layer_support", 0);
+        for (const char* key : kSummedCounts) totals[key] += piece.value(key, size_t{0});
         worst_angle = std::max(worst_angle, piece.value("truth_worst_angle_deg", 0.0));
         worst_offset = std::max(worst_offset, piece.value("truth_worst_offset_relative", 0.0));
       }
@@ -328,12 +331,7 @@ class LayeredStereoStage : public Stage {
       context.metrics["truth_views"] = with_truth;
       context.metrics["truth_count_matches"] = count_matches;
       context.metrics["truth_count_matches_planes_with_depth"] = count_matches_with_depth;
-      context.metrics["truth_visible_planes"] = truth_planes;
-      context.metrics["truth_planes_with_depth"] = with_depth;
-      context.metrics["truth_found_planes"] = found;
-      context.metrics["truth_recovered_planes"] = recovered;
-      context.metrics["truth_planes_with_layer_support"] = with_support;  // min_layer_fraction of the depth samples
-      context.metrics["truth_recovered_planes_with_layer_support"] = recovered_with_support;
+      for (const char* key : kSummedCounts) context.metrics[key] = totals[key];
       context.metrics["truth_worst_angle_deg"] = worst_angle;  // over the found planes
       context.metrics["truth_worst_offset_relative"] = worst_offset;
     }

@@ -818,8 +818,8 @@ void SgmPassPaths(const CostVolume& v, const cv::Mat& gray, const EngineOptions&
                   const RowHandOff* await = nullptr) {
   // (A volume built elsewhere with a curve for left-out pixels that is not one cost everywhere is
   // stepped pixel by pixel: the same sums, through At.)
-  const bool one_cost = !v.flat.empty() && std::all_of(v.flat.begin(), v.flat.end(), [&](uint16_t c) { return c == v.flat[0]; });
-  if (v.slots.empty() || !one_cost) {
+  auto one_cost = [&] { return !v.flat.empty() && std::all_of(v.flat.begin(), v.flat.end(), [&](uint16_t c) { return c == v.flat[0]; }); };
+  if (v.slots.empty() || !one_cost()) {
     SgmPassPathsOf<kRowPath, kFromRow, V, false>(v, gray, o, s, accumulate, matched_only, out, pick, publish, await);
   } else {
     SgmPassPathsOf<kRowPath, kFromRow, V, true>(v, gray, o, s, accumulate, matched_only, out, pick, publish, await);
