@@ -4,7 +4,9 @@
 //    depth, fraction kept, precision of the kept samples, time, evaluations per second;
 //  * Middlebury templeSparseRing at full resolution: plane_sweep wall time (MVE dmrecon: 161.6 s),
 //    evaluations per second (over the stage's wall time, and over the CPU time of the evaluations
-//    alone: evaluations_per_second_all_threads), cost volume per view and peak memory, with the
+//    alone: evaluations_per_second_all_threads), where the threads' time went (thread_seconds:
+//    evaluations, box filter, semi-global passes and winners, writing the maps, against the wall
+//    times the threads), cost volume per view and peak memory, with the
 //    engine's build in use, again with the portable build, and again with the bilinear census
 //    cost (`bilinear`: the cost before the one along the epipolar lines; CensusSampling);
 //  * Middlebury dinoSparseRing (untextured): fraction of pixels kept at the confidence threshold,

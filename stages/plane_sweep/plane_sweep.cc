@@ -383,9 +383,14 @@ PlaneSweepResult PlaneSweep(const SweepView& reference, const std::vector<SweepV
                                                           whole ? census.get() : &part_census, part.tl());
     result.evaluations += work.evaluations;
     result.evaluation_seconds += work.seconds;
+    result.box_filter_seconds += work.box_filter_seconds;
     LargeBuffer<uint16_t>& sums = buffers->aggregated.a;
     LargeBuffer<uint16_t>().swap(buffers->aggregated.b);  // pages a two-view sweep may have left
+    // The semi-global passes run on this thread (and a helper of its own), outside any parallel
+    // loop, so its CPU clock counts them alone.
+    const double aggregation_started = sweep::ThreadCpuSeconds();
     const sweep::Winners winners = sweep::AggregateAndPick(volume, part_gray, engine, options.confidence_scale, &sums);
+    if (engine.semi_global) result.aggregation_seconds += sweep::ThreadCpuSeconds() - aggregation_started;
     result.volume_bytes = std::max(result.volume_bytes, (volume.data.size() + sums.size()) * sizeof(uint16_t));
     const cv::Rect own(region.x, y0, region.width, y1 - y0);
     winners.plane.rowRange(y0 - c0, y1 - c0).copyTo(winner_plane(own));

@@ -118,6 +118,11 @@ struct PlaneSweepResult {
   FloatMap confidence;   // 1 channel in [0, 1]
   int64_t evaluations = 0;       // plane-pixel-neighbour cost evaluations done
   double evaluation_seconds = 0;  // the threads' CPU time spent on them, summed (sweep::VolumeWork)
+  double box_filter_seconds = 0;  // the threads' CPU time in the box filter, summed (sweep::VolumeWork)
+  // CPU time of the view's own thread in the semi-global passes and the winners (with sgm_threads
+  // 2 the helper thread's share is not in it; 0 without semi-global aggregation, whose winners a
+  // parallel loop picks).
+  double aggregation_seconds = 0;
   int64_t full_evaluations = 0;  // ... that sweeping every plane at every pixel would do
   double valid_fraction = 0;  // fraction of pixels with depth
   size_t volume_bytes = 0;    // bytes of the cost volumes held for this view (its largest band)

@@ -230,8 +230,14 @@ class PlaneSweepStage : public Stage {
                                                                             options.census_radius_y);
                                             });
     const bool census_cost = context.params.String("cost") == "census";
-    std::atomic<int64_t> evaluations_here{0};  // this run's own work, for its speed
-    std::atomic<double> evaluation_seconds_here{0.0};  // and the CPU time of its evaluations
+    // This run's own work (the views it computed), for its speed: the evaluations, and the
+    // thread-seconds of the parts of a view's work that are timed (metrics: thread_seconds).
+    std::atomic<int64_t> evaluations_here{0};
+    struct ThreadSeconds {
+      double evaluations = 0, box_filter = 0, aggregation = 0, writing_maps = 0;
+    };
+    ThreadSeconds seconds_here;
+    std::mutex seconds_mutex;
     const PerViewSummary summary = ForEachView(context, "plane_sweep", names, [&](const std::string& name) {
       const int index = static_cast<int>(std::find(names.begin(), names.end(), name) - names.begin());
       const Image& image = model.images.at(ids[index]);
@@ -272,12 +278,20 @@ class PlaneSweepStage : public Stage {
         }
         result = PlaneSweep(reference, neighbours, near, far, view_options, per_pixel ? &bounds : nullptr);
       }
+      // The writes run outside any parallel loop: the wall clock around them is this thread's
+      // time in them, the waits for the disk (the atomic writes' fsync) included.
+      const auto writes_started = std::chrono::steady_clock::now();
       WriteColmapArray(context.workspace.DepthMapPath(name, "photometric"), result.depth);
       WriteColmapArray(context.workspace.NormalMapPath(name, "photometric"), result.normals);
       WriteColmapArray(context.workspace.ConfidenceMapPath(name, "photometric"), result.confidence);
+      const double writing = std::chrono::duration<double>(std::chrono::steady_clock::now() - writes_started).count();
       evaluations_here += result.evaluations;
-      for (double seen = evaluation_seconds_here.load();
-           !evaluation_seconds_here.compare_exchange_weak(seen, seen + result.evaluation_seconds);) {
+      {
+        std::lock_guard<std::mutex> lock(seconds_mutex);
+        seconds_here.evaluations += result.evaluation_seconds;
+        seconds_here.box_filter += result.box_filter_seconds;
+        seconds_here.aggregation += result.aggregation_seconds;
+        seconds_here.writing_maps += writing;
       }
       std::vector<std::string> neighbour_names;
       for (int j : chosen) neighbour_names.push_back(names[j]);
@@ -320,10 +334,20 @@ class PlaneSweepStage : public Stage {
     const double threads = static_cast<double>(std::min<size_t>(
         static_cast<size_t>(tbb::this_task_arena::max_concurrency()),
         tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism)));
-    const double per_core = evaluation_seconds_here.load() > 0 ? evaluations_here.load() / evaluation_seconds_here.load() : 0.0;
+    const double per_core = seconds_here.evaluations > 0 ? evaluations_here.load() / seconds_here.evaluations : 0.0;
     context.metrics["evaluations_per_second_per_thread"] = per_core;
     context.metrics["evaluation_threads"] = threads;
     context.metrics["evaluations_per_second_all_threads"] = per_core * threads;
+    // Where the threads' time went, summed over the views this run computed: the evaluations and
+    // the box filter (the threads' CPU time in those loops), the semi-global passes and winners
+    // (the view's own thread), writing the three maps (wall, waits included); `wall_times_threads`
+    // is what the threads had, the rest (loading, census codes, bounds, the volume's set-up,
+    // normals, idle ends) the difference.
+    context.metrics["thread_seconds"] = {{"evaluations", seconds_here.evaluations},
+                                         {"box_filter", seconds_here.box_filter},
+                                         {"semi_global_and_winners", seconds_here.aggregation},
+                                         {"writing_maps", seconds_here.writing_maps},
+                                         {"wall_times_threads", seconds * threads}};
     context.metrics["mean_valid_fraction"] = names.empty() ? 0.0 : valid_sum / names.size();
     context.metrics["cost_volume_mb_per_view"] = volume_max;
     context.metrics["bands_per_view"] = bands_max;  // > 1: swept in bands of rows within max_view_memory_mb

@@ -1022,6 +1022,16 @@ TEST_F(PlaneSweepStageTest, SynthObjectRingDepthMatchesGroundTruth) {
   const nlohmann::json metrics = Run("plane_sweep", params);
   EXPECT_EQ(metrics["views"].get<int>(), 24);
   EXPECT_GT(metrics["evaluations"].get<int64_t>(), 0);
+  // Where the threads' time went: each timed part took some, and all of them together no more than
+  // the threads had (a clock around a parallel loop would also count the other tasks its thread
+  // ran while it waited, and could exceed it).
+  const nlohmann::json& spent = metrics["thread_seconds"];
+  double parts = 0;
+  for (const char* part : {"evaluations", "box_filter", "semi_global_and_winners", "writing_maps"}) {
+    EXPECT_GT(spent[part].get<double>(), 0.0) << part;
+    parts += spent[part].get<double>();
+  }
+  EXPECT_LE(parts, spent["wall_times_threads"].get<double>());
   const Workspace ws(dir_.string());
   size_t truth = 0, within = 0, estimated = 0;
   for (int v = 0; v < 24; ++v) {

@@ -117,11 +117,17 @@ struct PlaneRanges {
 // time the threads spent on them (census: the loop that evaluates and combines the neighbours'
 // costs, and fills each pixel's planes outside its range while they are in cache, summed over the
 // threads that ran it; not the census transforms or the box filter). evaluations / seconds is the
-// evaluations per second of one core at it.
+// evaluations per second of one core at it. `box_filter_seconds`: the threads' CPU time in the
+// census volume's box filter, summed the same way (each task times its own work: a thread that
+// waits inside a parallel loop may run other tasks, which a clock around the loop would count).
 struct VolumeWork {
   int64_t evaluations = 0;
   double seconds = 0;
+  double box_filter_seconds = 0;
 };
+
+// CPU time of the calling thread, seconds (the clock VolumeWork's times come from).
+double ThreadCpuSeconds();
 
 // Fills the matching-cost volume (reusing `volume`'s buffers when large enough): costs of all
 // neighbours per plane, best-k combined; `ranges` (optional) limits the planes per pixel.

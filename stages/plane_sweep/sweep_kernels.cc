@@ -915,8 +915,9 @@ void BoxMeanRow(const uint16_t* const* rows, int w, int n, int r, int ny, uint16
 // and only the rows below it are still read. The r rows above and below a band belong to its
 // neighbours, which overwrite them: their horizontal sums are taken before any band starts. So
 // the filter needs no second volume (a volume's first touch costs more than the filter itself).
-void BoxFilterVolume(CostVolume* v, int r) {
-  if (r <= 0) return;
+// Returns the threads' CPU time in it, summed (VolumeWork::box_filter_seconds).
+double BoxFilterVolume(CostVolume* v, int r) {
+  if (r <= 0) return 0;
   const int w = v->width, h = v->height, n = v->stride;
   const size_t row = static_cast<size_t>(w) * n;
   // Horizontal sums of row y (at most 31 costs of 1023: 16 bits suffice). For r <= 2 each pixel's
@@ -987,13 +988,16 @@ void BoxFilterVolume(CostVolume* v, int r) {
     const int slot = y < first ? y - (first - r) : r + (y - (first + band_rows));
     return halo[band].data() + static_cast<size_t>(slot) * row;
   };
+  tbb::enumerable_thread_specific<double> thread_seconds(0.0);  // VolumeWork::box_filter_seconds
   tbb::parallel_for(0, bands, [&](int band) {
+    const double started = ThreadCpuSeconds();
     const int first = band * band_rows, end = std::min(h, first + band_rows);
     halo[band].resize(2 * static_cast<size_t>(r) * row);
     for (int y = std::max(0, first - r); y < first; ++y) horizontal(y, halo_row(band, y));
     for (int y = end; y < std::min(h, end + r); ++y) horizontal(y, halo_row(band, y));
+    thread_seconds.local() += ThreadCpuSeconds() - started;
   });
-  tbb::parallel_for(0, bands, [&](int band) {
+  auto filter_band = [&](int band) {
     const int first = band * band_rows, end = std::min(h, first + band_rows);
     const int ring_rows = 2 * r + 2;
     std::vector<uint16_t> ring(static_cast<size_t>(ring_rows) * row);
@@ -1067,7 +1071,13 @@ void BoxFilterVolume(CostVolume* v, int r) {
       }
       commit(y);
     }
+  };
+  tbb::parallel_for(0, bands, [&](int band) {
+    const double started = ThreadCpuSeconds();
+    filter_band(band);
+    thread_seconds.local() += ThreadCpuSeconds() - started;
   });
+  return thread_seconds.combine(std::plus<double>());
 }
 
 // Where one plane's correspondence of a reference pixel falls in a neighbour: the index of the
@@ -2061,9 +2071,8 @@ VolumeWork BuildCostVolume(const cv::Mat& ref, const std::vector<Neighbour>& nei
   }
   const int k = std::min(o.best_k, nn);
   if (o.cost == Cost::kCensus) {
-    const VolumeWork work =
-        BuildCensusVolume(*reference_census, src_census, neighbours, k, o.census_sampling, ranges, origin, volume);
-    BoxFilterVolume(volume, o.window_radius);
+    VolumeWork work = BuildCensusVolume(*reference_census, src_census, neighbours, k, o.census_sampling, ranges, origin, volume);
+    work.box_filter_seconds = BoxFilterVolume(volume, o.window_radius);
     return work;
   }
   tbb::enumerable_thread_specific<PlaneScratch> scratch;

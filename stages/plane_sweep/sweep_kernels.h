@@ -19,8 +19,6 @@
 
 namespace ibmr {
 namespace sweep {
-// CPU time of the calling thread, seconds (sweep_engine.cc).
-double ThreadCpuSeconds();
 namespace portable {
 IBMR_SWEEP_KERNEL_DECLARATIONS
 }  // namespace portable
