@@ -15,7 +15,6 @@
 
 #include <CLI/CLI.hpp>
 #include <algorithm>
-#include <atomic>
 #include <chrono>
 #include <filesystem>
 #include <fstream>
@@ -232,12 +231,12 @@ class PlaneSweepStage : public Stage {
     const bool census_cost = context.params.String("cost") == "census";
     // This run's own work (the views it computed), for its speed: the evaluations, and the
     // thread-seconds of the parts of a view's work that are timed (metrics: thread_seconds).
-    std::atomic<int64_t> evaluations_here{0};
-    struct ThreadSeconds {
-      double evaluations = 0, box_filter = 0, aggregation = 0, writing_maps = 0;
+    struct Work {
+      int64_t evaluations = 0;
+      double evaluation_seconds = 0, box_filter = 0, aggregation = 0, writing_maps = 0;
     };
-    ThreadSeconds seconds_here;
-    std::mutex seconds_mutex;
+    Work work_here;
+    std::mutex work_mutex;
     const PerViewSummary summary = ForEachView(context, "plane_sweep", names, [&](const std::string& name) {
       const int index = static_cast<int>(std::find(names.begin(), names.end(), name) - names.begin());
       const Image& image = model.images.at(ids[index]);
@@ -285,13 +284,13 @@ class PlaneSweepStage : public Stage {
       WriteColmapArray(context.workspace.NormalMapPath(name, "photometric"), result.normals);
       WriteColmapArray(context.workspace.ConfidenceMapPath(name, "photometric"), result.confidence);
       const double writing = std::chrono::duration<double>(std::chrono::steady_clock::now() - writes_started).count();
-      evaluations_here += result.evaluations;
       {
-        std::lock_guard<std::mutex> lock(seconds_mutex);
-        seconds_here.evaluations += result.evaluation_seconds;
-        seconds_here.box_filter += result.box_filter_seconds;
-        seconds_here.aggregation += result.aggregation_seconds;
-        seconds_here.writing_maps += writing;
+        std::lock_guard<std::mutex> lock(work_mutex);
+        work_here.evaluations += result.evaluations;
+        work_here.evaluation_seconds += result.evaluation_seconds;
+        work_here.box_filter += result.box_filter_seconds;
+        work_here.aggregation += result.aggregation_seconds;
+        work_here.writing_maps += writing;
       }
       std::vector<std::string> neighbour_names;
       for (int j : chosen) neighbour_names.push_back(names[j]);
@@ -327,14 +326,14 @@ class PlaneSweepStage : public Stage {
     context.metrics["evaluations"] = evaluations;
     // Without per-pixel hull bounds every pixel would sweep every plane: the work they saved.
     context.metrics["evaluations_without_pixel_bounds"] = full_evaluations;
-    context.metrics["evaluations_per_second"] = evaluations_here.load() / seconds;
+    context.metrics["evaluations_per_second"] = work_here.evaluations / seconds;
     // The evaluations alone, as if every thread spent all its time on them: the matching cost's
     // own speed, which the stage's figure above dilutes with everything else a view needs
     // (aggregation, winners, files).
     const double threads = static_cast<double>(std::min<size_t>(
         static_cast<size_t>(tbb::this_task_arena::max_concurrency()),
         tbb::global_control::active_value(tbb::global_control::max_allowed_parallelism)));
-    const double per_core = seconds_here.evaluations > 0 ? evaluations_here.load() / seconds_here.evaluations : 0.0;
+    const double per_core = work_here.evaluation_seconds > 0 ? work_here.evaluations / work_here.evaluation_seconds : 0.0;
     context.metrics["evaluations_per_second_per_thread"] = per_core;
     context.metrics["evaluation_threads"] = threads;
     context.metrics["evaluations_per_second_all_threads"] = per_core * threads;
@@ -343,10 +342,10 @@ class PlaneSweepStage : public Stage {
     // (the view's own thread), writing the three maps (wall, waits included); `wall_times_threads`
     // is what the threads had, the rest (loading, census codes, bounds, the volume's set-up,
     // normals, idle ends) the difference.
-    context.metrics["thread_seconds"] = {{"evaluations", seconds_here.evaluations},
-                                         {"box_filter", seconds_here.box_filter},
-                                         {"semi_global_and_winners", seconds_here.aggregation},
-                                         {"writing_maps", seconds_here.writing_maps},
+    context.metrics["thread_seconds"] = {{"evaluations", work_here.evaluation_seconds},
+                                         {"box_filter", work_here.box_filter},
+                                         {"semi_global_and_winners", work_here.aggregation},
+                                         {"writing_maps", work_here.writing_maps},
                                          {"wall_times_threads", seconds * threads}};
     context.metrics["mean_valid_fraction"] = names.empty() ? 0.0 : valid_sum / names.size();
     context.metrics["cost_volume_mb_per_view"] = volume_max;

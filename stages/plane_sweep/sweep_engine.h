@@ -184,10 +184,11 @@ Winners WinnerTakeAll(const Aggregated& aggregated, const CostVolume* data_cost,
 // the other in scan order (reused like Aggregated's buffers; a buffer with the capacity of a whole
 // view touches only the pages of the matched pixels' share), and the backward pass, which
 // completes each matched pixel's sum, picks its winner at once instead of storing the sum.
-// Without semi-global passes the winners come from the volume itself and `sums` is left empty. Same winners and certainties. The picking runs inside the
-// backward pass, on one thread (WinnerTakeAll's search is spread over the rows): for callers
-// that keep the cores busy with several sweeps, as the multi-view stage does; with
-// options.sgm_threads 2 each pass's paths are split over two threads (one sweep at a time).
+// Without semi-global passes the winners come from the volume itself and `sums` is left empty.
+// Same winners and certainties. The picking runs inside the backward pass, on one thread
+// (WinnerTakeAll's search is spread over the rows): for callers that keep the cores busy with
+// several sweeps, as the multi-view stage does; with options.sgm_threads 2 each pass's paths are
+// split over two threads (one sweep at a time).
 Winners AggregateAndPick(const CostVolume& volume, const cv::Mat& reference_gray, const EngineOptions& options,
                          double confidence_scale, LargeBuffer<uint16_t>* sums);
 

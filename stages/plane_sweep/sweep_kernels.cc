@@ -69,6 +69,28 @@ int RoundUp16(int n) { return (n + 15) / 16 * 16; }
 // prefers neighbours that see the point.
 constexpr uint16_t kOutsideCost = 600;
 
+// CPU time of a parallel loop's tasks, summed over the threads (VolumeWork's times). Each task
+// times its own work with a Scope: a clock around the loop would also count the other tasks its
+// thread ran while it waited.
+class TaskSeconds {
+ public:
+  class Scope {
+   public:
+    explicit Scope(TaskSeconds* total) : slot_(total->seconds_.local()), started_(ThreadCpuSeconds()) {}
+    ~Scope() { slot_ += ThreadCpuSeconds() - started_; }
+    Scope(const Scope&) = delete;
+    Scope& operator=(const Scope&) = delete;
+
+   private:
+    double& slot_;
+    double started_;
+  };
+  double Total() { return seconds_.combine(std::plus<double>()); }
+
+ private:
+  tbb::enumerable_thread_specific<double> seconds_{0.0};
+};
+
 // Per-worker scratch for one plane.
 struct PlaneScratch {
   std::vector<std::vector<uint16_t>> slices;  // per neighbour, W*H
@@ -988,16 +1010,16 @@ double BoxFilterVolume(CostVolume* v, int r) {
     const int slot = y < first ? y - (first - r) : r + (y - (first + band_rows));
     return halo[band].data() + static_cast<size_t>(slot) * row;
   };
-  tbb::enumerable_thread_specific<double> thread_seconds(0.0);  // VolumeWork::box_filter_seconds
+  TaskSeconds seconds;  // VolumeWork::box_filter_seconds
   tbb::parallel_for(0, bands, [&](int band) {
-    const double started = ThreadCpuSeconds();
+    const TaskSeconds::Scope timed(&seconds);
     const int first = band * band_rows, end = std::min(h, first + band_rows);
     halo[band].resize(2 * static_cast<size_t>(r) * row);
     for (int y = std::max(0, first - r); y < first; ++y) horizontal(y, halo_row(band, y));
     for (int y = end; y < std::min(h, end + r); ++y) horizontal(y, halo_row(band, y));
-    thread_seconds.local() += ThreadCpuSeconds() - started;
   });
-  auto filter_band = [&](int band) {
+  tbb::parallel_for(0, bands, [&](int band) {
+    const TaskSeconds::Scope timed(&seconds);
     const int first = band * band_rows, end = std::min(h, first + band_rows);
     const int ring_rows = 2 * r + 2;
     std::vector<uint16_t> ring(static_cast<size_t>(ring_rows) * row);
@@ -1071,13 +1093,8 @@ double BoxFilterVolume(CostVolume* v, int r) {
       }
       commit(y);
     }
-  };
-  tbb::parallel_for(0, bands, [&](int band) {
-    const double started = ThreadCpuSeconds();
-    filter_band(band);
-    thread_seconds.local() += ThreadCpuSeconds() - started;
   });
-  return thread_seconds.combine(std::plus<double>());
+  return seconds.Total();
 }
 
 // Where one plane's correspondence of a reference pixel falls in a neighbour: the index of the
@@ -1789,7 +1806,7 @@ VolumeWork BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector
 #endif
   if (ranges != nullptr) v->unmatched.assign(static_cast<size_t>(w) * h, 0);
   tbb::enumerable_thread_specific<int64_t> evaluations(0);
-  tbb::enumerable_thread_specific<double> thread_seconds(0.0);
+  TaskSeconds seconds;
   // Pixels in chunks of kChunk along a row. The plane-major kernel takes each neighbour in turn
   // over the chunk: the codes one neighbour's correspondences read for a chunk stay in the
   // first-level cache (pixel by pixel with every neighbour inside, the four neighbours' paths
@@ -1804,7 +1821,7 @@ VolumeWork BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector
   // (830 -> 967 M/s over 4 alternated pairs), no change where the lines run along the rows.
   constexpr int kChunk = 16;
   tbb::parallel_for(tbb::blocked_range<int>(0, h, 8), [&](const tbb::blocked_range<int>& rows) {
-    const double started = ThreadCpuSeconds();
+    const TaskSeconds::Scope timed(&seconds);
     // Per neighbour, n planes of kChunk pixels, [j][i][p]; across pixels, only the combined costs,
     // [p][j] in `lane_mean`.
     std::vector<uint16_t> chunk_costs(across_pixels ? 0 : static_cast<size_t>(kChunk) * nn * n, kMaxCost);
@@ -1890,9 +1907,8 @@ VolumeWork BuildCensusVolume(const std::vector<uint64_t>& ref, const std::vector
         }
       }
     }
-    thread_seconds.local() += ThreadCpuSeconds() - started;
   }, tbb::simple_partitioner());
-  return {evaluations.combine(std::plus<int64_t>()), thread_seconds.combine(std::plus<double>())};
+  return {evaluations.combine(std::plus<int64_t>()), seconds.Total()};
 }
 
 // Planes outside each pixel's range take the mean of its in-range costs; an unmatched pixel
@@ -2076,9 +2092,9 @@ VolumeWork BuildCostVolume(const cv::Mat& ref, const std::vector<Neighbour>& nei
     return work;
   }
   tbb::enumerable_thread_specific<PlaneScratch> scratch;
-  tbb::enumerable_thread_specific<double> thread_seconds(0.0);
+  TaskSeconds seconds;
   tbb::parallel_for(tbb::blocked_range<int>(0, planes, 1), [&](const tbb::blocked_range<int>& range) {
-    const double started = ThreadCpuSeconds();
+    const TaskSeconds::Scope timed(&seconds);
     PlaneScratch& s = scratch.local();
     s.slices.resize(nn);
     for (int p = range.begin(); p < range.end(); ++p) {
@@ -2111,10 +2127,9 @@ VolumeWork BuildCostVolume(const cv::Mat& ref, const std::vector<Neighbour>& nei
         }
       }
     }
-    thread_seconds.local() += ThreadCpuSeconds() - started;
   });
   if (ranges != nullptr) ApplyRanges(*ranges, volume);  // evaluated everywhere, then limited
-  return {static_cast<int64_t>(planes) * w * h * nn, thread_seconds.combine(std::plus<double>())};
+  return {static_cast<int64_t>(planes) * w * h * nn, seconds.Total()};
 }
 
 void Aggregate(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, bool one_buffer, Aggregated* out) {
