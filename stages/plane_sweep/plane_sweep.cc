@@ -13,6 +13,7 @@
 #include <stdexcept>
 #include <opencv2/imgproc.hpp>
 
+#include "pipeline/core/plane_homography.h"
 #include "stages/plane_sweep/sweep_engine.h"
 
 namespace ibmr {
@@ -225,20 +226,17 @@ int SweepBands(int width, int height, const PlaneSweepOptions& options, int64_t 
 PlaneSweepResult PlaneSweep(const SweepView& reference, const std::vector<SweepView>& neighbours, double near,
                             double far, const PlaneSweepOptions& options, const PixelDepthBounds* pixel_bounds) {
   const int w = reference.gray.cols, h = reference.gray.rows, np = options.num_planes;
-  const double w_min = 1.0 / far, w_max = 1.0 / near, step = (w_max - w_min) / (np - 1);
-  const Eigen::Matrix3d k_ref_inv = reference.camera.K().inverse();
-  const Rigid3d world_from_ref = reference.cam_from_world.Inverse();
+  const InverseDepthPlanes planes{near, far, np};
+  const double w_min = planes.MinInverse(), step = planes.Step();
+  std::vector<double> inverse_depths(np);
+  for (int p = 0; p < np; ++p) inverse_depths[p] = planes.InverseDepth(p);
   std::vector<sweep::Neighbour> engine_neighbours;
   for (const SweepView& view : neighbours) {
     sweep::Neighbour n;
     n.gray = view.gray;
     n.census = view.census;
-    const Rigid3d src_from_ref = view.cam_from_world.Compose(world_from_ref);
-    const Eigen::Matrix3d k = view.camera.K();
-    const Eigen::Matrix3d a = k * src_from_ref.R() * k_ref_inv;
-    const Eigen::Vector3d b = k * src_from_ref.translation;
-    const Eigen::RowVector3d c = k_ref_inv.row(2);  // n^T K^-1 with n = (0, 0, 1)
-    for (int p = 0; p < np; ++p) n.homographies.push_back(a + (w_min + p * step) * b * c);
+    n.homographies = PlaneHomographies(reference.camera, reference.cam_from_world, view.camera, view.cam_from_world,
+                                       inverse_depths);
     engine_neighbours.push_back(std::move(n));
   }
   const sweep::EngineOptions engine = ToEngine(options);

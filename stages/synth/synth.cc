@@ -114,6 +114,8 @@ bool SynthSceneKindFromName(const std::string& name, SynthSceneKind* kind) {
     *kind = SynthSceneKind::kObjectRing;
   } else if (name == "room") {
     *kind = SynthSceneKind::kRoom;
+  } else if (name == "forward_facing") {
+    *kind = SynthSceneKind::kForwardFacing;
   } else {
     return false;
   }
@@ -121,7 +123,7 @@ bool SynthSceneKindFromName(const std::string& name, SynthSceneKind* kind) {
 }
 
 std::string SynthSceneKindName(SynthSceneKind kind) {
-  return kind == SynthSceneKind::kObjectRing ? "object_ring" : "room";
+  return kind == SynthSceneKind::kObjectRing ? "object_ring" : kind == SynthSceneKind::kRoom ? "room" : "forward_facing";
 }
 
 bool SynthOptions::Check(std::string* error) const {
@@ -181,8 +183,11 @@ SynthScene BuildSynthScene(const SynthOptions& requested) {
   if (options.scene == SynthSceneKind::kObjectRing) {
     synth_internal::BuildObjectRingGeometry(options, &scene);
     scene.background = Eigen::Vector3d(0.04, 0.04, 0.05);
-  } else {
+  } else if (options.scene == SynthSceneKind::kRoom) {
     synth_internal::BuildRoomGeometry(options, &scene);
+    scene.background = Eigen::Vector3d::Zero();  // never seen: the room is closed
+  } else {
+    synth_internal::BuildForwardFacingGeometry(options, &scene);
     scene.background = Eigen::Vector3d::Zero();  // never seen: the room is closed
   }
   scene.light_direction = Eigen::Vector3d(0.35, -0.55, 0.76).normalized();

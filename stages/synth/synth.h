@@ -9,6 +9,9 @@
 //  * kRoom: a closed box room (floor, ceiling, four walls) holding a pillar, two star-shaped
 //    objects and a box at different depths, seen by forward-facing cameras on a short horizontal
 //    line (like an LLFF capture), all looking at one point: depth variation and occlusions.
+//  * kForwardFacing: the room with thin occluders (two poles and a rail, 3-6 cm) in front of
+//    everything, seen by a grid of cameras with parallel optical axes (columns x rows, 4:3,
+//    `baseline` wide and 3/4 of it high): an LLFF-like capture, for the volume of planes.
 //
 // Radiance is view-independent (Lambertian, one fixed directional light, ambient term) so that
 // photo-consistency holds exactly; albedo is a seeded multi-octave solid value noise of the 3D
@@ -39,9 +42,10 @@
 
 namespace ibmr {
 
-enum class SynthSceneKind { kObjectRing, kRoom };
+enum class SynthSceneKind { kObjectRing, kRoom, kForwardFacing };
 
-// "object_ring" -> kObjectRing, "room" -> kRoom; false for an unknown name.
+// "object_ring" -> kObjectRing, "room" -> kRoom, "forward_facing" -> kForwardFacing; false for an
+// unknown name.
 bool SynthSceneKindFromName(const std::string& name, SynthSceneKind* kind);
 std::string SynthSceneKindName(SynthSceneKind kind);
 
@@ -58,7 +62,8 @@ struct SynthOptions {
   double elevation_deg = 20.0; // object_ring: camera height above the equator, degrees, in [-80, 80]
   double ring_radius = 4.0;    // object_ring: camera distance to the object centre, scene units
                                // (object radius ~1), in [2.5, 100]
-  double baseline = 1.0;       // room: length of the line the cameras sit on, scene units, in [0, 4]
+  double baseline = 1.0;       // room: length of the line the cameras sit on; forward_facing: width
+                               // of the camera grid; scene units, in [0, 4]
   bool textureless_wall = false;  // room: the left wall (x = -3) gets a uniform albedo
   int subdivision = 5;         // icosphere subdivision levels of star-shaped objects (20*4^n faces),
                                // in [1, 7]

@@ -245,8 +245,11 @@ void BuildObjectRingGeometry(const SynthOptions& options, SynthScene* scene) {
   }
 }
 
-void BuildRoomGeometry(const SynthOptions& options, SynthScene* scene) {
-  std::mt19937_64 rng(Mix64(static_cast<uint64_t>(options.seed) ^ 0x500Dull));
+namespace {
+
+// The room's walls, floor, ceiling, pillar, objects and box (shared by the room and the forward-
+// facing scene).
+void AppendRoomContents(const SynthOptions& options, std::mt19937_64* rng, SynthScene* scene) {
   const int floor = AddPart("floor", false, false, {0.95, 0.8, 0.6}, scene);
   const int ceiling = AddPart("ceiling", false, false, {0.9, 0.9, 0.95}, scene);
   const int wall_left = AddPart("wall_left", false, false, {0.85, 0.9, 1.0}, scene);
@@ -262,17 +265,47 @@ void BuildRoomGeometry(const SynthOptions& options, SynthScene* scene) {
   const int pillar = AddPart("pillar", true, false, {1.0, 0.7, 0.55}, scene);
   AppendBox({-1.25, 2.0, 0}, {-0.95, 2.3, 2.4}, 0.15, false, {pillar, pillar, pillar, pillar, pillar, pillar}, scene);
   const int near_object = AddPart("object_near", true, true, Eigen::Vector3d::Ones(), scene);
-  AppendStarShape(RandomStarShape({0.45, 3.3, 0.8}, 0.45, &rng), options.subdivision, near_object, scene);
+  AppendStarShape(RandomStarShape({0.45, 3.3, 0.8}, 0.45, rng), options.subdivision, near_object, scene);
   const int box = AddPart("box", true, false, {0.65, 1.0, 0.7}, scene);
   AppendBox({0.6, 5.5, 0}, {1.8, 6.5, 1.3}, 0.25, false, {box, box, box, box, box, box}, scene);
   const int far_object = AddPart("object_far", true, true, {1.0, 0.9, 1.0}, scene);
-  AppendStarShape(RandomStarShape({-1.2, 6.2, 1.3}, 0.6, &rng), options.subdivision, far_object, scene);
+  AppendStarShape(RandomStarShape({-1.2, 6.2, 1.3}, 0.6, rng), options.subdivision, far_object, scene);
+}
 
+}  // namespace
+
+void BuildRoomGeometry(const SynthOptions& options, SynthScene* scene) {
+  std::mt19937_64 rng(Mix64(static_cast<uint64_t>(options.seed) ^ 0x500Dull));
+  AppendRoomContents(options, &rng, scene);
   scene->camera = PinholeFromFov(options.width, options.height, options.fov_deg > 0 ? options.fov_deg : 60.0);
   const Eigen::Vector3d target(0, 5, 1.0);
   for (int i = 0; i < options.views; ++i) {
     const double x = options.baseline * (static_cast<double>(i) / (options.views - 1) - 0.5);
     AddView(i, options.views, LookAt({x, 0, 1.4}, target, Eigen::Vector3d::UnitZ()), scene);
+  }
+}
+
+void BuildForwardFacingGeometry(const SynthOptions& options, SynthScene* scene) {
+  std::mt19937_64 rng(Mix64(static_cast<uint64_t>(options.seed) ^ 0x500Dull));
+  AppendRoomContents(options, &rng, scene);
+  // Thin occluders near the cameras: two poles and a rail, 3-6 cm thick, in front of everything.
+  const int poles = AddPart("thin_occluders", true, false, {0.95, 0.95, 0.6}, scene);
+  const std::array<int, 6> all = {poles, poles, poles, poles, poles, poles};
+  AppendBox({-0.32, 1.3, 0}, {-0.28, 1.34, 3}, 0.1, false, all, scene);
+  AppendBox({0.52, 1.7, 0}, {0.58, 1.76, 3}, 0.1, false, all, scene);
+  AppendBox({-3, 2.6, 1.95}, {3, 2.65, 2.0}, 0.1, false, all, scene);
+  scene->camera = PinholeFromFov(options.width, options.height, options.fov_deg > 0 ? options.fov_deg : 60.0);
+  // A grid of columns x rows cameras (4:3, row by row from the top left), baseline wide and 3/4 of
+  // it high, all looking the same way (parallel axes, slightly down), like a hand-held LLFF capture.
+  const int columns = std::max(1, static_cast<int>(std::ceil(std::sqrt(options.views * 4.0 / 3.0))));
+  const int rows = (options.views + columns - 1) / columns;
+  const Eigen::Vector3d centre(0, 0, 1.4), forward = Eigen::Vector3d(0, 5, 1.0 - 1.4).normalized();
+  for (int i = 0; i < options.views; ++i) {
+    const int c = i % columns, r = i / columns;
+    const double x = columns > 1 ? options.baseline * (static_cast<double>(c) / (columns - 1) - 0.5) : 0.0;
+    const double z = rows > 1 ? 0.75 * options.baseline * (0.5 - static_cast<double>(r) / (rows - 1)) : 0.0;
+    const Eigen::Vector3d eye = centre + Eigen::Vector3d(x, 0, z);
+    AddView(i, options.views, LookAt(eye, eye + forward, Eigen::Vector3d::UnitZ()), scene);
   }
 }
 

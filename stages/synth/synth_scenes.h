@@ -35,6 +35,9 @@ void AppendBox(const Eigen::Vector3d& min, const Eigen::Vector3d& max, double ce
 // Fills parts, shapes, mesh geometry (no normals or colours yet), camera and views.
 void BuildObjectRingGeometry(const SynthOptions& options, SynthScene* scene);
 void BuildRoomGeometry(const SynthOptions& options, SynthScene* scene);
+// The room with thin occluders (two poles, a rail) near the cameras, seen by a grid of cameras
+// with parallel axes (forward-facing, like an LLFF capture).
+void BuildForwardFacingGeometry(const SynthOptions& options, SynthScene* scene);
 
 // View names "view_000.png", ... with at least three digits (more when views > 1000) so that
 // name order is view order.

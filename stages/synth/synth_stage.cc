@@ -37,7 +37,7 @@ int ClampToInt(int64_t value) { return static_cast<int>(std::clamp<int64_t>(valu
 // Fills `options` from the keys present in `params` and checks them; the error names the key.
 std::optional<ParamError> OptionsFromParams(const Params& params, SynthOptions* options) {
   if (params.Has("scene") && !SynthSceneKindFromName(params.String("scene"), &options->scene)) {
-    return ParamError{"scene", "must be object_ring or room, got \"" + params.String("scene") + "\""};
+    return ParamError{"scene", "must be object_ring, room or forward_facing, got \"" + params.String("scene") + "\""};
   }
   const std::pair<const char*, int*> ints[] = {{"views", &options->views},
                                                {"width", &options->width},
@@ -107,7 +107,8 @@ class SynthStage : public Stage {
     return {
         {"scene", ParamType::kString, "object_ring",
          "object_ring: one object, ring of cameras, plain background; room: box room with objects, "
-         "forward-facing cameras", {"object_ring", "room"}},
+         "forward-facing cameras on a line; forward_facing: the room with thin occluders, a grid of cameras "
+         "with parallel axes (LLFF-like)", {"object_ring", "room", "forward_facing"}},
         {"views", ParamType::kInt, "24", "number of cameras, in [2, 10000]", {}},
         {"width", ParamType::kInt, "320", "image width in pixels, in [16, 8192]", {}},
         {"height", ParamType::kInt, "240", "image height in pixels, in [16, 8192]", {}},
@@ -119,7 +120,7 @@ class SynthStage : public Stage {
         {"elevation_deg", ParamType::kDouble, "20", "object_ring: camera elevation in degrees, in [-80, 80]", {}},
         {"ring_radius", ParamType::kDouble, "4",
          "object_ring: camera distance to the object centre (object radius ~1), in [2.5, 100]", {}},
-        {"baseline", ParamType::kDouble, "1", "room: length of the camera line in scene units, in (0, 4]", {}},
+        {"baseline", ParamType::kDouble, "1", "room: length of the camera line; forward_facing: width of the camera grid; scene units, in (0, 4]", {}},
         {"textureless_wall", ParamType::kBool, "false", "room: leave the left wall untextured", {}},
         {"subdivision", ParamType::kInt, "5", "icosphere levels of the star-shaped objects (20*4^n faces), in [1, 7]",
          {}},

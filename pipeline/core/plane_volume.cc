@@ -1,0 +1,205 @@
+// A volume of RGBA planes in a virtual camera: ray sampling, compositing and files (see
+// plane_volume.h; seed 000 lines 5526-5610).
+#include "pipeline/core/plane_volume.h"
+
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <nlohmann/json.hpp>
+
+#include "pipeline/core/atomic_file.h"
+#include "pipeline/core/errors.h"
+#include "pipeline/core/image_io.h"
+
+namespace fs = std::filesystem;
+
+namespace ibmr {
+
+void PlaneVolume::Allocate() { cells.assign(PlaneFloats() * depths.size(), 0.f); }
+
+VolumeRays::VolumeRays(const PlaneVolume& volume, const Camera& camera, const Rigid3d& cam_from_world) {
+  const Rigid3d volume_from_camera = volume.cam_from_world.Compose(cam_from_world.Inverse());
+  direction_from_pixel_ = volume_from_camera.R() * camera.K().inverse();
+  origin_ = volume_from_camera.translation;
+  inverse_depths_.reserve(volume.depths.size());
+  for (const double z : volume.depths) inverse_depths_.push_back(1.0 / z);
+  fx_ = volume.camera.FocalX();
+  fy_ = volume.camera.FocalY();
+  cx_ = volume.camera.PrincipalX() - 0.5;  // index coordinates: pixel centres at integers
+  cy_ = volume.camera.PrincipalY() - 0.5;
+  width_ = volume.Width();
+  height_ = volume.Height();
+}
+
+bool VolumeRays::SampleOn(double u, double v, int k, RaySample* out) const {
+  const Eigen::Vector3d d = direction_from_pixel_ * Eigen::Vector3d(u, v, 1.0);
+  const double w = inverse_depths_[k];
+  const double along = 1.0 - origin_.z() * w;  // (z_k - o_z) / z_k: the plane is ahead where it has d_z's sign
+  if (d.z() == 0 || (d.z() > 0 ? along <= 0 : along >= 0)) return false;
+  const double x = fx_ * (origin_.x() * w + along * d.x() / d.z()) + cx_;
+  const double y = fy_ * (origin_.y() * w + along * d.y() / d.z()) + cy_;
+  out->plane = k;
+  out->x = static_cast<float>(x);
+  out->y = static_cast<float>(y);
+  out->inside = x >= -0.5 && y >= -0.5 && x <= width_ - 0.5 && y <= height_ - 0.5;
+  return true;
+}
+
+int VolumeRays::Samples(double u, double v, RaySample* out) const {
+  const Eigen::Vector3d d = direction_from_pixel_ * Eigen::Vector3d(u, v, 1.0);
+  if (d.z() == 0) return 0;  // parallel to the planes
+  const double rx = d.x() / d.z(), ry = d.y() / d.z();
+  const int planes = static_cast<int>(inverse_depths_.size());
+  const bool forward = d.z() > 0;
+  int count = 0;
+  for (int i = 0; i < planes; ++i) {
+    const int k = forward ? i : planes - 1 - i;
+    const double w = inverse_depths_[k];
+    const double along = 1.0 - origin_.z() * w;
+    if (forward ? along <= 0 : along >= 0) continue;
+    const double x = fx_ * (origin_.x() * w + along * rx) + cx_;
+    const double y = fy_ * (origin_.y() * w + along * ry) + cy_;
+    RaySample& s = out[count++];
+    s.plane = k;
+    s.x = static_cast<float>(x);
+    s.y = static_cast<float>(y);
+    s.inside = x >= -0.5 && y >= -0.5 && x <= width_ - 0.5 && y <= height_ - 0.5;
+  }
+  return count;
+}
+
+void CompositePlaneVolume(const PlaneVolume& volume, const Camera& camera, const Rigid3d& cam_from_world,
+                          cv::Mat* colour, cv::Mat* coverage) {
+  const VolumeRays rays(volume, camera, cam_from_world);
+  *colour = cv::Mat(camera.height, camera.width, CV_32FC3, cv::Scalar::all(0));
+  *coverage = cv::Mat(camera.height, camera.width, CV_8UC1, cv::Scalar(0));
+  const int planes = volume.Planes(), far_plane = planes - 1;
+  tbb::parallel_for(tbb::blocked_range<int>(0, camera.height), [&](const tbb::blocked_range<int>& rows) {
+    std::vector<RaySample> samples(planes);
+    for (int y = rows.begin(); y < rows.end(); ++y) {
+      float* out = colour->ptr<float>(y);
+      uint8_t* cover = coverage->ptr<uint8_t>(y);
+      for (int x = 0; x < camera.width; ++x) {
+        const int n = rays.Samples(x + 0.5, y + 0.5, samples.data());
+        float c[3] = {0, 0, 0}, transmittance = 1.f;
+        bool covered = false;
+        for (int i = 0; i < n; ++i) covered |= samples[i].plane == far_plane && samples[i].inside;
+        for (int i = 0; i < n && transmittance > kOpaqueTransmittance; ++i) {
+          const RaySample& s = samples[i];
+          if (!s.inside) continue;
+          float cell[4];
+          SampleCell(volume.Plane(s.plane), Footprint(volume.Width(), volume.Height(), s.x, s.y), cell);
+          const float weight = cell[3] * transmittance;
+          for (int ch = 0; ch < 3; ++ch) c[ch] += weight * cell[ch];
+          transmittance *= 1.f - cell[3];
+        }
+        for (int ch = 0; ch < 3; ++ch) out[3 * x + ch] = c[ch];
+        cover[x] = covered ? 255 : 0;
+      }
+    }
+  });
+}
+
+namespace {
+
+std::string PlaneFile(int k) {
+  char name[32];
+  std::snprintf(name, sizeof(name), "plane_%03d.png", k);
+  return name;
+}
+
+}  // namespace
+
+void WritePlaneVolume(const std::string& folder, const PlaneVolume& volume) {
+  fs::create_directories(folder);
+  nlohmann::json planes = nlohmann::json::array();
+  for (int k = 0; k < volume.Planes(); ++k) {
+    cv::Mat image(volume.Height(), volume.Width(), CV_8UC4);
+    const float* cells = volume.Plane(k);
+    for (int y = 0; y < volume.Height(); ++y) {
+      uint8_t* row = image.ptr<uint8_t>(y);
+      for (int i = 0; i < volume.Width() * 4; ++i) {
+        row[i] = static_cast<uint8_t>(std::lround(std::clamp(cells[static_cast<size_t>(y) * volume.Width() * 4 + i], 0.f, 1.f) * 255.f));
+      }
+    }
+    WriteImage(folder + "/" + PlaneFile(k), image);
+    planes.push_back(PlaneFile(k));
+  }
+  const Eigen::Quaterniond& q = volume.cam_from_world.rotation;
+  const Eigen::Vector3d& t = volume.cam_from_world.translation;
+  const nlohmann::json json = {
+      {"format", "ibmr_plane_volume"},
+      {"version", 1},
+      {"width", volume.Width()},
+      {"height", volume.Height()},
+      {"camera",
+       {{"model", "PINHOLE"},
+        {"params", {volume.camera.FocalX(), volume.camera.FocalY(), volume.camera.PrincipalX(), volume.camera.PrincipalY()}}}},
+      {"cam_from_world", {{"qvec", {q.w(), q.x(), q.y(), q.z()}}, {"tvec", {t.x(), t.y(), t.z()}}}},
+      {"depths", volume.depths},
+      {"planes", planes},
+      {"premultiplied", false},
+  };
+  WriteFileAtomic(folder + "/volume.json", json.dump(2) + "\n");
+}
+
+PlaneVolume ReadPlaneVolume(const std::string& folder) {
+  const std::string json_path = folder + "/volume.json";
+  if (!fs::exists(json_path)) throw InputError(json_path + " does not exist; run the volume stage");
+  nlohmann::json json;
+  try {
+    json = nlohmann::json::parse(ReadFile(json_path));
+  } catch (const nlohmann::json::exception& e) {
+    throw IoError(json_path + ": not valid JSON (" + e.what() + "); re-run the volume stage");
+  }
+  PlaneVolume volume;
+  try {
+    if (json.value("format", "") != "ibmr_plane_volume") throw IoError("\"format\" is not \"ibmr_plane_volume\"");
+    const int width = json.at("width").get<int>(), height = json.at("height").get<int>();
+    const std::vector<double> params = json.at("camera").at("params").get<std::vector<double>>();
+    if (width < 1 || height < 1 || params.size() != 4 || !(params[0] > 0) || !(params[1] > 0)) {
+      throw IoError("\"width\", \"height\" must be >= 1 and \"camera\".\"params\" 4 numbers with fx, fy > 0");
+    }
+    volume.camera = Camera::Pinhole(width, height, params[0], params[1], params[2], params[3]);
+    const std::vector<double> q = json.at("cam_from_world").at("qvec").get<std::vector<double>>();
+    const std::vector<double> t = json.at("cam_from_world").at("tvec").get<std::vector<double>>();
+    if (q.size() != 4 || t.size() != 3) throw IoError("\"cam_from_world\" needs qvec (4) and tvec (3)");
+    volume.cam_from_world = Rigid3d(Eigen::Quaterniond(q[0], q[1], q[2], q[3]), Eigen::Vector3d(t[0], t[1], t[2]));
+    volume.depths = json.at("depths").get<std::vector<double>>();
+    const std::vector<std::string> planes = json.at("planes").get<std::vector<std::string>>();
+    if (volume.depths.size() < 2 || planes.size() != volume.depths.size()) {
+      throw IoError("\"depths\" needs at least 2 planes and \"planes\" one file per depth");
+    }
+    for (size_t k = 0; k < volume.depths.size(); ++k) {
+      if (!(volume.depths[k] > 0) || (k > 0 && !(volume.depths[k] > volume.depths[k - 1]))) {
+        throw IoError("\"depths\" must be positive and ascending");
+      }
+    }
+    volume.Allocate();
+    for (size_t k = 0; k < planes.size(); ++k) {
+      const std::string path = folder + "/" + planes[k];
+      if (!fs::exists(path)) throw InputError(path + " does not exist (listed in " + json_path + "); re-run the volume stage");
+      const cv::Mat image = ReadImageUnchanged(path);
+      if (image.cols != width || image.rows != height || image.type() != CV_8UC4) {
+        throw IoError(path + ": must be an 8-bit RGBA PNG of " + std::to_string(width) + "x" + std::to_string(height) +
+                      " (volume.json); re-run the volume stage");
+      }
+      float* cells = volume.Plane(static_cast<int>(k));
+      for (int y = 0; y < height; ++y) {
+        const uint8_t* row = image.ptr<uint8_t>(y);
+        for (int i = 0; i < width * 4; ++i) cells[static_cast<size_t>(y) * width * 4 + i] = row[i] / 255.f;
+      }
+    }
+  } catch (const nlohmann::json::exception& e) {
+    throw IoError(json_path + ": " + e.what() + "; re-run the volume stage");
+  } catch (const IoError& e) {
+    const std::string what = e.what();
+    if (what.rfind(folder, 0) == 0) throw;
+    throw IoError(json_path + ": " + what + "; re-run the volume stage");
+  }
+  return volume;
+}
+
+}  // namespace ibmr

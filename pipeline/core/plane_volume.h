@@ -1,0 +1,137 @@
+// A volume of coloured, partly transparent planes in a virtual camera: the (x, y, d) volume of
+// colours and real-valued opacities of seed 000 section 3 (lines 5526-5610, Szeliski & Golland,
+// ICCV 1998), "a set of (potentially) transparent acetates stacked at different d levels", with d
+// planes z = const of a virtual camera (generalized disparity space, lines 5314-5345). The view
+// synthesis field calls it a multiplane image (MPI). Shared by the volume stage, which fits it to
+// the photos, and the render stage, which draws it.
+//
+// Drawing a camera (seed 000 lines 5560-5575, eq. 6): each plane is re-projected into the camera
+// by its homography and the planes are composited with the over operator, back to front:
+// C = c_k a_k + (1 - a_k) C. Evaluated per pixel along the pixel's ray: the ray meets plane k at
+// the volume pixel
+//   x_k = fx (o_x w_k + (1 - o_z w_k) r_x) + cx,   y_k likewise,   w_k = 1 / z_k,
+// where o is the camera centre and r = d / d_z the ray direction in the volume's frame (the same
+// mapping as the plane's homography, without a 3x3 product per plane); the plane lies ahead of the
+// camera where (1 - o_z w_k) has the sign of d_z, and the planes met ahead are ordered by their
+// distance along the ray: nearest plane first for d_z > 0, farthest first otherwise. The
+// composite is accumulated front to back, C = sum_k c_k a_k T_k with T_k = prod_{j before k}
+// (1 - a_j), which is the same sum as back-to-front "over" and lets a ray stop once T is ~0.
+//
+// On disk (volume/<reference>/, written by the volume stage):
+//   plane_000.png ... plane_<D-1>.png   RGBA, 8 bits, straight (not premultiplied) colour; plane
+//                                       000 is the nearest
+//   volume.json  {"format": "ibmr_plane_volume", "version": 1, "width", "height",
+//                 "camera": {"model": "PINHOLE", "params": [fx, fy, cx, cy]} (COLMAP's pixel
+//                 convention: the top-left pixel's centre at (0.5, 0.5)),
+//                 "cam_from_world": {"qvec": [w, x, y, z], "tvec": [x, y, z]} (COLMAP's),
+//                 "depths": [z_0, ..., z_{D-1}] (ascending, along the virtual camera's axis),
+//                 "planes": ["plane_000.png", ...], "premultiplied": false}
+// The farthest plane is opaque (alpha 1 everywhere): a ray that reaches it inside the volume's
+// image is fully covered, so the volume leaves no hole inside its field of view.
+#pragma once
+
+#include <algorithm>
+#include <opencv2/core.hpp>
+#include <string>
+#include <vector>
+
+#include "pipeline/core/camera.h"
+#include "pipeline/core/rigid3.h"
+
+namespace ibmr {
+
+// A ray stops once the transmittance in front of the next plane falls to this: the planes behind
+// add at most this fraction of a colour (renders and the fitting's model alike).
+constexpr float kOpaqueTransmittance = 1e-3f;
+
+struct PlaneVolume {
+  Camera camera;            // PINHOLE; camera.width x camera.height is the size of every plane
+  Rigid3d cam_from_world;   // the virtual camera's pose
+  std::vector<double> depths;  // z of each plane in the virtual camera, ascending (plane 0 nearest)
+  // Plane-major cells: cells[((k * height + y) * width + x) * 4 + c], c = B, G, R (OpenCV's order,
+  // straight colour) and alpha, all in [0, 1].
+  std::vector<float> cells;
+
+  int Width() const { return camera.width; }
+  int Height() const { return camera.height; }
+  int Planes() const { return static_cast<int>(depths.size()); }
+  size_t PlaneFloats() const { return static_cast<size_t>(camera.width) * camera.height * 4; }
+  float* Plane(int k) { return cells.data() + k * PlaneFloats(); }
+  const float* Plane(int k) const { return cells.data() + k * PlaneFloats(); }
+  // Allocates `planes` transparent black planes for the current camera.
+  void Allocate();
+};
+
+// Where a ray meets one plane: plane index and volume pixel coordinates in index units (pixel
+// (i, j)'s centre at (i, j)); `inside` when within the plane's image (half a pixel beyond the
+// outer centres at most).
+struct RaySample {
+  int plane = 0;
+  float x = 0, y = 0;
+  bool inside = false;
+};
+
+// The constants of one camera looking at a volume, for per-pixel ray sampling without allocation.
+class VolumeRays {
+ public:
+  VolumeRays(const PlaneVolume& volume, const Camera& camera, const Rigid3d& cam_from_world);
+  // The planes the ray of pixel coordinates (u, v) (pixel centre at +0.5) meets ahead of the camera,
+  // front to back, into `out` (room for volume.Planes()); returns their count.
+  int Samples(double u, double v, RaySample* out) const;
+  // Where the ray of (u, v) meets plane k; false when the plane is not ahead of the camera.
+  bool SampleOn(double u, double v, int k, RaySample* out) const;
+
+ private:
+  Eigen::Matrix3d direction_from_pixel_;  // R_vc K_c^-1: a pixel's ray direction in the volume's frame
+  Eigen::Vector3d origin_;                 // the camera centre in the volume's frame
+  std::vector<double> inverse_depths_;
+  double fx_, fy_, cx_, cy_;
+  int width_, height_;
+};
+
+// The bilinear footprint of index coordinates (x, y) in a plane of width x height cells, clamped
+// to the plane: four cell offsets (in floats, 4 per cell) and their weights. The fitting's gradient
+// scatters through the same footprint, so that it is the exact adjoint of the read.
+struct CellFootprint {
+  size_t offset[4];
+  float weight[4];
+};
+inline CellFootprint Footprint(int width, int height, float x, float y) {
+  x = std::min(std::max(x, 0.f), static_cast<float>(width - 1));
+  y = std::min(std::max(y, 0.f), static_cast<float>(height - 1));
+  const int x0 = std::max(0, std::min(static_cast<int>(x), width - 2));
+  const int y0 = std::max(0, std::min(static_cast<int>(y), height - 2));
+  const int x1 = std::min(x0 + 1, width - 1), y1 = std::min(y0 + 1, height - 1);
+  const float fx = x - x0, fy = y - y0;
+  CellFootprint f;
+  f.offset[0] = (static_cast<size_t>(y0) * width + x0) * 4;
+  f.offset[1] = (static_cast<size_t>(y0) * width + x1) * 4;
+  f.offset[2] = (static_cast<size_t>(y1) * width + x0) * 4;
+  f.offset[3] = (static_cast<size_t>(y1) * width + x1) * 4;
+  f.weight[0] = (1 - fx) * (1 - fy);
+  f.weight[1] = fx * (1 - fy);
+  f.weight[2] = (1 - fx) * fy;
+  f.weight[3] = fx * fy;
+  return f;
+}
+// Bilinear read of a plane's 4 channels through a footprint.
+inline void SampleCell(const float* plane, const CellFootprint& f, float out[4]) {
+  for (int i = 0; i < 4; ++i) {
+    out[i] = f.weight[0] * plane[f.offset[0] + i] + f.weight[1] * plane[f.offset[1] + i] +
+             f.weight[2] * plane[f.offset[2] + i] + f.weight[3] * plane[f.offset[3] + i];
+  }
+}
+
+// The volume drawn into a camera (rows in parallel): colour CV_32FC3 (B, G, R in [0, 1]) and
+// coverage CV_8UC1 (255 where the ray reaches the farthest plane inside the volume's image).
+// Pixels not covered hold whatever the planes they met add up to (black where none).
+void CompositePlaneVolume(const PlaneVolume& volume, const Camera& camera, const Rigid3d& cam_from_world,
+                          cv::Mat* colour, cv::Mat* coverage);
+
+// Writes volume.json and the planes into `folder` (created), each file atomically.
+void WritePlaneVolume(const std::string& folder, const PlaneVolume& volume);
+// Reads a folder written by WritePlaneVolume. Throws InputError (missing folder or file) or IoError
+// (a malformed volume.json or plane) naming the file and what is wrong.
+PlaneVolume ReadPlaneVolume(const std::string& folder);
+
+}  // namespace ibmr
