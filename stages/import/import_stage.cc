@@ -166,6 +166,14 @@ class ImportStage : public Stage {
       spdlog::info("[import] {} images resampled to at most {} px", resized, context.params.Int("max_image_size"));
     }
     WriteSparseModelText(context.workspace.SparseDir(), capture.model);
+    // Per-view depth bounds of the capture (LLFF), so that plane_sweep and volume need no range in
+    // the config: {"<image>": {"near": z, "far": z}}, z along each camera's axis.
+    const std::string bounds_path = context.workspace.SparseDir() + "/depth_bounds.json";
+    if (!capture.depth_bounds.empty()) {
+      WriteFileAtomic(bounds_path, capture.depth_bounds.dump(2) + "\n");
+    } else {
+      fs::remove(bounds_path);
+    }
     std::string list_text;
     for (const std::string& name : capture.names) list_text += name + "\n";
     WriteFileAtomic(context.workspace.Path("image_list.txt"), list_text);
@@ -205,6 +213,7 @@ class ImportStage : public Stage {
     std::map<std::string, cv::Size> resize_to;  // photos resampled on import (max_image_size)
     nlohmann::json skipped = nlohmann::json::object();    // photo -> why it was left out
     nlohmann::json converted = nlohmann::json::object();  // photo -> what reading it converts
+    nlohmann::json depth_bounds = nlohmann::json::object();  // LLFF: photo -> {near, far}
   };
 
   Capture ReadCapture(const std::string& source, const ImportOptions& options, const Params& params,
@@ -237,7 +246,11 @@ class ImportStage : public Stage {
         }
         const std::string npy = (fs::path(source) / "poses_bounds.npy").string();
         std::vector<std::pair<double, double>> bounds;
-        capture.model = ParsePosesBounds(ReadFile(npy), npy, ListImages(capture.image_dir), downscale, &bounds);
+        const std::vector<std::string> listed = ListImages(capture.image_dir);
+        capture.model = ParsePosesBounds(ReadFile(npy), npy, listed, downscale, &bounds);
+        for (size_t i = 0; i < listed.size() && i < bounds.size(); ++i) {
+          capture.depth_bounds[listed[i]] = {{"near", bounds[i].first}, {"far", bounds[i].second}};
+        }
         for (const auto& [id, image] : capture.model.images) {
           const auto [width, height] = ImageSize(capture.image_dir + "/" + image.name);
           const Camera& camera = capture.model.CameraOf(image);

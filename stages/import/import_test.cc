@@ -226,7 +226,7 @@ TEST(ImportLlff, PosesBoundsFolder) {
     image.cam_from_world = LookAt(Eigen::Vector3d(i, -2, 0.5), Eigen::Vector3d(0, 0, 0), Eigen::Vector3d(0, 0, 1));
     model.images[i + 1] = image;
     names.push_back(image.name);
-    bounds.emplace_back(1.0, 5.0);
+    bounds.emplace_back(1.0 + 0.25 * i, 5.0 + i);
     WriteImage(source + "/images/" + image.name, cv::Mat(30, 40, CV_8UC3, cv::Scalar(10 * i, 50, 90)));
   }
   WriteFileAtomic(source + "/poses_bounds.npy", WritePosesBounds(model, names, bounds));
@@ -239,6 +239,12 @@ TEST(ImportLlff, PosesBoundsFolder) {
     EXPECT_LT((image.Center() - other->Center()).norm(), 1e-9);
     EXPECT_LT((image.cam_from_world.R() - other->cam_from_world.R()).norm(), 1e-9);
     EXPECT_NEAR(imported.CameraOf(*other).FocalX(), 50, 1e-9);
+  }
+  // Each view's near/far bounds, recorded so that plane_sweep and volume need no depth range.
+  const nlohmann::json recorded = nlohmann::json::parse(ReadFile(workspace + "/sparse/depth_bounds.json"));
+  for (int i = 0; i < 3; ++i) {
+    EXPECT_NEAR(recorded.at(names[i]).at("near").get<double>(), 1.0 + 0.25 * i, 1e-12) << names[i];
+    EXPECT_NEAR(recorded.at(names[i]).at("far").get<double>(), 5.0 + i, 1e-12) << names[i];
   }
   fs::remove_all(source);
   fs::remove_all(workspace);

@@ -1,6 +1,6 @@
 // Adapter of the plane_sweep stage: for every training view, picks neighbours, depth bounds
-// (hull/depth_bounds.json, else the sparse points, else the config's bounding box or depth
-// range) and, with hull/hull.ply, per-pixel near bounds (the hull's nearest surface along each
+// (hull/depth_bounds.json, else sparse/depth_bounds.json (the LLFF import's per-view bounds from
+// poses_bounds.npy), else the sparse points, else the config's bounding box or depth range) and, with hull/hull.ply, per-pixel near bounds (the hull's nearest surface along each
 // pixel's ray, rasterized), runs the plane sweep (plane_sweep.h) and writes COLMAP maps:
 //   dense/stereo/depth_maps/<image>.photometric.bin       z depth, 0 = no estimate
 //   dense/stereo/normal_maps/<image>.photometric.bin      3 channels, camera frame
@@ -214,6 +214,8 @@ class PlaneSweepStage : public Stage {
       return views[i];
     };
     const nlohmann::json hull_bounds = ReadHullBounds(context.workspace.Path("hull/depth_bounds.json"));
+    // Per-view bounds an import recorded (LLFF's poses_bounds.npy), hashed with the sparse folder.
+    const nlohmann::json capture_bounds = ReadHullBounds(context.workspace.Path("sparse/depth_bounds.json"));
     const std::string hull_path = context.workspace.Path("hull/hull.ply");
     const bool hull_ranges = (!context.params.Has("hull_ranges") || context.params.Bool("hull_ranges")) && fs::exists(hull_path);
     const TriangleMesh hull = hull_ranges ? ReadMeshPly(hull_path) : TriangleMesh();
@@ -242,7 +244,7 @@ class PlaneSweepStage : public Stage {
       const Image& image = model.images.at(ids[index]);
       double near = 0, far = 0;
       const SweepView& key = view(index);
-      const std::string source = DepthBounds(hull_bounds, model, image, key, context.params, options, &near, &far);
+      const std::string source = DepthBounds(hull_bounds, capture_bounds, model, image, key, context.params, options, &near, &far);
       const std::vector<int> chosen = SelectNeighbors(model, ids, index, 0.5 * (near + far), options);
       if (chosen.empty()) {
         spdlog::warn("[plane_sweep] {}: no neighbour view within {}..{} degrees; no depth map", name,
@@ -403,7 +405,7 @@ class PlaneSweepStage : public Stage {
   static constexpr double kMinHullNearFraction = 1e-3;
 
   // Sets near/far and returns where they came from.
-  static std::string DepthBounds(const nlohmann::json& hull, const SparseModel& model, const Image& image,
+  static std::string DepthBounds(const nlohmann::json& hull, const nlohmann::json& capture, const SparseModel& model, const Image& image,
                                  const SweepView& view, const Params& params, const PlaneSweepOptions& o,
                                  double* near, double* far) {
     if (hull.contains(image.name)) {
@@ -425,6 +427,16 @@ class PlaneSweepStage : public Stage {
       spdlog::warn("[plane_sweep] view {}: the hull reaches the camera (near {:.3g}, far {:.3g}); its depth bounds "
                    "are not used (check the silhouettes)",
                    image.name, b["near"].get<double>(), b["far"].get<double>());
+    }
+    if (capture.contains(image.name)) {
+      const auto& b = capture[image.name];
+      if (!b.contains("near") || !b.contains("far") || !b["near"].is_number() || !b["far"].is_number() ||
+          !(b["near"].get<double>() > 0) || !(b["far"].get<double>() > b["near"].get<double>())) {
+        throw InputError("sparse/depth_bounds.json: entry of " + image.name + " needs numbers 0 < near < far; re-run import");
+      }
+      *near = b["near"].get<double>() * (1 - o.depth_margin);
+      *far = b["far"].get<double>() * (1 + o.depth_margin);
+      return "capture_bounds";
     }
     if (DepthBoundsFromPoints(model, image, o.depth_margin, near, far)) return "sparse_points";
     const std::vector<double> box = params.DoubleList("bounding_box");
@@ -448,7 +460,7 @@ class PlaneSweepStage : public Stage {
       return "config";
     }
     throw InputError("plane_sweep: no depth range for view " + view.name +
-                     ": no hull/depth_bounds.json entry, fewer than 8 sparse points in view, and neither "
+                     ": no hull/depth_bounds.json or sparse/depth_bounds.json entry, fewer than 8 sparse points in view, and neither "
                      "plane_sweep.bounding_box nor plane_sweep.min_depth/max_depth set in the config");
   }
 };

@@ -86,8 +86,8 @@ class VolumeStage : public Stage {
   }
 
   std::vector<std::string> Inputs(const StageContext& context) const override {
-    return {context.workspace.SparseRelative(), context.workspace.Relative(context.workspace.ImagesDir()),
-            "sparse/depth_bounds.json"};
+    // sparse/ holds depth_bounds.json when the import wrote it.
+    return {context.workspace.SparseRelative(), context.workspace.Relative(context.workspace.ImagesDir())};
   }
   std::vector<std::string> Outputs(const StageContext&) const override { return {"volume"}; }
 
