@@ -31,42 +31,13 @@ VolumeRays::VolumeRays(const PlaneVolume& volume, const Camera& camera, const Ri
   cy_ = volume.camera.PrincipalY() - 0.5;
   width_ = volume.Width();
   height_ = volume.Height();
-}
-
-bool VolumeRays::SampleOn(double u, double v, int k, RaySample* out) const {
-  const Eigen::Vector3d d = direction_from_pixel_ * Eigen::Vector3d(u, v, 1.0);
-  const double w = inverse_depths_[k];
-  const double along = 1.0 - origin_.z() * w;  // (z_k - o_z) / z_k: the plane is ahead where it has d_z's sign
-  if (d.z() == 0 || (d.z() > 0 ? along <= 0 : along >= 0)) return false;
-  const double x = fx_ * (origin_.x() * w + along * d.x() / d.z()) + cx_;
-  const double y = fy_ * (origin_.y() * w + along * d.y() / d.z()) + cy_;
-  out->plane = k;
-  out->x = static_cast<float>(x);
-  out->y = static_cast<float>(y);
-  out->inside = x >= -0.5 && y >= -0.5 && x <= width_ - 0.5 && y <= height_ - 0.5;
-  return true;
+  planes_ = volume.Planes();
 }
 
 int VolumeRays::Samples(double u, double v, RaySample* out) const {
-  const Eigen::Vector3d d = direction_from_pixel_ * Eigen::Vector3d(u, v, 1.0);
-  if (d.z() == 0) return 0;  // parallel to the planes
-  const double rx = d.x() / d.z(), ry = d.y() / d.z();
-  const int planes = static_cast<int>(inverse_depths_.size());
-  const bool forward = d.z() > 0;
+  const Ray ray = RayAt(u, v);
   int count = 0;
-  for (int i = 0; i < planes; ++i) {
-    const int k = forward ? i : planes - 1 - i;
-    const double w = inverse_depths_[k];
-    const double along = 1.0 - origin_.z() * w;
-    if (forward ? along <= 0 : along >= 0) continue;
-    const double x = fx_ * (origin_.x() * w + along * rx) + cx_;
-    const double y = fy_ * (origin_.y() * w + along * ry) + cy_;
-    RaySample& s = out[count++];
-    s.plane = k;
-    s.x = static_cast<float>(x);
-    s.y = static_cast<float>(y);
-    s.inside = x >= -0.5 && y >= -0.5 && x <= width_ - 0.5 && y <= height_ - 0.5;
-  }
+  for (int i = 0; i < planes_; ++i) count += On(ray, PlaneAt(ray, i), &out[count]) ? 1 : 0;
   return count;
 }
 
@@ -75,20 +46,17 @@ void CompositePlaneVolume(const PlaneVolume& volume, const Camera& camera, const
   const VolumeRays rays(volume, camera, cam_from_world);
   *colour = cv::Mat(camera.height, camera.width, CV_32FC3, cv::Scalar::all(0));
   *coverage = cv::Mat(camera.height, camera.width, CV_8UC1, cv::Scalar(0));
-  const int planes = volume.Planes(), far_plane = planes - 1;
+  const int planes = volume.Planes();
   tbb::parallel_for(tbb::blocked_range<int>(0, camera.height), [&](const tbb::blocked_range<int>& rows) {
-    std::vector<RaySample> samples(planes);
     for (int y = rows.begin(); y < rows.end(); ++y) {
       float* out = colour->ptr<float>(y);
       uint8_t* cover = coverage->ptr<uint8_t>(y);
       for (int x = 0; x < camera.width; ++x) {
-        const int n = rays.Samples(x + 0.5, y + 0.5, samples.data());
+        const VolumeRays::Ray ray = rays.RayAt(x + 0.5, y + 0.5);
         float c[3] = {0, 0, 0}, transmittance = 1.f;
-        bool covered = false;
-        for (int i = 0; i < n; ++i) covered |= samples[i].plane == far_plane && samples[i].inside;
-        for (int i = 0; i < n && transmittance > kOpaqueTransmittance; ++i) {
-          const RaySample& s = samples[i];
-          if (!s.inside) continue;
+        for (int i = 0; i < planes && transmittance > kOpaqueTransmittance; ++i) {
+          RaySample s;
+          if (!rays.On(ray, rays.PlaneAt(ray, i), &s) || !s.inside) continue;
           float cell[4];
           SampleCell(volume.Plane(s.plane), Footprint(volume.Width(), volume.Height(), s.x, s.y), cell);
           const float weight = cell[3] * transmittance;
@@ -96,7 +64,7 @@ void CompositePlaneVolume(const PlaneVolume& volume, const Camera& camera, const
           transmittance *= 1.f - cell[3];
         }
         for (int ch = 0; ch < 3; ++ch) out[3 * x + ch] = c[ch];
-        cover[x] = covered ? 255 : 0;
+        cover[x] = rays.ReachesFarPlane(ray) ? 255 : 0;
       }
     }
   });

@@ -74,19 +74,56 @@ struct RaySample {
 // The constants of one camera looking at a volume, for per-pixel ray sampling without allocation.
 class VolumeRays {
  public:
+  // One pixel's ray: its direction's x/z and y/z in the volume's frame, and whether it runs toward
+  // larger z (then the planes are met nearest first).
+  struct Ray {
+    double rx = 0, ry = 0;
+    bool forward = true, valid = false;  // valid: not parallel to the planes
+  };
+
   VolumeRays(const PlaneVolume& volume, const Camera& camera, const Rigid3d& cam_from_world);
+  Ray RayAt(double u, double v) const {
+    const Eigen::Vector3d d = direction_from_pixel_ * Eigen::Vector3d(u, v, 1.0);
+    Ray ray;
+    if (d.z() == 0) return ray;
+    ray.rx = d.x() / d.z();
+    ray.ry = d.y() / d.z();
+    ray.forward = d.z() > 0;
+    ray.valid = true;
+    return ray;
+  }
+  // The plane met i-th along the ray's direction (nearest first for a forward ray).
+  int PlaneAt(const Ray& ray, int i) const { return ray.forward ? i : planes_ - 1 - i; }
+  // Where the ray meets plane k; false when the plane is not ahead of the camera.
+  bool On(const Ray& ray, int k, RaySample* out) const {
+    const double w = inverse_depths_[k];
+    const double along = 1.0 - origin_.z() * w;  // (z_k - o_z) / z_k: ahead where it has d_z's sign
+    if (!ray.valid || (ray.forward ? along <= 0 : along >= 0)) return false;
+    const double x = fx_ * (origin_.x() * w + along * ray.rx) + cx_;
+    const double y = fy_ * (origin_.y() * w + along * ray.ry) + cy_;
+    out->plane = k;
+    out->x = static_cast<float>(x);
+    out->y = static_cast<float>(y);
+    out->inside = x >= -0.5 && y >= -0.5 && x <= width_ - 0.5 && y <= height_ - 0.5;
+    return true;
+  }
+  // Whether the ray reaches the farthest plane inside the volume's image (it is then covered).
+  bool ReachesFarPlane(const Ray& ray) const {
+    RaySample s;
+    return On(ray, planes_ - 1, &s) && s.inside;
+  }
   // The planes the ray of pixel coordinates (u, v) (pixel centre at +0.5) meets ahead of the camera,
   // front to back, into `out` (room for volume.Planes()); returns their count.
   int Samples(double u, double v, RaySample* out) const;
   // Where the ray of (u, v) meets plane k; false when the plane is not ahead of the camera.
-  bool SampleOn(double u, double v, int k, RaySample* out) const;
+  bool SampleOn(double u, double v, int k, RaySample* out) const { return On(RayAt(u, v), k, out); }
 
  private:
   Eigen::Matrix3d direction_from_pixel_;  // R_vc K_c^-1: a pixel's ray direction in the volume's frame
   Eigen::Vector3d origin_;                 // the camera centre in the volume's frame
   std::vector<double> inverse_depths_;
   double fx_, fy_, cx_, cy_;
-  int width_, height_;
+  int width_, height_, planes_;
 };
 
 // The bilinear footprint of index coordinates (x, y) in a plane of width x height cells, clamped

@@ -26,7 +26,7 @@ inline float RobustDerivative(float r, float e) { return r / std::sqrt(r * r + e
 // its own slice of the gradient: no two threads write one cell).
 void ViewDataTerm(const PlaneVolume& volume, const LevelView& view, const VolumeOptions& options, double inverse_n,
                   double* loss, size_t* covered, float* gradient, std::vector<float>* scratch) {
-  const int w = view.camera.width, h = view.camera.height, planes = volume.Planes(), far_plane = planes - 1;
+  const int w = view.camera.width, h = view.camera.height, planes = volume.Planes();
   const VolumeRays rays(volume, view.camera, view.cam_from_world);
   const float e = static_cast<float>(options.robust_epsilon);
   const int band_rows = std::clamp(static_cast<int>(kBandFloats / (static_cast<size_t>(w) * planes * 6)), 1, h);
@@ -48,24 +48,23 @@ void ViewDataTerm(const PlaneVolume& volume, const LevelView& view, const Volume
         const float* photo = view.image.ptr<float>(y);
         for (int x = 0; x < w; ++x) {
           const size_t p = static_cast<size_t>(y - band) * w + x;
-          const int n = rays.Samples(x + 0.5, y + 0.5, samples.data());
-          bool reaches_far = false;
-          for (int i = 0; i < n; ++i) reaches_far |= samples[i].plane == far_plane && samples[i].inside;
+          const VolumeRays::Ray ray = rays.RayAt(x + 0.5, y + 0.5);
           int used = 0;  // samples composited: the ray stops where the transmittance is ~0
-          if (reaches_far) {  // else outside the volume's field of view: no data
+          if (rays.ReachesFarPlane(ray)) {  // else outside the volume's field of view: no data
             float t = 1.f;
-            for (; used < n && t > kOpaqueTransmittance; ++used) {
+            for (int i = 0; i < planes && t > kOpaqueTransmittance; ++i) {
+              if (!rays.On(ray, rays.PlaneAt(ray, i), &samples[used]) || !samples[used].inside) continue;
               transmittance[used] = t;
-              if (!samples[used].inside) continue;
               footprints[used] = Footprint(volume.Width(), volume.Height(), samples[used].x, samples[used].y);
               float* cell = &cells[static_cast<size_t>(used) * 4];
               SampleCell(volume.Plane(samples[used].plane), footprints[used], cell);
               t *= 1.f - cell[3];
+              ++used;
             }
           }
           if (gradient != nullptr) {  // planes without a sample here scatter nothing
             std::fill(written.begin(), written.end(), 0);
-            for (int i = 0; i < used; ++i) written[samples[i].plane] = samples[i].inside;
+            for (int i = 0; i < used; ++i) written[samples[i].plane] = 1;
             for (int k = 0; k < planes; ++k) {
               if (!written[k]) coef[(k * band_pixels + p) * 6 + 4] = NAN;
             }
@@ -73,7 +72,6 @@ void ViewDataTerm(const PlaneVolume& volume, const LevelView& view, const Volume
           if (used == 0) continue;
           float c[3] = {0, 0, 0};
           for (int i = 0; i < used; ++i) {
-            if (!samples[i].inside) continue;
             const float* cell = &cells[static_cast<size_t>(i) * 4];
             const float weight = cell[3] * transmittance[i];
             for (int ch = 0; ch < 3; ++ch) c[ch] += weight * cell[ch];
@@ -90,7 +88,6 @@ void ViewDataTerm(const PlaneVolume& volume, const LevelView& view, const Volume
           if (gradient == nullptr) continue;
           float behind[3] = {0, 0, 0};  // the composite of the planes behind sample i
           for (int i = used - 1; i >= 0; --i) {
-            if (!samples[i].inside) continue;
             const float* cell = &cells[static_cast<size_t>(i) * 4];
             const float a = cell[3], ti = transmittance[i];
             float* out = &coef[(samples[i].plane * band_pixels + p) * 6];
