@@ -1,6 +1,7 @@
 // Adapter of the volume stage (volume.h; seed 000 section 3, lines 5526-5610): reads the training
 // views (pinhole cameras, photos) of the workspace, chooses the virtual camera(s) and depth range,
-// fits the RGBA plane volume, and writes volume/<reference>/ (plane_volume.h's format): `mean` for
+// fits the RGBA plane volume, and writes volume/<reference>/ (plane_volume.h's format, and
+// strip.png: the planes side by side over a checkerboard, labelled with their depth): `mean` for
 // the training views' mean pose, or one folder per training view named in `references` (local
 // volumes, which the render stage blends by distance). The depth range comes from, in order:
 // volume.min_depth/max_depth in the config; sparse/depth_bounds.json (per view near/far, as the
@@ -14,6 +15,7 @@
 #include <algorithm>
 #include <filesystem>
 #include <nlohmann/json.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include "pipeline/core/errors.h"
 #include "pipeline/core/image_io.h"
@@ -28,6 +30,35 @@ namespace ibmr {
 namespace {
 
 std::string Stem(const std::string& name) { return fs::path(name).stem().string(); }
+
+// The planes side by side, 8 to a row, each over a grey checkerboard (where it is transparent)
+// at `tile` pixels wide and labelled with its index and depth: volume/<reference>/strip.png, for
+// the report and for a user looking at what the volume holds.
+cv::Mat PlaneStrip(const PlaneVolume& volume, int tile) {
+  const int tile_h = std::max(1, tile * volume.Height() / volume.Width());
+  const int columns = std::min(8, volume.Planes()), rows = (volume.Planes() + columns - 1) / columns;
+  cv::Mat strip(rows * (tile_h + 2), columns * (tile + 2), CV_8UC3, cv::Scalar::all(255));
+  for (int k = 0; k < volume.Planes(); ++k) {
+    const cv::Mat cells(volume.Height(), volume.Width(), CV_32FC4, const_cast<float*>(volume.Plane(k)));
+    cv::Mat small;
+    cv::resize(cells, small, cv::Size(tile, tile_h), 0, 0, cv::INTER_AREA);
+    cv::Mat tile_image(tile_h, tile, CV_8UC3);
+    for (int y = 0; y < tile_h; ++y) {
+      for (int x = 0; x < tile; ++x) {
+        const cv::Vec4f c = small.at<cv::Vec4f>(y, x);
+        const float checker = ((x / 8 + y / 8) % 2) ? 0.55f : 0.8f;
+        for (int ch = 0; ch < 3; ++ch) {
+          tile_image.at<cv::Vec3b>(y, x)[ch] = cv::saturate_cast<uint8_t>(255.f * (c[3] * c[ch] + (1 - c[3]) * checker));
+        }
+      }
+    }
+    char label[48];
+    std::snprintf(label, sizeof(label), "%d  z %.3g", k, volume.depths[k]);
+    cv::putText(tile_image, label, cv::Point(3, 12), cv::FONT_HERSHEY_PLAIN, 0.8, cv::Scalar(0, 0, 0), 1);
+    tile_image.copyTo(strip(cv::Rect((k % columns) * (tile + 2) + 1, (k / columns) * (tile_h + 2) + 1, tile, tile_h)));
+  }
+  return strip;
+}
 
 std::string Number(double v) {
   std::string s = std::to_string(v);
@@ -151,6 +182,7 @@ class VolumeStage : public Stage {
       }
       const VolumeResult result = FitPlaneVolume(views, virtual_camera, options, context.progress);
       WritePlaneVolume(context.workspace.Path("volume/" + folder), result.volume);
+      WriteImage(context.workspace.Path("volume/" + folder + "/strip.png"), PlaneStrip(result.volume, 160));
       nlohmann::json curve = nlohmann::json::array();
       for (const VolumeCurvePoint& point : result.curve) {
         curve.push_back({{"level", point.level}, {"iteration", point.iteration}, {"objective", point.objective}, {"data", point.data}});
