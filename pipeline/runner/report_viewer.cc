@@ -7,13 +7,18 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include <Eigen/Eigenvalues>
 #include <Eigen/Geometry>
 #include <algorithm>
+#include <array>
+#include <cstring>
 #include <cmath>
 #include <filesystem>
 #include <map>
 #include <regex>
 #include <set>
+#include <tuple>
+#include <unordered_map>
 
 #include "pipeline/core/atomic_file.h"
 #include "pipeline/core/colmap_text_io.h"
@@ -241,8 +246,37 @@ cv::Mat MaterialImage(const tinygltf::Model& model, int material) {
   return bgr;
 }
 
-// texture/mesh.glb: every primitive of every mesh, each face with its own three corners and the
-// page (material image) it samples; faces with a non-finite corner are left out.
+// Merges the corners that share a position, a texture coordinate and a page (the texture stage's
+// glTF gives every face three vertices of its own: inside a patch about six faces share each one,
+// so the page's arrays shrink about fourfold).
+class CornerWelder {
+ public:
+  int Index(const Eigen::Vector3f& position, const Eigen::Vector2f& uv, int page, ViewerMesh* mesh) {
+    std::array<uint32_t, 6> key;
+    std::memcpy(key.data(), position.data(), 12);
+    std::memcpy(key.data() + 3, uv.data(), 8);
+    key[5] = static_cast<uint32_t>(page);
+    const auto [it, added] = index_.emplace(key, static_cast<int>(mesh->vertices.size()));
+    if (added) {
+      mesh->vertices.push_back(position);
+      mesh->uvs.push_back(uv);
+    }
+    return it->second;
+  }
+
+ private:
+  struct KeyHash {
+    size_t operator()(const std::array<uint32_t, 6>& k) const {
+      uint64_t h = 1469598103934665603ull;
+      for (uint32_t v : k) h = (h ^ v) * 1099511628211ull;
+      return static_cast<size_t>(h);
+    }
+  };
+  std::unordered_map<std::array<uint32_t, 6>, int, KeyHash> index_;
+};
+
+// texture/mesh.glb: every primitive of every mesh, with the page (material image) each face
+// samples, corners welded (CornerWelder); faces with a non-finite corner are left out.
 ViewerMesh ReadGlbForViewer(const std::string& path, std::vector<cv::Mat>* pages) {
   tinygltf::TinyGLTF loader;
   tinygltf::Model model;
@@ -251,6 +285,7 @@ ViewerMesh ReadGlbForViewer(const std::string& path, std::vector<cv::Mat>* pages
     throw IoError(path + ": not a binary glTF file tinygltf reads (" + (error.empty() ? "no reason given" : error) + ")");
   }
   ViewerMesh out;
+  CornerWelder welder;
   std::map<int, int> page_of_material;
   for (const tinygltf::Mesh& mesh : model.meshes) {
     for (const tinygltf::Primitive& primitive : mesh.primitives) {
@@ -275,14 +310,15 @@ ViewerMesh ReadGlbForViewer(const std::string& path, std::vector<cv::Mat>* pages
         bool finite = true;
         for (int c = 0; c < 3; ++c) finite = finite && Eigen::Map<const Eigen::Vector3f>(&xyz[3 * indices[i + c]]).allFinite();
         if (!finite) continue;
-        const int base = static_cast<int>(out.vertices.size());
+        Eigen::Vector3i face;
         for (int c = 0; c < 3; ++c) {
-          out.vertices.emplace_back(Eigen::Map<const Eigen::Vector3f>(&xyz[3 * indices[i + c]]));
+          const Eigen::Vector3f position = Eigen::Map<const Eigen::Vector3f>(&xyz[3 * indices[i + c]]);
           // glTF's v points down; the viewer's, as OBJ's, up.
-          out.uvs.emplace_back(page >= 0 ? Eigen::Vector2f(uv[2 * indices[i + c]], 1.f - uv[2 * indices[i + c] + 1])
-                                         : Eigen::Vector2f(0.5f, 0.5f));
+          const Eigen::Vector2f texel = page >= 0 ? Eigen::Vector2f(uv[2 * indices[i + c]], 1.f - uv[2 * indices[i + c] + 1])
+                                                  : Eigen::Vector2f(0.5f, 0.5f);
+          face[c] = welder.Index(position, texel, page, &out);
         }
-        out.faces.emplace_back(base, base + 1, base + 2);
+        out.faces.push_back(face);
         out.face_page.push_back(page);
       }
     }
@@ -339,8 +375,35 @@ std::vector<double> Numbers(const nlohmann::json& object, const std::string& key
   return out;
 }
 
-// The cameras of the last sparse model a stage wrote, as frustum data; `up` gets the mean of the
-// training cameras' up directions (image -y) when there are cameras.
+// The direction the viewer orbits around: the cameras' mean image up (-y) where they agree (the
+// mean at least 0.9 long: within about 25 degrees), else, when their centres lie near a plane (a
+// ring whose cameras are rolled, as Middlebury's templeRing: its image ups turn with the ring), the plane's
+// normal, turned so that the cameras look down along it or, when they look level, along their
+// mean image right (a guess: nothing in the photos says which way is up then). Zero when neither.
+Eigen::Vector3d OrbitUp(const std::vector<Rigid3d>& world_from_cams) {
+  Eigen::Vector3d up = Eigen::Vector3d::Zero(), right = Eigen::Vector3d::Zero(), forward = Eigen::Vector3d::Zero();
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+  const double n = static_cast<double>(world_from_cams.size());
+  for (const Rigid3d& pose : world_from_cams) {
+    up -= pose.rotation * Eigen::Vector3d::UnitY();
+    right += pose.rotation * Eigen::Vector3d::UnitX();
+    forward += pose.rotation * Eigen::Vector3d::UnitZ();
+    mean += pose.translation / n;
+  }
+  if (up.norm() >= 0.9 * n) return up.normalized();
+  if (world_from_cams.size() < 3) return Eigen::Vector3d::Zero();
+  Eigen::Matrix3d scatter = Eigen::Matrix3d::Zero();
+  for (const Rigid3d& pose : world_from_cams) scatter += (pose.translation - mean) * (pose.translation - mean).transpose();
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> solver(scatter);  // eigenvalues in increasing order
+  if (solver.eigenvalues()[0] > 0.1 * solver.eigenvalues()[1]) return Eigen::Vector3d::Zero();  // not a plane
+  Eigen::Vector3d normal = solver.eigenvectors().col(0);
+  const double down = -normal.dot(forward) / n;
+  if (std::abs(down) > 0.05 ? down < 0 : normal.dot(right) < 0) normal = -normal;
+  return normal;
+}
+
+// The cameras of the last sparse model a stage wrote, as frustum data; `up` (OrbitUp of the
+// training cameras) when there is one.
 nlohmann::json Cameras(const Workspace& workspace, const nlohmann::json& scores, const std::string& metric, nlohmann::json* viewer) {
   std::string folder;
   for (const char* candidate : {"dense/sparse", "sfm/sparse", "sparse"}) {
@@ -360,7 +423,7 @@ nlohmann::json Cameras(const Workspace& workspace, const nlohmann::json& scores,
   }
   const nlohmann::json proxies = scores.is_object() ? scores.value("proxies", nlohmann::json::object()) : nlohmann::json::object();
   const SparseModel model = ReadSparseModelText(workspace.Path(folder));
-  Eigen::Vector3d up = Eigen::Vector3d::Zero();
+  std::vector<Rigid3d> training_poses;
   for (int id : model.ImageIdsByName()) {
     const Image& image = model.images.at(id);
     const Camera& camera = model.CameraOf(image);
@@ -374,7 +437,7 @@ nlohmann::json Cameras(const Workspace& workspace, const nlohmann::json& scores,
     }
     nlohmann::json entry = {{"name", image.name}, {"heldout", heldout.count(image.name) > 0},
                             {"center", {center.x(), center.y(), center.z()}}, {"corners", corners}};
-    if (!entry["heldout"]) up -= world_from_cam.rotation * Eigen::Vector3d::UnitY();
+    if (!entry["heldout"]) training_poses.push_back(world_from_cam);
     // The best score any model reached on this held-out view.
     for (const auto& [name, proxy] : proxies.items()) {
       if (!proxy.is_object() || !proxy.contains("views") || !proxy["views"].is_object()) continue;
@@ -389,8 +452,8 @@ nlohmann::json Cameras(const Workspace& workspace, const nlohmann::json& scores,
     }
     cameras.push_back(entry);
   }
-  if (up.norm() > 1e-9) {
-    up.normalize();
+  const Eigen::Vector3d up = OrbitUp(training_poses);
+  if (up.norm() > 0.5) {
     (*viewer)["up"] = {up.x(), up.y(), up.z()};
   }
   return cameras;

@@ -192,11 +192,13 @@ function viewerSection(V, parent) {
     scene.add(group);
     const center = m.bounds.center, radius = m.bounds.radius;
     controls.target.set(center[0], center[1], center[2]);
-    if (!placed) {  // first view: from the first camera's side, far enough to see the whole model
+    if (!placed) {  // the first view sees the whole model
       placed = true;
       addFrustums(center, radius);
-      const from = V.cameras.length ? new THREE.Vector3(...V.cameras[0].center).sub(controls.target) : new THREE.Vector3(1, 0.6, 1);
-      const distance = radius / Math.sin(camera.fov * Math.PI / 360) * 1.15;
+      // From the first camera's side, raised 25 degrees above it (a ring of cameras is seen as one).
+      const from = V.cameras.length ? new THREE.Vector3(...V.cameras[0].center).sub(controls.target) : new THREE.Vector3(1, 0, 1);
+      from.normalize().add(camera.up.clone().multiplyScalar(0.47));
+      const distance = radius / Math.sin(camera.fov * Math.PI / 360) * 1.5;
       camera.position.copy(controls.target).add(from.normalize().multiplyScalar(distance));
       camera.near = distance / 1000;
       camera.far = distance * 100;

@@ -69,10 +69,10 @@ std::vector<size_t> SurvivingFaces(const ViewerMesh& mesh, const Clustering& c) 
   return kept;
 }
 
-// The mesh made of the faces `kept`: shared vertices merged into their cluster, per-corner ones
-// (meshes with UVs) moved to their cluster's mean.
+// The mesh made of the faces `kept`: vertices merged into their cluster, or, with UVs, each moved
+// to its cluster's mean.
 ViewerMesh Rebuild(const ViewerMesh& mesh, const Clustering& c, const std::vector<size_t>& kept) {
-  const bool per_corner = !mesh.uvs.empty();
+  const bool with_uvs = !mesh.uvs.empty();
   ViewerMesh out;
   std::unordered_map<int, int> new_index;  // old vertex (per corner) or cluster (shared) -> new vertex
   for (size_t f : kept) {
@@ -80,12 +80,12 @@ ViewerMesh Rebuild(const ViewerMesh& mesh, const Clustering& c, const std::vecto
     for (int corner = 0; corner < 3; ++corner) {
       const int vertex = mesh.faces[f][corner];
       const int cluster = c.cluster_of_vertex[vertex];
-      const auto [it, added] = new_index.emplace(per_corner ? vertex : cluster, static_cast<int>(out.vertices.size()));
+      const auto [it, added] = new_index.emplace(with_uvs ? vertex : cluster, static_cast<int>(out.vertices.size()));
       if (added) {
         out.vertices.push_back(c.cluster_mean[cluster]);
-        if (per_corner) out.uvs.push_back(mesh.uvs[vertex]);
+        if (with_uvs) out.uvs.push_back(mesh.uvs[vertex]);
         if (!mesh.colors.empty()) {
-          out.colors.push_back(per_corner ? mesh.colors[vertex]
+          out.colors.push_back(with_uvs ? mesh.colors[vertex]
                                           : Color3u8(c.cluster_color[cluster].array().round().cast<uint8_t>()));
         }
       }

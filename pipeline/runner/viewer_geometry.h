@@ -2,11 +2,10 @@
 // page: meshes by vertex clustering (Rossignac & Borrel 1993: vertices snapped to the mean of their
 // grid cell, faces that collapse dropped), point clouds by an even subsample.
 //
-// A ViewerMesh either shares its vertices between faces (PLY meshes: colours per vertex) or, when
-// it carries texture coordinates, has its own vertices per face corner (what texture/mesh.glb
-// holds: a vertex on a patch border has one UV per patch). Clustering merges shared vertices into
-// one per cell; per-corner vertices only move to their cell's mean and keep their UV, so a face
-// that survives still samples its own texels.
+// A ViewerMesh's vertices carry a colour (PLY meshes) or a texture coordinate (texture/mesh.glb:
+// a point on a patch border is one vertex per patch, each with its UV). Clustering merges the
+// vertices without UVs into one per cell; vertices with UVs only move to their cell's mean and
+// keep their UV, so a face that survives still samples its own texels.
 #pragma once
 
 #include <Eigen/Core>
