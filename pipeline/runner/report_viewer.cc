@@ -136,6 +136,7 @@ ViewerMesh PagePart(const ViewerMesh& mesh, int page) {
 nlohmann::json MeshEntry(const ViewerMesh& mesh, const std::vector<cv::Mat>& pages, const ViewerOptions& options,
                          ArraySink* sink) {
   const ViewerMesh shown = ClusterDecimate(mesh, static_cast<size_t>(options.max_faces));
+  if (shown.faces.empty()) throw IoError("no face is left after decimating to report.max_faces = " + std::to_string(options.max_faces));
   nlohmann::json entry = {{"kind", "mesh"},
                           {"unit", "faces"},
                           {"elements", mesh.faces.size()},
@@ -343,6 +344,7 @@ nlohmann::json PointsEntry(const std::string& path, const ViewerOptions& options
     positions.push_back(cloud.positions[i]);
     colors.push_back(cloud.colors.size() == cloud.size() ? cloud.colors[i] : Color3u8(170, 170, 170));
   }
+  if (positions.empty()) throw IoError(path + ": no point with finite coordinates");
   nlohmann::json entry = {{"kind", "points"},
                           {"unit", "points"},
                           {"elements", cloud.size()},
