@@ -375,7 +375,8 @@ std::string WriteReport(const ReportOptions& options) {
   ViewerData viewer;
   if (!is_sweep) {
     const nlohmann::json scores = ReadReportJson(options.path + "/scores/heldout.json", nlohmann::json::object(), Rerun("score"));
-    viewer = GatherViewer(options.path, scores, data["metric"].get<std::string>(), options.viewer);
+    const std::string metric = data["metric"].is_string() ? data["metric"].get<std::string>() : "photo_psnr";
+    viewer = GatherViewer(options.path, scores, metric, options.viewer);
     data["viewer"] = viewer.viewer;
   }
   std::string page = kPageHead;
