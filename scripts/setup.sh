@@ -11,7 +11,7 @@ PACKAGES=(
   libopencv-dev libeigen3-dev libtbb-dev libyaml-cpp-dev nlohmann-json3-dev libspdlog-dev
   libcli11-dev libgtest-dev libxxhash-dev libexif-dev libopenmesh-dev libceres-dev
   libcgal-dev libgmp-dev libmpfr-dev libnanoflann-dev libsqlite3-dev libtinygltf-dev
-  colmap libjs-chart.js
+  colmap libjs-chart.js libjs-three
 )
 
 scripts/install_packages.sh "${PACKAGES[@]}"

@@ -143,6 +143,10 @@ int main(int argc, char** argv) {
                                               "(Chart.js, inlined), tables, held-out renders; opens from disk");
   report->add_option("path", report_options.path, "Workspace or sweep folder")->required()->check(CLI::ExistingDirectory);
   report->add_option("--out", report_options.out, "Page to write (default: PATH/report/index.html)");
+  report->add_option("--max-faces", report_options.viewer.max_faces,
+                     "report.max_faces: the 3D viewer decimates larger meshes to this many faces")->capture_default_str();
+  report->add_option("--max-points", report_options.viewer.max_points,
+                     "report.max_points: the 3D viewer shows at most this many fused points")->capture_default_str();
 
   ibmr::StageRegistry registry;
   ibmr::RegisterBuiltinStages(&registry);

@@ -12,6 +12,7 @@
 #include "pipeline/core/heldout_scores.h"
 #include "pipeline/core/workspace.h"
 #include "pipeline/runner/record.h"
+#include "pipeline/runner/report_encoding.h"
 
 namespace fs = std::filesystem;
 
@@ -19,32 +20,11 @@ namespace ibmr {
 
 namespace {
 
-std::string Base64(const std::vector<uchar>& bytes) {
-  static const char* const kAlphabet = "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
-  std::string out;
-  out.reserve((bytes.size() + 2) / 3 * 4);
-  for (size_t i = 0; i < bytes.size(); i += 3) {
-    const uint32_t chunk = (static_cast<uint32_t>(bytes[i]) << 16) |
-                           (i + 1 < bytes.size() ? static_cast<uint32_t>(bytes[i + 1]) << 8 : 0u) |
-                           (i + 2 < bytes.size() ? static_cast<uint32_t>(bytes[i + 2]) : 0u);
-    out += kAlphabet[(chunk >> 18) & 63];
-    out += kAlphabet[(chunk >> 12) & 63];
-    out += i + 1 < bytes.size() ? kAlphabet[(chunk >> 6) & 63] : '=';
-    out += i + 2 < bytes.size() ? kAlphabet[chunk & 63] : '=';
-  }
-  return out;
-}
-
 // A PNG as a JPEG data URI no wider than `width`; "" when it cannot be read.
 std::string ImageDataUri(const std::string& path, int width) {
-  cv::Mat image = cv::imread(path, cv::IMREAD_COLOR);
+  const cv::Mat image = cv::imread(path, cv::IMREAD_COLOR);
   if (image.empty()) return "";
-  if (image.cols > width) {
-    cv::resize(image, image, cv::Size(width, std::max(1, image.rows * width / image.cols)), 0, 0, cv::INTER_AREA);
-  }
-  std::vector<uchar> jpeg;
-  cv::imencode(".jpg", image, jpeg, {cv::IMWRITE_JPEG_QUALITY, 82});
-  return "data:image/jpeg;base64," + Base64(jpeg);
+  return JpegDataUri(ShrinkToFit(image, width, image.rows), 82);
 }
 
 // What to do about a malformed file that stage `stage` writes.
@@ -135,6 +115,7 @@ window.addEventListener('error', e => errors.push(String(e.message)));
 const palette = ['#1f77b4','#d62728','#2ca02c','#ff7f0e','#9467bd','#8c564b','#e377c2','#7f7f7f','#bcbd22','#17becf',
                  '#393b79','#637939','#8c6d31','#843c39','#7b4173','#3182bd'];
 const content = document.getElementById('content');
+let viewerReady = null;  // the viewer's self-check word, on a workspace's page
 function el(tag, attrs, parent, text) {
   const e = document.createElement(tag);
   for (const k in (attrs || {})) e.setAttribute(k, attrs[k]);
@@ -164,6 +145,7 @@ function axis(title, extra) { return Object.assign({title: {display: true, text:
 function workspaceReport(R) {
   document.getElementById('title').textContent = 'ibmr report: ' + R.title;
   document.getElementById('subtitle').textContent = R.stages.length + ' stage records; held-out metric ' + R.metric;
+  if (R.viewer) viewerReady = viewerSection(R.viewer, content);
   el('h2', {}, content, 'Stages: time and memory');
   const stages = R.stages;
   table(content, ['stage', 'status', 'wall s', 'CPU s', 'peak MB', 'reused'],
@@ -275,8 +257,12 @@ try {
   if (REPORT.kind === 'sweep') sweepReport(REPORT); else workspaceReport(REPORT);
 } catch (e) { errors.push(e.message); }
 
-setTimeout(() => {
-  const canvases = [...document.querySelectorAll('canvas')];
+setTimeout(async () => {
+  let viewer = '';
+  if (viewerReady) {
+    try { viewer = ' viewer=' + await viewerReady; } catch (e) { errors.push('viewer: ' + e.message); viewer = ' viewer=error'; }
+  }
+  const canvases = [...document.querySelectorAll('canvas:not(.viewer)')];
   let drawn = 0;
   for (const c of canvases) {
     const data = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
@@ -285,7 +271,7 @@ setTimeout(() => {
     if (painted > 100) ++drawn;
   }
   document.getElementById('selfcheck').textContent = 'charts=' + canvases.length + ' drawn=' + drawn + ' errors=' + errors.length +
-      (errors.length ? ' ' + errors.join(' | ') : '');
+      viewer + (errors.length ? ' ' + errors.join(' | ') : '');
 }, 0);
 </script></body></html>
 )JS";
@@ -382,10 +368,25 @@ std::string WriteReport(const ReportOptions& options) {
     throw InputError(options.chart_js + " is missing: the report inlines Chart.js from Debian's libjs-chart.js "
                      "(apt-get install libjs-chart.js, or scripts/setup.sh)");
   }
-  const nlohmann::json data = is_sweep ? GatherSweepReport(options.path)
-                                       : GatherWorkspaceReport(options.path, options.image_width);
+  std::string invalid;
+  if (!options.viewer.Check(&invalid)) throw InputError(invalid);
+  nlohmann::json data = is_sweep ? GatherSweepReport(options.path)
+                                 : GatherWorkspaceReport(options.path, options.image_width);
+  ViewerData viewer;
+  if (!is_sweep) {
+    const nlohmann::json scores = ReadReportJson(options.path + "/scores/heldout.json", nlohmann::json::object(), Rerun("score"));
+    const std::string metric = data["metric"].is_string() ? data["metric"].get<std::string>() : "photo_psnr";
+    viewer = GatherViewer(options.path, scores, metric, options.viewer);
+    data["viewer"] = viewer.viewer;
+  }
   std::string page = kPageHead;
   page += ScriptSafe(ReadFile(options.chart_js));
+  // three.js and its orbit controls for the viewer; without them the page says what to install.
+  if (!is_sweep && fs::exists(options.three_js) && fs::exists(options.orbit_controls_js)) {
+    page += "\n</script>\n<script>\n" + ScriptSafe(ReadFile(options.three_js));
+    page += "\n</script>\n<script>\n" + ScriptSafe(ReadFile(options.orbit_controls_js));
+  }
+  page += "\n</script>\n" + ViewerArraysHtml(viewer) + "<script>\n" + std::string(kViewerScript);
   page += "\n</script>\n<script>\nconst REPORT = ";
   page += ScriptSafe(DumpJson(data));
   page += ";";

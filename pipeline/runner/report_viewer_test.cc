@@ -1,0 +1,219 @@
+// The viewer's data: each model read from the workspace and made page-sized; an unreadable file
+// is an entry with the reason, never an exception; cameras carry their held-out score; a volume
+// folder in the documented shape becomes a stack of quads at the right place.
+#include "pipeline/runner/report_viewer.h"
+
+#include <gtest/gtest.h>
+
+#include <opencv2/imgcodecs.hpp>
+
+#include <filesystem>
+
+#include "pipeline/core/atomic_file.h"
+#include "pipeline/core/colmap_text_io.h"
+#include "pipeline/core/errors.h"
+#include "pipeline/core/ply_io.h"
+#include "pipeline/core/textured_mesh.h"
+#include "tests/scratch_dir.h"
+
+namespace fs = std::filesystem;
+
+namespace ibmr {
+namespace {
+
+// A tetrahedron with vertex colours.
+TriangleMesh Tetrahedron() {
+  TriangleMesh mesh;
+  mesh.vertices = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}, {0, 0, 1}};
+  mesh.colors = {Color3u8(255, 0, 0), Color3u8(0, 255, 0), Color3u8(0, 0, 255), Color3u8(255, 255, 0)};
+  mesh.faces = {{0, 2, 1}, {0, 1, 3}, {0, 3, 2}, {1, 2, 3}};
+  return mesh;
+}
+
+// An n x n grid of squares in z = 0, its faces alternately on two atlas pages.
+TexturedMesh TexturedGrid(int n) {
+  TexturedMesh textured;
+  for (int y = 0; y <= n; ++y) {
+    for (int x = 0; x <= n; ++x) textured.mesh.vertices.emplace_back(static_cast<float>(x) / n, static_cast<float>(y) / n, 0.f);
+  }
+  for (int y = 0; y < n; ++y) {
+    for (int x = 0; x < n; ++x) {
+      const int a = y * (n + 1) + x, b = a + 1, c = a + n + 1, d = c + 1;
+      for (const Eigen::Vector3i& f : {Eigen::Vector3i(a, b, d), Eigen::Vector3i(a, d, c)}) {
+        textured.mesh.faces.push_back(f);
+        Eigen::Matrix<float, 3, 2> uv;
+        for (int k = 0; k < 3; ++k) uv.row(k) = textured.mesh.vertices[f[k]].head<2>().transpose();
+        textured.face_uv.push_back(uv);
+        textured.face_page.push_back(static_cast<int>(textured.face_page.size() % 2));
+      }
+    }
+  }
+  textured.pages = {cv::Mat(64, 64, CV_8UC3, cv::Scalar(0, 0, 255)), cv::Mat(32, 48, CV_8UC3, cv::Scalar(255, 0, 0))};
+  return textured;
+}
+
+const nlohmann::json* Model(const ViewerData& data, const std::string& name) {
+  for (const auto& m : data.viewer["models"]) {
+    if (m["name"] == name) return &m;
+  }
+  return nullptr;
+}
+
+TEST(ReportViewer, DefaultsAreValidAndRangesAreChecked) {
+  std::string error;
+  EXPECT_TRUE(ViewerOptions().Check(&error)) << error;
+  ViewerOptions options;
+  options.max_faces = 0;
+  EXPECT_FALSE(options.Check(&error));
+  EXPECT_NE(error.find("report.max_faces"), std::string::npos) << error;
+  options = {};
+  options.max_points = -1;
+  EXPECT_FALSE(options.Check(&error));
+  options = {};
+  options.max_texture_size = 8;
+  EXPECT_FALSE(options.Check(&error));
+  options = {};
+  options.max_plane_size = 20000;
+  EXPECT_FALSE(options.Check(&error));
+}
+
+TEST(ReportViewer, AWorkspaceWithoutModelsHasNone) {
+  const fs::path ws = ibmr_testing::ScratchDir("ibmr_viewer_empty");
+  const ViewerData data = GatherViewer(ws.string(), nlohmann::json::object(), "photo_psnr", {});
+  EXPECT_TRUE(data.viewer["models"].empty());
+  EXPECT_TRUE(data.viewer["cameras"].empty());
+  EXPECT_TRUE(data.arrays.empty());
+}
+
+TEST(ReportViewer, ModelsInTheirOrderDecimatedToTheBudget) {
+  const fs::path ws = ibmr_testing::ScratchDir("ibmr_viewer_models");
+  WriteTexturedGlb(TexturedGrid(40), (ws / "texture/mesh.glb").string());  // 3,200 faces
+  WriteMeshPly((ws / "hull/hull.ply").string(), Tetrahedron());
+  PointCloud cloud;
+  for (int i = 0; i < 1000; ++i) cloud.positions.emplace_back(i * 0.001f, 0.f, 0.f);
+  WritePointCloudPly((ws / "dense/fused.ply").string(), cloud);
+  ViewerOptions options;
+  options.max_faces = 1000;
+  options.max_points = 100;
+  const ViewerData data = GatherViewer(ws.string(), nlohmann::json::object(), "photo_psnr", options);
+  std::vector<std::string> names;
+  for (const auto& m : data.viewer["models"]) names.push_back(m["name"]);
+  EXPECT_EQ(names, (std::vector<std::string>{"textured mesh", "fused points", "hull"}));
+
+  const nlohmann::json& textured = *Model(data, "textured mesh");
+  ASSERT_FALSE(textured.contains("error")) << textured["error"];
+  EXPECT_EQ(textured["elements"], 3200);
+  EXPECT_LE(textured["shown"].get<int>(), 1000);
+  EXPECT_GT(textured["shown"].get<int>(), 200);
+  EXPECT_TRUE(textured["decimated"].get<bool>());
+  ASSERT_EQ(textured["parts"].size(), 2u);  // one per atlas page
+  for (const auto& part : textured["parts"]) {
+    EXPECT_EQ(part["texture"].get<std::string>().rfind("data:image/jpeg;base64,", 0), 0u);
+    EXPECT_TRUE(part.contains("uv") && part.contains("index") && part.contains("position"));
+  }
+  const nlohmann::json& points = *Model(data, "fused points");
+  EXPECT_EQ(points["elements"], 1000);
+  EXPECT_EQ(points["shown"], 100);
+  const nlohmann::json& hull = *Model(data, "hull");
+  EXPECT_EQ(hull["shown"], 4);
+  EXPECT_FALSE(hull["decimated"].get<bool>());
+  ASSERT_EQ(hull["parts"].size(), 1u);
+  EXPECT_TRUE(hull["parts"][0].contains("color"));
+  // The arrays each model names are there, with their lengths (4 vertices x 3 floats = 48 bytes).
+  std::map<std::string, std::string> arrays(data.arrays.begin(), data.arrays.end());
+  EXPECT_EQ(arrays.at(hull["parts"][0]["position"]).size(), 64u);  // base64 of 48 bytes
+  EXPECT_EQ(arrays.at(hull["parts"][0]["index"]).size(), 64u);     // 4 faces x 3 x 4 bytes
+  EXPECT_NE(ViewerArraysHtml(data).find("<script type=\"application/octet-stream\" id=\"" + hull["parts"][0]["position"].get<std::string>()),
+            std::string::npos);
+}
+
+TEST(ReportViewer, UnreadableModelsCarryTheReason) {
+  const fs::path ws = ibmr_testing::ScratchDir("ibmr_viewer_corrupt");
+  WriteFileAtomic((ws / "texture/mesh.glb").string(), "glTF not really");
+  WriteFileAtomic((ws / "surfels/mesh.ply").string(), "ply\nformat binary_little_endian 1.0\nelement vertex 10\nproperty float x\nend_header\n\x01");
+  WriteMeshPly((ws / "hull/hull.ply").string(), Tetrahedron());
+  const ViewerData data = GatherViewer(ws.string(), nlohmann::json::object(), "photo_psnr", {});
+  ASSERT_EQ(data.viewer["models"].size(), 3u);
+  const std::string glb_error = (*Model(data, "textured mesh")).value("error", "");
+  EXPECT_NE(glb_error.find("texture/mesh.glb"), std::string::npos) << glb_error;
+  EXPECT_NE(glb_error.find("re-run the texture stage"), std::string::npos) << glb_error;
+  const std::string ply_error = (*Model(data, "surfel mesh")).value("error", "");
+  EXPECT_NE(ply_error.find("surfels/mesh.ply"), std::string::npos) << ply_error;
+  EXPECT_FALSE(Model(data, "hull")->contains("error"));
+}
+
+TEST(ReportViewer, CamerasCarryTheirBestHeldOutScore) {
+  const fs::path ws = ibmr_testing::ScratchDir("ibmr_viewer_cameras");
+  SparseModel model;
+  model.cameras[1] = Camera::Pinhole(100, 80, 100, 100, 50, 40);
+  for (int id = 1; id <= 2; ++id) {
+    Image image;
+    image.image_id = id;
+    image.camera_id = 1;
+    image.name = "view" + std::to_string(id) + ".png";
+    image.cam_from_world = Rigid3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(0, 0, id));
+    model.images[id] = image;
+  }
+  WriteSparseModelText((ws / "sparse").string(), model);
+  const nlohmann::json scores = {{"heldout", {"view2.png"}},
+                                 {"proxies", {{"hull", {{"views", {{"view2.png", {{"photo_psnr", 20.5}}}}}}},
+                                              {"surfels", {{"views", {{"view2.png", {{"photo_psnr", 24.25}}}}}}},
+                                              {"broken", 3}}}};
+  const ViewerData data = GatherViewer(ws.string(), scores, "photo_psnr", {});
+  const nlohmann::json& cameras = data.viewer["cameras"];
+  ASSERT_EQ(cameras.size(), 2u);
+  EXPECT_FALSE(cameras[0]["heldout"].get<bool>());
+  EXPECT_FALSE(cameras[0].contains("score"));
+  EXPECT_TRUE(cameras[1]["heldout"].get<bool>());
+  EXPECT_DOUBLE_EQ(cameras[1]["score"].get<double>(), 24.25);
+  EXPECT_EQ(cameras[1]["model"], "surfels");
+  // Centre -R^T t; the image's top-left corner at unit depth: ((0 - 50) / 100, (0 - 40) / 100, 1).
+  EXPECT_DOUBLE_EQ(cameras[1]["center"][2].get<double>(), -2.0);
+  EXPECT_DOUBLE_EQ(cameras[1]["corners"][0].get<double>(), -0.5);
+  EXPECT_DOUBLE_EQ(cameras[1]["corners"][1].get<double>(), -0.4);
+  EXPECT_DOUBLE_EQ(cameras[1]["corners"][2].get<double>(), 1.0);
+  // Up: the training camera's -y.
+  EXPECT_DOUBLE_EQ(data.viewer["up"][1].get<double>(), -1.0);
+}
+
+// A volume folder as the volume stage writes it (see ReadVolumeForViewer).
+void WriteVolume(const fs::path& folder, int planes) {
+  nlohmann::json volume = {{"width", 40},
+                           {"height", 20},
+                           {"intrinsics", {{"fx", 40.0}, {"fy", 40.0}, {"cx", 20.0}, {"cy", 10.0}}},
+                           {"cam_from_world", {{"qvec", {1, 0, 0, 0}}, {"tvec", {0, 0, 1}}}},
+                           {"depths", {2.0, 3.0, 4.0}}};
+  WriteFileAtomic((folder / "volume.json").string(), volume.dump());
+  for (int k = 0; k < planes; ++k) {
+    cv::Mat rgba(20, 40, CV_8UC4, cv::Scalar(40 * k, 100, 200, 128));
+    cv::imwrite((folder / ("plane_" + std::to_string(k) + ".png")).string(), rgba);
+  }
+}
+
+TEST(ReportViewer, VolumePlanesAreQuadsAtTheirDepth) {
+  const fs::path ws = ibmr_testing::ScratchDir("ibmr_viewer_volume");
+  WriteVolume(ws / "volume/view1.png", 3);
+  WriteVolume(ws / "volume/view2.png", 2);  // one plane image missing
+  WriteFileAtomic((ws / "volume/view3.png/volume.json").string(), R"({"width": 40})");
+  const ViewerData data = GatherViewer(ws.string(), nlohmann::json::object(), "photo_psnr", {});
+  ASSERT_EQ(data.viewer["models"].size(), 3u);
+  const nlohmann::json& volume = *Model(data, "volume view1.png");
+  ASSERT_FALSE(volume.contains("error")) << volume["error"];
+  EXPECT_EQ(volume["kind"], "planes");
+  ASSERT_EQ(volume["planes"].size(), 3u);
+  // Plane 1 at depth 3: image corner (0, 0) at camera (-20/40 * 3, -10/40 * 3, 3); the world is
+  // the camera frame moved back by t = (0, 0, 1).
+  const nlohmann::json& corners = volume["planes"][1]["corners"];
+  EXPECT_DOUBLE_EQ(corners[0].get<double>(), -1.5);
+  EXPECT_DOUBLE_EQ(corners[1].get<double>(), -0.75);
+  EXPECT_DOUBLE_EQ(corners[2].get<double>(), 2.0);
+  EXPECT_DOUBLE_EQ(corners[6].get<double>(), 1.5);  // corner (W, H)
+  EXPECT_EQ(volume["planes"][1]["texture"].get<std::string>().rfind("data:image/png;base64,", 0), 0u);
+  const std::string missing = (*Model(data, "volume view2.png")).value("error", "");
+  EXPECT_NE(missing.find("plane_2.png is missing"), std::string::npos) << missing;
+  const std::string incomplete = (*Model(data, "volume view3.png")).value("error", "");
+  EXPECT_NE(incomplete.find("\"height\""), std::string::npos) << incomplete;
+}
+
+}  // namespace
+}  // namespace ibmr
