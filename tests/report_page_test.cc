@@ -225,7 +225,7 @@ TEST(ReportViewer, VolumePlanesAreDrawn) {
   const ibmr::Rigid3d cam_from_world = ibmr::LookAt({3, 0, 0.8}, {0, 0, 0}, {0, 0, 1});
   const Eigen::Quaterniond q = cam_from_world.rotation;
   const nlohmann::json volume = {{"width", 160}, {"height", 120},
-                                 {"intrinsics", {{"fx", 150.0}, {"fy", 150.0}, {"cx", 80.0}, {"cy", 60.0}}},
+                                 {"camera", {{"model", "PINHOLE"}, {"params", {150.0, 150.0, 80.0, 60.0}}}},
                                  {"cam_from_world", {{"qvec", {q.w(), q.x(), q.y(), q.z()}},
                                                      {"tvec", {cam_from_world.translation.x(), cam_from_world.translation.y(),
                                                                cam_from_world.translation.z()}}}},

@@ -486,9 +486,9 @@ nlohmann::json ReadVolumeForViewer(const std::string& folder, const ViewerOption
     throw IoError(path + ": not valid JSON (" + e.what() + ")");
   }
   const double width = Number(volume, "width", path), height = Number(volume, "height", path);
-  const nlohmann::json intrinsics = volume.value("intrinsics", nlohmann::json::object());
-  const double fx = Number(intrinsics, "fx", path), fy = Number(intrinsics, "fy", path);
-  const double cx = Number(intrinsics, "cx", path), cy = Number(intrinsics, "cy", path);
+  // PINHOLE parameters fx, fy, cx, cy (pipeline/core/plane_volume.h, the volume stage's format).
+  const std::vector<double> params = Numbers(volume.value("camera", nlohmann::json::object()), "params", 4, path);
+  const double fx = params[0], fy = params[1], cx = params[2], cy = params[3];
   if (width <= 0 || height <= 0 || fx <= 0 || fy <= 0) throw IoError(path + ": width, height, fx and fy must be > 0");
   const nlohmann::json pose = volume.value("cam_from_world", nlohmann::json::object());
   const std::vector<double> q = Numbers(pose, "qvec", 4, path), t = Numbers(pose, "tvec", 3, path);

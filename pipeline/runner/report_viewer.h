@@ -59,9 +59,10 @@ struct ViewerData {
 ViewerData GatherViewer(const std::string& workspace, const nlohmann::json& scores, const std::string& metric,
                         const ViewerOptions& options);
 
-// One volume folder (volume/<reference>/) as the viewer draws it: its volume.json reads
+// One volume folder (volume/<reference>/) as the viewer draws it: its volume.json (the format of
+// pipeline/core/plane_volume.h) reads
 //   {"width": W, "height": H,                       pixels of every plane image
-//    "intrinsics": {"fx": .., "fy": .., "cx": .., "cy": ..},   the virtual camera, pixels, COLMAP's
+//    "camera": {"params": [fx, fy, cx, cy]},         the virtual camera (PINHOLE), pixels, COLMAP's
 //                                                    convention (top-left pixel's centre at 0.5, 0.5)
 //    "cam_from_world": {"qvec": [qw, qx, qy, qz], "tvec": [tx, ty, tz]},   as COLMAP's images.txt
 //    "depths": [d_0, d_1, ...]}                      z depth of plane k in the virtual camera

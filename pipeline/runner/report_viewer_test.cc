@@ -180,7 +180,7 @@ TEST(ReportViewer, CamerasCarryTheirBestHeldOutScore) {
 void WriteVolume(const fs::path& folder, int planes) {
   nlohmann::json volume = {{"width", 40},
                            {"height", 20},
-                           {"intrinsics", {{"fx", 40.0}, {"fy", 40.0}, {"cx", 20.0}, {"cy", 10.0}}},
+                           {"camera", {{"model", "PINHOLE"}, {"params", {40.0, 40.0, 20.0, 10.0}}}},
                            {"cam_from_world", {{"qvec", {1, 0, 0, 0}}, {"tvec", {0, 0, 1}}}},
                            {"depths", {2.0, 3.0, 4.0}}};
   WriteFileAtomic((folder / "volume.json").string(), volume.dump());
