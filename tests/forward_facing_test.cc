@@ -75,3 +75,36 @@ TEST(ForwardFacing, AnLlffFolderRunsToScoresAndTheVolumePredictsBest) {
 }
 
 }  // namespace
+
+// What a user is told when the volume cannot be made: each message names what to set.
+TEST(ForwardFacing, TheVolumeStageNamesWhatToSet) {
+  const fs::path root = fs::temp_directory_path() / ("ibmr_volume_errors_" + std::to_string(::getpid()));
+  fs::remove_all(root);
+  const std::string config = "'" + std::string(IBMR_SOURCE_DIR) + "/configs/synth_forward.yaml'";
+  const std::string small = " --set synth.width=64 --set synth.height=48 --set synth.views=6";
+  const auto volume = [&](const std::string& workspace, const std::string& more) {
+    const std::string ws = " --workspace '" + (root / workspace).string() + "'";
+    const auto synth = ibmr_e2e::RunCommand(Ibmr("run " + config + ws + " --only synth" + small + more));
+    EXPECT_EQ(synth.exit_code, 0) << synth.output;
+    return ibmr_e2e::RunCommand(Ibmr("run " + config + ws + " --only volume" + small + more));
+  };
+  // No sparse points, no bounds file, no range in the config.
+  const auto no_range = volume("no_range", " --set synth.sparse_points=0");
+  EXPECT_NE(no_range.exit_code, 0);
+  EXPECT_NE(no_range.output.find("volume.min_depth"), std::string::npos) << no_range.output;
+  // A budget the volume does not fit.
+  const auto too_large = volume("too_large", " --set volume.max_memory_mb=1");
+  EXPECT_NE(too_large.exit_code, 0);
+  EXPECT_NE(too_large.output.find("volume.max_memory_mb"), std::string::npos) << too_large.output;
+  EXPECT_NE(too_large.output.find("volume.num_planes"), std::string::npos) << too_large.output;
+  // Two views, every 8th held out: one training view.
+  const auto one_view = volume("one_view", " --set synth.views=2");
+  EXPECT_NE(one_view.exit_code, 0);
+  EXPECT_NE(one_view.output.find("at least 2 training views"), std::string::npos) << one_view.output;
+  // Both bounds or neither: refused when the config is read.
+  const auto half_range = ibmr_e2e::RunCommand(Ibmr("run " + config + " --workspace '" + (root / "half").string() +
+                                                    "' --only volume --set volume.min_depth=1"));
+  EXPECT_NE(half_range.exit_code, 0);
+  EXPECT_NE(half_range.output.find("max_depth"), std::string::npos) << half_range.output;
+  fs::remove_all(root);
+}
