@@ -6,6 +6,7 @@
 #include <charconv>
 #include <climits>
 #include <filesystem>
+#include <map>
 
 #include "pipeline/core/errors.h"
 
@@ -40,23 +41,6 @@ std::string DetailKinds(bool meanings) {
 }
 
 }  // namespace
-
-int RenderScene::SelfSource(const std::string& name) const {
-  if (!exclude_self) return -1;
-  const auto found = std::find(training.begin(), training.end(), name);
-  return found == training.end() ? -1 : static_cast<int>(found - training.begin());
-}
-
-const std::vector<SourceView>* RenderScene::SourcesWithout(const std::vector<SourceView>& all,
-                                                           const std::string& name,
-                                                           std::vector<SourceView>* own) const {
-  const bool has_self = std::any_of(all.begin(), all.end(), [&](const SourceView& s) { return s.name == name; });
-  if (!exclude_self || !has_self) return &all;
-  for (const SourceView& s : all) {
-    if (s.name != name) own->push_back(s);
-  }
-  return own;
-}
 
 double RenderModel::ViewBytes(const StageContext& context, double pixels) const {
   const double factor = static_cast<double>(context.params.Int("supersample"));
@@ -145,6 +129,27 @@ std::string CheckModelEntry(const ModelEntry& entry) {
            (kind.max_detail < INT_MAX ? " and at most " + std::to_string(kind.max_detail) : std::string());
   }
   return kind.check_entry ? kind.check_entry(entry) : std::string();
+}
+
+std::string CheckModelEntries(const std::vector<std::string>& entries) {
+  if (entries.empty()) return "list at least one proxy (e.g. [plane])";
+  std::map<std::string, std::string> entry_of_name;  // each model writes renders/<name>/
+  for (const std::string& text : entries) {
+    ModelEntry entry;
+    try {
+      entry = ParseModelEntry(text);
+    } catch (const InputError& e) {
+      return e.what();
+    }
+    const auto [named, fresh] = entry_of_name.emplace(entry.name, text);
+    if (!fresh) {
+      return "\"" + named->second + "\" and \"" + text + "\" are both named \"" + entry.name +
+             "\" (both would write renders/" + entry.name + "/); name one, e.g. " + entry.name + "_2=" +
+             text.substr(text.find('=') == std::string::npos ? 0 : text.find('=') + 1);
+    }
+    if (const std::string error = CheckModelEntry(entry); !error.empty()) return error;
+  }
+  return "";
 }
 
 std::unique_ptr<RenderModel> MakeRenderModel(const std::string& text, const Workspace& workspace) {

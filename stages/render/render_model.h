@@ -16,20 +16,17 @@
 
 #include <nlohmann/json.hpp>
 
-#include <Eigen/Core>
 #include <memory>
 #include <optional>
 #include <string>
 #include <vector>
 
-#include "pipeline/core/camera.h"
 #include "pipeline/core/mesh.h"
 #include "pipeline/core/params.h"
-#include "pipeline/core/rigid3.h"
-#include "pipeline/core/sparse_model.h"
 #include "pipeline/core/stage_api.h"
 #include "pipeline/core/workspace.h"
 #include "stages/render/render.h"
+#include "stages/render/render_scene.h"
 
 namespace ibmr {
 
@@ -45,37 +42,6 @@ struct ModelEntry {
   std::string path;                    // a mesh entry's path as written (workspace-relative or absolute)
   std::vector<std::string> fallbacks;  // a mesh entry's fallback paths as written
   int detail = 0;                      // "@N": N; 0 when absent, -1 when N is not a whole number
-};
-
-// What every model of a run shares, built once by the stage before the first model.
-struct RenderScene {
-  const StageContext* context = nullptr;     // workspace, params
-  const SparseModel* model = nullptr;
-  std::vector<std::string> training;         // source views (held-out ones never are), model order
-  std::vector<SourceView> sources;           // their photos, without a proxy depth
-  RenderOptions options;                     // ULR's, and the visibility tolerance and hole extension
-  std::vector<Eigen::Vector3d> sparse_points;  // finite sparse points seen by a training view
-  Eigen::Vector3d axes_point = Eigen::Vector3d::Zero();  // nearest to the training optical axes
-  bool have_axes_point = false;
-  bool exclude_self = true;                  // leave-one-out for training views among the desired ones
-  int factor = 1;                            // supersampling: sub-samples per pixel side
-
-  // True when a plane proxy can be placed (sparse points, or optical axes that meet).
-  bool PlanePossible() const { return !sparse_points.empty() || have_axes_point; }
-  // Index of the training view named `name` among the sources, -1 when it is none or exclude_self
-  // is off: the source a leave-one-out render never uses.
-  int SelfSource(const std::string& name) const;
-  // `all` without the view `name`'s own photo when exclude_self applies to it (into `own`), else
-  // `all` itself (no copy of its pixels or depth maps).
-  const std::vector<SourceView>* SourcesWithout(const std::vector<SourceView>& all, const std::string& name,
-                                                std::vector<SourceView>* own) const;
-};
-
-// A desired view: a photographed view (held out, or listed in `views`) or the novel camera.
-struct DesiredView {
-  std::string name, stem;
-  Camera camera;           // at the output size
-  Rigid3d cam_from_world;
 };
 
 // One view drawn by a model at the supersampled size.
@@ -163,6 +129,9 @@ ModelEntry ParseModelEntry(const std::string& entry);
 const RenderModelKind& KindOf(const ModelEntry& entry);
 // The entry's errors that need no file: @N out of the kind's range, an unknown option. "" when none.
 std::string CheckModelEntry(const ModelEntry& entry);
+// The first error of a list of entries (`proxies`): empty, unparsable, two with one name (both
+// would write renders/<name>/), or CheckModelEntry's. "" when none.
+std::string CheckModelEntries(const std::vector<std::string>& entries);
 // Parses and builds the model of an entry; paths resolve against `workspace`.
 std::unique_ptr<RenderModel> MakeRenderModel(const std::string& entry, const Workspace& workspace);
 

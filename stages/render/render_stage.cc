@@ -1,29 +1,19 @@
 // Adapter of the render stage: renders the held-out views of sparse/ (or the views listed in
 // `views`, or a camera given by `novel_look_at`) from the training views only, once per model of
-// `proxies` (render_model.h; the kinds and their entries in render_models.cc and model_*.cc: ULR
-// over a plane or meshes, seed 001; point splats, seed 004; textured and vdtm, seed 003; layers,
-// seed 000). The first model that can be prepared is the primary. A model whose input is missing is
-// skipped with a warning and listed as skipped in renders/renders.json.
-// What every model shares lives here: the views to draw, supersampling (each model draws at
-// `supersample` times the size) and box-filtered downsampling (Downsample), the background fill,
-// the files and the records.
-// exclude_self (leave-one-out, for training views listed in `views`): each model leaves the view's
-// own photo out (ULR and vdtm of every blend, splat_depth its depth samples, layers its reference
-// set); a model made from every photo (textured, splat_surfels) cannot, and a warning says so.
-// Held-out views are never sources, so this changes nothing for them.
-// Metrics per model: ms_per_frame_<name>, the mean wall time of one view's render (supersampled
-// render and downsampling, not the file writes; views run concurrently, so it compares models of
-// one run, not machines), prepare_seconds_<name>, seconds_<name> for the whole model including its
-// preparation, and the model's own (RenderModel::AddMetrics).
-// Writes renders/<model>/<image stem>.png, <image stem>.coverage.png (255 covered) and
-// <image stem>.json (the view's coverage, sources, files) per model, the primary model's copies as
-// renders/<image stem>.png and .coverage.png, and renders/renders.json.
-// With `background: plane`, every other model's holes are also filled from the plane model's
-// render of the same view (drawn once: the plane model takes it): <image stem>.filled.png and
-// .filled.coverage.png, listed as the view's "filled" and scored apart by score (a view rendered
-// without a fill loses any such files of an earlier run).
-// Views whose images share a stem are refused (their files would collide), as are two models with
-// one name.
+// `proxies` (render_model.h; each kind in a model_*.cc, registered in render_models.cc). The first
+// model that can be prepared is the primary; one whose input is missing is skipped with a warning.
+// Shared here: the views to draw, supersampling and box-filtered downsampling, the background
+// fill, the files and the records. exclude_self: each model leaves a training view's own photo
+// out where it can (RenderModel::MadeFromEveryPhoto: a warning where it cannot).
+// Metrics per model: ms_per_frame_<name> (mean wall time of one view's render and downsampling;
+// views run concurrently: it compares the models of one run), prepare_seconds_<name>,
+// seconds_<name> (preparation included) and the model's own (RenderModel::AddMetrics).
+// Writes renders/<model>/<stem>.png, <stem>.coverage.png (255 covered) and <stem>.json (the
+// view's coverage, sources, files), the primary's copies as renders/<stem>.png and .coverage.png,
+// and renders/renders.json. With `background: plane`, every other model's holes are also filled
+// from the plane model's render of the view (drawn once: the plane model takes it) in
+// <stem>.filled.png and .filled.coverage.png, scored apart (a view rendered without a fill loses
+// such files of an earlier run). Two views with one stem, or two models with one name, are refused.
 #include <spdlog/spdlog.h>
 #include <tbb/parallel_for.h>
 
@@ -40,7 +30,6 @@
 #include "pipeline/core/per_view.h"
 #include "pipeline/core/process_memory.h"
 #include "pipeline/core/stage_api.h"
-#include "pipeline/core/undistorted_cameras.h"
 #include "stages/render/render_model.h"
 
 namespace fs = std::filesystem;
@@ -65,71 +54,6 @@ ProxySurface HitsOf(const RenderResult& fine) {
     for (int x = 0; x < surface.width; ++x) surface.hit[static_cast<size_t>(y) * surface.width + x] = row[x] != 0;
   }
   return surface;
-}
-
-Camera PinholeOf(const Camera& camera, const std::string& image_name, const Workspace& workspace) {
-  RequireUndistorted(camera, image_name, workspace.SparseDir() + "/cameras.txt", "render");
-  return camera;
-}
-
-RenderOptions ToOptions(const Params& params) {
-  RenderOptions options;
-  options.k = static_cast<int>(params.Int("k"));
-  options.alpha = params.Double("alpha");
-  options.beta = params.Double("beta");
-  options.gamma = params.Double("gamma");
-  options.epipole_consistent = params.Bool("epipole_consistent");
-  options.fov_margin = params.Double("fov_margin");
-  options.max_penalty = params.Double("max_penalty");
-  options.visibility_epsilon = params.Double("visibility_epsilon");
-  options.proxy_extend_px = static_cast<int>(params.Int("proxy_extend_px"));
-  return options;
-}
-
-// The training views' photos (a held-out photo's pixels are never read), the sparse points they
-// see and the point nearest to their optical axes.
-void LoadScene(const StageContext& context, const SparseModel& model, RenderScene* scene) {
-  scene->context = &context;
-  scene->model = &model;
-  scene->options = ToOptions(context.params);
-  scene->exclude_self = context.params.Bool("exclude_self");
-  scene->factor = static_cast<int>(context.params.Int("supersample"));
-  for (const std::string& name : context.TrainingImageNames(model)) {
-    if (!context.IsHeldOut(name)) scene->training.push_back(name);
-  }
-  if (scene->training.empty()) throw InputError("render: every image is held out; nothing to render from (check holdout)");
-  std::vector<SourceView>& sources = scene->sources;
-  sources.resize(scene->training.size());
-  tbb::parallel_for(size_t{0}, sources.size(), [&](size_t i) {
-    const Image& image = *model.FindImage(scene->training[i]);
-    sources[i].name = image.name;
-    sources[i].camera = PinholeOf(model.CameraOf(image), image.name, context.workspace);
-    sources[i].cam_from_world = image.cam_from_world;
-    const std::string path = context.workspace.ImagesDir() + "/" + image.name;
-    sources[i].image = ReadImageColor(path);
-    if (sources[i].image.cols != sources[i].camera.width || sources[i].image.rows != sources[i].camera.height) {
-      throw InputError(path + ": image is " + std::to_string(sources[i].image.cols) + "x" +
-                       std::to_string(sources[i].image.rows) + " but its camera says " +
-                       std::to_string(sources[i].camera.width) + "x" + std::to_string(sources[i].camera.height));
-    }
-  });
-  std::set<int> training_ids;
-  std::vector<Eigen::Vector3d> centers, directions;
-  for (const std::string& name : scene->training) {
-    const Image* image = model.FindImage(name);
-    training_ids.insert(image->image_id);
-    centers.push_back(image->Center());
-    directions.push_back(image->ViewingDirection());
-  }
-  for (const auto& [id, point] : model.points) {
-    // A non-finite point would make the plane's depth and the layers' scene centre NaN (a black
-    // render reported as rendered); it says nothing about where the scene is.
-    if (!point.xyz.allFinite()) continue;
-    bool seen = point.track.empty();
-    for (const TrackElement& element : point.track) seen = seen || training_ids.count(element.image_id) > 0;
-    if (seen) scene->sparse_points.push_back(point.xyz);
-  }
-  scene->have_axes_point = PointNearestToAxes(centers, directions, &scene->axes_point);
 }
 
 // One view drawn by a model at the output size, with its facts for <stem>.json.
@@ -213,8 +137,6 @@ class RenderStage : public Stage {
     if (names.empty()) names.assign(context.heldout_images.begin(), context.heldout_images.end());
     return names;
   }
-  static std::vector<DesiredView> DesiredViews(const StageContext& context, const SparseModel& model,
-                                               const RenderScene& scene, const std::set<std::string>& shard);
   // Draws every desired view with `model`, writes their files and returns renders.json's entry.
   static nlohmann::json RenderModelViews(StageContext& context, const RenderScene& scene, const RenderModel& model,
                                          const std::vector<DesiredView>& desired, bool is_primary,
@@ -260,7 +182,7 @@ std::vector<ParamSpec> RenderStage::Parameters() const {
 
 std::optional<ParamError> RenderStage::CheckParams(const Params& params) const {
   std::string error;
-  if (!ToOptions(params).Check(&error)) return ParamError::FromCheck(error);
+  if (!ToRenderOptions(params).Check(&error)) return ParamError::FromCheck(error);
   for (const RenderModelKind& kind : RenderModelKinds()) {
     if (!kind.check_params) continue;
     if (std::optional<ParamError> kind_error = kind.check_params(params)) return kind_error;
@@ -283,84 +205,22 @@ std::optional<ParamError> RenderStage::CheckParams(const Params& params) const {
                                          "points; move the target to where the camera should look"};
     }
   }
-  if (params.StringList("proxies").empty()) return ParamError{"proxies", "list at least one proxy (e.g. [plane])"};
-  std::map<std::string, std::string> entry_of_name;  // each model writes renders/<name>/
-  for (const std::string& text : params.StringList("proxies")) {
-    ModelEntry entry;
-    try {
-      entry = ParseModelEntry(text);
-    } catch (const InputError& e) {
-      return ParamError{"proxies", e.what()};
-    }
-    const auto [named, fresh] = entry_of_name.emplace(entry.name, text);
-    if (!fresh) {
-      return ParamError{"proxies", "\"" + named->second + "\" and \"" + text + "\" are both named \"" + entry.name +
-                                       "\" (both would write renders/" + entry.name + "/); name one, e.g. " +
-                                       entry.name + "_2=" + text.substr(text.find('=') == std::string::npos ? 0 : text.find('=') + 1)};
-    }
-    if (const std::string entry_error = CheckModelEntry(entry); !entry_error.empty()) {
-      return ParamError{"proxies", entry_error};
-    }
+  if (const std::string error = CheckModelEntries(params.StringList("proxies")); !error.empty()) {
+    return ParamError{"proxies", error};
   }
   return std::nullopt;
-}
-
-// The photographed views (render.views, else the held-out ones) and the novel camera, less those
-// outside this run's shard; two views with one stem are refused.
-std::vector<DesiredView> RenderStage::DesiredViews(const StageContext& context, const SparseModel& model,
-                                                   const RenderScene& scene, const std::set<std::string>& shard) {
-  std::vector<DesiredView> desired;
-  for (const std::string& name : PhotoViewNames(context)) {
-    const Image* image = model.FindImage(name);
-    if (!image) throw InputError("render.views: no image named \"" + name + "\" in " + context.workspace.SparseDir());
-    desired.push_back({name, fs::path(name).stem().string(), PinholeOf(model.CameraOf(*image), name, context.workspace),
-                       image->cam_from_world});
-  }
-  const std::vector<double> look = context.params.DoubleList("novel_look_at");
-  if (!look.empty()) {
-    const Eigen::Vector3d eye(look[0], look[1], look[2]), target(look[3], look[4], look[5]);
-    const Eigen::Vector3d up = look.size() == 9 ? Eigen::Vector3d(look[6], look[7], look[8]) : Eigen::Vector3d(0, 0, 1);
-    desired.push_back({"novel", "novel", scene.sources[0].camera, LookAt(eye, target, up)});
-  }
-  if (desired.empty()) {
-    spdlog::warn("[render] no view to render: the config holds no view out (holdout) and lists no render.views");
-  }
-  // Every file of a view is named by its image's stem (renders/<model>/<stem>.png, the checkpoint
-  // keys): two views with one stem (view_000.png and view_000.jpg, left/0001.jpg and
-  // right/0001.jpg) would overwrite each other's renders and be scored against the wrong photo.
-  std::map<std::string, std::string> view_of_stem;
-  for (const DesiredView& view : desired) {
-    const auto [other, fresh] = view_of_stem.emplace(view.stem, view.name);
-    if (!fresh) {
-      throw InputError("render: views \"" + other->second + "\" and \"" + view.name +
-                       "\" would both be written as renders/<proxy>/" + view.stem +
-                       ".png (same file stem); rename one of the images (in " + context.workspace.ImagesDir() + " and " +
-                       context.workspace.SparseDir() + "/images.txt), or render only one of them (render.views, holdout)");
-    }
-  }
-  if (shard.empty()) return desired;
-  std::string unknown;
-  for (const std::string& name : shard) {
-    if (std::none_of(desired.begin(), desired.end(), [&](const DesiredView& d) { return d.name == name; })) {
-      unknown += (unknown.empty() ? "" : ", ") + name;
-    }
-  }
-  if (!unknown.empty()) throw InputError("--views: not among render's views (held out or render.views): " + unknown);
-  desired.erase(std::remove_if(desired.begin(), desired.end(), [&](const DesiredView& d) { return !shard.count(d.name); }),
-                desired.end());
-  return desired;
 }
 
 void RenderStage::Run(StageContext& context) const {
   const SparseModel sparse = context.LoadModel();
   if (sparse.images.empty()) throw InputError(context.workspace.SparseDir() + ": no posed image; run import or sfm first");
   RenderScene scene;
-  LoadScene(context, sparse, &scene);
+  LoadRenderScene(context, sparse, &scene);
   // A shard renders its views only; the per-view loops then run unsharded over them (the marks
   // are per model and view), and it ends before the files that gather every view.
   const std::set<std::string> shard = std::move(context.shard_views);
   context.shard_views.clear();
-  const std::vector<DesiredView> desired = DesiredViews(context, sparse, scene, shard);
+  const std::vector<DesiredView> desired = DesiredViews(context, sparse, scene, PhotoViewNames(context), shard);
   ShardFinished shard_done;
 
   // The background that fills every other model's holes (`background: plane`), one per view, in
