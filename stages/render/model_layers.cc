@@ -140,18 +140,13 @@ std::optional<ParamError> CheckLayersParams(const Params& params) {
 }  // namespace
 
 RenderModelKind LayersKind() {
-  RenderModelKind kind;
-  kind.keyword = "layers";
-  kind.syntax = "layers";
-  kind.summary = "the layered_stereo stage's sprites with depth (layers/<view>/): the layers_references nearest "
-                 "reference views, each composited back to front, blended by 1/angle^2";
+  RenderModelKind kind = NewRenderModelKind<LayersModel>(
+      "layers", "the layered_stereo stage's sprites with depth (layers/<view>/): the layers_references nearest "
+                "reference views, each composited back to front, blended by 1/angle^2");
   kind.params = {{"layers_references", ParamType::kInt, "2",
                   "layers: reference views blended per desired view (the nearest in viewing direction), in [1, 16]",
                   {}}};
   kind.check_params = CheckLayersParams;
-  kind.make = [](ModelEntry entry, const Workspace& workspace) -> std::unique_ptr<RenderModel> {
-    return std::make_unique<LayersModel>(std::move(entry), workspace);
-  };
   return kind;
 }
 

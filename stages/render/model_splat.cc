@@ -96,7 +96,8 @@ class SplatModel : public RenderModel {
 
 class DepthSplatModel : public SplatModel {
  public:
-  DepthSplatModel(ModelEntry entry, bool merge) : SplatModel(std::move(entry)), merge_(merge) {}
+  DepthSplatModel(ModelEntry entry, const Workspace&, bool merge = false)
+      : SplatModel(std::move(entry)), merge_(merge) {}
 
   std::vector<std::string> Inputs(const StageContext& context) const override {
     return {DepthType(context.params) == "truth" ? "ground_truth/depth" : "dense/stereo"};
@@ -165,6 +166,13 @@ class DepthSplatModel : public SplatModel {
   std::string depth_type_;
 };
 
+// splat_depth_merged: one sample per surface point (tile merging, [N 4.6]).
+class MergedDepthSplatModel : public DepthSplatModel {
+ public:
+  MergedDepthSplatModel(ModelEntry entry, const Workspace& workspace)
+      : DepthSplatModel(std::move(entry), workspace, true) {}
+};
+
 class SurfelSplatModel : public SplatModel {
  public:
   SurfelSplatModel(ModelEntry entry, const Workspace& workspace)
@@ -221,13 +229,10 @@ std::optional<ParamError> CheckSplatParams(const Params& params) {
 }
 
 // splat_depth and splat_depth_merged: "splat_depth_truth" for splat_depth:truth.
-RenderModelKind DepthSplatKind(const std::string& keyword, bool merge) {
-  RenderModelKind kind;
-  kind.keyword = keyword;
+template <typename Model>
+RenderModelKind DepthSplatKind(const std::string& keyword, const std::string& summary) {
+  RenderModelKind kind = NewRenderModelKind<Model>(keyword, summary);
   kind.syntax = keyword + "[:TYPE][@N]";
-  kind.summary = merge ? "splat_depth after tile merging: one sample per surface point (seed 004 [N 4.6])"
-                       : "point splats of the training views' depth maps (TYPE geometric, photometric or truth; "
-                         "@N: N x N blocks) with skins and outliers flagged (seed 004)";
   kind.max_detail = 16;
   kind.detail_meaning = "block size of " + keyword;
   kind.takes_option = true;
@@ -235,19 +240,15 @@ RenderModelKind DepthSplatKind(const std::string& keyword, bool merge) {
   kind.default_name = [](const ModelEntry& entry) {
     return entry.keyword + (entry.option.empty() ? "" : "_" + entry.option);
   };
-  kind.make = merge ? [](ModelEntry entry, const Workspace&) -> std::unique_ptr<RenderModel> {
-    return std::make_unique<DepthSplatModel>(std::move(entry), true);
-  }
-                    : [](ModelEntry entry, const Workspace&) -> std::unique_ptr<RenderModel> {
-                        return std::make_unique<DepthSplatModel>(std::move(entry), false);
-                      };
   return kind;
 }
 
 }  // namespace
 
 RenderModelKind SplatDepthKind() {
-  RenderModelKind kind = DepthSplatKind("splat_depth", false);
+  RenderModelKind kind = DepthSplatKind<DepthSplatModel>(
+      "splat_depth", "point splats of the training views' depth maps (TYPE geometric, photometric or truth; @N: N x N "
+                     "blocks) with skins and outliers flagged (seed 004)");
   kind.params = {
       {"splat_depth_type", ParamType::kString, "geometric",
        "depth maps splat_depth draws: geometric (multi_depth), photometric (plane_sweep) or truth "
@@ -282,17 +283,13 @@ RenderModelKind SplatDepthKind() {
   return kind;
 }
 
-RenderModelKind SplatDepthMergedKind() { return DepthSplatKind("splat_depth_merged", true); }
+RenderModelKind SplatDepthMergedKind() {
+  return DepthSplatKind<MergedDepthSplatModel>(
+      "splat_depth_merged", "splat_depth after tile merging: one sample per surface point (seed 004 [N 4.6])");
+}
 
 RenderModelKind SplatSurfelsKind() {
-  RenderModelKind kind;
-  kind.keyword = "splat_surfels";
-  kind.syntax = "splat_surfels";
-  kind.summary = "the oriented discs of surfels/surfels.ply";
-  kind.make = [](ModelEntry entry, const Workspace& workspace) -> std::unique_ptr<RenderModel> {
-    return std::make_unique<SurfelSplatModel>(std::move(entry), workspace);
-  };
-  return kind;
+  return NewRenderModelKind<SurfelSplatModel>("splat_surfels", "the oriented discs of surfels/surfels.ply");
 }
 
 }  // namespace ibmr

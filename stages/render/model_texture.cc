@@ -161,26 +161,13 @@ class VdtmModel : public TextureModel {
 }  // namespace
 
 RenderModelKind TexturedKind() {
-  RenderModelKind kind;
-  kind.keyword = "textured";
-  kind.syntax = "textured";
-  kind.summary = "the texture stage's mesh drawn with its atlas (texture/mesh.obj)";
-  kind.make = [](ModelEntry entry, const Workspace& workspace) -> std::unique_ptr<RenderModel> {
-    return std::make_unique<TexturedModel>(std::move(entry), workspace);
-  };
-  return kind;
+  return NewRenderModelKind<TexturedModel>("textured", "the texture stage's mesh drawn with its atlas (texture/mesh.obj)");
 }
 
 RenderModelKind VdtmKind() {
-  RenderModelKind kind;
-  kind.keyword = "vdtm";
-  kind.syntax = "vdtm";
-  kind.summary = "view-dependent texture mapping: per face the view map's at most three photos (seed 003, "
-                 "texture/view_maps.bin)";
-  kind.make = [](ModelEntry entry, const Workspace& workspace) -> std::unique_ptr<RenderModel> {
-    return std::make_unique<VdtmModel>(std::move(entry), workspace);
-  };
-  return kind;
+  return NewRenderModelKind<VdtmModel>(
+      "vdtm", "view-dependent texture mapping: per face the view map's at most three photos (seed 003, "
+              "texture/view_maps.bin)");
 }
 
 }  // namespace ibmr

@@ -47,7 +47,7 @@ Camera Supersampled(const RenderScene& scene, const DesiredView& view) {
 
 class PlaneModel : public RenderModel {
  public:
-  using RenderModel::RenderModel;
+  PlaneModel(ModelEntry entry, const Workspace&) : RenderModel(std::move(entry)) {}
   std::vector<std::string> Inputs(const StageContext&) const override { return {}; }
   std::string SourcePath(const Workspace&) const override { return "plane"; }
   std::optional<std::string> Prepare(const RenderScene& scene, nlohmann::json*) override {
@@ -166,27 +166,19 @@ std::string MeshName(const ModelEntry& entry) {
 }  // namespace
 
 RenderModelKind PlaneKind() {
-  RenderModelKind kind;
-  kind.keyword = "plane";
-  kind.syntax = "plane";
-  kind.summary = "ULR over the plane at the mean inverse depth of the sparse points (seed 001 [U 218])";
-  kind.make = [](ModelEntry entry, const Workspace&) -> std::unique_ptr<RenderModel> {
-    return std::make_unique<PlaneModel>(std::move(entry));
-  };
-  return kind;
+  return NewRenderModelKind<PlaneModel>(
+      "plane", "ULR over the plane at the mean inverse depth of the sparse points (seed 001 [U 218])");
 }
 
+// Any entry that names no other kind: a mesh path.
 RenderModelKind MeshKind() {
-  RenderModelKind kind;
+  RenderModelKind kind = NewRenderModelKind<MeshModel>(
+      "", "ULR over a mesh (decimated to N faces), fallback meshes filling where a ray misses it");
   kind.syntax = "<path>.ply[@N][|<fallback>.ply...]";
-  kind.summary = "ULR over a mesh (decimated to N faces), fallback meshes filling where a ray misses it";
   kind.min_detail = 4;
   kind.max_detail = INT_MAX;
   kind.detail_meaning = "faces of a mesh";
   kind.default_name = MeshName;
-  kind.make = [](ModelEntry entry, const Workspace& workspace) -> std::unique_ptr<RenderModel> {
-    return std::make_unique<MeshModel>(std::move(entry), workspace);
-  };
   return kind;
 }
 

@@ -6,12 +6,13 @@
 // metrics. The stage owns what every model shares: the views to draw, supersampling and
 // downsampling, the background fill, the files, renders.json and the records.
 //
-// Adding a model: write model_<kind>.cc (see model_layers.cc for a small one) defining a
-// subclass of RenderModel in an anonymous namespace and a function `RenderModelKind <Name>Kind()`
-// that returns its keyword, entry syntax, one line for the user and its factory; list the file in
-// CMakeLists.txt and add `X(<Name>)` to IBMR_RENDER_MODEL_KINDS in render_models.cc: that one line
-// registers it, and `ibmr stages`, the error message for an unknown entry and the entry parser
-// learn of it from there.
+// Adding a model: write model_<kind>.cc (model_layers.cc is a small one) with a subclass of
+// RenderModel in an anonymous namespace and a function `RenderModelKind <Name>Kind()` returning
+// NewRenderModelKind<YourModel>("keyword", "what it draws") (plus any @N range, option, own keys);
+// list the file in CMakeLists.txt and add the one line `X(<Name>)` to IBMR_RENDER_MODEL_KINDS in
+// render_models.cc. The entry parser, the stage's checks, the error for an unknown entry and
+// `ibmr stages` learn of it from there. Per-pixel loops stay inside the model's own functions:
+// the stage calls a model once per view.
 #pragma once
 
 #include <nlohmann/json.hpp>
@@ -116,6 +117,20 @@ struct RenderModelKind {
   std::string (*default_name)(const ModelEntry& entry) = nullptr;
   std::unique_ptr<RenderModel> (*make)(ModelEntry entry, const Workspace& workspace) = nullptr;
 };
+
+// A kind named `keyword` (syntax: the keyword alone) whose models are built as
+// Model(ModelEntry, const Workspace&); the caller sets the other fields.
+template <typename Model>
+RenderModelKind NewRenderModelKind(std::string keyword, std::string summary) {
+  RenderModelKind kind;
+  kind.syntax = keyword;
+  kind.keyword = std::move(keyword);
+  kind.summary = std::move(summary);
+  kind.make = [](ModelEntry entry, const Workspace& workspace) -> std::unique_ptr<RenderModel> {
+    return std::make_unique<Model>(std::move(entry), workspace);
+  };
+  return kind;
+}
 
 // Every registered kind, in the order they are listed (render_models.cc).
 const std::vector<RenderModelKind>& RenderModelKinds();
