@@ -146,6 +146,18 @@ TEST(ModelEntry, UnknownKindIsAClearErrorListingTheKinds) {
   ASSERT_TRUE(error.has_value());
   EXPECT_EQ(error->key, "proxies");
   EXPECT_NE(error->message.find("splat_depth_merged"), std::string::npos) << error->message;
+  // The background is a model that can serve as one: the plane, or none.
+  params.Set("proxies", std::vector<std::string>{"plane"});
+  for (const std::string background : {"hull/hull.ply", "vdtm", "bogus"}) {
+    params.Set("background", background);
+    const std::optional<ParamError> refused = RenderStage().CheckParams(params);
+    ASSERT_TRUE(refused.has_value()) << background;
+    EXPECT_EQ(refused->key, "background");
+  }
+  for (const std::string background : {"plane", "none"}) {
+    params.Set("background", background);
+    EXPECT_FALSE(RenderStage().CheckParams(params).has_value()) << background;
+  }
 }
 
 // `ibmr stages` prints the proxies parameter's documentation: every kind of the registry.

@@ -188,9 +188,13 @@ std::optional<ParamError> RenderStage::CheckParams(const Params& params) const {
     if (std::optional<ParamError> kind_error = kind.check_params(params)) return kind_error;
   }
   const std::string background = params.String("background");
-  if (background != "plane" && background != "none") {
-    return ParamError{"background", "must be plane or none, got \"" + background + "\""};
+  // The background is drawn by the model its value names, one that can serve as one (the plane).
+  bool serves = background == "none";
+  try {
+    serves = serves || MakeRenderModel(background, Workspace("."))->IsBackground();
+  } catch (const InputError&) {
   }
+  if (!serves) return ParamError{"background", "must be plane or none, got \"" + background + "\""};
   if (params.Int("supersample") < 1 || params.Int("supersample") > 4) {
     return ParamError{"supersample", "must be in [1, 4], got " + std::to_string(params.Int("supersample"))};
   }
