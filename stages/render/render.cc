@@ -168,32 +168,77 @@ DepthMap MeshDepth(const std::vector<const TriangleMesh*>& layers, const Camera&
   return depth;
 }
 
+std::vector<int> HoleSources(const DepthMap& depth, int radius) {
+  const int w = depth.width, h = depth.height;
+  std::vector<int> source(static_cast<size_t>(w) * h, -1);
+  std::vector<float> current(source.size(), std::numeric_limits<float>::infinity());
+  size_t holes = 0;
+  for (size_t i = 0; i < source.size(); ++i) {
+    if (IsValidDepth(depth.data[i])) {
+      current[i] = depth.data[i];
+      source[i] = static_cast<int>(i);
+    } else {
+      ++holes;
+    }
+  }
+  // Each step, a hole next to a pixel with a depth (8-neighbourhood) takes the front-most such
+  // neighbour's depth and source: a 3x3 erosion of the depths with holes as +infinity.
+  std::vector<float> next;
+  std::vector<int> next_source;
+  for (int step = 0; step < radius && holes > 0; ++step) {
+    next = current;
+    next_source = source;
+    for (int y = 0; y < h; ++y) {
+      for (int x = 0; x < w; ++x) {
+        const size_t i = static_cast<size_t>(y) * w + x;
+        if (source[i] >= 0) continue;
+        for (int ny = std::max(0, y - 1); ny <= std::min(h - 1, y + 1); ++ny) {
+          for (int nx = std::max(0, x - 1); nx <= std::min(w - 1, x + 1); ++nx) {
+            const size_t n = static_cast<size_t>(ny) * w + nx;
+            if (current[n] < next[i]) next[i] = current[n], next_source[i] = source[n];
+          }
+        }
+        holes -= next_source[i] >= 0;
+      }
+    }
+    current.swap(next);
+    source.swap(next_source);
+  }
+  return source;
+}
+
 void ExtendIntoHoles(DepthMap* depth, int radius) {
   if (radius <= 0 || depth->Empty()) return;
-  const int w = depth->width, h = depth->height;
-  // Holes as +infinity, so that a 3x3 erosion (minimum) gives each pixel its front-most neighbour.
-  cv::Mat current(h, w, CV_32F), eroded;
-  for (int y = 0; y < h; ++y) {
-    float* row = current.ptr<float>(y);
-    for (int x = 0; x < w; ++x) {
-      const float d = depth->At(x, y);
-      row[x] = IsValidDepth(d) ? d : std::numeric_limits<float>::infinity();
-    }
+  const std::vector<int> source = HoleSources(*depth, radius);
+  for (size_t i = 0; i < source.size(); ++i) {
+    if (source[i] >= 0) depth->data[i] = depth->data[source[i]];
   }
-  const cv::Mat kernel = cv::getStructuringElement(cv::MORPH_RECT, cv::Size(3, 3));
-  for (int step = 0; step < radius; ++step) {
-    cv::erode(current, eroded, kernel, cv::Point(-1, -1), 1, cv::BORDER_CONSTANT,
-              cv::Scalar(std::numeric_limits<float>::infinity()));
-    const cv::Mat holes = current == std::numeric_limits<float>::infinity();
-    if (cv::countNonZero(holes) == 0) break;
-    eroded.copyTo(current, holes);  // covered pixels keep their own depth
+}
+
+std::vector<uint8_t> ExtendIntoHoles(RasterResult* raster, int radius) {
+  std::vector<uint8_t> extended(raster->face_id.size(), 0);
+  if (radius <= 0 || raster->depth.Empty()) return extended;
+  const std::vector<int> source = HoleSources(raster->depth, radius);
+  const int w = raster->depth.width;
+  for (size_t i = 0; i < source.size(); ++i) {
+    if (source[i] < 0 || source[i] == static_cast<int>(i)) continue;
+    const int x = static_cast<int>(i % w), y = static_cast<int>(i / w);
+    const int sx = source[i] % w, sy = source[i] / w;
+    raster->depth.data[i] = raster->depth.data[source[i]];
+    raster->face_id[i] = raster->face_id[source[i]];
+    for (int c = 0; c < 3; ++c) raster->barycentric.At(x, y, c) = raster->barycentric.At(sx, sy, c);
+    extended[i] = 1;
   }
-  for (int y = 0; y < h; ++y) {
-    const float* row = current.ptr<float>(y);
-    for (int x = 0; x < w; ++x) {
-      if (std::isfinite(row[x])) depth->At(x, y) = row[x];
-    }
-  }
+  return extended;
+}
+
+std::vector<SourceView> WithProxyDepth(const std::vector<SourceView>& sources,
+                                       const std::vector<const TriangleMesh*>& layers, int extend_px) {
+  std::vector<SourceView> with_depth = sources;  // shares pixels
+  tbb::parallel_for(size_t{0}, with_depth.size(), [&](size_t i) {
+    with_depth[i].proxy_depth = MeshDepth(layers, with_depth[i].camera, with_depth[i].cam_from_world, extend_px);
+  });
+  return with_depth;
 }
 
 ProxySurface MeshSurface(const std::vector<const TriangleMesh*>& layers, const Camera& camera,

@@ -36,6 +36,7 @@
 #include "pipeline/core/camera.h"
 #include "pipeline/core/float_map.h"
 #include "pipeline/core/mesh.h"
+#include "pipeline/core/rasterizer.h"
 #include "pipeline/core/rigid3.h"
 
 namespace ibmr {
@@ -108,6 +109,19 @@ DepthMap MeshDepth(const std::vector<const TriangleMesh*>& layers, const Camera&
 // sources too). On templeRing (surfel mesh, 2x supersampling) the held-out photo PSNR with holes
 // black rises from 25.61 dB (0) to 26.20 (1 px), 26.21 (2), 26.23 (3), 26.39 (5).
 void ExtendIntoHoles(DepthMap* depth, int radius);
+// The pixel (index y * width + x) whose depth each pixel of `depth` takes in ExtendIntoHoles: its
+// own index where it has a depth, a covered pixel at most `radius` away for a hole it reaches, -1
+// for a hole it does not.
+std::vector<int> HoleSources(const DepthMap& depth, int radius);
+// The same hole extension for a mesh drawn with its faces (textured, vdtm): a hole pixel within
+// `radius` takes the depth, face and barycentrics of the covered pixel ExtendIntoHoles gives its
+// depth from. Returns per pixel 1 where it was a hole and now holds a face.
+std::vector<uint8_t> ExtendIntoHoles(RasterResult* raster, int radius);
+// The sources with each one's visibility map: the depth of the mesh proxy `layers` (first hits,
+// fallbacks where the first misses) extended by `extend_px` into its holes, as ULR sees the proxy.
+// Every mesh model tests visibility against these maps. Sources in parallel (TBB).
+std::vector<SourceView> WithProxyDepth(const std::vector<SourceView>& sources,
+                                       const std::vector<const TriangleMesh*>& layers, int extend_px);
 ProxySurface MeshSurface(const std::vector<const TriangleMesh*>& layers, const Camera& camera,
                          const Rigid3d& cam_from_world, int extend_px = 0);
 

@@ -17,8 +17,10 @@ Eigen::Vector3f SampleAtlas(const TexturedMesh& mesh, int face, const Eigen::Vec
   return SampleBilinear(page, texel.x(), texel.y());
 }
 
-RenderResult RenderTextured(const TexturedMesh& mesh, const Camera& camera, const Rigid3d& cam_from_world) {
-  const RasterResult raster = Rasterize(mesh.mesh, camera, cam_from_world);
+RenderResult RenderTextured(const TexturedMesh& mesh, const Camera& camera, const Rigid3d& cam_from_world,
+                            int extend_px) {
+  RasterResult raster = Rasterize(mesh.mesh, camera, cam_from_world);
+  ExtendIntoHoles(&raster, extend_px);
   RenderResult result;
   result.image = cv::Mat(camera.height, camera.width, CV_8UC3, cv::Scalar::all(0));
   result.coverage = cv::Mat(camera.height, camera.width, CV_8UC1, cv::Scalar::all(0));

@@ -47,6 +47,9 @@ Eigen::Vector3f SampleAtlas(const TexturedMesh& mesh, int face, const Eigen::Vec
 
 // Renders `mesh` with its atlas from `camera` (pinhole; distortion ignored) at `cam_from_world`.
 // Rows run in parallel (TBB). Supersampling: call with camera.Scaled(factor), then Downsample.
-RenderResult RenderTextured(const TexturedMesh& mesh, const Camera& camera, const Rigid3d& cam_from_world);
+// `extend_px` > 0: holes within that many pixels of the mesh take the atlas colour of the nearest
+// covered pixel (ExtendIntoHoles, render.h: the hole extension of every mesh model).
+RenderResult RenderTextured(const TexturedMesh& mesh, const Camera& camera, const Rigid3d& cam_from_world,
+                            int extend_px = 0);
 
 }  // namespace ibmr

@@ -126,9 +126,11 @@ FaceBlend VdtmRenderer::Blend(int face, const Eigen::Vector3d& desired_center, i
 }
 
 RenderResult VdtmRenderer::Render(const Camera& camera, const Rigid3d& cam_from_world, int exclude_source,
-                                  VdtmStats* stats) const {
-  const RasterResult raster = Rasterize(mesh_->mesh, camera, cam_from_world);
-  const Eigen::Vector3d desired_center = cam_from_world.Inverse().translation;
+                                  VdtmStats* stats, int extend_px) const {
+  RasterResult raster = Rasterize(mesh_->mesh, camera, cam_from_world);
+  const std::vector<uint8_t> extended = ExtendIntoHoles(&raster, extend_px);
+  const Rigid3d world_from_cam = cam_from_world.Inverse();
+  const Eigen::Vector3d desired_center = world_from_cam.translation;
   // The faces this frame covers, then each one's blend once (§8: per polygon, before drawing).
   const size_t num_faces = mesh_->mesh.faces.size();
   std::vector<uint8_t> covered_face(num_faces, 0);
@@ -163,7 +165,14 @@ RenderResult VdtmRenderer::Render(const Camera& camera, const Rigid3d& cam_from_
         float sum = 0.f;
         if (blend.count > 0) {
           const Eigen::Vector3i& f = mesh_->mesh.faces[face];
-          const Eigen::Vector3d p = (bary[0] * vertices[f[0]] + bary[1] * vertices[f[1]] + bary[2] * vertices[f[2]]).cast<double>();
+          // A hole the extension reached: the pixel's own ray at the depth it took (as ULR's
+          // proxy), coloured by the blend of the face it took it from.
+          const Eigen::Vector3d p =
+              extended[static_cast<size_t>(y) * camera.width + x]
+                  ? Eigen::Vector3d(world_from_cam * (camera.CamFromImg(Eigen::Vector2d(x + 0.5, y + 0.5)) *
+                                                      static_cast<double>(raster.depth.At(x, y))))
+                  : Eigen::Vector3d(
+                        (bary[0] * vertices[f[0]] + bary[1] * vertices[f[1]] + bary[2] * vertices[f[2]]).cast<double>());
           // Colour of source `source` at p, or false when p is outside its image or hidden there.
           const auto sample = [&](int source, Eigen::Vector3f* color) {
             const Prepared& s = prepared_[source];

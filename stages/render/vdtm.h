@@ -24,6 +24,8 @@
 //     in turn (FaceBlend::fallback) and the first that passes gives the colour;
 //  3. no usable view (a face seen by none: count 0, §8 "polygons not visible in any image";
 //     or no view passes): the atlas colour (textured.h).
+// Hole extension (the render stage's proxy_extend_px, shared with ULR's mesh proxies): pixels
+// within that many pixels of the mesh's image take the nearest covered pixel's depth and face.
 // Known limits kept on purpose (seed 003 §9): weights are continuous in the viewpoint but not
 // across faces (seams), and source resolution is ignored.
 //
@@ -78,9 +80,11 @@ class VdtmRenderer {
   FaceBlend Blend(int face, const Eigen::Vector3d& desired_center, int exclude_source = -1) const;
 
   // Renders the desired camera (pinhole; distortion ignored). Rows run in parallel (TBB).
-  // Supersampling: call with camera.Scaled(factor), then Downsample.
+  // Supersampling: call with camera.Scaled(factor), then Downsample. `extend_px` > 0: holes within
+  // that many pixels of the mesh take the depth and face of the nearest covered pixel
+  // (ExtendIntoHoles, render.h), their points on their own rays, as ULR's mesh proxies do.
   RenderResult Render(const Camera& camera, const Rigid3d& cam_from_world, int exclude_source = -1,
-                      VdtmStats* stats = nullptr) const;
+                      VdtmStats* stats = nullptr, int extend_px = 0) const;
 
   // Number of the maps' views that have a source.
   int MatchedViews() const { return matched_views_; }
