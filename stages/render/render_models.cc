@@ -13,7 +13,8 @@
   X(SplatSurfels)                  \
   X(Textured)                      \
   X(Vdtm)                          \
-  X(Layers)
+  X(Layers)                        \
+  X(Volume)
 
 namespace ibmr {
 

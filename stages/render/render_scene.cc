@@ -10,6 +10,7 @@
 
 #include "pipeline/core/errors.h"
 #include "pipeline/core/image_io.h"
+#include "pipeline/core/json_file.h"
 #include "pipeline/core/undistorted_cameras.h"
 
 namespace fs = std::filesystem;
@@ -98,6 +99,19 @@ void LoadRenderScene(const StageContext& context, const SparseModel& model, Rend
     bool seen = point.track.empty();
     for (const TrackElement& element : point.track) seen = seen || training_ids.count(element.image_id) > 0;
     if (seen) scene->sparse_points.push_back(point.xyz);
+  }
+  // Without sparse points (an LLFF import: poses and per-view bounds only), the capture's bounds
+  // (sparse/depth_bounds.json) stand for them: a point on each training view's optical axis at
+  // the mean inverse depth of its near and far bound, so the plane lies where the scene is.
+  const std::string bounds_path = context.workspace.Path("sparse/depth_bounds.json");
+  if (scene->sparse_points.empty() && std::filesystem::exists(bounds_path)) {
+    const nlohmann::json bounds = ReadJsonOr(bounds_path, nlohmann::json::object());
+    for (size_t i = 0; i < scene->training.size(); ++i) {
+      const nlohmann::json entry = bounds.value(scene->training[i], nlohmann::json::object());
+      const double near = entry.value("near", 0.0), far = entry.value("far", 0.0);
+      if (!(near > 0 && far > near)) continue;
+      scene->sparse_points.push_back(centers[i] + directions[i] * (2.0 / (1.0 / near + 1.0 / far)));
+    }
   }
   scene->have_axes_point = PointNearestToAxes(centers, directions, &scene->axes_point);
 }

@@ -1,0 +1,135 @@
+// The `volume` render model: the volume stage's RGBA plane volumes (volume/<reference>/; a
+// multiplane image; seed 000 lines 5526-5610, pipeline/core/plane_volume.h). Each plane is
+// re-projected into the desired view (its homography, evaluated per pixel along the ray) and the
+// planes are composited with the over operator; the farthest plane is opaque, so a pixel whose
+// ray reaches it inside the volume's image is covered. Several local volumes (the volume stage's
+// `references`) are blended by the inverse square of the distance from the desired camera's centre
+// to each volume's, where each covers the pixel. The volumes are fitted to every training photo:
+// a training view cannot be left out of them (exclude_self warns).
+#include <algorithm>
+#include <filesystem>
+#include <opencv2/core.hpp>
+
+#include "pipeline/core/errors.h"
+#include "pipeline/core/plane_volume.h"
+#include "stages/render/render_model.h"
+
+namespace fs = std::filesystem;
+
+namespace ibmr {
+
+namespace {
+
+class VolumeModel : public RenderModel {
+ public:
+  VolumeModel(ModelEntry entry, const Workspace& workspace)
+      : RenderModel(std::move(entry)), folder_(workspace.Path("volume")) {}
+
+  std::vector<std::string> Inputs(const StageContext&) const override { return {"volume"}; }
+  std::string SourcePath(const Workspace& workspace) const override { return workspace.Relative(folder_); }
+  bool MadeFromEveryPhoto() const override { return true; }
+
+  // At the supersampled size: per volume a float colour and a coverage byte (13 bytes), the blend's
+  // sums (16) and the drawn image (4); the volumes themselves are loaded once (Prepare).
+  double ViewBytes(const StageContext& context, double pixels) const override {
+    const double factor = static_cast<double>(context.params.Int("supersample"));
+    return pixels * factor * factor * (13.0 * std::max<size_t>(1, volumes_.size()) + 20.0);
+  }
+
+  std::optional<std::string> Prepare(const RenderScene&, nlohmann::json* facts) override {
+    std::error_code ec;
+    std::vector<std::string> folders;
+    for (fs::directory_iterator it(folder_, ec), end; !ec && it != end; it.increment(ec)) {
+      if (fs::exists(it->path() / "volume.json")) folders.push_back(it->path().string());
+    }
+    std::sort(folders.begin(), folders.end());
+    if (folders.empty()) return folder_ + " holds no volume (run the volume stage)";
+    try {
+      for (const std::string& folder : folders) volumes_.push_back(ReadPlaneVolume(folder));
+    } catch (const InputError& e) {
+      return std::string(e.what());
+    } catch (const IoError& e) {
+      return std::string(e.what());
+    }
+    nlohmann::json names = nlohmann::json::array();
+    for (const std::string& folder : folders) names.push_back(fs::path(folder).filename().string());
+    (*facts)["volumes"] = names;
+    return std::nullopt;
+  }
+
+  ModelView Render(const RenderScene& scene, const DesiredView& view) const override {
+    const Camera camera = scene.factor > 1 ? view.camera.Scaled(scene.factor) : view.camera;
+    const Eigen::Vector3d centre = view.cam_from_world.Inverse().translation;
+    cv::Mat sum(camera.height, camera.width, CV_32FC3, cv::Scalar::all(0));
+    cv::Mat weight(camera.height, camera.width, CV_32F, cv::Scalar(0));
+    for (const PlaneVolume& volume : volumes_) {
+      cv::Mat colour, coverage;
+      CompositePlaneVolume(volume, camera, view.cam_from_world, &colour, &coverage);
+      if (volumes_.size() == 1) {  // one volume: its render as it is
+        sum = colour;
+        coverage.convertTo(weight, CV_32F, 1.0 / 255.0);
+        break;
+      }
+      const double distance = (volume.cam_from_world.Inverse().translation - centre).norm();
+      const float w = static_cast<float>(1.0 / std::max(distance * distance, 1e-12));
+      for (int y = 0; y < camera.height; ++y) {
+        const uint8_t* cover = coverage.ptr<uint8_t>(y);
+        const cv::Vec3f* c = colour.ptr<cv::Vec3f>(y);
+        cv::Vec3f* s = sum.ptr<cv::Vec3f>(y);
+        float* ws = weight.ptr<float>(y);
+        for (int x = 0; x < camera.width; ++x) {
+          if (!cover[x]) continue;
+          s[x] += w * c[x];
+          ws[x] += w;
+        }
+      }
+    }
+    ModelView drawn;
+    drawn.fine.image = cv::Mat(camera.height, camera.width, CV_8UC3, cv::Scalar::all(0));
+    drawn.fine.coverage = cv::Mat(camera.height, camera.width, CV_8UC1, cv::Scalar(0));
+    for (int y = 0; y < camera.height; ++y) {
+      const cv::Vec3f* s = sum.ptr<cv::Vec3f>(y);
+      const float* ws = weight.ptr<float>(y);
+      cv::Vec3b* out = drawn.fine.image.ptr<cv::Vec3b>(y);
+      uint8_t* cover = drawn.fine.coverage.ptr<uint8_t>(y);
+      for (int x = 0; x < camera.width; ++x) {
+        if (!(ws[x] > 0)) continue;
+        for (int ch = 0; ch < 3; ++ch) out[x][ch] = cv::saturate_cast<uint8_t>(255.f * s[x][ch] / ws[x]);
+        cover[x] = 255;
+        ++drawn.fine.covered_pixels;
+      }
+    }
+    drawn.sources = volumes_.size();
+    return drawn;
+  }
+
+  // The cells (planes x pixels) and the bytes of the plane files.
+  nlohmann::json Size() const override {
+    uintmax_t bytes = 0;
+    double cells = 0;
+    std::error_code ec;
+    for (const auto& entry : fs::recursive_directory_iterator(folder_, ec)) {
+      if (entry.is_regular_file() && entry.path().filename().string().rfind("plane_", 0) == 0) bytes += entry.file_size();
+    }
+    int planes = 0;
+    for (const PlaneVolume& volume : volumes_) {
+      cells += static_cast<double>(volume.Width()) * volume.Height() * volume.Planes();
+      planes += volume.Planes();
+    }
+    return {{"kind", "volume"}, {"elements", cells}, {"planes", planes}, {"volumes", volumes_.size()}, {"bytes", bytes}};
+  }
+
+ private:
+  std::string folder_;
+  std::vector<PlaneVolume> volumes_;
+};
+
+}  // namespace
+
+RenderModelKind VolumeKind() {
+  return NewRenderModelKind<VolumeModel>(
+      "volume", "the volume stage's RGBA plane volumes (volume/<reference>/, multiplane images): each plane warped "
+                "into the view and composited over the ones behind; local volumes blended by 1/distance^2");
+}
+
+}  // namespace ibmr
