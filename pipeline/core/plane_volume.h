@@ -32,6 +32,9 @@
 
 #include <algorithm>
 #include <opencv2/core.hpp>
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
 #include <string>
 #include <vector>
 
@@ -151,12 +154,35 @@ inline CellFootprint Footprint(int width, int height, float x, float y) {
   f.weight[3] = fx * fy;
   return f;
 }
-// Bilinear read of a plane's 4 channels through a footprint.
+// Bilinear read of a plane's 4 channels through a footprint (a cell's 4 floats are one SSE
+// vector: cells start 16-byte aligned in a PlaneVolume's storage).
 inline void SampleCell(const float* plane, const CellFootprint& f, float out[4]) {
+#if defined(__SSE2__)
+  __m128 sum = _mm_mul_ps(_mm_set1_ps(f.weight[0]), _mm_loadu_ps(plane + f.offset[0]));
+  sum = _mm_add_ps(sum, _mm_mul_ps(_mm_set1_ps(f.weight[1]), _mm_loadu_ps(plane + f.offset[1])));
+  sum = _mm_add_ps(sum, _mm_mul_ps(_mm_set1_ps(f.weight[2]), _mm_loadu_ps(plane + f.offset[2])));
+  sum = _mm_add_ps(sum, _mm_mul_ps(_mm_set1_ps(f.weight[3]), _mm_loadu_ps(plane + f.offset[3])));
+  _mm_storeu_ps(out, sum);
+#else
   for (int i = 0; i < 4; ++i) {
     out[i] = f.weight[0] * plane[f.offset[0] + i] + f.weight[1] * plane[f.offset[1] + i] +
              f.weight[2] * plane[f.offset[2] + i] + f.weight[3] * plane[f.offset[3] + i];
   }
+#endif
+}
+// The adjoint of SampleCell: adds `value` (4 channels) times each footprint weight to its cell.
+inline void ScatterCell(float* plane, const CellFootprint& f, const float value[4]) {
+#if defined(__SSE2__)
+  const __m128 v = _mm_loadu_ps(value);
+  for (int j = 0; j < 4; ++j) {
+    float* cell = plane + f.offset[j];
+    _mm_storeu_ps(cell, _mm_add_ps(_mm_loadu_ps(cell), _mm_mul_ps(_mm_set1_ps(f.weight[j]), v)));
+  }
+#else
+  for (int j = 0; j < 4; ++j) {
+    for (int ch = 0; ch < 4; ++ch) plane[f.offset[j] + ch] += f.weight[j] * value[ch];
+  }
+#endif
 }
 
 // The volume drawn into a camera (rows in parallel): colour CV_32FC3 (B, G, R in [0, 1]) and

@@ -111,11 +111,7 @@ void ViewDataTerm(const PlaneVolume& volume, const LevelView& view, const Volume
       for (size_t p = 0; p < pixels_here; ++p) {
         const float* in = &coef[(k * band_pixels + p) * 6];
         if (std::isnan(in[4])) continue;
-        const CellFootprint f = Footprint(volume.Width(), volume.Height(), in[4], in[5]);
-        for (int j = 0; j < 4; ++j) {
-          float* cell = plane_gradient + f.offset[j];
-          for (int ch = 0; ch < 4; ++ch) cell[ch] += f.weight[j] * in[ch];
-        }
+        ScatterCell(plane_gradient, Footprint(volume.Width(), volume.Height(), in[4], in[5]), in);
       }
     });
   }
