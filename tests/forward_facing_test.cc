@@ -71,6 +71,12 @@ TEST(ForwardFacing, AnLlffFolderRunsToScoresAndTheVolumePredictsBest) {
     EXPECT_GT(volume_psnr, model["mean"]["photo_psnr"].get<double>()) << "volume against " << name;
   }
   EXPECT_GT(volume_psnr, 27.0);
+  // The report shows the planes as a strip (volume/mean/strip.png embedded).
+  const auto report = ibmr_e2e::RunCommand(Ibmr("report '" + (root / "ws").string() + "'"));
+  ASSERT_EQ(report.exit_code, 0) << report.output;
+  std::ifstream page(root / "ws/report/index.html");
+  const std::string html((std::istreambuf_iterator<char>(page)), std::istreambuf_iterator<char>());
+  EXPECT_NE(html.find("\"volume_strips\":[{\"folder\":\"volume/mean\""), std::string::npos);
   fs::remove_all(root);
 }
 

@@ -191,6 +191,15 @@ function workspaceReport(R) {
                 plugins: {tooltip: {callbacks: {label: ctx => ctx.raw.name + ': ' + fmt(ctx.raw.y) + ' dB'}}}}});
   }
 
+  if (R.volume_strips && R.volume_strips.length) {
+    el('h2', {}, content, 'Volume of planes: each plane over a checkerboard where it is transparent, nearest first');
+    for (const v of R.volume_strips) {
+      const f = el('figure');
+      el('figcaption', {}, f, v.folder);
+      el('img', {src: v.src, alt: 'planes of ' + v.folder}, f);
+    }
+  }
+
   if (R.views.length) {
     el('h2', {}, content, 'Held-out views: photo | render | error, per model');
     for (const v of R.views) {
@@ -345,6 +354,19 @@ nlohmann::json GatherWorkspaceReport(const std::string& root, int image_width) {
   const std::string scores_path = workspace.Path("scores/heldout.json");
   const nlohmann::json scores = ReadReportJson(scores_path, nlohmann::json::object(), Rerun("score"));
   ReadingFile(scores_path, Rerun("score"), [&] { GatherScores(workspace, scores, image_width, &report); });
+  // The volume stage's plane strips (volume/<reference>/strip.png), at twice the views' width.
+  nlohmann::json strips = nlohmann::json::array();
+  std::vector<fs::path> strip_paths;
+  std::error_code ec;
+  for (fs::directory_iterator it(workspace.Path("volume"), ec), end; !ec && it != end; it.increment(ec)) {
+    if (fs::exists(it->path() / "strip.png")) strip_paths.push_back(it->path() / "strip.png");
+  }
+  std::sort(strip_paths.begin(), strip_paths.end());
+  for (const fs::path& path : strip_paths) {
+    const std::string uri = ImageDataUri(path.string(), 2 * image_width);
+    if (!uri.empty()) strips.push_back({{"folder", workspace.Relative(path.parent_path().string())}, {"src", uri}});
+  }
+  report["volume_strips"] = strips;
   return report;
 }
 
