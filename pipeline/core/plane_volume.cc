@@ -8,10 +8,12 @@
 #include <cmath>
 #include <filesystem>
 #include <nlohmann/json.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include "pipeline/core/atomic_file.h"
 #include "pipeline/core/errors.h"
 #include "pipeline/core/image_io.h"
+#include "pipeline/core/plane_homography.h"
 
 namespace fs = std::filesystem;
 
@@ -68,6 +70,64 @@ void CompositePlaneVolume(const PlaneVolume& volume, const Camera& camera, const
       }
     }
   });
+}
+
+std::vector<cv::Mat> PlaneImages(const PlaneVolume& volume) {
+  std::vector<cv::Mat> planes(volume.Planes());
+  for (int k = 0; k < volume.Planes(); ++k) {
+    const cv::Mat cells(volume.Height(), volume.Width(), CV_32FC4, const_cast<float*>(volume.Plane(k)));
+    cells.convertTo(planes[k], CV_8UC4, 255.0);
+  }
+  return planes;
+}
+
+bool CompositePlaneVolumeByWarps(const PlaneVolume& volume, const std::vector<cv::Mat>& planes, const Camera& camera,
+                                 const Rigid3d& cam_from_world, cv::Mat* colour, cv::Mat* coverage) {
+  // Every ray ahead through every plane: the centre in front of the nearest plane and every ray
+  // toward larger z (d_z is affine in the pixel, so its sign at the image corners decides).
+  const Rigid3d volume_from_camera = volume.cam_from_world.Compose(cam_from_world.Inverse());
+  if (!(volume_from_camera.translation.z() < volume.depths.front())) return false;
+  const Eigen::Matrix3d direction = volume_from_camera.R() * camera.K().inverse();
+  for (const double u : {0.0, static_cast<double>(camera.width)}) {
+    for (const double v : {0.0, static_cast<double>(camera.height)}) {
+      if (!((direction * Eigen::Vector3d(u, v, 1.0)).z() > 0)) return false;
+    }
+  }
+  std::vector<double> inverse_depths;
+  for (const double z : volume.depths) inverse_depths.push_back(1.0 / z);
+  const std::vector<Eigen::Matrix3d> volume_to_camera =
+      PlaneHomographies(volume.camera, volume.cam_from_world, camera, cam_from_world, inverse_depths);
+  // Index coordinates (pixel centres at integers) on both sides, camera -> volume.
+  Eigen::Matrix3d to_pixel = Eigen::Matrix3d::Identity();
+  to_pixel(0, 2) = to_pixel(1, 2) = 0.5;
+  const Eigen::Matrix3d to_index = to_pixel.inverse();
+  *colour = cv::Mat(camera.height, camera.width, CV_32FC3, cv::Scalar::all(0));
+  *coverage = cv::Mat(camera.height, camera.width, CV_8UC1, cv::Scalar(0));
+  cv::Mat warped(camera.height, camera.width, CV_8UC4);
+  for (int k = volume.Planes() - 1; k >= 0; --k) {
+    const Eigen::Matrix3d h = to_index * volume_to_camera[k].inverse() * to_pixel;
+    cv::Mat map(3, 3, CV_64F);
+    for (int r = 0; r < 3; ++r)
+      for (int c = 0; c < 3; ++c) map.at<double>(r, c) = h(r, c);
+    cv::warpPerspective(planes[k], warped, map, warped.size(), cv::INTER_LINEAR | cv::WARP_INVERSE_MAP,
+                        cv::BORDER_CONSTANT, cv::Scalar::all(0));
+    const bool far_plane = k == volume.Planes() - 1;
+    tbb::parallel_for(tbb::blocked_range<int>(0, camera.height), [&](const tbb::blocked_range<int>& rows) {
+      for (int y = rows.begin(); y < rows.end(); ++y) {
+        const uint8_t* in = warped.ptr<uint8_t>(y);
+        float* out = colour->ptr<float>(y);
+        for (int x = 0; x < camera.width; ++x) {
+          const float a = in[4 * x + 3] * (1.f / 255.f);
+          for (int ch = 0; ch < 3; ++ch) out[3 * x + ch] = in[4 * x + ch] * (1.f / 255.f) * a + (1.f - a) * out[3 * x + ch];
+        }
+        if (far_plane) {
+          uint8_t* cover = coverage->ptr<uint8_t>(y);
+          for (int x = 0; x < camera.width; ++x) cover[x] = in[4 * x + 3] >= 128 ? 255 : 0;
+        }
+      }
+    });
+  }
+  return true;
 }
 
 namespace {

@@ -191,6 +191,20 @@ inline void ScatterCell(float* plane, const CellFootprint& f, const float value[
 void CompositePlaneVolume(const PlaneVolume& volume, const Camera& camera, const Rigid3d& cam_from_world,
                           cv::Mat* colour, cv::Mat* coverage);
 
+// The planes as 8-bit BGRA images (straight colour, as on disk), for CompositePlaneVolumeByWarps.
+std::vector<cv::Mat> PlaneImages(const PlaneVolume& volume);
+// The same composite drawn plane by plane: each 8-bit plane warped into the camera by its
+// homography (OpenCV's warpPerspective, bilinear, transparent outside the plane) and composited
+// over the ones behind it, far to near; coverage 255 where the warped farthest plane's opacity is
+// at least half. Several times faster than the per-ray composite for a whole frame (the warps are
+// vectorised; no early stop at an opaque plane, which costs less than the per-ray arithmetic).
+// Needs every ray of the camera to meet every plane ahead of it (the camera in front of the
+// nearest plane, looking toward the planes: a forward-facing capture's views); returns false and
+// draws nothing otherwise (then CompositePlaneVolume draws it). Differs from CompositePlaneVolume
+// only within half a volume pixel of the volume's border, which it fades out instead of clamping.
+bool CompositePlaneVolumeByWarps(const PlaneVolume& volume, const std::vector<cv::Mat>& planes, const Camera& camera,
+                                 const Rigid3d& cam_from_world, cv::Mat* colour, cv::Mat* coverage);
+
 // Writes volume.json and the planes into `folder` (created), each file atomically.
 void WritePlaneVolume(const std::string& folder, const PlaneVolume& volume);
 // Reads a folder written by WritePlaneVolume. Throws InputError (missing folder or file) or IoError

@@ -1,7 +1,8 @@
 // The `volume` render model: the volume stage's RGBA plane volumes (volume/<reference>/; a
 // multiplane image; seed 000 lines 5526-5610, pipeline/core/plane_volume.h). Each plane is
-// re-projected into the desired view (its homography, evaluated per pixel along the ray) and the
-// planes are composited with the over operator; the farthest plane is opaque, so a pixel whose
+// re-projected into the desired view by its homography and the planes are composited with the
+// over operator (plane by plane with OpenCV's warps where every ray meets every plane ahead, as in
+// a forward-facing capture; else ray by ray, plane_volume.h); the farthest plane is opaque, so a pixel whose
 // ray reaches it inside the volume's image is covered. Several local volumes (the volume stage's
 // `references`) are blended by the inverse square of the distance from the desired camera's centre
 // to each volume's, where each covers the pixel. The volumes are fitted to every training photo:
@@ -45,7 +46,10 @@ class VolumeModel : public RenderModel {
     std::sort(folders.begin(), folders.end());
     if (folders.empty()) return folder_ + " holds no volume (run the volume stage)";
     try {
-      for (const std::string& folder : folders) volumes_.push_back(ReadPlaneVolume(folder));
+      for (const std::string& folder : folders) {
+        volumes_.push_back(ReadPlaneVolume(folder));
+        plane_images_.push_back(PlaneImages(volumes_.back()));
+      }
     } catch (const InputError& e) {
       return std::string(e.what());
     } catch (const IoError& e) {
@@ -62,9 +66,13 @@ class VolumeModel : public RenderModel {
     const Eigen::Vector3d centre = view.cam_from_world.Inverse().translation;
     cv::Mat sum(camera.height, camera.width, CV_32FC3, cv::Scalar::all(0));
     cv::Mat weight(camera.height, camera.width, CV_32F, cv::Scalar(0));
-    for (const PlaneVolume& volume : volumes_) {
+    for (size_t i = 0; i < volumes_.size(); ++i) {
+      const PlaneVolume& volume = volumes_[i];
       cv::Mat colour, coverage;
-      CompositePlaneVolume(volume, camera, view.cam_from_world, &colour, &coverage);
+      // Plane by plane (warps) where every ray meets every plane ahead; else ray by ray.
+      if (!CompositePlaneVolumeByWarps(volume, plane_images_[i], camera, view.cam_from_world, &colour, &coverage)) {
+        CompositePlaneVolume(volume, camera, view.cam_from_world, &colour, &coverage);
+      }
       if (volumes_.size() == 1) {  // one volume: its render as it is
         sum = colour;
         coverage.convertTo(weight, CV_32F, 1.0 / 255.0);
@@ -122,6 +130,7 @@ class VolumeModel : public RenderModel {
  private:
   std::string folder_;
   std::vector<PlaneVolume> volumes_;
+  std::vector<std::vector<cv::Mat>> plane_images_;  // each volume's planes, 8-bit, for the warps
 };
 
 }  // namespace

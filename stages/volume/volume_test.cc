@@ -179,6 +179,38 @@ TEST(VolumeComposite, NearestOpaquePlaneWins) {
   EXPECT_NEAR(colour.at<cv::Vec3f>(6, 8)[2], 0.f, 1e-6);
 }
 
+// Drawing plane by plane (warps) and ray by ray agree for a camera in front of the planes (but
+// within a pixel of the volume's border); a camera among the planes is refused by the warps.
+TEST(VolumeComposite, WarpsAgreeWithRaysInFront) {
+  PlaneVolume volume = TrueStack(64, 48);
+  for (float& v : volume.cells) v = std::round(v * 255.f) / 255.f;  // as the 8-bit planes hold them
+  const std::vector<cv::Mat> planes = PlaneImages(volume);
+  const Camera camera = Camera::Pinhole(80, 60, 70, 70, 40, 30);
+  const Rigid3d cam_from_world = Forward(Eigen::Vector3d(0.15, -0.1, -0.3));
+  cv::Mat by_warps, warps_coverage, by_rays, rays_coverage;
+  ASSERT_TRUE(CompositePlaneVolumeByWarps(volume, planes, camera, cam_from_world, &by_warps, &warps_coverage));
+  CompositePlaneVolume(volume, camera, cam_from_world, &by_rays, &rays_coverage);
+  const VolumeRays rays(volume, camera, cam_from_world);
+  int compared = 0;
+  for (int y = 0; y < camera.height; ++y) {
+    for (int x = 0; x < camera.width; ++x) {
+      RaySample far;
+      ASSERT_TRUE(rays.SampleOn(x + 0.5, y + 0.5, volume.Planes() - 1, &far));
+      const bool interior = far.x > 1 && far.y > 1 && far.x < volume.Width() - 2 && far.y < volume.Height() - 2;
+      if (!interior) continue;
+      ++compared;
+      EXPECT_EQ(warps_coverage.at<uint8_t>(y, x), rays_coverage.at<uint8_t>(y, x));
+      for (int ch = 0; ch < 3; ++ch) {
+        ASSERT_NEAR(by_warps.at<cv::Vec3f>(y, x)[ch], by_rays.at<cv::Vec3f>(y, x)[ch], 0.02) << x << "," << y;
+      }
+    }
+  }
+  EXPECT_GT(compared, camera.width * camera.height / 2);
+  EXPECT_FALSE(CompositePlaneVolumeByWarps(volume, planes, camera, Forward(Eigen::Vector3d(0, 0, 2.5)), &by_warps,
+                                           &warps_coverage))
+      << "a camera between the planes";
+}
+
 // The analytic gradient of the objective (data term, smoothness, prior) against central finite
 // differences, for colour and opacity cells of every plane but the pinned far one.
 TEST(VolumeObjective, GradientMatchesFiniteDifferences) {
