@@ -112,5 +112,10 @@ TEST(ForwardFacing, TheVolumeStageNamesWhatToSet) {
                                                     "' --only volume --set volume.min_depth=1"));
   EXPECT_NE(half_range.exit_code, 0);
   EXPECT_NE(half_range.output.find("max_depth"), std::string::npos) << half_range.output;
+  // A local volume fitted to one view.
+  const auto one_per_volume = ibmr_e2e::RunCommand(Ibmr("run " + config + " --workspace '" + (root / "half").string() +
+                                                        "' --only volume --set volume.views_per_volume=1"));
+  EXPECT_NE(one_per_volume.exit_code, 0);
+  EXPECT_NE(one_per_volume.output.find("views_per_volume"), std::string::npos) << one_per_volume.output;
   fs::remove_all(root);
 }

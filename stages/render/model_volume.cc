@@ -4,8 +4,8 @@
 // over operator (plane by plane with OpenCV's warps where every ray meets every plane ahead, as in
 // a forward-facing capture; else ray by ray, plane_volume.h); the farthest plane is opaque, so a pixel whose
 // ray reaches it inside the volume's image is covered. Several local volumes (the volume stage's
-// `references`) are blended by the inverse square of the distance from the desired camera's centre
-// to each volume's, where each covers the pixel. The volumes are fitted to every training photo:
+// `references`): the render.volume_blend nearest to the desired camera's centre are blended by
+// the inverse square of that distance, where each covers the pixel. The volumes are fitted to every training photo:
 // a training view cannot be left out of them (exclude_self warns).
 #include <algorithm>
 #include <filesystem>
@@ -37,7 +37,8 @@ class VolumeModel : public RenderModel {
     return pixels * factor * factor * (13.0 * std::max<size_t>(1, volumes_.size()) + 20.0);
   }
 
-  std::optional<std::string> Prepare(const RenderScene&, nlohmann::json* facts) override {
+  std::optional<std::string> Prepare(const RenderScene& scene, nlohmann::json* facts) override {
+    blend_ = static_cast<size_t>(scene.context->params.Int("volume_blend"));
     std::error_code ec;
     std::vector<std::string> folders;
     for (fs::directory_iterator it(folder_, ec), end; !ec && it != end; it.increment(ec)) {
@@ -66,20 +67,26 @@ class VolumeModel : public RenderModel {
     const Eigen::Vector3d centre = view.cam_from_world.Inverse().translation;
     cv::Mat sum(camera.height, camera.width, CV_32FC3, cv::Scalar::all(0));
     cv::Mat weight(camera.height, camera.width, CV_32F, cv::Scalar(0));
+    // The volume_blend volumes nearest the desired camera.
+    std::vector<std::pair<double, size_t>> nearest;
     for (size_t i = 0; i < volumes_.size(); ++i) {
+      nearest.emplace_back((volumes_[i].cam_from_world.Inverse().translation - centre).norm(), i);
+    }
+    std::sort(nearest.begin(), nearest.end());
+    nearest.resize(std::min<size_t>(nearest.size(), blend_));
+    for (const auto& [distance_to_volume, i] : nearest) {
       const PlaneVolume& volume = volumes_[i];
       cv::Mat colour, coverage;
       // Plane by plane (warps) where every ray meets every plane ahead; else ray by ray.
       if (!CompositePlaneVolumeByWarps(volume, plane_images_[i], camera, view.cam_from_world, &colour, &coverage)) {
         CompositePlaneVolume(volume, camera, view.cam_from_world, &colour, &coverage);
       }
-      if (volumes_.size() == 1) {  // one volume: its render as it is
+      if (nearest.size() == 1) {  // one volume: its render as it is
         sum = colour;
         coverage.convertTo(weight, CV_32F, 1.0 / 255.0);
         break;
       }
-      const double distance = (volume.cam_from_world.Inverse().translation - centre).norm();
-      const float w = static_cast<float>(1.0 / std::max(distance * distance, 1e-12));
+      const float w = static_cast<float>(1.0 / std::max(distance_to_volume * distance_to_volume, 1e-12));
       for (int y = 0; y < camera.height; ++y) {
         const uint8_t* cover = coverage.ptr<uint8_t>(y);
         const cv::Vec3f* c = colour.ptr<cv::Vec3f>(y);
@@ -107,7 +114,7 @@ class VolumeModel : public RenderModel {
         ++drawn.fine.covered_pixels;
       }
     }
-    drawn.sources = volumes_.size();
+    drawn.sources = nearest.size();
     return drawn;
   }
 
@@ -131,14 +138,27 @@ class VolumeModel : public RenderModel {
   std::string folder_;
   std::vector<PlaneVolume> volumes_;
   std::vector<std::vector<cv::Mat>> plane_images_;  // each volume's planes, 8-bit, for the warps
+  size_t blend_ = 2;
 };
+
+std::optional<ParamError> CheckVolumeParams(const Params& params) {
+  if (params.Int("volume_blend") < 1 || params.Int("volume_blend") > 64) {
+    return ParamError{"volume_blend", "must be in [1, 64], got " + std::to_string(params.Int("volume_blend"))};
+  }
+  return std::nullopt;
+}
 
 }  // namespace
 
 RenderModelKind VolumeKind() {
-  return NewRenderModelKind<VolumeModel>(
+  RenderModelKind kind = NewRenderModelKind<VolumeModel>(
       "volume", "the volume stage's RGBA plane volumes (volume/<reference>/, multiplane images): each plane warped "
-                "into the view and composited over the ones behind; local volumes blended by 1/distance^2");
+                "into the view and composited over the ones behind; the volume_blend nearest local volumes blended by "
+                "1/distance^2");
+  kind.params = {{"volume_blend", ParamType::kInt, "2",
+                  "volume: local volumes blended per desired view (the nearest camera centres), in [1, 64]", {}}};
+  kind.check_params = CheckVolumeParams;
+  return kind;
 }
 
 }  // namespace ibmr

@@ -85,6 +85,8 @@ class VolumeStage : public Stage {
          "The volume's image at most this times the training images' size (widened to cover their frusta), [1, 4]"},
         {"references", ParamType::kStringList, "[]",
          "Training views whose poses hold local volumes (blended by distance when rendered); empty: one volume at the mean pose"},
+        {"views_per_volume", ParamType::kInt, "0",
+         "Each volume is fitted to this many training views nearest its camera (local volumes, as LLFF's); 0: all, [0, 10000]"},
         {"min_depth", ParamType::kDouble, "-1", "Near depth of the planes, scene units; -1: from depth_bounds.json or the sparse points"},
         {"max_depth", ParamType::kDouble, "-1", "Far depth of the planes, scene units; -1: from depth_bounds.json or the sparse points"},
         {"depth_margin", ParamType::kDouble, "0.1", "The sparse points' depth range widened by this fraction, [0, 1]"},
@@ -108,6 +110,9 @@ class VolumeStage : public Stage {
   std::optional<ParamError> CheckParams(const Params& params) const override {
     std::string error;
     if (!ToOptions(params).Check(&error)) return ParamError::FromCheck(error);
+    if (params.Int("views_per_volume") < 0 || params.Int("views_per_volume") == 1 || params.Int("views_per_volume") > 10000) {
+      return ParamError{"views_per_volume", "must be 0 (all views) or in [2, 10000]"};
+    }
     const double margin = params.Double("depth_margin");
     if (!(margin >= 0 && margin <= 1)) return ParamError{"depth_margin", "must be in [0, 1]"};
     const double near = params.Double("min_depth"), far = params.Double("max_depth");
@@ -166,11 +171,28 @@ class VolumeStage : public Stage {
       const std::string folder = reference < 0 ? "mean" : Stem(names[reference]);
       // The range first from the mean pose (cheap), then the camera with its widened image.
       VirtualCamera provisional = ChooseVirtualCamera(views, reference, 1.0, 2.0, options);
+      // The views this volume is fitted to: all, or the views_per_volume nearest its camera (the
+      // reference view first, at distance 0).
+      std::vector<VolumeView> fitted = views;
+      int fitted_reference = reference;
+      const size_t per_volume = static_cast<size_t>(context.params.Int("views_per_volume"));
+      if (per_volume > 0 && per_volume < views.size()) {
+        const Eigen::Vector3d centre = provisional.cam_from_world.Inverse().translation;
+        std::stable_sort(fitted.begin(), fitted.end(), [&](const VolumeView& a, const VolumeView& b) {
+          return (a.cam_from_world.Inverse().translation - centre).norm() < (b.cam_from_world.Inverse().translation - centre).norm();
+        });
+        fitted.resize(per_volume);
+        if (reference >= 0) {
+          fitted_reference = static_cast<int>(std::find_if(fitted.begin(), fitted.end(), [&](const VolumeView& v) {
+                                                 return v.name == names[reference];
+                                               }) - fitted.begin());
+        }
+      }
       std::string source;
       double near = 0, far = 0;
       DepthRange(context, model, provisional.cam_from_world, &near, &far, &source);
-      const VirtualCamera virtual_camera = ChooseVirtualCamera(views, reference, near, far, options);
-      const double needed_mb = VolumeFitBytes(virtual_camera, views, options) / 1048576.0;
+      const VirtualCamera virtual_camera = ChooseVirtualCamera(fitted, fitted_reference, near, far, options);
+      const double needed_mb = VolumeFitBytes(virtual_camera, fitted, options) / 1048576.0;
       spdlog::info("[volume] {}: {} planes of {}x{} between depth {:.4g} and {:.4g} ({}); fitting needs about {:.0f} MB",
                    folder, options.num_planes, virtual_camera.camera.width, virtual_camera.camera.height, near, far,
                    source, needed_mb);
@@ -180,7 +202,9 @@ class VolumeStage : public Stage {
                          " need about " + std::to_string(static_cast<int>(needed_mb)) + " MB to fit, more than volume.max_memory_mb (" +
                          Number(options.max_memory_mb) + "); lower volume.num_planes or volume.resolution, or raise volume.max_memory_mb");
       }
-      const VolumeResult result = FitPlaneVolume(views, virtual_camera, options, context.progress);
+      const VolumeResult result = FitPlaneVolume(fitted, virtual_camera, options, context.progress);
+      nlohmann::json fitted_names = nlohmann::json::array();
+      for (const VolumeView& view : fitted) fitted_names.push_back(view.name);
       WritePlaneVolume(context.workspace.Path("volume/" + folder), result.volume);
       WriteImage(context.workspace.Path("volume/" + folder + "/strip.png"), PlaneStrip(result.volume, 160));
       nlohmann::json curve = nlohmann::json::array();
@@ -189,6 +213,7 @@ class VolumeStage : public Stage {
       }
       volumes.push_back({{"folder", "volume/" + folder},
                          {"reference", reference < 0 ? "mean" : names[reference]},
+                         {"views", fitted_names},
                          {"width", virtual_camera.camera.width},
                          {"height", virtual_camera.camera.height},
                          {"planes", options.num_planes},
