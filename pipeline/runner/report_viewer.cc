@@ -548,8 +548,9 @@ ViewerData GatherViewer(const std::string& root, const nlohmann::json& scores, c
   }
   for (const auto& [name, source, stage] : {std::tuple{"surfel mesh", "surfels/mesh.ply", "surfels"}, {"hull", "hull/hull.ply", "carve"}}) {
     if (!fs::exists(workspace.Path(source))) continue;
+    const std::string path = workspace.Path(source);  // a structured binding cannot be captured in C++17
     models.push_back(ModelEntry(name, source, rerun(stage), [&] {
-      return MeshEntry(ReadPlyForViewer(workspace.Path(source)), {}, options, &sink);
+      return MeshEntry(ReadPlyForViewer(path), {}, options, &sink);
     }));
   }
   if (fs::exists(workspace.Path("dense/fused.ply"))) {
