@@ -88,6 +88,10 @@ class RenderModel {
   // True when the model was made from every photo, so exclude_self cannot hold a training view
   // out of it (a warning says so).
   virtual bool MadeFromEveryPhoto() const { return false; }
+  // True for a model whose samples are already filtered at about the output resolution (the
+  // volume's bilinearly read planes): Render draws it at the output size (camera, not
+  // camera.Scaled(factor)) and the stage does not supersample it.
+  virtual bool DrawsAtOutputSize() const { return false; }
   // True for the model the background fill is drawn with: it takes the background's render of a
   // view instead of drawing it again, and is not filled itself.
   virtual bool IsBackground() const { return false; }

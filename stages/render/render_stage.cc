@@ -67,7 +67,8 @@ DrawnView Draw(const RenderModel& model, const RenderScene& scene, const Desired
   const auto start = Clock::now();
   ModelView drawn = model.Render(scene, view);
   DrawnView out;
-  out.result = Downsample(drawn.fine, drawn.surface ? *drawn.surface : HitsOf(drawn.fine), scene.factor);
+  out.result = Downsample(drawn.fine, drawn.surface ? *drawn.surface : HitsOf(drawn.fine),
+                          model.DrawsAtOutputSize() ? 1 : scene.factor);
   out.facts = std::move(drawn.facts);
   out.facts["sources"] = drawn.sources;
   out.seconds = SecondsSince(start);
