@@ -16,6 +16,7 @@ shift || true
 scripts/install_packages.sh clang-14 libclang-rt-14-dev
 ROOT="$(pwd)"
 OUT="$ROOT/build-fuzz"
+build_start=$SECONDS
 CC=clang-14 CXX=clang++-14 cmake -S . -B "$OUT" -G Ninja -DIBMR_FUZZ=ON -DCMAKE_BUILD_TYPE=None >/dev/null
 if ! cmake --build "$OUT" --target fuzz_all -j "$(nproc)" >"$OUT/build.log" 2>&1; then
   grep -E 'error|Error' "$OUT/build.log" | head -20 || true
@@ -23,6 +24,7 @@ if ! cmake --build "$OUT" --target fuzz_all -j "$(nproc)" >"$OUT/build.log" 2>&1
   exit 1
 fi
 grep -vE '^\[[0-9]+/[0-9]+\] ' "$OUT/build.log" || true
+echo "fuzz: harnesses built in $((SECONDS - build_start)) s"
 
 # Seeds, written afresh each time: small valid files of every format, the configs, and the data
 # sets' camera files (text, a few KB).
