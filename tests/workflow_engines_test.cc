@@ -227,14 +227,15 @@ TEST_F(WorkflowEngines, SlurmExecutorAndSnakemakeClusterModeEqualALocalRun) {
       << text;
   ExpectSameWorkspace(reference_, ws);
 
-  // Snakemake submitting each rule with sbatch.
+  // Snakemake submitting each rule with sbatch. Snakemake 7 looks for finished cluster jobs every
+  // 10 s, every second with CI=true (its executors' sleep()): the run is a chain of short jobs.
   const fs::path snake_ws = dir_ / "snakemake_slurm";
   fs::create_directories(snake_ws);
   const std::string snakefile = (dir_ / "Snakefile").string();
   ASSERT_EQ(RunCommand(Ibmr("export snakemake " + kConfig + " --workspace " + snake_ws.string() + kSmall) + " > " +
                        snakefile).exit_code, 0);
   const CommandResult snake = RunCommand(
-      slurm.Env() + "snakemake -s " + snakefile +
+      slurm.Env() + "CI=true snakemake -s " + snakefile +
       " --cores 2 --jobs 8 --latency-wait 5 --quiet --cluster-cancel scancel --cluster 'sbatch --parsable "
       "--cpus-per-task={threads} --mem={resources.mem_mb} --output=.snakemake/slurm-%j.out'");
   ASSERT_EQ(snake.exit_code, 0) << snake.output;

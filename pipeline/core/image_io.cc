@@ -3,8 +3,10 @@
 // (header "Pf\nW H\nSCALE\n", negative scale = little-endian, rows stored bottom to top).
 #include "pipeline/core/image_io.h"
 
+#include <cstdint>
 #include <cstring>
 #include <filesystem>
+#include <fstream>
 #include <opencv2/imgcodecs.hpp>
 #include <cctype>
 
@@ -16,12 +18,65 @@ namespace {
 
 static_assert(__BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__, "PFM I/O assumes a little-endian host");
 
+// What a JPEG (its first frame header) or PNG (IHDR) header declares, from the file's first bytes,
+// with the most pixels a byte of such a file can hold: Huffman-coded JPEG about 512 (a flat
+// progressive image), arithmetic-coded JPEG and PNG far more (PNG: about 8,300 for 1-bit grey at
+// deflate's best); the limits below leave a margin. All zero for other formats or a short header.
+struct DeclaredSize {
+  uint64_t width = 0, height = 0, max_pixels_per_byte = 0;
+};
+
+DeclaredSize ReadDeclaredSize(const std::string& head) {
+  const auto byte = [&head](size_t i) { return static_cast<uint64_t>(static_cast<unsigned char>(head[i])); };
+  const auto be16 = [&byte](size_t i) { return byte(i) << 8 | byte(i + 1); };
+  const auto be32 = [&be16](size_t i) { return be16(i) << 16 | be16(i + 2); };
+  if (head.size() >= 24 && head.compare(0, 8, "\x89PNG\r\n\x1a\n") == 0 && head.compare(12, 4, "IHDR") == 0) {
+    return {be32(16), be32(20), 16384};
+  }
+  if (head.size() < 4 || byte(0) != 0xff || byte(1) != 0xd8) return {};
+  size_t pos = 2;
+  while (pos + 4 <= head.size() && byte(pos) == 0xff) {
+    const uint64_t marker = byte(pos + 1);
+    if (marker == 0xff) {  // fill byte
+      ++pos;
+      continue;
+    }
+    if (marker == 0x01 || (marker >= 0xd0 && marker <= 0xd8)) {  // no length
+      pos += 2;
+      continue;
+    }
+    if (marker >= 0xc0 && marker <= 0xcf && marker != 0xc4 && marker != 0xc8 && marker != 0xcc) {  // SOFn
+      if (pos + 9 > head.size()) return {};
+      return {be16(pos + 7), be16(pos + 5), marker >= 0xc9 ? 16384u : 1024u};
+    }
+    if (marker == 0xda || marker == 0xd9) break;  // scan data or the end before any frame header
+    pos += 2 + be16(pos + 2);
+  }
+  return {};
+}
+
 // Reads with OpenCV, telling a missing file apart from one OpenCV cannot decode.
 cv::Mat ReadWithFlags(const std::string& path, int flags) {
   std::error_code ec;
   if (!std::filesystem::is_regular_file(path, ec)) {
     throw IoError("cannot read image " + path + ": " +
                   (std::filesystem::exists(path, ec) ? "not a regular file" : "no such file"));
+  }
+  // A few hundred bytes of JPEG or PNG can declare a billion pixels, which OpenCV allocates before
+  // it finds the data missing (found by fuzzing): a claim no file of that size can hold means a
+  // truncated or forged file, refused unread.
+  {
+    std::ifstream in(path, std::ios::binary);
+    std::string head(65536, '\0');
+    in.read(head.data(), static_cast<std::streamsize>(head.size()));
+    head.resize(static_cast<size_t>(in.gcount()));
+    const DeclaredSize declared = ReadDeclaredSize(head);
+    const uint64_t bytes = std::filesystem::file_size(path, ec);
+    if (!ec && declared.width * declared.height > declared.max_pixels_per_byte * bytes) {
+      throw IoError("cannot decode image " + path + ": its header declares " + std::to_string(declared.width) + " x " +
+                    std::to_string(declared.height) + " pixels, more than its " + std::to_string(bytes) +
+                    " bytes can hold (truncated or corrupt)");
+    }
   }
   cv::Mat image;
   try {

@@ -7,6 +7,8 @@
 
 #include <cstring>
 #include <filesystem>
+#include <opencv2/imgcodecs.hpp>
+#include <vector>
 
 #include "pipeline/core/atomic_file.h"
 #include "pipeline/core/errors.h"
@@ -71,6 +73,44 @@ TEST(ImageIo, MissingAndUndecodableFilesAreNamed) {
   EXPECT_NE(message.find("x.unknownext"), std::string::npos) << message;
   message = ErrorOf([&] { ReadPfm(missing); });
   EXPECT_NE(message.find(missing), std::string::npos) << message;
+}
+
+// Found by fuzzing (tests/fuzz/fuzz_image.cc): a 378-byte JPEG whose frame header declared
+// hundreds of millions of pixels made OpenCV allocate 3.6 GB before it found the data missing.
+TEST(ImageIo, AHeaderClaimingMorePixelsThanTheFileHoldsIsRefusedUnread) {
+  const fs::path dir = MakeTestDir("bomb");
+  std::vector<uchar> jpeg;
+  ASSERT_TRUE(cv::imencode(".jpg", cv::Mat(16, 24, CV_8UC3, cv::Scalar(10, 200, 30)), jpeg));
+  // The frame header (SOF0): FF C0, length, precision, then height and width, big-endian.
+  size_t sof = 2;
+  while (sof + 9 < jpeg.size() && !(jpeg[sof] == 0xff && jpeg[sof + 1] == 0xc0)) sof += 2 + (jpeg[sof + 2] << 8 | jpeg[sof + 3]);
+  ASSERT_LT(sof + 9, jpeg.size());
+  EXPECT_EQ(jpeg[sof + 5] << 8 | jpeg[sof + 6], 16);
+  jpeg[sof + 5] = 0x4e, jpeg[sof + 6] = 0x20;  // height 20000
+  jpeg[sof + 7] = 0x75, jpeg[sof + 8] = 0x30;  // width 30000
+  const std::string bomb = (dir / "bomb.jpg").string();
+  WriteFileAtomic(bomb, std::string(jpeg.begin(), jpeg.end()));
+  for (const auto& read : {ReadImageColor, ReadImageUnchanged}) {
+    const std::string message = ErrorOf([&] { read(bomb); });
+    EXPECT_NE(message.find(bomb), std::string::npos) << message;
+    EXPECT_NE(message.find("declares 30000 x 20000 pixels"), std::string::npos) << message;
+  }
+
+  // PNG: IHDR (width and height at bytes 16 and 20) of a 4 x 3 image rewritten to 65536 x 65536.
+  const std::string png = (dir / "bomb.png").string();
+  WriteImage(png, cv::Mat(3, 4, CV_8UC1, cv::Scalar(7)));
+  std::string bytes = ReadFile(png);
+  bytes.replace(16, 8, std::string("\x00\x01\x00\x00\x00\x01\x00\x00", 8));
+  WriteFileAtomic(png, bytes);
+  EXPECT_NE(ErrorOf([&] { ReadImageUnchanged(png); }).find("declares 65536 x 65536 pixels"), std::string::npos);
+
+  // The same images with their true sizes still read.
+  WriteImage(png, cv::Mat(3, 4, CV_8UC1, cv::Scalar(7)));
+  EXPECT_EQ(ReadImageUnchanged(png).size(), cv::Size(4, 3));
+  const std::string real = (dir / "real.jpg").string();
+  ASSERT_TRUE(cv::imencode(".jpg", cv::Mat(16, 24, CV_8UC3, cv::Scalar(10, 200, 30)), jpeg));
+  WriteFileAtomic(real, std::string(jpeg.begin(), jpeg.end()));
+  EXPECT_EQ(ReadImageColor(real).size(), cv::Size(24, 16));
 }
 
 TEST(ImageIo, PfmRoundTripAndRowOrder) {
