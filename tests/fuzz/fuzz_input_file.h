@@ -1,11 +1,12 @@
 // Shared by the libFuzzer harnesses: the readers under test take paths, so each input is written
-// to a file in a per-process folder under /dev/shm (memory, not disk) first.
+// to a file in a per-process folder under /dev/shm (memory, not disk) first, removed at exit.
 #pragma once
 
 #include <unistd.h>
 
 #include <cstdint>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <string>
 
@@ -16,6 +17,12 @@ inline std::string ScratchDir() {
     const std::filesystem::path base = std::filesystem::exists("/dev/shm") ? "/dev/shm" : std::filesystem::temp_directory_path();
     const std::filesystem::path path = base / ("ibmr_fuzz_" + std::to_string(::getpid()));
     std::filesystem::create_directories(path);
+    // Removed when libFuzzer ends the run (it exits through exit()); a crash leaves it, with the input.
+    static const std::string remove_at_exit = path.string();
+    std::atexit([] {
+      std::error_code ec;
+      std::filesystem::remove_all(remove_at_exit, ec);
+    });
     return path.string();
   }();
   return dir;
