@@ -19,6 +19,7 @@
 
 #include "pipeline/core/atomic_file.h"
 #include "pipeline/core/colmap_text_io.h"
+#include "pipeline/core/plane_volume.h"
 #include "pipeline/core/ply_io.h"
 #include "pipeline/core/textured_mesh.h"
 #include "tests/run_command.h"
@@ -221,21 +222,18 @@ TEST(ReportViewer, FusedPointsAloneAreDrawn) {
 TEST(ReportViewer, VolumePlanesAreDrawn) {
   if (ChromiumMissing()) GTEST_SKIP() << "chromium is not installed (scripts/test.sh installs it for the tests); skipping";
   const fs::path ws = NewWorkspace("ibmr_viewer_volume");
-  // Four planes in the first ring camera's frame (volume.json as report_viewer.h documents it).
-  const ibmr::Rigid3d cam_from_world = ibmr::LookAt({3, 0, 0.8}, {0, 0, 0}, {0, 0, 1});
-  const Eigen::Quaterniond q = cam_from_world.rotation;
-  const nlohmann::json volume = {{"width", 160}, {"height", 120},
-                                 {"camera", {{"model", "PINHOLE"}, {"params", {150.0, 150.0, 80.0, 60.0}}}},
-                                 {"cam_from_world", {{"qvec", {q.w(), q.x(), q.y(), q.z()}},
-                                                     {"tvec", {cam_from_world.translation.x(), cam_from_world.translation.y(),
-                                                               cam_from_world.translation.z()}}}},
-                                 {"depths", {2.5, 2.9, 3.3, 3.7}}};
-  ibmr::WriteFileAtomic((ws / "volume/view1.png/volume.json").string(), volume.dump());
+  // Four planes in the first ring camera's frame, written as the volume stage writes them.
+  ibmr::PlaneVolume volume;
+  volume.camera = ibmr::Camera::Pinhole(160, 120, 150.0, 150.0, 80.0, 60.0);
+  volume.cam_from_world = ibmr::LookAt({3, 0, 0.8}, {0, 0, 0}, {0, 0, 1});
+  volume.depths = {2.5, 2.9, 3.3, 3.7};
+  volume.Allocate();
   for (int k = 0; k < 4; ++k) {
     cv::Mat rgba(120, 160, CV_8UC4, cv::Scalar(0, 0, 0, 0));
     cv::circle(rgba, {80, 60}, 20 + 10 * k, cv::Scalar(60 * k, 180, 255 - 60 * k, 200), -1);
-    cv::imwrite((ws / ("volume/view1.png/plane_" + std::to_string(k) + ".png")).string(), rgba);
+    rgba.convertTo(cv::Mat(120, 160, CV_32FC4, volume.Plane(k)), CV_32FC4, 1.0 / 255.0);
   }
+  ibmr::WritePlaneVolume((ws / "volume/view1.png").string(), volume);
   WriteRingCameras(ws);
   ExpectViewer(ViewerCheck(ws, "report_viewer_volume.png"), "drawn");
 }

@@ -342,7 +342,7 @@ nlohmann::json SweepReport(const std::string& folder, const nlohmann::json& swee
 
 }  // namespace
 
-nlohmann::json GatherWorkspaceReport(const std::string& root, int image_width) {
+nlohmann::json GatherWorkspaceReport(const std::string& root, int image_width, nlohmann::json* scores_out) {
   const Workspace workspace(root);
   nlohmann::json report = {{"kind", "workspace"}, {"title", root}, {"stages", StageCosts(workspace)}};
   const std::string selection_path = workspace.Path("scores/selection.json");
@@ -354,6 +354,7 @@ nlohmann::json GatherWorkspaceReport(const std::string& root, int image_width) {
   const std::string scores_path = workspace.Path("scores/heldout.json");
   const nlohmann::json scores = ReadReportJson(scores_path, nlohmann::json::object(), Rerun("score"));
   ReadingFile(scores_path, Rerun("score"), [&] { GatherScores(workspace, scores, image_width, &report); });
+  if (scores_out != nullptr) *scores_out = scores;
   // The volume stage's plane strips (volume/<reference>/strip.png), at twice the views' width.
   nlohmann::json strips = nlohmann::json::array();
   std::vector<fs::path> strip_paths;
@@ -392,11 +393,11 @@ std::string WriteReport(const ReportOptions& options) {
   }
   std::string invalid;
   if (!options.viewer.Check(&invalid)) throw InputError(invalid);
+  nlohmann::json scores;
   nlohmann::json data = is_sweep ? GatherSweepReport(options.path)
-                                 : GatherWorkspaceReport(options.path, options.image_width);
+                                 : GatherWorkspaceReport(options.path, options.image_width, &scores);
   ViewerData viewer;
   if (!is_sweep) {
-    const nlohmann::json scores = ReadReportJson(options.path + "/scores/heldout.json", nlohmann::json::object(), Rerun("score"));
     const std::string metric = data["metric"].is_string() ? data["metric"].get<std::string>() : "photo_psnr";
     viewer = GatherViewer(options.path, scores, metric, options.viewer);
     data["viewer"] = viewer.viewer;

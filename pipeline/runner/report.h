@@ -42,8 +42,9 @@ struct ReportOptions {
   ViewerOptions viewer;       // report.max_faces and the viewer's other budgets
 };
 
-// The data the page charts, gathered from the folder (exposed for tests).
-nlohmann::json GatherWorkspaceReport(const std::string& workspace, int image_width);
+// The data the page charts, gathered from the folder (exposed for tests); `scores` (optional)
+// receives scores/heldout.json as read, for the viewer.
+nlohmann::json GatherWorkspaceReport(const std::string& workspace, int image_width, nlohmann::json* scores = nullptr);
 nlohmann::json GatherSweepReport(const std::string& sweep_folder);
 
 // Writes the page; returns its path. Throws InputError naming what is missing (the folder holds

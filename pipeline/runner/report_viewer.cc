@@ -2,6 +2,8 @@
 // page and turned into typed arrays; the cameras as frustum directions; the volume's planes.
 #include "pipeline/runner/report_viewer.h"
 
+#include "pipeline/core/plane_volume.h"
+
 #include <tiny_gltf.h>
 
 #include <opencv2/imgcodecs.hpp>
@@ -15,7 +17,6 @@
 #include <cmath>
 #include <filesystem>
 #include <map>
-#include <regex>
 #include <set>
 #include <tuple>
 #include <unordered_map>
@@ -220,7 +221,11 @@ std::vector<uint32_t> PrimitiveIndices(const tinygltf::Model& model, const tinyg
   for (size_t i = 0; i < accessor.count; ++i) {
     uint32_t value = 0;
     if (size == 1) value = data[i];
-    if (size == 2) value = reinterpret_cast<const uint16_t*>(data)[i];
+    if (size == 2) {
+      uint16_t v16 = 0;
+      std::memcpy(&v16, data + 2 * i, 2);  // the buffer need not be aligned for uint16_t
+      value = v16;
+    }
     if (size == 4) std::memcpy(&value, data + 4 * i, 4);
     if (value >= vertex_count) throw IoError(path + ": index " + std::to_string(value) + " of " + std::to_string(vertex_count) + " vertices");
     out.push_back(value);
@@ -355,28 +360,6 @@ nlohmann::json PointsEntry(const std::string& path, const ViewerOptions& options
   return entry;
 }
 
-// A number of a JSON object, or an IoError naming the key and the file.
-double Number(const nlohmann::json& object, const std::string& key, const std::string& path) {
-  if (!object.is_object() || !object.contains(key) || !object[key].is_number()) {
-    throw IoError(path + ": \"" + key + "\" is missing or not a number");
-  }
-  return object[key].get<double>();
-}
-
-// A fixed-length array of numbers, or an IoError naming the key and the file.
-std::vector<double> Numbers(const nlohmann::json& object, const std::string& key, size_t length, const std::string& path) {
-  if (!object.is_object() || !object.contains(key) || !object[key].is_array() ||
-      (length > 0 && object[key].size() != length)) {
-    throw IoError(path + ": \"" + key + "\" is missing or not an array of " + (length ? std::to_string(length) + " " : "") + "numbers");
-  }
-  std::vector<double> out;
-  for (const auto& v : object[key]) {
-    if (!v.is_number()) throw IoError(path + ": \"" + key + "\" holds something that is not a number");
-    out.push_back(v.get<double>());
-  }
-  return out;
-}
-
 // The direction the viewer orbits around: the cameras' mean image up (-y) where they agree (the
 // mean at least 0.9 long: within about 25 degrees), else, when their centres lie near a plane (a
 // ring whose cameras are rolled, as Middlebury's templeRing: its image ups turn with the ring), the plane's
@@ -478,53 +461,24 @@ nlohmann::json ModelEntry(const std::string& name, const std::string& source, co
 }  // namespace
 
 nlohmann::json ReadVolumeForViewer(const std::string& folder, const ViewerOptions& options) {
-  const std::string path = folder + "/volume.json";
-  nlohmann::json volume;
-  try {
-    volume = nlohmann::json::parse(ReadFile(path));
-  } catch (const nlohmann::json::exception& e) {
-    throw IoError(path + ": not valid JSON (" + e.what() + ")");
-  }
-  const double width = Number(volume, "width", path), height = Number(volume, "height", path);
-  // PINHOLE parameters fx, fy, cx, cy (pipeline/core/plane_volume.h, the volume stage's format).
-  const std::vector<double> params = Numbers(volume.value("camera", nlohmann::json::object()), "params", 4, path);
-  const double fx = params[0], fy = params[1], cx = params[2], cy = params[3];
-  if (width <= 0 || height <= 0 || fx <= 0 || fy <= 0) throw IoError(path + ": width, height, fx and fy must be > 0");
-  const nlohmann::json pose = volume.value("cam_from_world", nlohmann::json::object());
-  const std::vector<double> q = Numbers(pose, "qvec", 4, path), t = Numbers(pose, "tvec", 3, path);
-  const std::vector<double> depths = Numbers(volume, "depths", 0, path);
-  if (depths.empty()) throw IoError(path + ": \"depths\" is empty");
-  const Eigen::Quaterniond rotation(q[0], q[1], q[2], q[3]);
-  if (rotation.norm() < 1e-9) throw IoError(path + ": \"qvec\" is not a rotation");
-  const Rigid3d world_from_cam = Rigid3d(rotation, Eigen::Vector3d(t[0], t[1], t[2])).Inverse();
-
-  // plane_<k>.png by its number k.
-  std::map<int, std::string> files;
-  const std::regex plane_name("plane_(\\d+)\\.png");
-  for (const auto& file : fs::directory_iterator(folder)) {
-    std::smatch match;
-    const std::string name = file.path().filename().string();
-    if (std::regex_match(name, match, plane_name)) files[std::stoi(match[1])] = file.path().string();
-  }
+  // The volume stage's own reader and format (pipeline/core/plane_volume.h).
+  const PlaneVolume volume = ReadPlaneVolume(folder);
+  const std::vector<cv::Mat> images = PlaneImages(volume);
+  const Rigid3d world_from_cam = volume.cam_from_world.Inverse();
+  const double width = volume.Width(), height = volume.Height();
   nlohmann::json planes = nlohmann::json::array();
-  for (size_t k = 0; k < depths.size(); ++k) {
-    if (!files.count(static_cast<int>(k))) throw IoError(folder + ": plane_" + std::to_string(k) + ".png is missing (" + std::to_string(depths.size()) + " depths)");
-    const cv::Mat image = cv::imread(files[static_cast<int>(k)], cv::IMREAD_UNCHANGED);
-    if (image.empty() || image.depth() != CV_8U) throw IoError(files[static_cast<int>(k)] + ": not an 8-bit image OpenCV reads");
+  std::vector<Eigen::Vector3f> all_corners;
+  for (int k = 0; k < volume.Planes(); ++k) {
     nlohmann::json corners = nlohmann::json::array();
     for (const auto& [u, v] : {std::pair{0.0, 0.0}, {width, 0.0}, {width, height}, {0.0, height}}) {
-      const Eigen::Vector3d in_world = world_from_cam * (depths[k] * Eigen::Vector3d((u - cx) / fx, (v - cy) / fy, 1));
+      const Eigen::Vector3d in_world =
+          world_from_cam * (volume.depths[k] * volume.camera.CamFromImg(Eigen::Vector2d(u, v)));
       corners.insert(corners.end(), {in_world.x(), in_world.y(), in_world.z()});
+      all_corners.push_back(in_world.cast<float>());
     }
-    planes.push_back({{"depth", depths[k]},
+    planes.push_back({{"depth", volume.depths[k]},
                       {"corners", corners},
-                      {"texture", PngDataUri(ShrinkToFit(image, options.max_plane_size, options.max_plane_size))}});
-  }
-  std::vector<Eigen::Vector3f> all_corners;
-  for (const auto& plane : planes) {
-    for (int c = 0; c < 4; ++c) {
-      all_corners.emplace_back(plane["corners"][3 * c].get<float>(), plane["corners"][3 * c + 1].get<float>(), plane["corners"][3 * c + 2].get<float>());
-    }
+                      {"texture", PngDataUri(ShrinkToFit(images[k], options.max_plane_size, options.max_plane_size))}});
   }
   return {{"kind", "planes"}, {"unit", "planes"}, {"elements", planes.size()}, {"shown", planes.size()}, {"decimated", false},
           {"bounds", RobustBounds(all_corners)}, {"planes", planes}};

@@ -3,6 +3,8 @@
 // folder in the documented shape becomes a stack of quads at the right place.
 #include "pipeline/runner/report_viewer.h"
 
+#include "pipeline/core/plane_volume.h"
+
 #include <gtest/gtest.h>
 
 #include <opencv2/imgcodecs.hpp>
@@ -176,25 +178,29 @@ TEST(ReportViewer, CamerasCarryTheirBestHeldOutScore) {
   EXPECT_DOUBLE_EQ(data.viewer["up"][1].get<double>(), -1.0);
 }
 
-// A volume folder as the volume stage writes it (see ReadVolumeForViewer).
+// A volume folder as the volume stage writes it (pipeline/core/plane_volume.h), with `planes` of
+// its three plane files left.
 void WriteVolume(const fs::path& folder, int planes) {
-  nlohmann::json volume = {{"width", 40},
-                           {"height", 20},
-                           {"camera", {{"model", "PINHOLE"}, {"params", {40.0, 40.0, 20.0, 10.0}}}},
-                           {"cam_from_world", {{"qvec", {1, 0, 0, 0}}, {"tvec", {0, 0, 1}}}},
-                           {"depths", {2.0, 3.0, 4.0}}};
-  WriteFileAtomic((folder / "volume.json").string(), volume.dump());
-  for (int k = 0; k < planes; ++k) {
-    cv::Mat rgba(20, 40, CV_8UC4, cv::Scalar(40 * k, 100, 200, 128));
-    cv::imwrite((folder / ("plane_" + std::to_string(k) + ".png")).string(), rgba);
+  PlaneVolume volume;
+  volume.camera = Camera::Pinhole(40, 20, 40.0, 40.0, 20.0, 10.0);
+  volume.cam_from_world = Rigid3d(Eigen::Quaterniond::Identity(), Eigen::Vector3d(0, 0, 1));
+  volume.depths = {2.0, 3.0, 4.0};
+  volume.Allocate();
+  for (int k = 0; k < 3; ++k) {
+    for (size_t i = 0; i < volume.PlaneFloats(); i += 4) {
+      const float cell[4] = {40.f * k / 255.f, 100.f / 255.f, 200.f / 255.f, 128.f / 255.f};
+      std::copy(cell, cell + 4, volume.Plane(k) + i);
+    }
   }
+  WritePlaneVolume(folder.string(), volume);
+  for (int k = planes; k < 3; ++k) fs::remove(folder / ("plane_00" + std::to_string(k) + ".png"));
 }
 
 TEST(ReportViewer, VolumePlanesAreQuadsAtTheirDepth) {
   const fs::path ws = ibmr_testing::ScratchDir("ibmr_viewer_volume");
   WriteVolume(ws / "volume/view1.png", 3);
   WriteVolume(ws / "volume/view2.png", 2);  // one plane image missing
-  WriteFileAtomic((ws / "volume/view3.png/volume.json").string(), R"({"width": 40})");
+  WriteFileAtomic((ws / "volume/view3.png/volume.json").string(), R"({"format": "ibmr_plane_volume", "width": 40})");
   const ViewerData data = GatherViewer(ws.string(), nlohmann::json::object(), "photo_psnr", {});
   ASSERT_EQ(data.viewer["models"].size(), 3u);
   const nlohmann::json& volume = *Model(data, "volume view1.png");
@@ -210,9 +216,9 @@ TEST(ReportViewer, VolumePlanesAreQuadsAtTheirDepth) {
   EXPECT_DOUBLE_EQ(corners[6].get<double>(), 1.5);  // corner (W, H)
   EXPECT_EQ(volume["planes"][1]["texture"].get<std::string>().rfind("data:image/png;base64,", 0), 0u);
   const std::string missing = (*Model(data, "volume view2.png")).value("error", "");
-  EXPECT_NE(missing.find("plane_2.png is missing"), std::string::npos) << missing;
+  EXPECT_NE(missing.find("plane_002.png does not exist"), std::string::npos) << missing;
   const std::string incomplete = (*Model(data, "volume view3.png")).value("error", "");
-  EXPECT_NE(incomplete.find("\"height\""), std::string::npos) << incomplete;
+  EXPECT_NE(incomplete.find("height"), std::string::npos) << incomplete;
 }
 
 }  // namespace
