@@ -63,7 +63,7 @@ class SplatModel : public RenderModel {
     const Camera camera = scene.factor > 1 ? view.camera.Scaled(scene.factor) : view.camera;
     const int self = DrawsSourceRays() ? scene.SelfSource(view.name) : -1;
     const SplatImage splats =
-        RenderSplats(cloud_, camera, view.cam_from_world, ToSplatOptions(scene.context->params), self);
+        RenderSplats(cloud_, camera, view.cam_from_world, splat_options_, self);
     ModelView drawn;
     drawn.fine.image = splats.image;
     drawn.fine.coverage = splats.coverage;
@@ -88,6 +88,7 @@ class SplatModel : public RenderModel {
   virtual bool DrawsSourceRays() const = 0;
 
   SplatCloud cloud_;
+  SplatOptions splat_options_;  // the render stage's splat keys, read once in Prepare
 
  private:
   mutable std::mutex mutex_;
@@ -108,6 +109,7 @@ class DepthSplatModel : public SplatModel {
   std::optional<std::string> Prepare(const RenderScene& scene, nlohmann::json* facts) override {
     const auto start = std::chrono::steady_clock::now();
     depth_type_ = DepthType(scene.context->params);
+    splat_options_ = ToSplatOptions(scene.context->params);
     DepthImageOptions options = ToDepthImageOptions(scene.context->params);
     options.merge = merge_;
     std::vector<DepthImage> images;
@@ -182,7 +184,8 @@ class SurfelSplatModel : public SplatModel {
     return {context.workspace.Relative(path_)};
   }
   std::string SourcePath(const Workspace& workspace) const override { return workspace.Relative(path_); }
-  std::optional<std::string> Prepare(const RenderScene&, nlohmann::json* facts) override {
+  std::optional<std::string> Prepare(const RenderScene& scene, nlohmann::json* facts) override {
+    splat_options_ = ToSplatOptions(scene.context->params);
     if (!fs::exists(path_)) return path_ + " does not exist (run the surfels stage)";
     cloud_ = CloudFromSurfels(ReadPointCloudPly(path_), 0.f);
     if (cloud_.size() == 0) return path_ + " holds no finite surfel";

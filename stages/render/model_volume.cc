@@ -30,10 +30,17 @@ class VolumeModel : public RenderModel {
   std::string SourcePath(const Workspace& workspace) const override { return workspace.Relative(folder_); }
   bool MadeFromEveryPhoto() const override { return true; }
 
-  // At the output size: per volume a float colour, a coverage byte and a warped plane (17 bytes),
-  // the blend's sums (16) and the drawn image (4); the volumes are loaded once (Prepare).
-  double ViewBytes(const StageContext&, double pixels) const override {
-    return pixels * (17.0 * std::max<size_t>(1, volumes_.size()) + 20.0);
+  // At the output size: a float colour, a coverage byte and a warped plane (17 bytes), the blend's
+  // sums (16) when several volumes are blended, and the drawn image (4); the volumes are loaded once
+  // (Prepare). Asked before Prepare: the volume folders are counted on disk.
+  double ViewBytes(const StageContext& context, double pixels) const override {
+    size_t folders = 0;
+    std::error_code ec;
+    for (fs::directory_iterator it(folder_, ec), end; !ec && it != end; it.increment(ec)) {
+      folders += fs::exists(it->path() / "volume.json") ? 1 : 0;
+    }
+    const size_t blended = std::min<size_t>(folders, static_cast<size_t>(context.params.Int("volume_blend")));
+    return pixels * (17.0 + 4.0 + (blended > 1 ? 16.0 : 0.0));
   }
 
   std::optional<std::string> Prepare(const RenderScene& scene, nlohmann::json* facts) override {
@@ -70,8 +77,6 @@ class VolumeModel : public RenderModel {
   ModelView Render(const RenderScene&, const DesiredView& view) const override {
     const Camera& camera = view.camera;
     const Eigen::Vector3d centre = view.cam_from_world.Inverse().translation;
-    cv::Mat sum(camera.height, camera.width, CV_32FC3, cv::Scalar::all(0));
-    cv::Mat weight(camera.height, camera.width, CV_32F, cv::Scalar(0));
     // The volume_blend volumes nearest the desired camera.
     std::vector<std::pair<double, size_t>> nearest;
     for (size_t i = 0; i < volumes_.size(); ++i) {
@@ -79,18 +84,30 @@ class VolumeModel : public RenderModel {
     }
     std::sort(nearest.begin(), nearest.end());
     nearest.resize(std::min<size_t>(nearest.size(), blend_));
+    ModelView drawn;
+    drawn.fine.image = cv::Mat(camera.height, camera.width, CV_8UC3, cv::Scalar::all(0));
+    drawn.fine.coverage = cv::Mat(camera.height, camera.width, CV_8UC1, cv::Scalar(0));
+    drawn.sources = nearest.size();
+    cv::Mat colour, coverage;
+    if (nearest.size() == 1) {  // one volume: its render as it is
+      Composite(nearest[0].second, view, &colour, &coverage);
+      for (int y = 0; y < camera.height; ++y) {
+        const cv::Vec3f* c = colour.ptr<cv::Vec3f>(y);
+        const uint8_t* cover = coverage.ptr<uint8_t>(y);
+        cv::Vec3b* out = drawn.fine.image.ptr<cv::Vec3b>(y);
+        for (int x = 0; x < camera.width; ++x) {
+          if (!cover[x]) continue;
+          for (int ch = 0; ch < 3; ++ch) out[x][ch] = cv::saturate_cast<uint8_t>(255.f * c[x][ch]);
+          ++drawn.fine.covered_pixels;
+        }
+      }
+      drawn.fine.coverage = coverage;
+      return drawn;
+    }
+    cv::Mat sum(camera.height, camera.width, CV_32FC3, cv::Scalar::all(0));
+    cv::Mat weight(camera.height, camera.width, CV_32F, cv::Scalar(0));
     for (const auto& [distance_to_volume, i] : nearest) {
-      const PlaneVolume& volume = volumes_[i];
-      cv::Mat colour, coverage;
-      // Plane by plane (warps) where every ray meets every plane ahead; else ray by ray.
-      if (!CompositePlaneVolumeByWarps(volume, plane_images_[i], camera, view.cam_from_world, &colour, &coverage)) {
-        CompositePlaneVolume(volume, camera, view.cam_from_world, &colour, &coverage);
-      }
-      if (nearest.size() == 1) {  // one volume: its render as it is
-        sum = colour;
-        coverage.convertTo(weight, CV_32F, 1.0 / 255.0);
-        break;
-      }
+      Composite(i, view, &colour, &coverage);
       const float w = static_cast<float>(1.0 / std::max(distance_to_volume * distance_to_volume, 1e-12));
       for (int y = 0; y < camera.height; ++y) {
         const uint8_t* cover = coverage.ptr<uint8_t>(y);
@@ -104,9 +121,6 @@ class VolumeModel : public RenderModel {
         }
       }
     }
-    ModelView drawn;
-    drawn.fine.image = cv::Mat(camera.height, camera.width, CV_8UC3, cv::Scalar::all(0));
-    drawn.fine.coverage = cv::Mat(camera.height, camera.width, CV_8UC1, cv::Scalar(0));
     for (int y = 0; y < camera.height; ++y) {
       const cv::Vec3f* s = sum.ptr<cv::Vec3f>(y);
       const float* ws = weight.ptr<float>(y);
@@ -119,7 +133,6 @@ class VolumeModel : public RenderModel {
         ++drawn.fine.covered_pixels;
       }
     }
-    drawn.sources = nearest.size();
     return drawn;
   }
 
@@ -140,6 +153,14 @@ class VolumeModel : public RenderModel {
   }
 
  private:
+  // Volume i drawn into the view: plane by plane (warps) where every ray meets every plane ahead,
+  // else ray by ray.
+  void Composite(size_t i, const DesiredView& view, cv::Mat* colour, cv::Mat* coverage) const {
+    if (!CompositePlaneVolumeByWarps(volumes_[i], plane_images_[i], view.camera, view.cam_from_world, colour, coverage)) {
+      CompositePlaneVolume(volumes_[i], view.camera, view.cam_from_world, colour, coverage);
+    }
+  }
+
   std::string folder_;
   std::vector<PlaneVolume> volumes_;
   std::vector<std::vector<cv::Mat>> plane_images_;  // each volume's planes, 8-bit, for the warps

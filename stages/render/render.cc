@@ -216,8 +216,8 @@ void ExtendIntoHoles(DepthMap* depth, int radius) {
 }
 
 std::vector<uint8_t> ExtendIntoHoles(RasterResult* raster, int radius) {
+  if (radius <= 0 || raster->depth.Empty()) return {};
   std::vector<uint8_t> extended(raster->face_id.size(), 0);
-  if (radius <= 0 || raster->depth.Empty()) return extended;
   const std::vector<int> source = HoleSources(raster->depth, radius);
   const int w = raster->depth.width;
   for (size_t i = 0; i < source.size(); ++i) {

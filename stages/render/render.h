@@ -115,7 +115,8 @@ void ExtendIntoHoles(DepthMap* depth, int radius);
 std::vector<int> HoleSources(const DepthMap& depth, int radius);
 // The same hole extension for a mesh drawn with its faces (textured, vdtm): a hole pixel within
 // `radius` takes the depth, face and barycentrics of the covered pixel ExtendIntoHoles gives its
-// depth from. Returns per pixel 1 where it was a hole and now holds a face.
+// depth from. Returns per pixel 1 where it was a hole and now holds a face; empty when radius is
+// 0 (nothing extended).
 std::vector<uint8_t> ExtendIntoHoles(RasterResult* raster, int radius);
 // The sources with each one's visibility map: the depth of the mesh proxy `layers` (first hits,
 // fallbacks where the first misses) extended by `extend_px` into its holes, as ULR sees the proxy.

@@ -104,7 +104,7 @@ void LoadRenderScene(const StageContext& context, const SparseModel& model, Rend
   // (sparse/depth_bounds.json) stand for them: a point on each training view's optical axis at
   // the mean inverse depth of its near and far bound, so the plane lies where the scene is.
   const std::string bounds_path = context.workspace.Path("sparse/depth_bounds.json");
-  if (scene->sparse_points.empty() && std::filesystem::exists(bounds_path)) {
+  if (scene->sparse_points.empty()) {
     const nlohmann::json bounds = ReadJsonOr(bounds_path, nlohmann::json::object());
     for (size_t i = 0; i < scene->training.size(); ++i) {
       const nlohmann::json entry = bounds.value(scene->training[i], nlohmann::json::object());

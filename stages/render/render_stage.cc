@@ -67,8 +67,9 @@ DrawnView Draw(const RenderModel& model, const RenderScene& scene, const Desired
   const auto start = Clock::now();
   ModelView drawn = model.Render(scene, view);
   DrawnView out;
-  out.result = Downsample(drawn.fine, drawn.surface ? *drawn.surface : HitsOf(drawn.fine),
-                          model.DrawsAtOutputSize() ? 1 : scene.factor);
+  const int factor = model.DrawsAtOutputSize() ? 1 : scene.factor;
+  out.result = factor <= 1 ? std::move(drawn.fine)  // Downsample would return it as it is
+                           : Downsample(drawn.fine, drawn.surface ? *drawn.surface : HitsOf(drawn.fine), factor);
   out.facts = std::move(drawn.facts);
   out.facts["sources"] = drawn.sources;
   out.seconds = SecondsSince(start);

@@ -168,7 +168,7 @@ RenderResult VdtmRenderer::Render(const Camera& camera, const Rigid3d& cam_from_
           // A hole the extension reached: the pixel's own ray at the depth it took (as ULR's
           // proxy), coloured by the blend of the face it took it from.
           const Eigen::Vector3d p =
-              extended[static_cast<size_t>(y) * camera.width + x]
+              !extended.empty() && extended[static_cast<size_t>(y) * camera.width + x]
                   ? Eigen::Vector3d(world_from_cam * (camera.CamFromImg(Eigen::Vector2d(x + 0.5, y + 0.5)) *
                                                       static_cast<double>(raster.depth.At(x, y))))
                   : Eigen::Vector3d(
