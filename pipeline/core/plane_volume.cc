@@ -13,6 +13,7 @@
 #include "pipeline/core/atomic_file.h"
 #include "pipeline/core/errors.h"
 #include "pipeline/core/image_io.h"
+#include "pipeline/core/json_file.h"
 #include "pipeline/core/plane_homography.h"
 
 namespace fs = std::filesystem;
@@ -175,13 +176,7 @@ void WritePlaneVolume(const std::string& folder, const PlaneVolume& volume) {
 
 PlaneVolume ReadPlaneVolume(const std::string& folder) {
   const std::string json_path = folder + "/volume.json";
-  if (!fs::exists(json_path)) throw InputError(json_path + " does not exist; run the volume stage");
-  nlohmann::json json;
-  try {
-    json = nlohmann::json::parse(ReadFile(json_path));
-  } catch (const nlohmann::json::exception& e) {
-    throw IoError(json_path + ": not valid JSON (" + e.what() + "); re-run the volume stage");
-  }
+  const nlohmann::json json = ReadStageJson(json_path, "volume", "the volume's readers");
   PlaneVolume volume;
   try {
     if (json.value("format", "") != "ibmr_plane_volume") throw IoError("\"format\" is not \"ibmr_plane_volume\"");

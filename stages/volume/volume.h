@@ -146,9 +146,10 @@ std::vector<double> PlaneDepths(double near, double far, int planes);
 void InitializeVolume(const std::vector<LevelView>& views, const VolumeOptions& options, PlaneVolume* volume);
 
 // The objective E of the volume against the views; with `gradient` (resized to the cells) its
-// gradient with respect to every cell value. `data` (optional) receives the data term alone.
+// gradient with respect to every cell value. `data` (optional) receives the data term alone;
+// `scratch` (optional) is a buffer the caller keeps from one call to the next (no fresh pages).
 double VolumeObjective(const PlaneVolume& volume, const std::vector<LevelView>& views, const VolumeOptions& options,
-                       std::vector<float>* gradient, double* data = nullptr);
+                       std::vector<float>* gradient, double* data = nullptr, std::vector<float>* scratch = nullptr);
 
 // Phase 2 at one level: `iterations` steps from `volume`; appends to `curve`.
 void RefineVolume(const std::vector<LevelView>& views, const VolumeOptions& options, int level, int iterations,

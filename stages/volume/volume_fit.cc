@@ -25,7 +25,7 @@ inline float RobustDerivative(float r, float e) { return r / std::sqrt(r * r + e
 // per plane; then the planes in parallel scatter them through the bilinear footprints (each plane
 // its own slice of the gradient: no two threads write one cell).
 void ViewDataTerm(const PlaneVolume& volume, const LevelView& view, const VolumeOptions& options, double inverse_n,
-                  double* loss, size_t* covered, float* gradient, std::vector<float>* scratch) {
+                  double* loss, float* gradient, std::vector<float>* scratch) {
   const int w = view.camera.width, h = view.camera.height, planes = volume.Planes();
   const VolumeRays rays(volume, view.camera, view.cam_from_world);
   const float e = static_cast<float>(options.robust_epsilon);
@@ -36,7 +36,6 @@ void ViewDataTerm(const PlaneVolume& volume, const LevelView& view, const Volume
   std::vector<float>& coef = *scratch;  // reused across views: no fresh pages per view
   if (gradient != nullptr && coef.size() < band_pixels * planes * 6) coef.resize(band_pixels * planes * 6);
   std::vector<double> row_loss(h, 0.0);
-  std::vector<size_t> row_covered(h, 0);
   for (int band = 0; band < h; band += band_rows) {
     const int rows_here = std::min(band_rows, h - band);
     tbb::parallel_for(tbb::blocked_range<int>(band, band + rows_here), [&](const tbb::blocked_range<int>& range) {
@@ -84,7 +83,6 @@ void ViewDataTerm(const PlaneVolume& volume, const LevelView& view, const Volume
             g[ch] = static_cast<float>(RobustDerivative(r, e) * inverse_n);
           }
           row_loss[y] += pixel_loss;
-          ++row_covered[y];
           if (gradient == nullptr) continue;
           float behind[3] = {0, 0, 0};  // the composite of the planes behind sample i
           for (int i = used - 1; i >= 0; --i) {
@@ -115,10 +113,7 @@ void ViewDataTerm(const PlaneVolume& volume, const LevelView& view, const Volume
       }
     });
   }
-  for (int y = 0; y < h; ++y) {
-    *loss += row_loss[y];
-    *covered += row_covered[y];
-  }
+  for (int y = 0; y < h; ++y) *loss += row_loss[y];
 }
 
 // Smoothness and opacity prior over the cells (normalised by the cells per plane), with their
@@ -175,16 +170,16 @@ void PinFarPlane(PlaneVolume* volume, std::vector<float>* gradient) {
 }  // namespace
 
 double VolumeObjective(const PlaneVolume& volume, const std::vector<LevelView>& views, const VolumeOptions& options,
-                       std::vector<float>* gradient, double* data) {
-  size_t covered_pixels = 0, total = 0;  // N: the views' pixels
+                       std::vector<float>* gradient, double* data, std::vector<float>* scratch) {
+  std::vector<float> own_scratch;
+  if (scratch == nullptr) scratch = &own_scratch;
+  size_t total = 0;  // N: the views' pixels
   for (const LevelView& view : views) total += static_cast<size_t>(view.camera.width) * view.camera.height;
   const double inverse_n = 1.0 / std::max<size_t>(1, total);
   if (gradient != nullptr) gradient->assign(volume.cells.size(), 0.f);
   double loss = 0;
-  std::vector<float> scratch;
   for (const LevelView& view : views) {
-    ViewDataTerm(volume, view, options, inverse_n, &loss, &covered_pixels,
-                 gradient != nullptr ? gradient->data() : nullptr, &scratch);
+    ViewDataTerm(volume, view, options, inverse_n, &loss, gradient != nullptr ? gradient->data() : nullptr, scratch);
   }
   const double data_term = loss * inverse_n;
   if (data != nullptr) *data = data_term;
@@ -194,7 +189,7 @@ double VolumeObjective(const PlaneVolume& volume, const std::vector<LevelView>& 
 void RefineVolume(const std::vector<LevelView>& views, const VolumeOptions& options, int level, int iterations,
                   PlaneVolume* volume, std::vector<VolumeCurvePoint>* curve, ProgressReporter* progress) {
   PinFarPlane(volume, nullptr);
-  std::vector<float> gradient, first, second;
+  std::vector<float> gradient, first, second, scratch;  // scratch: the data term's bands, reused by every step
   const bool adam = options.optimizer == VolumeOptimizer::kAdam;
   if (adam) {
     first.assign(volume->cells.size(), 0.f);
@@ -208,12 +203,12 @@ void RefineVolume(const std::vector<LevelView>& views, const VolumeOptions& opti
     const bool last = it == iterations;
     double data = 0;
     if (last) {  // the curve ends with the objective over every view
-      const double objective = VolumeObjective(*volume, views, options, nullptr, &data);
+      const double objective = VolumeObjective(*volume, views, options, nullptr, &data, &scratch);
       curve->push_back({level, it, objective, data});
       break;
     }
     for (size_t j = 0; j < batch; ++j) batch_views[j] = views[(static_cast<size_t>(it) * batch + j) % views.size()];
-    const double objective = VolumeObjective(*volume, batch_views, options, &gradient, &data);
+    const double objective = VolumeObjective(*volume, batch_views, options, &gradient, &data, &scratch);
     curve->push_back({level, it, objective, data});
     // The step falls geometrically to a tenth over the level's steps.
     const float step = static_cast<float>(options.learning_rate * std::pow(0.1, static_cast<double>(it) / iterations));

@@ -53,6 +53,14 @@ SweepStatistics Accumulate(const std::vector<LevelView>& views, const PlaneVolum
         PlaneHomographies(volume.camera, volume.cam_from_world, view.camera, view.cam_from_world, inverse_depths);
     cv::Mat transmittance(vh, vw, CV_32F, cv::Scalar(1.f));
     const VolumeRays rays(volume, view.camera, view.cam_from_world);
+    // Each pixel's ray once per view (the planes then only step along it).
+    std::vector<VolumeRays::Ray> view_rays;
+    if (visibility) {
+      view_rays.resize(static_cast<size_t>(vw) * vh);
+      tbb::parallel_for(0, vh, [&](int y) {
+        for (int x = 0; x < vw; ++x) view_rays[static_cast<size_t>(y) * vw + x] = rays.RayAt(x + 0.5, y + 0.5);
+      });
+    }
     // Front to back as the view sees the planes (its centre in front of the nearest one).
     for (int k = 0; k < stats.planes; ++k) {
       const Eigen::Matrix3d& hk = homographies[k];
@@ -75,9 +83,10 @@ SweepStatistics Accumulate(const std::vector<LevelView>& views, const PlaneVolum
       const float* plane = volume.Plane(k);
       tbb::parallel_for(0, vh, [&](int y) {
         float* t = transmittance.ptr<float>(y);
+        const VolumeRays::Ray* row_rays = view_rays.data() + static_cast<size_t>(y) * vw;
         for (int x = 0; x < vw; ++x) {
           RaySample s;
-          if (!rays.SampleOn(x + 0.5, y + 0.5, k, &s) || !s.inside) continue;
+          if (!rays.On(row_rays[x], k, &s) || !s.inside) continue;
           float cell[4];
           SampleCell(plane, Footprint(volume.Width(), volume.Height(), s.x, s.y), cell);
           t[x] *= 1.f - cell[3];
