@@ -86,4 +86,11 @@ ParamError ParamError::FromCheck(const std::string& check_message) {
   return ParamError{check_message.substr(0, colon), start == std::string::npos ? "" : check_message.substr(start)};
 }
 
+std::string DefaultNumberText(double value) {
+  std::string s = std::to_string(value);
+  s.erase(s.find_last_not_of('0') + 1);
+  if (!s.empty() && s.back() == '.') s.pop_back();
+  return s;
+}
+
 }  // namespace ibmr

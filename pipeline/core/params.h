@@ -60,4 +60,7 @@ class Params {
   std::map<std::string, ParamValue> values_;
 };
 
+// A number as a parameter's default YAML text, without trailing zeros ("0.05", "3", "-1").
+std::string DefaultNumberText(double value);
+
 }  // namespace ibmr

@@ -70,12 +70,7 @@ class LayeredStereoStage : public Stage {
 
   std::vector<ParamSpec> Parameters() const override {
     const LayeredOptions d;
-    auto num = [](double v) {
-      std::string s = std::to_string(v);
-      s.erase(s.find_last_not_of('0') + 1);
-      if (!s.empty() && s.back() == '.') s.pop_back();
-      return s;
-    };
+    const auto num = DefaultNumberText;
     return {
         {"max_layers", ParamType::kInt, std::to_string(d.max_layers), "Planes at most per view, [1, 16]"},
         {"plane_tolerance", ParamType::kDouble, num(d.plane_tolerance), "A depth sample is on a plane within this fraction of its depth, (0, 0.2]"},

@@ -46,12 +46,7 @@ class SurfelsStage : public Stage {
   std::vector<ParamSpec> Parameters() const override {
     const SurfelOptions d;
     const ParticleWeights& w = d.weights;
-    auto num = [](double v) {
-      std::string s = std::to_string(v);
-      s.erase(s.find_last_not_of('0') + 1);
-      if (s.back() == '.') s.pop_back();
-      return s;
-    };
+    const auto num = DefaultNumberText;
     return {
         {"spacing_scale", ParamType::kDouble, num(d.spacing_scale), "Particle spacing / median pixel footprint of the points, (0, 100]"},
         {"spacing", ParamType::kDouble, "-1", "Fixed particle spacing in scene units; -1: from the footprints"},

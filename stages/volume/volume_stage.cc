@@ -60,12 +60,7 @@ cv::Mat PlaneStrip(const PlaneVolume& volume, int tile) {
   return strip;
 }
 
-std::string Number(double v) {
-  std::string s = std::to_string(v);
-  s.erase(s.find_last_not_of('0') + 1);
-  if (!s.empty() && s.back() == '.') s.pop_back();
-  return s;
-}
+const auto Number = DefaultNumberText;
 
 class VolumeStage : public Stage {
  public:
