@@ -213,9 +213,9 @@ class PlaneSweepStage : public Stage {
       });
       return views[i];
     };
-    const nlohmann::json hull_bounds = ReadHullBounds(context.workspace.Path("hull/depth_bounds.json"));
+    const nlohmann::json hull_bounds = ReadViewBounds(context.workspace.Path("hull/depth_bounds.json"), "carve");
     // Per-view bounds an import recorded (LLFF's poses_bounds.npy), hashed with the sparse folder.
-    const nlohmann::json capture_bounds = ReadHullBounds(context.workspace.Path("sparse/depth_bounds.json"));
+    const nlohmann::json capture_bounds = ReadViewBounds(context.workspace.Path("sparse/depth_bounds.json"), "import");
     const std::string hull_path = context.workspace.Path("hull/hull.ply");
     const bool hull_ranges = (!context.params.Has("hull_ranges") || context.params.Bool("hull_ranges")) && fs::exists(hull_path);
     const TriangleMesh hull = hull_ranges ? ReadMeshPly(hull_path) : TriangleMesh();
@@ -389,7 +389,8 @@ class PlaneSweepStage : public Stage {
   }
 
  private:
-  static nlohmann::json ReadHullBounds(const std::string& path) {
+  // Per-view {near, far} bounds of `path`, written by stage `producer` (empty when absent).
+  static nlohmann::json ReadViewBounds(const std::string& path, const std::string& producer) {
     if (!fs::exists(path)) return nlohmann::json::object();
     std::ifstream in(path);
     try {
@@ -397,7 +398,7 @@ class PlaneSweepStage : public Stage {
       if (!j.is_object()) throw InputError(path + ": expected an object {\"<image>\": {\"near\": z, \"far\": z}}");
       return j;
     } catch (const nlohmann::json::exception& e) {
-      throw InputError(path + ": not valid JSON (" + e.what() + "); re-run the carve stage or delete the file");
+      throw InputError(path + ": not valid JSON (" + e.what() + "); re-run the " + producer + " stage or delete the file");
     }
   }
 
