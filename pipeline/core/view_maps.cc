@@ -129,6 +129,13 @@ void BuildGrid(int grid, FaceViewMap* face, const std::vector<float>& penalty) {
 
 ViewBlend BlendFor(const ViewMaps& maps, int face_index, const Eigen::Matrix3d& frame,
                    const Eigen::Vector3d& direction) {
+  const FaceViewMap& face = maps.faces[face_index];
+  // One view (or none) needs no mapping.
+  return BlendAt(maps, face_index, face.views.size() >= 2 && !face.nearest.empty() ? MapDirection(frame, direction)
+                                                                                    : Eigen::Vector2d::Zero());
+}
+
+ViewBlend BlendAt(const ViewMaps& maps, int face_index, const Eigen::Vector2d& p) {
   ViewBlend blend;
   const FaceViewMap& face = maps.faces[face_index];
   if (face.views.empty()) return blend;
@@ -139,7 +146,6 @@ ViewBlend BlendFor(const ViewMaps& maps, int face_index, const Eigen::Matrix3d& 
     return blend;
   }
   const int grid = maps.grid;
-  const Eigen::Vector2d p = MapDirection(frame, direction);
   // Continuous grid coordinates, clamped to the grid (directions beyond the horizon take the
   // border's views).
   const double scale = (grid - 1) / (2.0 * kPi);

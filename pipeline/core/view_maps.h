@@ -65,6 +65,9 @@ Eigen::Vector2d MapDirection(const Eigen::Matrix3d& frame, const Eigen::Vector3d
 void BuildGrid(int grid, FaceViewMap* face, const std::vector<float>& penalty = {});
 // The blend for a desired direction (unit, from the face toward the desired camera).
 ViewBlend BlendFor(const ViewMaps& maps, int face, const Eigen::Matrix3d& frame, const Eigen::Vector3d& direction);
+// The same blend for the direction already mapped into the plane (MapDirection), for a caller that
+// needs the mapped point too.
+ViewBlend BlendAt(const ViewMaps& maps, int face, const Eigen::Vector2d& mapped);
 
 void WriteViewMaps(const ViewMaps& maps, const std::string& path);  // atomically; throws IoError
 ViewMaps ReadViewMaps(const std::string& path);                     // throws InputError naming the file

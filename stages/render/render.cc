@@ -170,39 +170,65 @@ DepthMap MeshDepth(const std::vector<const TriangleMesh*>& layers, const Camera&
 
 std::vector<int> HoleSources(const DepthMap& depth, int radius) {
   const int w = depth.width, h = depth.height;
-  std::vector<int> source(static_cast<size_t>(w) * h, -1);
-  std::vector<float> current(source.size(), std::numeric_limits<float>::infinity());
-  size_t holes = 0;
-  for (size_t i = 0; i < source.size(); ++i) {
-    if (IsValidDepth(depth.data[i])) {
-      current[i] = depth.data[i];
-      source[i] = static_cast<int>(i);
-    } else {
-      ++holes;
+  const size_t n = static_cast<size_t>(w) * h;
+  std::vector<int> source(n, -1);
+  cv::Mat valid(h, w, CV_8UC1);
+  for (int y = 0; y < h; ++y) {
+    uint8_t* row = valid.ptr<uint8_t>(y);
+    for (int x = 0; x < w; ++x) {
+      const size_t i = static_cast<size_t>(y) * w + x;
+      row[x] = IsValidDepth(depth.data[i]);
+      if (row[x]) source[i] = static_cast<int>(i);
     }
   }
+  if (radius <= 0 || n == 0) return source;
   // Each step, a hole next to a pixel with a depth (8-neighbourhood) takes the front-most such
-  // neighbour's depth and source: a 3x3 erosion of the depths with holes as +infinity.
-  std::vector<float> next;
-  std::vector<int> next_source;
-  for (int step = 0; step < radius && holes > 0; ++step) {
-    next = current;
-    next_source = source;
-    for (int y = 0; y < h; ++y) {
-      for (int x = 0; x < w; ++x) {
-        const size_t i = static_cast<size_t>(y) * w + x;
-        if (source[i] >= 0) continue;
-        for (int ny = std::max(0, y - 1); ny <= std::min(h - 1, y + 1); ++ny) {
-          for (int nx = std::max(0, x - 1); nx <= std::min(w - 1, x + 1); ++nx) {
-            const size_t n = static_cast<size_t>(ny) * w + nx;
-            if (current[n] < next[i]) next[i] = current[n], next_source[i] = source[n];
-          }
+  // neighbour's depth and source (the first of equals in row-major order): a 3x3 erosion of the
+  // depths with holes as +infinity. Only the holes next to a pixel that gained its depth in the
+  // step before can change (a hole next to an older one took its depth then), so each step visits
+  // that frontier, not the image: the first frontier is the holes a 3x3 dilation of the covered
+  // pixels reaches.
+  cv::Mat reached;
+  cv::dilate(valid, reached, cv::Mat::ones(3, 3, CV_8UC1));
+  std::vector<int> frontier;
+  for (int y = 0; y < h; ++y) {
+    const uint8_t* hit = valid.ptr<uint8_t>(y);
+    const uint8_t* near = reached.ptr<uint8_t>(y);
+    for (int x = 0; x < w; ++x) {
+      if (near[x] && !hit[x]) frontier.push_back(y * w + x);
+    }
+  }
+  std::vector<uint8_t> queued(n, 0);  // in the next step's frontier already
+  std::vector<std::pair<int, int>> taken;  // this step's (hole, source), applied after the step
+  std::vector<int> next;
+  for (int step = 0; step < radius && !frontier.empty(); ++step) {
+    taken.clear();
+    for (const int i : frontier) {
+      const int x = i % w, y = i / w;
+      float best = std::numeric_limits<float>::infinity();
+      int best_source = -1;
+      for (int ny = std::max(0, y - 1); ny <= std::min(h - 1, y + 1); ++ny) {
+        for (int nx = std::max(0, x - 1); nx <= std::min(w - 1, x + 1); ++nx) {
+          const int s = source[static_cast<size_t>(ny) * w + nx];
+          if (s >= 0 && depth.data[s] < best) best = depth.data[s], best_source = s;
         }
-        holes -= next_source[i] >= 0;
+      }
+      if (best_source >= 0) taken.emplace_back(i, best_source);
+    }
+    for (const auto& [i, s] : taken) source[i] = s;
+    if (step + 1 == radius) break;
+    next.clear();
+    for (const auto& [i, s] : taken) {
+      const int x = i % w, y = i / w;
+      for (int ny = std::max(0, y - 1); ny <= std::min(h - 1, y + 1); ++ny) {
+        for (int nx = std::max(0, x - 1); nx <= std::min(w - 1, x + 1); ++nx) {
+          const int j = ny * w + nx;
+          if (source[j] < 0 && !queued[j]) queued[j] = 1, next.push_back(j);
+        }
       }
     }
-    current.swap(next);
-    source.swap(next_source);
+    for (const int j : next) queued[j] = 0;
+    frontier.swap(next);
   }
   return source;
 }

@@ -10,6 +10,7 @@
 #include <filesystem>
 #include <fstream>
 #include <limits>
+#include <random>
 #include <unistd.h>
 #include <nlohmann/json.hpp>
 
@@ -188,6 +189,55 @@ TEST(ExtendIntoHoles, HolesNearTheMeshTakeTheNearestDepthAndWideOnesStayOpen) {
   DepthMap untouched = before;
   ExtendIntoHoles(&untouched, 0);
   EXPECT_EQ(untouched.data, before.data);
+}
+
+// The definition HoleSources follows (radius steps of a 3x3 erosion over the whole image, holes
+// as +infinity, the first of equal neighbours in row-major order), written out plainly: the
+// frontier sweep must give every pixel the same source on random maps with many equal depths,
+// holes at the borders and radii from 1 to 6.
+std::vector<int> HoleSourcesByErosion(const DepthMap& depth, int radius) {
+  const int w = depth.width, h = depth.height;
+  std::vector<int> source(static_cast<size_t>(w) * h, -1);
+  std::vector<float> current(source.size(), std::numeric_limits<float>::infinity());
+  for (size_t i = 0; i < source.size(); ++i) {
+    if (IsValidDepth(depth.data[i])) current[i] = depth.data[i], source[i] = static_cast<int>(i);
+  }
+  for (int step = 0; step < radius; ++step) {
+    std::vector<float> next = current;
+    std::vector<int> next_source = source;
+    for (int y = 0; y < h; ++y) {
+      for (int x = 0; x < w; ++x) {
+        const size_t i = static_cast<size_t>(y) * w + x;
+        if (source[i] >= 0) continue;
+        for (int ny = std::max(0, y - 1); ny <= std::min(h - 1, y + 1); ++ny) {
+          for (int nx = std::max(0, x - 1); nx <= std::min(w - 1, x + 1); ++nx) {
+            const size_t n = static_cast<size_t>(ny) * w + nx;
+            if (current[n] < next[i]) next[i] = current[n], next_source[i] = source[n];
+          }
+        }
+      }
+    }
+    current.swap(next);
+    source.swap(next_source);
+  }
+  return source;
+}
+
+TEST(ExtendIntoHoles, TheFrontierSweepGivesEachHoleTheSourceOfTheWholeImageErosion) {
+  std::mt19937 random(7);
+  for (int trial = 0; trial < 40; ++trial) {
+    const int w = 5 + static_cast<int>(random() % 60), h = 3 + static_cast<int>(random() % 40);
+    DepthMap depth(w, h, 1, 0.f);
+    const double covered = 0.02 + 0.3 * (trial % 5) / 4.0;
+    std::uniform_real_distribution<double> unit(0.0, 1.0);
+    for (float& d : depth.data) {
+      // Four depth values only, so that neighbours tie often; some holes are NaN or infinite.
+      if (unit(random) < covered) d = 1.f + static_cast<float>(random() % 4);
+      else if (unit(random) < 0.05) d = trial % 2 ? std::numeric_limits<float>::quiet_NaN() : std::numeric_limits<float>::infinity();
+    }
+    const int radius = 1 + trial % 6;
+    EXPECT_EQ(HoleSources(depth, radius), HoleSourcesByErosion(depth, radius)) << "trial " << trial << " " << w << "x" << h;
+  }
 }
 
 TEST(Ulr, EpipoleConsistencyReproducesSourceImageExactly) {

@@ -75,7 +75,8 @@ FaceBlend VdtmRenderer::Blend(int face, const Eigen::Vector3d& desired_center, i
   const Eigen::Matrix3d frame = FaceFrame(FaceNormal(corners));
   Eigen::Vector3d direction = desired_center - centroid;
   direction = direction.norm() > 0 ? Eigen::Vector3d(direction.normalized()) : Eigen::Vector3d(frame.col(2));
-  const ViewBlend views = BlendFor(*maps_, face, frame, direction);
+  const Eigen::Vector2d mapped = MapDirection(frame, direction);
+  const ViewBlend views = BlendAt(*maps_, face, mapped);
   float sum = 0.f;
   for (int i = 0; i < views.count; ++i) {
     const int source = source_of_view_[views.views[i]];
@@ -85,7 +86,7 @@ FaceBlend VdtmRenderer::Blend(int face, const Eigen::Vector3d& desired_center, i
     sum += views.weights[i];
     ++blend.count;
   }
-  const Eigen::Vector2f p = MapDirection(frame, direction).cast<float>();
+  const Eigen::Vector2f p = mapped.cast<float>();
   if (blend.count > 0) {
     for (int i = 0; i < blend.count; ++i) blend.weights[i] /= sum;
     // The next views by distance in the map plane, for pixels where the blended ones are hidden.
