@@ -10,6 +10,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <thread>
 
@@ -76,6 +77,36 @@ TEST_F(CliTest, StagesListsEveryStageWithDefaults) {
     EXPECT_NE(result.output.find(stage), std::string::npos) << stage;
   }
   EXPECT_NE(result.output.find("views (integer, default 24)"), std::string::npos) << result.output;
+}
+
+// OpenCV's image codecs (and GDAL's 140 libraries behind them) load with the first image, not with
+// the program (pipeline/core/image_codecs.h): --help and status never load them, a command that
+// reads images does, and a missing codecs module is an error saying what to build.
+TEST_F(CliTest, ImageCodecsLoadWithTheFirstImageNotAtStart) {
+  // What the dynamic loader maps at start (ldd's listing, without running main).
+  CommandResult start = RunCommand("LD_TRACE_LOADED_OBJECTS=1 " + std::string(IBMR_BINARY));
+  ASSERT_EQ(start.exit_code, 0) << start.output;
+  EXPECT_NE(start.output.find("libopencv_core"), std::string::npos) << start.output;
+  EXPECT_EQ(start.output.find("libopencv_imgcodecs"), std::string::npos) << start.output;
+  EXPECT_EQ(start.output.find("libgdal"), std::string::npos) << start.output;
+
+  // A pair with a 4-pixel shift: stereo-pair reads both through the module and writes a PFM.
+  cv::Mat left(40, 64, CV_8UC1), right;
+  cv::randu(left, 0, 255);
+  right = cv::Mat::zeros(left.size(), CV_8UC1);
+  left.colRange(4, 64).copyTo(right.colRange(0, 60));
+  ASSERT_TRUE(cv::imwrite((dir_ / "l.png").string(), left) && cv::imwrite((dir_ / "r.png").string(), right));
+  const std::string pair = " stereo-pair " + (dir_ / "l.png").string() + " " + (dir_ / "r.png").string() +
+                           " --max-disparity 8 --out " + (dir_ / "d.pfm").string();
+  CommandResult read = RunCommand(Ibmr(pair));
+  ASSERT_EQ(read.exit_code, 0) << read.output;
+  EXPECT_TRUE(fs::exists(dir_ / "d.pfm"));
+
+  CommandResult missing = RunCommand("IBMR_IMAGE_CODECS=" + (dir_ / "nowhere.so").string() + " " + Ibmr(pair));
+  EXPECT_NE(missing.exit_code, 0);
+  EXPECT_NE(missing.output.find("cannot load the image codecs module"), std::string::npos) << missing.output;
+  EXPECT_NE(missing.output.find("nowhere.so: no such file"), std::string::npos) << missing.output;
+  EXPECT_NE(missing.output.find("ibmr_image_codecs"), std::string::npos) << missing.output;
 }
 
 TEST_F(CliTest, ConfigErrorNamesFileLineAndKey) {

@@ -12,11 +12,12 @@
 #include <Eigen/Geometry>
 #include <cstring>
 #include <limits>
-#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgcodecs.hpp>  // the flags; the codecs through image_codecs.h
 #include <sstream>
 
 #include "pipeline/core/atomic_file.h"
 #include "pipeline/core/errors.h"
+#include "pipeline/core/image_codecs.h"
 #include "pipeline/core/textured_mesh.h"
 
 namespace ibmr {
@@ -114,7 +115,7 @@ void AddPageMaterial(const cv::Mat& image, int page, const std::string& path, ti
   std::vector<unsigned char> png;
   bool encoded = false;
   try {
-    encoded = cv::imencode(".png", image, png);  // a BGR Mat gives a PNG with correct RGB colours
+    encoded = EncodeImage(".png", image, &png);  // a BGR Mat gives a PNG with correct RGB colours
   } catch (const cv::Exception& e) {
     throw IoError("cannot write " + path + ": encoding atlas page " + std::to_string(page) + " as PNG failed: " + e.what());
   }

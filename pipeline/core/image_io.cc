@@ -11,6 +11,7 @@
 #include <cctype>
 
 #include "pipeline/core/atomic_file.h"
+#include "pipeline/core/image_codecs.h"
 #include "pipeline/core/errors.h"
 
 namespace ibmr {
@@ -80,7 +81,7 @@ cv::Mat ReadWithFlags(const std::string& path, int flags) {
   }
   cv::Mat image;
   try {
-    image = cv::imread(path, flags);
+    image = DecodeImageFile(path, flags);
   } catch (const cv::Exception& e) {
     throw IoError("cannot decode image " + path + ": " + e.what());
   }
@@ -118,7 +119,7 @@ void WriteImage(const std::string& path, const cv::Mat& image) {
     bool ok = false;
     std::string reason = "OpenCV could not encode it for this extension";
     try {
-      ok = cv::imwrite(tmp_path, image);
+      ok = EncodeImageFile(tmp_path, image);
     } catch (const cv::Exception& e) {
       reason = e.what();
     }

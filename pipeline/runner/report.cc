@@ -2,13 +2,14 @@
 // inlined Chart.js and the report's data as JSON; all drawing happens in the page's script.
 #include "pipeline/runner/report.h"
 
-#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgcodecs.hpp>  // the flags; the codecs through image_codecs.h
 #include <opencv2/imgproc.hpp>
 
 #include <filesystem>
 
 #include "pipeline/core/atomic_file.h"
 #include "pipeline/core/errors.h"
+#include "pipeline/core/image_codecs.h"
 #include "pipeline/core/heldout_scores.h"
 #include "pipeline/core/workspace.h"
 #include "pipeline/runner/record.h"
@@ -22,7 +23,7 @@ namespace {
 
 // A PNG as a JPEG data URI no wider than `width`; "" when it cannot be read.
 std::string ImageDataUri(const std::string& path, int width) {
-  const cv::Mat image = cv::imread(path, cv::IMREAD_COLOR);
+  const cv::Mat image = DecodeImageFile(path, cv::IMREAD_COLOR);
   if (image.empty()) return "";
   return JpegDataUri(ShrinkToFit(image, width, image.rows), 82);
 }

@@ -1,11 +1,13 @@
 // Base64 and image data URIs for the report page (see report_encoding.h).
 #include "pipeline/runner/report_encoding.h"
 
-#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgcodecs.hpp>  // the flags; the codecs through image_codecs.h
 #include <opencv2/imgproc.hpp>
 
 #include <algorithm>
 #include <vector>
+
+#include "pipeline/core/image_codecs.h"
 
 namespace ibmr {
 
@@ -37,13 +39,13 @@ cv::Mat ShrinkToFit(const cv::Mat& image, int max_width, int max_height) {
 
 std::string JpegDataUri(const cv::Mat& image, int quality) {
   std::vector<uchar> bytes;
-  cv::imencode(".jpg", image, bytes, {cv::IMWRITE_JPEG_QUALITY, quality});
+  EncodeImage(".jpg", image, &bytes, {cv::IMWRITE_JPEG_QUALITY, quality});
   return "data:image/jpeg;base64," + Base64(bytes.data(), bytes.size());
 }
 
 std::string PngDataUri(const cv::Mat& image) {
   std::vector<uchar> bytes;
-  cv::imencode(".png", image, bytes);
+  EncodeImage(".png", image, &bytes);
   return "data:image/png;base64," + Base64(bytes.data(), bytes.size());
 }
 

@@ -7,13 +7,14 @@
 #include <fstream>
 #include <iostream>
 #include <map>
-#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgcodecs.hpp>  // the flags; the codecs through image_codecs.h
 #include <opencv2/imgproc.hpp>
 
 #include "pipeline/core/atomic_file.h"
 #include "pipeline/core/colmap_text_io.h"
 #include "pipeline/core/content_hash.h"
 #include "pipeline/core/errors.h"
+#include "pipeline/core/image_codecs.h"
 #include "pipeline/core/image_io.h"
 #include "pipeline/core/nerf_formats.h"
 #include "pipeline/core/stage_api.h"
@@ -60,7 +61,7 @@ std::string ScreenPhoto(const std::string& path, std::string* notes, std::pair<i
   if (bytes == 0) return "empty file (0 bytes)";
   cv::Mat raw;
   try {
-    raw = cv::imread(path, cv::IMREAD_UNCHANGED);
+    raw = DecodeImageFile(path, cv::IMREAD_UNCHANGED);
   } catch (const cv::Exception&) {
   }
   if (raw.empty()) return "not an image OpenCV can decode (corrupt, or another kind of file with an image extension)";

@@ -1,0 +1,159 @@
+// Whole-process benchmark: what a user waits for when ibmr runs as a command, against plain OpenCV
+// programs in the same run on the same machine (issue 58). Writes JSON:
+//  - start: `ibmr --help` against peer_opencv_start (links OpenCV's core and image codecs, exits);
+//  - per Middlebury pair (tsukuba, venus, teddy): `ibmr stereo-pair` (read, match, write PFM)
+//    against peer_sgbm_pair (read, StereoSGBM blockSize 5, write PFM), with both outputs' bad-1.0
+//    against the ground truth (missing counted as bad), read back from the PFMs they wrote.
+// Each measure is run by turns with its peer, `repeat` times (a slow spell of a shared machine
+// then falls on both); the record holds each one's median wall and CPU (user + system, from
+// wait4) milliseconds and the median of the per-repeat ratios. Timing only: nothing asserted.
+//
+// Usage: bench_process_start [--data DIR] [--out FILE.json] [--repeat N]
+#include <spawn.h>
+#include <sys/resource.h>
+#include <sys/wait.h>
+#include <fcntl.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <iostream>
+#include <nlohmann/json.hpp>
+#include <string>
+#include <vector>
+
+#include "pipeline/core/atomic_file.h"
+#include "pipeline/core/image_io.h"
+
+extern char** environ;
+
+namespace {
+
+struct Timing {
+  double wall_ms = 0, cpu_ms = 0;
+  int exit_code = -1;
+};
+
+// Runs argv with stdout and stderr to /dev/null; wall time from spawn to reap, CPU from wait4.
+Timing Run(const std::vector<std::string>& args) {
+  std::vector<char*> argv;
+  for (const std::string& a : args) argv.push_back(const_cast<char*>(a.c_str()));
+  argv.push_back(nullptr);
+  posix_spawn_file_actions_t actions;
+  posix_spawn_file_actions_init(&actions);
+  posix_spawn_file_actions_addopen(&actions, 1, "/dev/null", O_WRONLY, 0);
+  posix_spawn_file_actions_addopen(&actions, 2, "/dev/null", O_WRONLY, 0);
+  Timing t;
+  const auto start = std::chrono::steady_clock::now();
+  pid_t pid = 0;
+  if (posix_spawn(&pid, argv[0], &actions, nullptr, argv.data(), environ) != 0) {
+    posix_spawn_file_actions_destroy(&actions);
+    return t;
+  }
+  int status = 0;
+  rusage usage{};
+  wait4(pid, &status, 0, &usage);
+  t.wall_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+  t.cpu_ms = 1e3 * (usage.ru_utime.tv_sec + usage.ru_stime.tv_sec) + 1e-3 * (usage.ru_utime.tv_usec + usage.ru_stime.tv_usec);
+  t.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  posix_spawn_file_actions_destroy(&actions);
+  return t;
+}
+
+double Median(std::vector<double> v) {
+  std::sort(v.begin(), v.end());
+  return v.empty() ? 0.0 : v[v.size() / 2];
+}
+
+// `ours` and `peer` by turns, `repeat` times (after one unrecorded run of each: page cache).
+nlohmann::json Compare(const std::vector<std::string>& ours, const std::vector<std::string>& peer, int repeat, bool* ok) {
+  std::vector<double> ours_wall, ours_cpu, peer_wall, peer_cpu, ratios;
+  Run(ours), Run(peer);
+  for (int r = 0; r < repeat; ++r) {
+    const Timing a = Run(ours), b = Run(peer);
+    if (a.exit_code != 0 || b.exit_code != 0) {
+      std::cerr << "bench_process_start: " << ours[0] << " exited " << a.exit_code << ", " << peer[0] << " exited "
+                << b.exit_code << "\n";
+      *ok = false;
+      return {};
+    }
+    ours_wall.push_back(a.wall_ms), ours_cpu.push_back(a.cpu_ms);
+    peer_wall.push_back(b.wall_ms), peer_cpu.push_back(b.cpu_ms);
+    ratios.push_back(a.wall_ms / b.wall_ms);
+  }
+  return {{"ms", Median(ours_wall)}, {"cpu_ms", Median(ours_cpu)}, {"peer_ms", Median(peer_wall)},
+          {"peer_cpu_ms", Median(peer_cpu)}, {"ms_above_peer", Median(ours_wall) - Median(peer_wall)},
+          {"ratio_to_peer", Median(ratios)}};
+}
+
+// Percentage of ground-truth pixels (non-zero) whose disparity is off by more than 1 or missing.
+double Bad1(const cv::Mat& disparity, const cv::Mat& gt, double scale) {
+  size_t n = 0, bad = 0;
+  for (int y = 0; y < gt.rows; ++y) {
+    for (int x = 0; x < gt.cols; ++x) {
+      const int g = gt.at<uint8_t>(y, x);
+      if (g == 0) continue;
+      ++n;
+      const float d = disparity.at<float>(y, x);
+      bad += !(d > 0) || !std::isfinite(d) || std::fabs(d - g / scale) > 1.0;
+    }
+  }
+  return n ? 100.0 * bad / n : 0.0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  std::string data = std::string(IBMR_SHARED_DIR) + "/datasets/middlebury_stereo_classic";
+  std::string out = "bench_process_start.json";
+  int repeat = 11;
+  for (int i = 1; i + 1 < argc; i += 2) {
+    const std::string key = argv[i];
+    if (key == "--data") data = argv[i + 1];
+    else if (key == "--out") out = argv[i + 1];
+    else if (key == "--repeat") repeat = std::max(1, std::atoi(argv[i + 1]));
+    else {
+      std::cerr << "bench_process_start: unknown option " << key << " (--data, --out, --repeat)\n";
+      return 2;
+    }
+  }
+  const std::string ibmr = IBMR_BINARY, peer_start = PEER_OPENCV_START, peer_sgbm = PEER_SGBM_PAIR;
+  bool ok = true;
+  nlohmann::json report;
+  report["repeat"] = repeat;
+  report["start"] = Compare({ibmr, "--help"}, {peer_start}, repeat, &ok);
+  struct Pair {
+    std::string name, left, right, gt;
+    double gt_scale;
+    int max_disparity;
+  };
+  const std::vector<Pair> pairs = {
+      {"tsukuba", "tsukuba/im3.png", "tsukuba/im4.png", "tsukuba/disp3.pgm", 16.0, 16},
+      {"venus", "venus/im2.png", "venus/im6.png", "venus/disp2.pgm", 8.0, 32},
+      {"teddy", "teddy/im2.png", "teddy/im6.png", "teddy/disp2.png", 4.0, 64},
+  };
+  const std::string scratch = out + ".d";
+  std::filesystem::create_directories(scratch);
+  for (const Pair& pair : pairs) {
+    const std::string left = data + "/" + pair.left, right = data + "/" + pair.right;
+    if (!std::filesystem::exists(left)) {
+      std::cerr << "bench_process_start: " << left << " is missing (../shared/datasets beside the checkout?); pairs skipped\n";
+      break;
+    }
+    const std::string ours_pfm = scratch + "/" + pair.name + "_ibmr.pfm", sgbm_pfm = scratch + "/" + pair.name + "_sgbm.pfm";
+    nlohmann::json entry = Compare({ibmr, "stereo-pair", left, right, "--max-disparity", std::to_string(pair.max_disparity),
+                                    "--out", ours_pfm},
+                                   {peer_sgbm, left, right, std::to_string(pair.max_disparity), sgbm_pfm}, repeat, &ok);
+    if (!ok) break;
+    const cv::Mat gt = ibmr::ReadImageUnchanged(data + "/" + pair.gt);
+    entry["bad1"] = Bad1(ibmr::ReadPfm(ours_pfm), gt, pair.gt_scale);
+    entry["peer_bad1"] = Bad1(ibmr::ReadPfm(sgbm_pfm), gt, pair.gt_scale);
+    report["stereo_pair"][pair.name] = entry;
+  }
+  std::filesystem::remove_all(scratch);
+  ibmr::WriteFileAtomic(out, report.dump(2) + "\n");
+  std::cout << report.dump(2) << "\n";
+  return ok ? 0 : 1;
+}
