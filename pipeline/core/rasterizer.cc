@@ -123,9 +123,10 @@ ScreenVertex Project(const ClipVertex& v, const Intrinsics& k) {
 // Rasterizes the rows [row_lo, row_hi) of one clipped triangle of face `face_id` into `result`,
 // which holds the image's rows from `first_row` on; `weights[i]` maps vertex i of this triangle to
 // the original face's vertices.
-void RasterizeTriangle(const ClipVertex tri[3], int face_id, const Intrinsics& k, int row_lo, int row_hi, int first_row,
-                       RasterResult* result) {
-  const ScreenVertex v[3] = {Project(tri[0], k), Project(tri[1], k), Project(tri[2], k)};
+// The same for a triangle already projected: `tri` null for a face's own corners (weights the
+// identity), else the clipped triangle whose weights map the barycentrics to the face's.
+void DrawScreenTriangle(const ScreenVertex v[3], const ClipVertex* tri, int face_id, const Intrinsics& k, int row_lo,
+                        int row_hi, int first_row, RasterResult* result) {
   const double area = (v[1].x - v[0].x) * (v[2].y - v[0].y) - (v[1].y - v[0].y) * (v[2].x - v[0].x);
   if (!(std::abs(area) > 0.0)) return;  // degenerate (or NaN)
   const double orientation = area > 0.0 ? 1.0 : -1.0;
@@ -145,8 +146,9 @@ void RasterizeTriangle(const ClipVertex tri[3], int face_id, const Intrinsics& k
   const int c0 = static_cast<int>(x0), c1 = static_cast<int>(x1);
   const int r0 = static_cast<int>(y0), r1 = static_cast<int>(y1);
 
-  const bool identity = tri[0].weights == Eigen::Vector3d::UnitX() && tri[1].weights == Eigen::Vector3d::UnitY() &&
-                        tri[2].weights == Eigen::Vector3d::UnitZ();
+  const bool identity = tri == nullptr || (tri[0].weights == Eigen::Vector3d::UnitX() &&
+                                            tri[1].weights == Eigen::Vector3d::UnitY() &&
+                                            tri[2].weights == Eigen::Vector3d::UnitZ());
   const size_t plane = static_cast<size_t>(k.width) * result->depth.height;
   float* depth = result->depth.data.data();
   int* ids = result->face_id.data();
@@ -172,6 +174,12 @@ void RasterizeTriangle(const ClipVertex tri[3], int face_id, const Intrinsics& k
       for (int i = 0; i < 3; ++i) bary[i * plane + index] = static_cast<float>(b[i]);
     }
   }
+}
+
+void RasterizeTriangle(const ClipVertex tri[3], int face_id, const Intrinsics& k, int row_lo, int row_hi, int first_row,
+                       RasterResult* result) {
+  const ScreenVertex v[3] = {Project(tri[0], k), Project(tri[1], k), Project(tri[2], k)};
+  DrawScreenTriangle(v, tri, face_id, k, row_lo, row_hi, first_row, result);
 }
 
 Intrinsics IntrinsicsOf(const Camera& camera) {
@@ -213,11 +221,15 @@ void RasterizeWindows(const TriangleMesh& mesh, const Camera& camera, const Rigi
   std::vector<Eigen::Vector3d> points_in_cam(num_vertices);
   // The row each vertex projects to (NaN before the near plane: its faces are never skipped).
   std::vector<double> row_of(num_vertices);
+  // Each vertex projected once (a vertex is a corner of about six faces), for the faces in front of
+  // the near plane, which are drawn from these without clipping; the same arithmetic as Project.
+  std::vector<ScreenVertex> screen(num_vertices);
   tbb::parallel_for(tbb::blocked_range<size_t>(0, num_vertices, 4096), [&](const tbb::blocked_range<size_t>& range) {
     for (size_t i = range.begin(); i < range.end(); ++i) {
       points_in_cam[i] = rotation * mesh.vertices[i].cast<double>() + cam_from_world.translation;
       const double z = points_in_cam[i].z();
       row_of[i] = z >= options.near_z ? k.fy * points_in_cam[i].y() / z + k.cy : std::numeric_limits<double>::quiet_NaN();
+      screen[i] = Project({points_in_cam[i], Eigen::Vector3d::Zero()}, k);
     }
   });
   // Face f's rows widened by two, [*lo, *hi], all rows for a face with a vertex before the near
@@ -320,13 +332,20 @@ void RasterizeWindows(const TriangleMesh& mesh, const Camera& camera, const Rigi
         const size_t f = strips > 1 ? strip_faces[i] : i;
         const Eigen::Vector3i& face = mesh.faces[f];
         if (!valid_face(face)) continue;
-        ClipVertex in[3];
-        for (int j = 0; j < 3; ++j) in[j] = {points_in_cam[face[j]], Eigen::Vector3d::Unit(j)};
         if (options.cull_backfaces) {
           // Facing away when the normal of the counter-clockwise face points away from the centre.
-          const Eigen::Vector3d normal = (in[1].point - in[0].point).cross(in[2].point - in[0].point);
-          if (normal.dot(in[0].point) >= 0.0) continue;
+          const Eigen::Vector3d& a = points_in_cam[face[0]];
+          const Eigen::Vector3d normal = (points_in_cam[face[1]] - a).cross(points_in_cam[face[2]] - a);
+          if (normal.dot(a) >= 0.0) continue;
         }
+        if (points_in_cam[face[0]].z() >= options.near_z && points_in_cam[face[1]].z() >= options.near_z &&
+            points_in_cam[face[2]].z() >= options.near_z) {  // nothing to clip
+          const ScreenVertex v[3] = {screen[face[0]], screen[face[1]], screen[face[2]]};
+          DrawScreenTriangle(v, nullptr, static_cast<int>(f), k, strip_start[s], strip_start[s + 1], first_row, &result);
+          continue;
+        }
+        ClipVertex in[3];
+        for (int j = 0; j < 3; ++j) in[j] = {points_in_cam[face[j]], Eigen::Vector3d::Unit(j)};
         ClipVertex polygon[4];
         const int n = ClipNear(in, options.near_z, polygon);
         for (int t = 1; t + 1 < n; ++t) {
