@@ -21,6 +21,21 @@ namespace {
 // Penalties below this count as zero (the desired ray passes through the camera centre).
 constexpr double kZeroPenalty = 1e-12;
 
+// atan2(y, x) for y >= 0 (an angle in [0, pi]) by a degree-9 odd polynomial on [0, 1] (Abramowitz
+// & Stegun 4.4.49's form, max error about 1e-5 rad); kAngleBound is ten times that, the margin the
+// pruned blend search allows (UlrRenderer::Blend). Only ever a bound: penalties use std::atan2.
+constexpr double kAngleBound = 1e-4;
+inline double ArcTangentBelowPi(double y, double x) {
+  const double ax = std::abs(x);
+  const double high = std::max(ax, y), low = std::min(ax, y);
+  if (!(high > 0)) return 0.0;
+  const double a = low / high, s = a * a;
+  double r = ((((0.0208351 * s - 0.0851330) * s + 0.1801410) * s - 0.3302995) * s + 0.9998660) * a;
+  if (y > ax) r = 1.5707963267948966 - r;
+  if (x < 0) r = 3.141592653589793 - r;
+  return r;
+}
+
 // World direction of the ray through pixel (x, y) (not normalised; camera z component = 1).
 Eigen::Vector3d RayDirection(const Camera& camera, const Eigen::Matrix3d& world_from_cam_rotation, double x,
                              double y) {
@@ -309,12 +324,29 @@ UlrRenderer::UlrRenderer(const std::vector<SourceView>* sources, const RenderOpt
   }
 }
 
-int UlrRenderer::Blend(const Eigen::Vector3d& p, const Eigen::Vector3d& desired_center, Candidate* scratch,
-                       double* weights) const {
+double UlrRenderer::Penalty(const Candidate& c) const {
+  // atan2 of |sin| and cos: exact 0 for parallel rays (acos loses ~1e-8 near 1).
+  return options_.alpha * std::atan2(c.sin, c.cos) + options_.beta * c.resolution + options_.gamma * c.fov;
+}
+
+UlrRenderer::BlendScratch UlrRenderer::NewScratch() const {
+  BlendScratch scratch;
+  scratch.candidates.resize(prepared_.size() + 1);
+  scratch.best.resize(static_cast<size_t>(options_.k) + 1);
+  scratch.heap.resize(prepared_.size() + 1);
+  scratch.weights.resize(prepared_.size() + 1);
+  return scratch;
+}
+
+int UlrRenderer::Blend(const Eigen::Vector3d& p, const Eigen::Vector3d& desired_center, BlendScratch* scratch,
+                       bool exhaustive) const {
   const Eigen::Vector3d to_desired = desired_center - p;
   const double desired_distance = to_desired.norm();
   const Eigen::Vector3d desired_dir = desired_distance > 0 ? Eigen::Vector3d(to_desired / desired_distance) : to_desired;
-  int count = 0;
+  // Every source p projects into (in front, inside the bilinear range), with its penalty's parts.
+  Candidate* candidates = scratch->candidates.data();
+  int in_view = 0;
+  bool bounded = true;
   for (size_t i = 0; i < prepared_.size(); ++i) {
     const Prepared& s = prepared_[i];
     const Eigen::Vector3d x = s.rotation * p + s.translation;
@@ -323,38 +355,101 @@ int UlrRenderer::Blend(const Eigen::Vector3d& p, const Eigen::Vector3d& desired_
     // Distance to the border of the range where bilinear sampling stays inside the image.
     const double border = std::min(std::min(u - 0.5, s.width - 0.5 - u), std::min(v - 0.5, s.height - 0.5 - v));
     if (!(border > 0)) continue;  // field-of-view penalty infinite
-    const DepthMap& depth = (*sources_)[i].proxy_depth;
-    if (!depth.Empty() && !VisibleInSource(depth, u, v, x.z(), options_.visibility_epsilon)) continue;
-    const double fov = border >= s.margin ? 0.0 : (s.margin / border - 1.0) * (s.margin / border - 1.0);
+    Candidate& c = candidates[in_view++];
+    c.u = u, c.v = v, c.z = x.z(), c.source = static_cast<int>(i);
+    c.fov = border >= s.margin ? 0.0 : (s.margin / border - 1.0) * (s.margin / border - 1.0);
     const Eigen::Vector3d to_source = s.center - p;
     const double source_distance = to_source.norm();
-    double angle = 0;
+    c.sin = c.cos = 0.0;  // atan2(0, 0) = 0: no angle when either centre is at p
     if (source_distance > 0 && desired_distance > 0) {
-      // atan2 of |sin| and cos: exact 0 for parallel rays (acos loses ~1e-8 near 1).
-      angle = std::atan2(to_source.cross(desired_dir).norm(), to_source.dot(desired_dir));
+      c.sin = to_source.cross(desired_dir).norm();
+      c.cos = to_source.dot(desired_dir);
     }
-    const double resolution = std::max(0.0, source_distance - desired_distance);
-    const double penalty = options_.alpha * angle + options_.beta * resolution + options_.gamma * fov;
-    scratch[count++] = Candidate{penalty, u, v, static_cast<int>(i)};
+    c.resolution = std::max(0.0, source_distance - desired_distance);
+    // A lower bound of the penalty from a polynomial arctangent (error below kAngleBound), less
+    // the rounding of the sums: sources are visited from the lowest bound up and the search stops
+    // once no remaining source can be among the k smallest penalties.
+    const double approx = options_.alpha * ArcTangentBelowPi(c.sin, c.cos) + options_.beta * c.resolution +
+                          options_.gamma * c.fov;
+    c.lower = std::isinf(approx) ? approx : approx - options_.alpha * kAngleBound - 1e-9 * std::abs(approx);
+    bounded = bounded && !std::isnan(c.lower);
   }
-  if (count == 0) return 0;
-  const int n = std::min(count, options_.k);
+  if (in_view == 0) return 0;
+  const int k = options_.k;
   const auto by_penalty = [](const Candidate& a, const Candidate& b) {
     return a.penalty < b.penalty || (a.penalty == b.penalty && a.source < b.source);
   };
-  std::partial_sort(scratch, scratch + n, scratch + count, by_penalty);
+  const auto visible = [&](const Candidate& c) {
+    const DepthMap& depth = (*sources_)[c.source].proxy_depth;
+    return depth.Empty() || VisibleInSource(depth, c.u, c.v, c.z, options_.visibility_epsilon);
+  };
+  // The k smallest (penalty, source) among the visible sources, in order, in `best`; whether at
+  // least k sources are visible.
+  Candidate* best = scratch->best.data();
+  int n = 0;
+  bool at_least_k = false;
+  if (exhaustive || !bounded) {
+    // The definition: every visible source's penalty, the k smallest kept.
+    int count = 0;
+    for (int j = 0; j < in_view; ++j) {
+      if (!visible(candidates[j])) continue;
+      candidates[count] = candidates[j];
+      candidates[count].penalty = Penalty(candidates[count]);
+      ++count;
+    }
+    if (count == 0) return 0;
+    n = std::min(count, k);
+    std::partial_sort(candidates, candidates + n, candidates + count, by_penalty);
+    std::copy(candidates, candidates + n, best);
+    at_least_k = count >= k;
+  } else {
+    // The same k from the lowest bounds up: a source whose bound exceeds the k-th smallest
+    // penalty found so far cannot rank before it, nor can any after it; the sources never
+    // reached skip their visibility test and arctangent (most of them: k of ~40 on templeRing).
+    int* heap = scratch->heap.data();
+    for (int j = 0; j < in_view; ++j) heap[j] = j;
+    const auto higher_bound = [candidates](int a, int b) { return candidates[a].lower > candidates[b].lower; };
+    std::make_heap(heap, heap + in_view, higher_bound);
+    int remaining = in_view;
+    while (remaining > 0) {
+      const Candidate& next = candidates[heap[0]];
+      if (n == k && next.lower > best[k - 1].penalty) {
+        at_least_k = true;
+        break;
+      }
+      std::pop_heap(heap, heap + remaining, higher_bound);
+      Candidate c = candidates[heap[--remaining]];
+      if (!visible(c)) continue;
+      c.penalty = Penalty(c);
+      // Insert into the sorted `best`, keeping k.
+      int at = std::min(n, k);
+      if (at == k && !by_penalty(c, best[k - 1])) {
+        at_least_k = true;
+        continue;
+      }
+      while (at > 0 && by_penalty(c, best[at - 1])) {
+        if (at < k) best[at] = best[at - 1];
+        --at;
+      }
+      best[at] = c;
+      if (n == k) at_least_k = true;
+      n = std::min(n + 1, k);
+    }
+    if (n == 0) return 0;
+  }
+  double* weights = scratch->weights.data();
   // The k-th smallest penalty is the threshold [U 124], capped at max_penalty: with fewer than k
   // usable cameras the missing ones count as penalty max_penalty, so a camera's weight still
   // falls continuously to 0 as it leaves (field of view, visibility) however few cameras remain.
-  const double thresh = count >= options_.k ? std::min(scratch[n - 1].penalty, options_.max_penalty) : options_.max_penalty;
+  const double thresh = at_least_k || n == k ? std::min(best[n - 1].penalty, options_.max_penalty) : options_.max_penalty;
   double sum = 0;
-  if (options_.epipole_consistent && scratch[0].penalty <= kZeroPenalty) {
+  if (options_.epipole_consistent && best[0].penalty <= kZeroPenalty) {
     // The desired ray passes through a source centre: 1/penalty is infinite for it [U 130].
-    for (int j = 0; j < n; ++j) sum += weights[j] = scratch[j].penalty <= kZeroPenalty ? 1.0 : 0.0;
+    for (int j = 0; j < n; ++j) sum += weights[j] = best[j].penalty <= kZeroPenalty ? 1.0 : 0.0;
   } else {
     for (int j = 0; j < n; ++j) {
-      double w = thresh > 0 ? 1.0 - scratch[j].penalty / thresh : 0.0;
-      if (options_.epipole_consistent) w /= scratch[j].penalty;
+      double w = thresh > 0 ? 1.0 - best[j].penalty / thresh : 0.0;
+      if (options_.epipole_consistent) w /= best[j].penalty;
       sum += weights[j] = std::max(0.0, w);
     }
   }
@@ -365,20 +460,20 @@ int UlrRenderer::Blend(const Eigen::Vector3d& p, const Eigen::Vector3d& desired_
     // others fall to 0 first); uniform only when all are equal. Uniform weights here made a
     // camera whose penalty had risen to 1e27 at its border weigh 1/3 (a jump, not continuity).
     int tied = 0;
-    for (int j = 0; j < n; ++j) tied += !(scratch[j].penalty > scratch[0].penalty);
-    for (int j = 0; j < n; ++j) weights[j] = !(scratch[j].penalty > scratch[0].penalty) ? 1.0 / tied : 0.0;
+    for (int j = 0; j < n; ++j) tied += !(best[j].penalty > best[0].penalty);
+    for (int j = 0; j < n; ++j) weights[j] = !(best[j].penalty > best[0].penalty) ? 1.0 / tied : 0.0;
     return n;
   }
   for (int j = 0; j < n; ++j) weights[j] /= sum;
   return n;
 }
 
-std::vector<BlendWeight> UlrRenderer::Weights(const Eigen::Vector3d& p, const Eigen::Vector3d& desired_center) const {
-  std::vector<Candidate> scratch(prepared_.size() + 1);
-  std::vector<double> weights(prepared_.size() + 1);
-  const int n = Blend(p, desired_center, scratch.data(), weights.data());
+std::vector<BlendWeight> UlrRenderer::Weights(const Eigen::Vector3d& p, const Eigen::Vector3d& desired_center,
+                                              bool exhaustive) const {
+  BlendScratch scratch = NewScratch();
+  const int n = Blend(p, desired_center, &scratch, exhaustive);
   std::vector<BlendWeight> result;
-  for (int j = 0; j < n; ++j) result.push_back({scratch[j].source, weights[j], scratch[j].penalty});
+  for (int j = 0; j < n; ++j) result.push_back({scratch.best[j].source, scratch.weights[j], scratch.best[j].penalty});
   return result;
 }
 
@@ -390,20 +485,21 @@ RenderResult UlrRenderer::Render(const Camera& camera, const Rigid3d& cam_from_w
   const Eigen::Vector3d desired_center = cam_from_world.Inverse().translation;
   std::vector<size_t> row_covered(camera.height, 0);
   tbb::parallel_for(tbb::blocked_range<int>(0, camera.height), [&](const tbb::blocked_range<int>& rows) {
-    std::vector<Candidate> scratch(prepared_.size() + 1);  // once per block of rows, not per pixel
-    std::vector<double> weights(prepared_.size() + 1);
+    BlendScratch scratch = NewScratch();  // once per block of rows, not per pixel
     for (int y = rows.begin(); y < rows.end(); ++y) {
       uint8_t* out = result.image.ptr<uint8_t>(y);
       uint8_t* covered = result.coverage.ptr<uint8_t>(y);
       for (int x = 0; x < camera.width; ++x) {
         if (!surface.hit[static_cast<size_t>(y) * surface.width + x]) continue;
         const Eigen::Vector3d p(surface.points.At(x, y, 0), surface.points.At(x, y, 1), surface.points.At(x, y, 2));
-        const int n = Blend(p, desired_center, scratch.data(), weights.data());
+        const int n = Blend(p, desired_center, &scratch);
         if (n == 0) continue;
         double bgr[3] = {0, 0, 0};
         for (int j = 0; j < n; ++j) {
-          if (weights[j] <= 0) continue;
-          AddBilinear((*sources_)[scratch[j].source].image, scratch[j].u, scratch[j].v, weights[j], bgr);
+          const double weight = scratch.weights[j];
+          if (weight <= 0) continue;
+          const Candidate& c = scratch.best[j];
+          AddBilinear((*sources_)[c.source].image, c.u, c.v, weight, bgr);
         }
         for (int c = 0; c < 3; ++c) out[3 * x + c] = cv::saturate_cast<uint8_t>(bgr[c]);
         covered[x] = 255;

@@ -168,8 +168,11 @@ class UlrRenderer {
   UlrRenderer(const std::vector<SourceView>* sources, const RenderOptions& options);
 
   // Normalised blending weights at world point p for a desired camera centred at `desired_center`
-  // (empty when no source can see p). Allocates: not for the hot loop.
-  std::vector<BlendWeight> Weights(const Eigen::Vector3d& p, const Eigen::Vector3d& desired_center) const;
+  // (empty when no source can see p). Allocates: not for the hot loop. `exhaustive`: every source's
+  // penalty and visibility computed, the definition the renderer's pruned search must reproduce
+  // exactly (see Blend; for tests).
+  std::vector<BlendWeight> Weights(const Eigen::Vector3d& p, const Eigen::Vector3d& desired_center,
+                                   bool exhaustive = false) const;
 
   // Renders the desired camera over `surface` (same size as `camera`). Rows run in parallel (TBB,
   // the caller's arena decides the thread count).
@@ -186,11 +189,22 @@ class UlrRenderer {
     double penalty;
     double u, v;  // projection in source pixels (COLMAP convention)
     int source;
+    // The penalty's parts, kept until it is needed: depth in the source, the angle's atan2
+    // arguments, the resolution and field-of-view terms, and a lower bound of the penalty.
+    double z, sin, cos, resolution, fov, lower;
   };
-  // Fills `scratch` with the usable sources' candidates and turns the k nearest into normalised
-  // weights in place (the first n entries of `scratch`); returns n (0: not covered).
-  int Blend(const Eigen::Vector3d& p, const Eigen::Vector3d& desired_center, Candidate* scratch,
-            double* weights) const;
+  // Scratch space of one thread for Blend, sized for the sources (allocated once per block of rows).
+  struct BlendScratch {
+    std::vector<Candidate> candidates, best;
+    std::vector<int> heap;
+    std::vector<double> weights;
+  };
+  BlendScratch NewScratch() const;
+  // Finds the usable sources' k smallest penalties and turns them into normalised weights: on
+  // return the first n entries of scratch->best and scratch->weights; returns n (0: not covered).
+  int Blend(const Eigen::Vector3d& p, const Eigen::Vector3d& desired_center, BlendScratch* scratch,
+            bool exhaustive = false) const;
+  double Penalty(const Candidate& c) const;
 
   const std::vector<SourceView>* sources_;
   RenderOptions options_;

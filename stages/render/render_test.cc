@@ -240,6 +240,60 @@ TEST(ExtendIntoHoles, TheFrontierSweepGivesEachHoleTheSourceOfTheWholeImageErosi
   }
 }
 
+// The renderer's blend search visits sources from a lower bound of their penalty up and stops
+// early; it must give exactly what the definition gives (every visible source's penalty, the k
+// smallest): the same sources in the same order, the same weights and penalties to the bit. Scenes:
+// 30 sources on two rings (some at the same place: equal penalties, ties broken by index), each
+// with a visibility map that holds the ground plane's depth with random holes and random wrong
+// patches (so that many sources are hidden), points on and off the plane, near the image borders
+// (field-of-view term), desired cameras near and at a source centre, every k, both weightings.
+TEST(Ulr, PrunedBlendSearchGivesExactlyTheWeightsOfTheDefinition) {
+  std::vector<SourceView> sources = Ring(12, 1.5);
+  for (SourceView& v : Ring(12, 0.7)) sources.push_back(v);
+  for (int i = 0; i < 6; ++i) sources.push_back(sources[static_cast<size_t>(i) * 2]);  // duplicates: ties
+  std::mt19937 random(11);
+  std::uniform_real_distribution<double> unit(0.0, 1.0);
+  for (SourceView& v : sources) {
+    v.proxy_depth = DepthMap(v.camera.width, v.camera.height, 1, 0.f);
+    const Rigid3d world_from_cam = v.cam_from_world.Inverse();
+    for (int y = 0; y < v.camera.height; ++y) {
+      for (int x = 0; x < v.camera.width; ++x) {
+        const Eigen::Vector3d ray = world_from_cam.rotation * v.camera.CamFromImg(Eigen::Vector2d(x + 0.5, y + 0.5));
+        const double t = -world_from_cam.translation.z() / ray.z();  // the plane z = 0, along the camera z
+        const double z = (v.cam_from_world * (world_from_cam.translation + t * ray)).z();
+        const double r = unit(random);
+        v.proxy_depth.At(x, y) = r < 0.1 ? 0.f : r < 0.25 ? static_cast<float>(z * 0.7) : static_cast<float>(z);
+      }
+    }
+  }
+  size_t compared = 0, covered = 0;
+  for (const int k : {2, 3, 4, 8}) {
+    for (const bool epipole : {false, true}) {
+      RenderOptions options;
+      options.k = k;
+      options.epipole_consistent = epipole;
+      options.gamma = 0.5;  // the field-of-view term matters near the borders
+      const UlrRenderer renderer(&sources, options);
+      for (int trial = 0; trial < 400; ++trial) {
+        const Eigen::Vector3d p(4 * unit(random) - 2, 4 * unit(random) - 2, trial % 4 == 0 ? 0.3 * unit(random) : 0.0);
+        Eigen::Vector3d desired(3 * unit(random) - 1.5, 3 * unit(random) - 1.5, 2.5 + unit(random));
+        if (trial % 25 == 0) desired = sources[static_cast<size_t>(trial) % sources.size()].cam_from_world.Inverse().translation;
+        const std::vector<BlendWeight> pruned = renderer.Weights(p, desired);
+        const std::vector<BlendWeight> definition = renderer.Weights(p, desired, /*exhaustive=*/true);
+        ASSERT_EQ(pruned.size(), definition.size()) << "k " << k << " trial " << trial;
+        for (size_t j = 0; j < pruned.size(); ++j) {
+          EXPECT_EQ(pruned[j].source, definition[j].source) << "k " << k << " trial " << trial << " entry " << j;
+          EXPECT_EQ(pruned[j].weight, definition[j].weight) << "k " << k << " trial " << trial << " entry " << j;
+          EXPECT_EQ(pruned[j].penalty, definition[j].penalty) << "k " << k << " trial " << trial << " entry " << j;
+        }
+        ++compared;
+        covered += !pruned.empty();
+      }
+    }
+  }
+  EXPECT_GT(covered, compared / 3);  // the scenes do exercise the blend, not only empty pixels
+}
+
 TEST(Ulr, EpipoleConsistencyReproducesSourceImageExactly) {
   const std::vector<SourceView> sources = Ring(8, 1.5);
   RenderOptions options;  // epipole_consistent = true
