@@ -5,7 +5,8 @@
 // asserted. Figures come from the records each stage writes (records/<stage>.json: wall_seconds,
 // cpu_seconds, peak_memory_mb; render's ms_per_frame_<model>) and scores/heldout.json.
 //
-// Usage: bench_chain [--out FILE.json] [--root DIR] [--jobs N] [CONFIG.yaml...]
+// Usage: bench_chain [--out FILE.json] [--root DIR] [--jobs N] [--ibmr PATH] [CONFIG.yaml...]
+//   --ibmr: another build's executable (to compare builds on the same machine; default this build's)
 //   default configs: configs/middlebury_temple_ring.yaml configs/synth_dense.yaml
 //   configs/synth_texture.yaml configs/synth_layers.yaml; workspaces in DIR/<config name>
 //   (default bench_chain_workspaces/), removed first: every run is from scratch.
@@ -133,14 +134,14 @@ nlohmann::json Figures(const fs::path& workspace) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  std::string out_path = "bench_chain.json", root = "bench_chain_workspaces", jobs;
+  std::string out_path = "bench_chain.json", root = "bench_chain_workspaces", jobs, ibmr = IBMR_BINARY;
   std::vector<std::string> configs;
   for (int i = 1; i < argc; ++i) {
     const std::string arg = argv[i];
-    if ((arg == "--out" || arg == "--root" || arg == "--jobs") && i + 1 < argc) {
-      (arg == "--out" ? out_path : arg == "--root" ? root : jobs) = argv[++i];
+    if ((arg == "--out" || arg == "--root" || arg == "--jobs" || arg == "--ibmr") && i + 1 < argc) {
+      (arg == "--out" ? out_path : arg == "--root" ? root : arg == "--jobs" ? jobs : ibmr) = argv[++i];
     } else if (arg.rfind("--", 0) == 0) {
-      std::cerr << "bench_chain: unknown option " << arg << " (--out, --root, --jobs, then configs)\n";
+      std::cerr << "bench_chain: unknown option " << arg << " (--out, --root, --jobs, --ibmr, then configs)\n";
       return 2;
     } else {
       configs.push_back(arg);
@@ -160,7 +161,7 @@ int main(int argc, char** argv) {
     fs::create_directories(workspace.parent_path());
     const std::string log = workspace.string() + ".log";
     fs::remove(log);
-    std::vector<std::string> args = {IBMR_BINARY, "run", config, "--workspace", workspace.string()};
+    std::vector<std::string> args = {ibmr, "run", config, "--workspace", workspace.string()};
     if (!jobs.empty()) args.insert(args.end(), {"--jobs", jobs});
     std::cout << "bench_chain: " << name << " ..." << std::flush;
     const auto start = std::chrono::steady_clock::now();

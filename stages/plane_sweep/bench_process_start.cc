@@ -26,6 +26,7 @@
 
 #include "pipeline/core/atomic_file.h"
 #include "pipeline/core/image_io.h"
+#include "stages/plane_sweep/bench_disparity_score.h"
 
 extern char** environ;
 
@@ -88,21 +89,6 @@ nlohmann::json Compare(const std::vector<std::string>& ours, const std::vector<s
           {"ratio_to_peer", Median(ratios)}};
 }
 
-// Percentage of ground-truth pixels (non-zero) whose disparity is off by more than 1 or missing.
-double Bad1(const cv::Mat& disparity, const cv::Mat& gt, double scale) {
-  size_t n = 0, bad = 0;
-  for (int y = 0; y < gt.rows; ++y) {
-    for (int x = 0; x < gt.cols; ++x) {
-      const int g = gt.at<uint8_t>(y, x);
-      if (g == 0) continue;
-      ++n;
-      const float d = disparity.at<float>(y, x);
-      bad += !(d > 0) || !std::isfinite(d) || std::fabs(d - g / scale) > 1.0;
-    }
-  }
-  return n ? 100.0 * bad / n : 0.0;
-}
-
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -148,8 +134,8 @@ int main(int argc, char** argv) {
                                    {peer_sgbm, left, right, std::to_string(pair.max_disparity), sgbm_pfm}, repeat, &ok);
     if (!ok) break;
     const cv::Mat gt = ibmr::ReadImageUnchanged(data + "/" + pair.gt);
-    entry["bad1"] = Bad1(ibmr::ReadPfm(ours_pfm), gt, pair.gt_scale);
-    entry["peer_bad1"] = Bad1(ibmr::ReadPfm(sgbm_pfm), gt, pair.gt_scale);
+    entry["bad1"] = ibmr::ScoreDisparity(ibmr::ReadPfm(ours_pfm), gt, pair.gt_scale).bad1;
+    entry["peer_bad1"] = ibmr::ScoreDisparity(ibmr::ReadPfm(sgbm_pfm), gt, pair.gt_scale).bad1;
     report["stereo_pair"][pair.name] = entry;
   }
   std::filesystem::remove_all(scratch);

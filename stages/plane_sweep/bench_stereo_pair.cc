@@ -27,6 +27,7 @@
 #include <thread>
 
 #include "pipeline/core/process_memory.h"
+#include "stages/plane_sweep/bench_disparity_score.h"
 #include "pipeline/core/atomic_file.h"
 #include "pipeline/core/image_io.h"
 #include "pipeline/core/two_view_methods.h"
@@ -46,33 +47,9 @@ struct Pair {
   int max_disparity;
 };
 
-struct Score {
-  double bad1 = 0, bad2 = 0, unfilled = 0;
-};
-
-// Disparity <= 0 or non-finite counts as missing (bad).
+using Score = ibmr::DisparityScore;
 Score Evaluate(const cv::Mat& disparity, const cv::Mat& gt, double scale) {
-  Score s;
-  size_t n = 0, bad1 = 0, bad2 = 0, missing = 0;
-  for (int y = 0; y < gt.rows; ++y) {
-    for (int x = 0; x < gt.cols; ++x) {
-      const int g = gt.at<uint8_t>(y, x);
-      if (g == 0) continue;
-      ++n;
-      const float d = disparity.at<float>(y, x);
-      if (!(d > 0) || !std::isfinite(d)) {
-        ++bad1, ++bad2, ++missing;
-        continue;
-      }
-      const double err = std::fabs(d - g / scale);
-      bad1 += err > 1.0;
-      bad2 += err > 2.0;
-    }
-  }
-  s.bad1 = 100.0 * bad1 / n;
-  s.bad2 = 100.0 * bad2 / n;
-  s.unfilled = static_cast<double>(missing) / n;
-  return s;
+  return ibmr::ScoreDisparity(disparity, gt, scale);
 }
 
 double Median(std::vector<double> v) {
