@@ -8,7 +8,8 @@
 // then falls on both); the record holds each one's median wall and CPU (user + system, from
 // wait4) milliseconds and the median of the per-repeat ratios. Timing only: nothing asserted.
 //
-// Usage: bench_process_start [--data DIR] [--out FILE.json] [--repeat N]
+// Usage: bench_process_start [--data DIR] [--out FILE.json] [--repeat N] [--ibmr PATH]
+//   --ibmr: another build's executable (to compare builds in one run; default this build's)
 #include <spawn.h>
 #include <sys/resource.h>
 #include <sys/wait.h>
@@ -95,20 +96,23 @@ int main(int argc, char** argv) {
   std::string data = std::string(IBMR_SHARED_DIR) + "/datasets/middlebury_stereo_classic";
   std::string out = "bench_process_start.json";
   int repeat = 11;
+  std::string ibmr = IBMR_BINARY;
   for (int i = 1; i + 1 < argc; i += 2) {
     const std::string key = argv[i];
     if (key == "--data") data = argv[i + 1];
     else if (key == "--out") out = argv[i + 1];
     else if (key == "--repeat") repeat = std::max(1, std::atoi(argv[i + 1]));
+    else if (key == "--ibmr") ibmr = argv[i + 1];
     else {
-      std::cerr << "bench_process_start: unknown option " << key << " (--data, --out, --repeat)\n";
+      std::cerr << "bench_process_start: unknown option " << key << " (--data, --out, --repeat, --ibmr)\n";
       return 2;
     }
   }
-  const std::string ibmr = IBMR_BINARY, peer_start = PEER_OPENCV_START, peer_sgbm = PEER_SGBM_PAIR;
+  const std::string peer_start = PEER_OPENCV_START, peer_sgbm = PEER_SGBM_PAIR;
   bool ok = true;
   nlohmann::json report;
   report["repeat"] = repeat;
+  report["ibmr"] = ibmr;
   report["start"] = Compare({ibmr, "--help"}, {peer_start}, repeat, &ok);
   struct Pair {
     std::string name, left, right, gt;
