@@ -17,6 +17,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include <functional>
 #include <memory>
 #include <optional>
 #include <string>
@@ -74,6 +75,12 @@ class RenderModel {
   // renders.json's "path": what the model is drawn from, workspace-relative.
   virtual std::string SourcePath(const Workspace& workspace) const = 0;
 
+  // Preparation that needs nothing but the model's own files (reading and decimating a mesh),
+  // returned as a task the stage runs on one background thread, in the order of render.proxies,
+  // while the models before it draw: single-threaded work such as OpenMesh's decimation then fills
+  // a core the drawing leaves idle. Prepare is called after the task has finished; an exception
+  // the task throws is rethrown there. Default: none.
+  virtual std::function<void()> BackgroundWork() { return {}; }
   // Reads and prepares the model once. Returns the reason it is skipped (a missing or unusable
   // file, logged and listed in renders.json) or nullopt; adds its facts to `facts` (renders.json's
   // entry). Throws InputError when the run cannot go on.

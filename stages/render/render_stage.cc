@@ -30,6 +30,7 @@
 #include "pipeline/core/per_view.h"
 #include "pipeline/core/process_memory.h"
 #include "pipeline/core/stage_api.h"
+#include "stages/render/background_tasks.h"
 #include "stages/render/render_model.h"
 
 namespace fs = std::filesystem;
@@ -256,12 +257,22 @@ void RenderStage::Run(StageContext& context) const {
   nlohmann::json models_json = nlohmann::json::array();
   std::string primary;
   fs::create_directories(context.workspace.Path("renders"));
+  // Every model made from its entry first (cheap), their background work (RenderModel::
+  // BackgroundWork) run in order on one thread while the models draw.
+  std::vector<std::unique_ptr<RenderModel>> models;
   for (const std::string& entry : context.params.StringList("proxies")) {
+    models.push_back(MakeRenderModel(entry, context.workspace));
+  }
+  BackgroundTasks background_work;
+  std::vector<std::shared_future<void>> prepared_ahead;
+  for (const std::unique_ptr<RenderModel>& model : models) prepared_ahead.push_back(background_work.Add(model->BackgroundWork()));
+  for (size_t m = 0; m < models.size(); ++m) {
     // What the last model held goes back to the system before the next one loads (the full-size
     // castle: 1130 -> 577 MB held before the layers, after the splats' 20 M samples).
     ReleaseFreeHeap();
     const auto start = Clock::now();
-    std::unique_ptr<RenderModel> model = MakeRenderModel(entry, context.workspace);
+    prepared_ahead[m].get();  // rethrows what the model's background work threw
+    const std::unique_ptr<RenderModel> model = std::move(models[m]);
     nlohmann::json facts = nlohmann::json::object();
     if (const std::optional<std::string> reason = model->Prepare(scene, &facts)) {
       spdlog::warn("[render] proxy {}: {}; skipped", model->Name(), *reason);
