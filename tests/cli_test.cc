@@ -102,6 +102,11 @@ TEST_F(CliTest, ImageCodecsLoadWithTheFirstImageNotAtStart) {
   ASSERT_EQ(read.exit_code, 0) << read.output;
   EXPECT_TRUE(fs::exists(dir_ / "d.pfm"));
 
+  // Commands that touch no image run without the module at all (nothing loads it at start either).
+  for (const char* command : {"--help", "stages"}) {
+    CommandResult without = RunCommand("IBMR_IMAGE_CODECS=" + (dir_ / "nowhere.so").string() + " " + Ibmr(command));
+    EXPECT_EQ(without.exit_code, 0) << command << ": " << without.output;
+  }
   CommandResult missing = RunCommand("IBMR_IMAGE_CODECS=" + (dir_ / "nowhere.so").string() + " " + Ibmr(pair));
   EXPECT_NE(missing.exit_code, 0);
   EXPECT_NE(missing.output.find("cannot load the image codecs module"), std::string::npos) << missing.output;

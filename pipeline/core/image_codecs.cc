@@ -9,6 +9,7 @@
 #include <mutex>
 
 #include "pipeline/core/errors.h"
+#include "pipeline/core/image_codecs_abi.h"
 
 #ifndef IBMR_IMAGE_CODECS_MODULE
 #define IBMR_IMAGE_CODECS_MODULE ""
@@ -44,26 +45,38 @@ const Codecs& Loaded() {
   static std::string failure;
   std::call_once(once, [] {
     std::string tried;
-    for (const std::string& path : Candidates()) {
+    for (const std::string& candidate : Candidates()) {
+      // Absolute, so that dlopen opens the file checked here (a name without a slash would be
+      // looked up on the library path instead).
       std::error_code ec;
+      const std::string path = std::filesystem::absolute(candidate, ec).string();
+      const auto note = [&tried](const std::string& what) { tried += (tried.empty() ? "" : "; ") + what; };
       if (!std::filesystem::exists(path, ec)) {
-        tried += (tried.empty() ? "" : "; ") + path + ": no such file";
+        note(path + ": " + (ec ? ec.message() : "no such file"));
         continue;
       }
       void* handle = dlopen(path.c_str(), RTLD_NOW | RTLD_LOCAL);
       if (!handle) {
         const char* error = dlerror();
-        tried += (tried.empty() ? "" : "; ") + (error ? std::string(error) : path);
+        note(error ? std::string(error) : path);
         continue;
       }
       // The module stays loaded for the process's life (never dlclose'd: OpenCV keeps state).
+      const auto abi = reinterpret_cast<const char* (*)()>(dlsym(handle, "ibmr_codecs_abi"));
       codecs.imread = reinterpret_cast<decltype(codecs.imread)>(dlsym(handle, "ibmr_codecs_imread"));
       codecs.imwrite = reinterpret_cast<decltype(codecs.imwrite)>(dlsym(handle, "ibmr_codecs_imwrite"));
       codecs.imencode = reinterpret_cast<decltype(codecs.imencode)>(dlsym(handle, "ibmr_codecs_imencode"));
       codecs.imdecode = reinterpret_cast<decltype(codecs.imdecode)>(dlsym(handle, "ibmr_codecs_imdecode"));
-      if (!codecs.imread || !codecs.imwrite || !codecs.imencode || !codecs.imdecode) {
-        tried += (tried.empty() ? "" : "; ") + path + ": not ibmr's codecs module (an entry point is missing)";
+      if (!abi || !codecs.imread || !codecs.imwrite || !codecs.imencode || !codecs.imdecode) {
+        note(path + ": not ibmr's codecs module (an entry point is missing)");
         codecs = Codecs();
+        dlclose(handle);
+        continue;
+      }
+      if (std::string(abi()) != IBMR_CODECS_ABI) {
+        note(path + ": built for " + abi() + ", this program for " + IBMR_CODECS_ABI + " (a module of another build)");
+        codecs = Codecs();
+        dlclose(handle);
         continue;
       }
       codecs.path = path;

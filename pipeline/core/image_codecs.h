@@ -6,7 +6,8 @@
 // ibmr, the dynamic loader spent about two thirds of every start on them, before `ibmr --help`,
 // `ibmr status` or a Snakemake rule did anything. They live in a module of their own
 // (libibmr_image_codecs.so, image_codecs_module.cc) that the first call here opens with dlopen;
-// what never touches an image never loads them. Nothing else links imgcodecs (tests may).
+// what never touches an image never loads them. Nothing of ibmr itself links imgcodecs (tests,
+// benchmarks and their OpenCV peers do).
 //
 // Each function behaves as the OpenCV function it names (same flags and parameters; a
 // cv::Exception from the codec passes through). The module is found at the path the build wrote

@@ -2,10 +2,17 @@
 // as libibmr_image_codecs.so and opened with dlopen on the first image read or write (why: see
 // image_codecs.h). The only code of the project that links opencv_imgcodecs (tests aside).
 #include <opencv2/imgcodecs.hpp>
+
+#include "pipeline/core/image_codecs_abi.h"
 #include <string>
 #include <vector>
 
 extern "C" {
+
+// What the objects passed across were built with; the loader compares it with its own (a module of
+// another build, OpenCV or C++ library would exchange std::string, cv::Mat and std::vector of a
+// different layout).
+const char* ibmr_codecs_abi() { return IBMR_CODECS_ABI; }
 
 // Each entry point's signature is the one image_codecs.cc looks up; keep them in step.
 void ibmr_codecs_imread(const std::string* path, int flags, cv::Mat* out) { *out = cv::imread(*path, flags); }

@@ -168,7 +168,16 @@ int main(int argc, char** argv) {
     const int status = RunLogged(args, log);
     const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
     std::cout << " " << seconds << " s" << (status == 0 ? "" : " (FAILED, see " + log + ")") << "\n";
-    nlohmann::json entry = status == 0 ? Figures(workspace) : nlohmann::json::object();
+    // A workspace the figures cannot be read from is noted and the other configs still run.
+    nlohmann::json entry = nlohmann::json::object();
+    if (status == 0) {
+      try {
+        entry = Figures(workspace);
+      } catch (const std::exception& e) {
+        entry["error"] = std::string("reading the figures: ") + e.what();
+        ok = false;
+      }
+    }
     entry["config"] = config;
     entry["seconds"] = seconds;
     entry["exit_status"] = status;

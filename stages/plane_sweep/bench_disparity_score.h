@@ -16,6 +16,7 @@ struct DisparityScore {
 };
 
 inline DisparityScore ScoreDisparity(const cv::Mat& disparity, const cv::Mat& gt, double scale) {
+  CV_Assert(disparity.size() == gt.size() && disparity.type() == CV_32FC1 && gt.type() == CV_8UC1);
   DisparityScore s;
   size_t n = 0, bad1 = 0, bad2 = 0, missing = 0;
   for (int y = 0; y < gt.rows; ++y) {

@@ -130,13 +130,16 @@ int main(int argc, char** argv) {
     const std::string left = data + "/" + pair.left, right = data + "/" + pair.right;
     if (!std::filesystem::exists(left)) {
       std::cerr << "bench_process_start: " << left << " is missing (../shared/datasets beside the checkout?); pairs skipped\n";
+      report["stereo_pair_skipped"] = left + " is missing";
       break;
     }
     const std::string ours_pfm = scratch + "/" + pair.name + "_ibmr.pfm", sgbm_pfm = scratch + "/" + pair.name + "_sgbm.pfm";
+    bool pair_ok = true;
     nlohmann::json entry = Compare({ibmr, "stereo-pair", left, right, "--max-disparity", std::to_string(pair.max_disparity),
                                     "--out", ours_pfm},
-                                   {peer_sgbm, left, right, std::to_string(pair.max_disparity), sgbm_pfm}, repeat, &ok);
-    if (!ok) break;
+                                   {peer_sgbm, left, right, std::to_string(pair.max_disparity), sgbm_pfm}, repeat, &pair_ok);
+    ok = ok && pair_ok;
+    if (!pair_ok) continue;
     const cv::Mat gt = ibmr::ReadImageUnchanged(data + "/" + pair.gt);
     entry["bad1"] = ibmr::ScoreDisparity(ibmr::ReadPfm(ours_pfm), gt, pair.gt_scale).bad1;
     entry["peer_bad1"] = ibmr::ScoreDisparity(ibmr::ReadPfm(sgbm_pfm), gt, pair.gt_scale).bad1;

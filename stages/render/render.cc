@@ -13,6 +13,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "pipeline/core/rasterizer.h"
+#include "stages/render/arc_tangent_bound.h"
 
 namespace ibmr {
 
@@ -21,20 +22,6 @@ namespace {
 // Penalties below this count as zero (the desired ray passes through the camera centre).
 constexpr double kZeroPenalty = 1e-12;
 
-// atan2(y, x) for y >= 0 (an angle in [0, pi]) by a degree-9 odd polynomial on [0, 1] (Abramowitz
-// & Stegun 4.4.49's form, max error about 1e-5 rad); kAngleBound is ten times that, the margin the
-// pruned blend search allows (UlrRenderer::Blend). Only ever a bound: penalties use std::atan2.
-constexpr double kAngleBound = 1e-4;
-inline double ArcTangentBelowPi(double y, double x) {
-  const double ax = std::abs(x);
-  const double high = std::max(ax, y), low = std::min(ax, y);
-  if (!(high > 0)) return 0.0;
-  const double a = low / high, s = a * a;
-  double r = ((((0.0208351 * s - 0.0851330) * s + 0.1801410) * s - 0.3302995) * s + 0.9998660) * a;
-  if (y > ax) r = 1.5707963267948966 - r;
-  if (x < 0) r = 3.141592653589793 - r;
-  return r;
-}
 
 // World direction of the ray through pixel (x, y) (not normalised; camera z component = 1).
 Eigen::Vector3d RayDirection(const Camera& camera, const Eigen::Matrix3d& world_from_cam_rotation, double x,
@@ -308,6 +295,8 @@ bool PlaneAtMeanInverseDepth(const std::vector<Eigen::Vector3d>& points, const R
 
 UlrRenderer::UlrRenderer(const std::vector<SourceView>* sources, const RenderOptions& options)
     : sources_(sources), options_(options) {
+  // RenderOptions::Check refuses negative weights; a caller that skipped it gets the exhaustive search.
+  prunable_ = options.alpha >= 0 && options.beta >= 0 && options.gamma >= 0;
   for (const SourceView& source : *sources) {
     Prepared prepared;
     prepared.rotation = source.cam_from_world.R();
@@ -372,7 +361,7 @@ int UlrRenderer::Blend(const Eigen::Vector3d& p, const Eigen::Vector3d& desired_
     const double approx = options_.alpha * ArcTangentBelowPi(c.sin, c.cos) + options_.beta * c.resolution +
                           options_.gamma * c.fov;
     c.lower = std::isinf(approx) ? approx : approx - options_.alpha * kAngleBound - 1e-9 * std::abs(approx);
-    bounded = bounded && !std::isnan(c.lower);
+    bounded = bounded && !std::isnan(c.lower) && std::isfinite(c.sin) && std::isfinite(c.cos);
   }
   if (in_view == 0) return 0;
   const int k = options_.k;
@@ -388,7 +377,7 @@ int UlrRenderer::Blend(const Eigen::Vector3d& p, const Eigen::Vector3d& desired_
   Candidate* best = scratch->best.data();
   int n = 0;
   bool at_least_k = false;
-  if (exhaustive || !bounded) {
+  if (exhaustive || !bounded || !prunable_) {
     // The definition: every visible source's penalty, the k smallest kept.
     int count = 0;
     for (int j = 0; j < in_view; ++j) {

@@ -209,6 +209,7 @@ class UlrRenderer {
   const std::vector<SourceView>* sources_;
   RenderOptions options_;
   std::vector<Prepared> prepared_;
+  bool prunable_ = true;  // the penalty's weights are >= 0, which the pruned search's bound needs
 };
 
 }  // namespace ibmr
