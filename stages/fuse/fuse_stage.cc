@@ -167,6 +167,7 @@ class FuseStage : public Stage {
     m["eval_threshold"] = threshold;
     m["accuracy_90_over_threshold"] = a.accuracy_90 / threshold;
     m["confidence_error_spearman"] = a.confidence_error_spearman;  // rank correlation, points' confidence vs distance
+    m["sparsification_auc_ratio"] = a.sparsification_auc_ratio;    // its sparsification area over the optimal one
     spdlog::info("[fuse] accuracy (90%) {:.4g}, completeness {:.1f}% ({:.1f}% of the seen surface) within {:.4g}", a.accuracy_90,
                  100 * a.completeness, 100 * std::max(0.0, a.completeness_visible), threshold);
   }

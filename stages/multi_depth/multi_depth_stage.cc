@@ -15,6 +15,7 @@
 #include "pipeline/core/errors.h"
 #include "pipeline/core/per_view.h"
 #include "pipeline/core/rank_correlation.h"
+#include "pipeline/core/sparsification.h"
 #include "pipeline/core/stage_api.h"
 #include "pipeline/core/view_cache.h"
 #include "stages/multi_depth/multi_depth.h"
@@ -231,6 +232,9 @@ class MultiDepthStage : public Stage {
       // Does the confidence fall where the error rises? (Spearman's rho; negative is good.)
       m["photometric_confidence_error_spearman"] = SpearmanCorrelation(pairs[0], pairs[1]);
       m["geometric_confidence_error_spearman"] = SpearmanCorrelation(pairs[2], pairs[3]);
+      // The area under each confidence's sparsification curve over the optimal one (1: perfect).
+      m["photometric_sparsification_auc_ratio"] = SparsificationAucRatio(pairs[0], pairs[1]);
+      m["geometric_sparsification_auc_ratio"] = SparsificationAucRatio(pairs[2], pairs[3]);
     }
     spdlog::info("[multi_depth] {} views: kept {} of {} samples ({:.1f}%; {} low confidence, {} unconfirmed, {} seen through), {} filled",
                  names.size(), totals.kept, totals.input_samples, 100.0 * m["kept_fraction"].get<double>(),

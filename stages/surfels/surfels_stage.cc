@@ -229,6 +229,7 @@ class SurfelsStage : public Stage {
     const PointSetAccuracy p = EvaluatePointSet(particles, truth, {}, a.threshold);
     context.metrics["particle_accuracy_90"] = p.accuracy_90;
     context.metrics["confidence_error_spearman"] = p.confidence_error_spearman;
+    context.metrics["sparsification_auc_ratio"] = p.sparsification_auc_ratio;
     spdlog::info("[surfels] mesh accuracy (90%) {:.4g}, completeness {:.1f}% within {:.4g}", a.accuracy_90,
                  100 * a.completeness, a.threshold);
   }
