@@ -278,6 +278,7 @@ TEST(FuseStage, WritesAReadablePlyAndRecordsAccuracy) {
     if (spec.type == ParamType::kInt) context.params.Set(spec.key, static_cast<int64_t>(std::stoll(spec.default_yaml)));
     if (spec.type == ParamType::kDouble) context.params.Set(spec.key, std::stod(spec.default_yaml));
     if (spec.type == ParamType::kString) context.params.Set(spec.key, spec.default_yaml);
+    if (spec.type == ParamType::kBool) context.params.Set(spec.key, spec.default_yaml == "true");
   }
   context.params.Set("eval_samples", int64_t{20000});
   ASSERT_FALSE(stage->CheckParams(context.params).has_value());
