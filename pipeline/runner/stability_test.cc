@@ -144,12 +144,15 @@ TEST(Stability, TheConfigSweepBlockParsesAndNamesBadKeys) {
   std::ofstream(dir / "c.yaml") << "workspace: ws\nstages:\n  - produce\n  - consume\n"
                                    "sweep:\n  vary:\n    produce.value: [1, 2]\n  variants: [\"consume.suffix=z\"]\n"
                                    "  stability:\n    degradation: consume.suffix\n    strength: produce.value\n"
-                                   "    methods:\n      - {name: m, metric: produce.bytes, higher_is_better: true}\n";
+                                   "    methods:\n      - {name: m, metric: produce.bytes, higher_is_better: true,\n"
+                                   "         confidence: produce.rho, sparsification: produce.auc}\n";
   const Config config = LoadConfig((dir / "c.yaml").string(), registry);
   EXPECT_EQ(config.sweep.vary, std::vector<std::string>{"produce.value=1,2"});
   EXPECT_EQ(config.sweep.variants, std::vector<std::string>{"consume.suffix=z"});
   ASSERT_EQ(config.sweep.methods.size(), 1u);
   EXPECT_TRUE(config.sweep.methods[0].higher_is_better);
+  EXPECT_EQ(config.sweep.methods[0].confidence, "produce.rho");
+  EXPECT_EQ(config.sweep.methods[0].sparsification, "produce.auc");
   std::ofstream(dir / "bad.yaml") << "workspace: ws\nstages:\n  - produce\nsweep:\n  vari: {produce.value: [1]}\n";
   try {
     LoadConfig((dir / "bad.yaml").string(), registry);
