@@ -11,6 +11,7 @@
 #include "pipeline/core/surface_accuracy.h"
 
 #include "pipeline/core/rank_correlation.h"
+#include "pipeline/core/sparsification.h"
 
 namespace ibmr {
 
@@ -154,6 +155,7 @@ PointSetAccuracy EvaluatePointSet(const PointCloud& cloud, const TriangleMesh& m
     if (cloud.confidence.size() == cloud.size()) {
       const std::vector<double> confidence(cloud.confidence.begin(), cloud.confidence.end());
       result.confidence_error_spearman = SpearmanCorrelation(confidence, d);
+      result.sparsification_auc_ratio = SparsificationAucRatio(confidence, d);
     }
     std::sort(d.begin(), d.end());
     result.accuracy_90 = d[std::min(d.size() - 1, static_cast<size_t>(0.9 * d.size()))];

@@ -51,6 +51,10 @@ struct PointSetAccuracy {
   // Spearman's rho between the points' confidence and their distance to the mesh (NaN without
   // confidences): a confidence that means something is negative.
   double confidence_error_spearman = std::numeric_limits<double>::quiet_NaN();
+  // Area under the sparsification curve of that confidence (mean distance of the kept points as
+  // the least confident are removed) over the optimal one's (pipeline/core/sparsification.h; NaN
+  // without confidences): 1 is perfect, larger is worse.
+  double sparsification_auc_ratio = std::numeric_limits<double>::quiet_NaN();
 };
 
 // `visible` (optional, one flag per sample) restricts completeness_visible to seen samples.

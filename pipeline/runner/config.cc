@@ -523,8 +523,8 @@ static void ParseSweep(const YAML::Node& node, Config* config) {
   }
   for (const auto& m : methods) {
     const std::string where = "sweep.stability.methods";
-    if (!m.IsMap()) throw ConfigError(Where(path, LineOf(m), where, "expected {name, metric, confidence, higher_is_better}"));
-    RejectUnknownKeys(path, m, {"name", "metric", "confidence", "higher_is_better"}, where + ".");
+    if (!m.IsMap()) throw ConfigError(Where(path, LineOf(m), where, "expected {name, metric, confidence, sparsification, higher_is_better}"));
+    RejectUnknownKeys(path, m, {"name", "metric", "confidence", "sparsification", "higher_is_better"}, where + ".");
     StabilityMethod method;
     for (const char* required : {"name", "metric"}) {
       if (!m[required]) throw ConfigError(Where(path, LineOf(m), where + "." + required, "missing: give a value"));
@@ -532,6 +532,7 @@ static void ParseSweep(const YAML::Node& node, Config* config) {
     method.name = text(m["name"], where + ".name");
     method.metric = text(m["metric"], where + ".metric");
     if (m["confidence"]) method.confidence = text(m["confidence"], where + ".confidence");
+    if (m["sparsification"]) method.sparsification = text(m["sparsification"], where + ".sparsification");
     if (m["higher_is_better"]) {
       const std::string b = text(m["higher_is_better"], where + ".higher_is_better");
       if (b != "true" && b != "false") {

@@ -62,7 +62,8 @@ struct StageConfig {
 //       strength: synth.strength       # the varied key giving its strength (a list: one per key)
 //       methods:                       # what each method's error and confidence are
 //         - {name: stereo, metric: multi_depth.geometric_within_1pct_of_textured, higher_is_better: true,
-//            confidence: multi_depth.geometric_confidence_error_spearman}
+//            confidence: multi_depth.geometric_confidence_error_spearman,
+//            sparsification: multi_depth.geometric_sparsification_auc_ratio}
 //         - {name: surfel mesh held out, metric: models.surfels.photo_psnr, higher_is_better: true}
 // A metric is "stage.key" (a number in records/<stage>.json's metrics) or "models.NAME.key" (a
 // held-out mean of scores/heldout.json).
@@ -71,6 +72,9 @@ struct StabilityMethod {
   std::string metric;
   std::string confidence;  // optional: Spearman's rho of the method's confidence and error
   bool higher_is_better = false;
+  // Optional: the area under the sparsification curve of that confidence over the optimal one
+  // (pipeline/core/sparsification.h; 1 is perfect).
+  std::string sparsification;
 };
 
 struct SweepPlan {

@@ -254,12 +254,23 @@ function sweepReport(R) {
           label: d.label, data: d.values, borderColor: palette[i % palette.length], backgroundColor: palette[i % palette.length]}))},
         options: {plugins: {title: {display: true, text: curve.title}}, scales: {x: axis(curve.axis), y: axis(curve.value)}}});
     }
+    if (R.stability_sparsification && R.stability_sparsification.length) {
+      el('h3', {}, content, 'Confidence: area under the sparsification curve over the optimal one (1: the confidence orders the errors perfectly)');
+      const a = el('div', {class: 'charts'});
+      for (const curve of R.stability_sparsification) {
+        chart(a, 480, 300, {type: 'line', data: {labels: curve.strengths.map(x => String(x)), datasets: curve.series.map((d, i) => ({
+            label: d.label, data: d.values, borderColor: palette[i % palette.length], backgroundColor: palette[i % palette.length]}))},
+          options: {plugins: {title: {display: true, text: curve.title}}, scales: {x: axis(curve.axis), y: axis(curve.value)}}});
+      }
+    }
     el('h3', {}, content, 'Where each method breaks (quality below 0.8 of the clean scene) and its confidence there');
-    table(content, ['degradation', 'method', 'breaks at strength', 'confidence-error rho there'],
-          R.stability_breaks.map(b => [b.degradation, b.method, b.breaks_at === null ? 'holds' : fmt(b.breaks_at), fmt(b.confidence_rho_at_break)]));
-    el('h3', {}, content, 'Every cell: value, relative quality, confidence-error rank correlation (negative: confidence falls where error rises)');
-    table(content, ['degradation', 'strength', 'method', 'value', 'relative', 'rho'],
-          R.stability_cells.map(c => [c.degradation, fmt(c.strength), c.method, fmt(c.value, 4), fmt(c.relative, 3), fmt(c.confidence_rho, 3)]));
+    table(content, ['degradation', 'method', 'breaks at strength', 'confidence-error rho there', 'sparsification AUC / optimal there'],
+          R.stability_breaks.map(b => [b.degradation, b.method, b.breaks_at === null ? 'holds' : fmt(b.breaks_at), fmt(b.confidence_rho_at_break),
+                                       fmt(b.sparsification_auc_ratio_at_break)]));
+    el('h3', {}, content, 'Every cell: value, relative quality, confidence-error rank correlation (negative: confidence falls where error rises), sparsification AUC over the optimal');
+    table(content, ['degradation', 'strength', 'method', 'value', 'relative', 'rho', 'AUC / optimal'],
+          R.stability_cells.map(c => [c.degradation, fmt(c.strength), c.method, fmt(c.value, 4), fmt(c.relative, 3), fmt(c.confidence_rho, 3),
+                                      fmt(c.sparsification_auc_ratio, 3)]));
   }
 }
 
@@ -328,11 +339,13 @@ nlohmann::json SweepReport(const std::string& folder, const nlohmann::json& swee
                            {"variants", sweep.value("variants", nlohmann::json::array())},
                            {"stability", nlohmann::json::array()},
                            {"stability_breaks", nlohmann::json::array()},
-                           {"stability_cells", nlohmann::json::array()}};
+                           {"stability_cells", nlohmann::json::array()},
+                           {"stability_sparsification", nlohmann::json::array()}};
   if (sweep.contains("stability") && sweep["stability"].is_object()) {
     report["stability"] = sweep["stability"].value("curves", nlohmann::json::array());
     report["stability_breaks"] = sweep["stability"].value("breaks", nlohmann::json::array());
     report["stability_cells"] = sweep["stability"].value("cells", nlohmann::json::array());
+    report["stability_sparsification"] = sweep["stability"].value("sparsification_curves", nlohmann::json::array());
   }
   // The page needs only the costs and scores, not every stage's metrics.
   for (auto& variant : report["variants"]) {

@@ -15,6 +15,11 @@ constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 
 nlohmann::json Number(double v) { return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(nullptr); }
 
+// `path`'s metric of `variant`, NaN when either is absent (an optional metric of a method).
+double VariantMetricOrNaN(const nlohmann::json* variant, const std::string& path) {
+  return variant == nullptr || path.empty() ? kNaN : VariantMetric(*variant, path);
+}
+
 }  // namespace
 
 double VariantMetric(const nlohmann::json& variant, const std::string& path) {
@@ -59,13 +64,16 @@ nlohmann::json StabilityMatrix(const nlohmann::json& variants, const SweepPlan& 
   };
   // The clean scene.
   std::map<std::string, double> clean;
+  const nlohmann::json* clean_variant = nullptr;
   for (const auto& v : variants) {
     if (v.value("status", "") != "ok" || cell_of(v).strength != 0) continue;
     for (const auto& m : plan.methods) clean[m.name] = VariantMetric(v, m.metric);
+    clean_variant = &v;
     break;
   }
   nlohmann::json out = {{"clean", nlohmann::json::object()}, {"cells", nlohmann::json::array()},
-                        {"breaks", nlohmann::json::array()}, {"curves", nlohmann::json::array()}};
+                        {"breaks", nlohmann::json::array()}, {"curves", nlohmann::json::array()},
+                        {"sparsification_curves", nlohmann::json::array()}};
   for (const auto& [name, value] : clean) out["clean"][name] = Number(value);
   const auto relative = [&](const StabilityMethod& m, double value) {
     const auto it = clean.find(m.name);
@@ -92,9 +100,16 @@ nlohmann::json StabilityMatrix(const nlohmann::json& variants, const SweepPlan& 
     for (const auto& [strength, variant] : by_strength) {
       if (strength > 0) curve["strengths"].push_back(strength);
     }
+    // The confidences' sparsification areas over the optimal ones, by strength (1 is perfect).
+    nlohmann::json auc_curve = {{"title", degradation},
+                                {"axis", "strength"},
+                                {"value", "sparsification AUC / optimal AUC"},
+                                {"strengths", curve["strengths"]},
+                                {"series", nlohmann::json::array()}};
     for (const StabilityMethod& m : plan.methods) {
       nlohmann::json values = nlohmann::json::array({clean.count(m.name) && std::isfinite(clean[m.name]) ? 1.0 : kNaN});
-      nlohmann::json broken = nullptr, rho_at_break = nullptr;
+      nlohmann::json broken = nullptr, rho_at_break = nullptr, auc_at_break = nullptr;
+      nlohmann::json auc_values = nlohmann::json::array({VariantMetricOrNaN(clean_variant, m.sparsification)});
       bool unknown = !clean.count(m.name) || !std::isfinite(clean[m.name]);
       for (const auto& [strength, variant] : by_strength) {
         if (strength <= 0) continue;  // the clean scene's point, already at 0
@@ -103,24 +118,30 @@ nlohmann::json StabilityMatrix(const nlohmann::json& variants, const SweepPlan& 
         const bool failed = variant->value("status", "") != "ok" && !std::isfinite(value);
         const double rel = failed ? 0.0 : relative(m, value);
         const double rho = m.confidence.empty() ? kNaN : VariantMetric(*variant, m.confidence);
+        const double auc = VariantMetricOrNaN(variant, m.sparsification);
         out["cells"].push_back({{"degradation", degradation}, {"strength", strength}, {"method", m.name},
                                 {"value", Number(value)}, {"relative", Number(rel)}, {"confidence_rho", Number(rho)},
-                                {"failed", failed}});
+                                {"sparsification_auc_ratio", Number(auc)}, {"failed", failed}});
         values.push_back(Number(rel));
+        auc_values.push_back(Number(auc));
         if (!std::isfinite(rel)) unknown = true;
         if (broken.is_null() && std::isfinite(rel) && rel < kBrokenBelow) {
           broken = strength;
           rho_at_break = Number(rho);
+          auc_at_break = Number(auc);
         }
       }
       // "unknown" rather than holding when the clean value or a cell could not be measured (a
       // metric path that names nothing, a clean run that failed).
       if (broken.is_null() && unknown) broken = "unknown";
       out["breaks"].push_back({{"degradation", degradation}, {"method", m.name}, {"breaks_at", broken},
-                               {"confidence_rho_at_break", rho_at_break}});
+                               {"confidence_rho_at_break", rho_at_break},
+                               {"sparsification_auc_ratio_at_break", auc_at_break}});
       curve["series"].push_back({{"label", m.name}, {"values", values}});
+      if (!m.sparsification.empty()) auc_curve["series"].push_back({{"label", m.name}, {"values", auc_values}});
     }
     out["curves"].push_back(curve);
+    if (!auc_curve["series"].empty()) out["sparsification_curves"].push_back(auc_curve);
   }
   return out;
 }

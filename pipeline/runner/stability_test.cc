@@ -62,6 +62,24 @@ TEST(Stability, RelativeQualityAndWhereEachMethodBreaks) {
   EXPECT_DOUBLE_EQ(m["curves"][0]["series"][0]["values"][0].get<double>(), 1.0);
 }
 
+TEST(Stability, SparsificationRatiosAreRecordedPerCellAtTheBreakAndCharted) {
+  nlohmann::json variants = nlohmann::json::array();
+  variants.push_back(Variant("none", "", 0.9, -0.5, 30));
+  variants.push_back(Variant("specular", "0.5", 0.6, -0.2, 29));
+  variants[0]["stages"][0]["metrics"]["auc"] = 1.5;
+  variants[1]["stages"][0]["metrics"]["auc"] = 3.0;
+  SweepPlan plan = Plan();
+  plan.methods[0].sparsification = "multi_depth.auc";
+  const nlohmann::json m = StabilityMatrix(variants, plan);
+  EXPECT_DOUBLE_EQ(m["cells"][0]["sparsification_auc_ratio"].get<double>(), 3.0);
+  EXPECT_TRUE(m["cells"][1]["sparsification_auc_ratio"].is_null());  // held out: no confidence
+  EXPECT_DOUBLE_EQ(m["breaks"][0]["sparsification_auc_ratio_at_break"].get<double>(), 3.0);
+  ASSERT_EQ(m["sparsification_curves"].size(), 1u);
+  const nlohmann::json& series = m["sparsification_curves"][0]["series"];
+  ASSERT_EQ(series.size(), 1u);  // only the method with a sparsification metric
+  EXPECT_EQ(series[0]["values"], nlohmann::json({1.5, 3.0}));
+}
+
 TEST(Stability, AFailedVariantBreaksTheMethodsThatProducedNothing) {
   nlohmann::json variants = nlohmann::json::array();
   variants.push_back(Variant("none", "", 0.9, -0.5, 30));
@@ -126,12 +144,15 @@ TEST(Stability, TheConfigSweepBlockParsesAndNamesBadKeys) {
   std::ofstream(dir / "c.yaml") << "workspace: ws\nstages:\n  - produce\n  - consume\n"
                                    "sweep:\n  vary:\n    produce.value: [1, 2]\n  variants: [\"consume.suffix=z\"]\n"
                                    "  stability:\n    degradation: consume.suffix\n    strength: produce.value\n"
-                                   "    methods:\n      - {name: m, metric: produce.bytes, higher_is_better: true}\n";
+                                   "    methods:\n      - {name: m, metric: produce.bytes, higher_is_better: true,\n"
+                                   "         confidence: produce.rho, sparsification: produce.auc}\n";
   const Config config = LoadConfig((dir / "c.yaml").string(), registry);
   EXPECT_EQ(config.sweep.vary, std::vector<std::string>{"produce.value=1,2"});
   EXPECT_EQ(config.sweep.variants, std::vector<std::string>{"consume.suffix=z"});
   ASSERT_EQ(config.sweep.methods.size(), 1u);
   EXPECT_TRUE(config.sweep.methods[0].higher_is_better);
+  EXPECT_EQ(config.sweep.methods[0].confidence, "produce.rho");
+  EXPECT_EQ(config.sweep.methods[0].sparsification, "produce.auc");
   std::ofstream(dir / "bad.yaml") << "workspace: ws\nstages:\n  - produce\nsweep:\n  vari: {produce.value: [1]}\n";
   try {
     LoadConfig((dir / "bad.yaml").string(), registry);

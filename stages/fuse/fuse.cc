@@ -27,7 +27,25 @@ struct FusedPoint {
   float confidence_sum = 0;
   float weight_sum = 0;  // of the normals and colours: the confidences, at least 0.01 each
   int views = 0;
+  // The samples' scatter about the merged position: sum of (x_i - origin)^T I_i (x_i - origin),
+  // origin the first sample's position (keeps the difference in Chi2 well conditioned).
+  Eigen::Vector3d origin = Eigen::Vector3d::Zero();
+  double weighted_square = 0;
+  // Chi-square of the samples about the merged position: sum of (x_i - p)^T I_i (x_i - p).
+  double Chi2() const {
+    const Eigen::Vector3d d = position - origin;
+    return std::max(0.0, weighted_square - d.dot(information * d));
+  }
 };
+
+// The agreement factor of a point's confidence: 1 while its samples scatter no more than their
+// covariances predict (chi-square per degree of freedom, views - 1, at most 1), then
+// exp(-(chi2 / dof - 1) / 2).
+float AgreementFactor(const FusedPoint& p) {
+  if (p.views < 2) return 1.f;
+  const double per_dof = p.Chi2() / (p.views - 1);
+  return per_dof <= 1 ? 1.f : static_cast<float>(std::exp(-0.5 * (per_dof - 1)));
+}
 
 }  // namespace
 
@@ -191,7 +209,10 @@ void PointFuser::AddView(const FuseView& view) {
         } else {
           points.emplace_back();
           p = &points.back();
+          p->origin = sample.position;
         }
+        const Eigen::Vector3d offset = sample.position - p->origin;
+        p->weighted_square += offset.dot(sample.information * offset);
         p->information += sample.information;
         p->information_x += sample.information * sample.position;
         // Normals and colours weigh samples by confidence, floored as depth_sigma floors it: with
@@ -226,7 +247,8 @@ PointCloud PointFuser::Finish(FuseStats* stats) const {
     cloud.normals.push_back(norm > 0 ? Eigen::Vector3f(p.normal_sum / norm) : Eigen::Vector3f::Zero());
     const Eigen::Vector3f color = (p.color_sum / p.weight_sum * 255.f).array().round().min(255.f).max(0.f).matrix();
     cloud.colors.push_back(color.cast<uint8_t>());
-    cloud.confidence.push_back(p.confidence_sum / p.views);
+    const float mean_confidence = p.confidence_sum / p.views;
+    cloud.confidence.push_back(state_->options.agreement_weighting ? mean_confidence * AgreementFactor(p) : mean_confidence);
   }
   local.kept_points = cloud.size();
   if (stats) *stats = local;

@@ -28,7 +28,8 @@ class FuseStage : public Stage {
   std::string Summary() const override {
     return "Uncertainty-weighted merge of depth samples into points with normals, colour, confidence (dense/fused.ply)";
   }
-  std::string Version() const override { return "3"; }  // 2: normals from depth in float (core); 3: no accuracy without points; confidence-error rank correlation
+  // 4: the points' confidence times their samples' agreement (agreement_weighting); min_confidence 0.02
+  std::string Version() const override { return "4"; }  // 2: normals from depth in float (core); 3: no accuracy without points; confidence-error rank correlation
   HoldoutRole Role() const override { return HoldoutRole::kTrainingOnly; }
 
   std::vector<ParamSpec> Parameters() const override {
@@ -41,7 +42,9 @@ class FuseStage : public Stage {
         {"merge_pixel_radius", ParamType::kDouble, "0.71",
          "Re-projection distance to the centre of the pixel it falls in for a merge, pixels, (0, 0.71]; 0.71: anywhere in it"},
         {"max_normal_angle_deg", ParamType::kDouble, "60", "Normals of merged samples within this, degrees, (0, 180]"},
-        {"min_confidence", ParamType::kDouble, "0.1", "Samples below this confidence are skipped, [0, 1]"},
+        {"min_confidence", ParamType::kDouble, "0.02", "Samples below this confidence are skipped, [0, 1]"},
+        {"agreement_weighting", ParamType::kBool, "true",
+         "Point confidence times the samples' agreement (chi-square about the merged position per view beyond 1 lowers it)"},
         {"min_views", ParamType::kInt, "2", "Views that must have contributed to a point, [1, 1000]"},
         {"eval_threshold", ParamType::kDouble, "-1", "Completeness distance, scene units; -1: 1% of the true mesh's bounding-box diagonal"},
         {"eval_samples", ParamType::kInt, "200000", "Surface samples for completeness, [1000, 10000000]"},
@@ -167,6 +170,7 @@ class FuseStage : public Stage {
     m["eval_threshold"] = threshold;
     m["accuracy_90_over_threshold"] = a.accuracy_90 / threshold;
     m["confidence_error_spearman"] = a.confidence_error_spearman;  // rank correlation, points' confidence vs distance
+    m["sparsification_auc_ratio"] = a.sparsification_auc_ratio;    // its sparsification area over the optimal one
     spdlog::info("[fuse] accuracy (90%) {:.4g}, completeness {:.1f}% ({:.1f}% of the seen surface) within {:.4g}", a.accuracy_90,
                  100 * a.completeness, 100 * std::max(0.0, a.completeness_visible), threshold);
   }
@@ -216,6 +220,7 @@ class FuseStage : public Stage {
     options.merge_pixel_radius = params.Double("merge_pixel_radius");
     options.max_normal_angle_deg = params.Double("max_normal_angle_deg");
     options.min_confidence = params.Double("min_confidence");
+    options.agreement_weighting = params.Bool("agreement_weighting");
     options.min_views = static_cast<int>(params.Int("min_views"));
     return options;
   }

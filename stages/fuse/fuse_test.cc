@@ -172,6 +172,35 @@ TEST(Fuse, NoisySphereMergesIntoAccurateCompletePoints) {
   EXPECT_LT(accuracy.completeness, accuracy.completeness_visible + 1e-9);
 }
 
+// Median confidence of the points two noise-free neighbouring views fuse into, the second view's
+// depths scaled by `scale` (a disagreement its confidence-1 uncertainty does not explain).
+float MedianPointConfidence(double scale, bool agreement_weighting) {
+  FuseOptions options;
+  options.agreement_weighting = agreement_weighting;
+  options.min_views = 2;  // merged points only
+  PointFuser fuser(options);
+  fuser.AddView(SphereView(0, 12, 0));
+  FuseView second = SphereView(1, 12, 0);
+  for (float& d : second.depth.data) d *= static_cast<float>(scale);
+  fuser.AddView(second);
+  PointCloud cloud = fuser.Finish(nullptr);
+  if (cloud.confidence.empty()) return -1;
+  std::nth_element(cloud.confidence.begin(), cloud.confidence.begin() + cloud.confidence.size() / 2, cloud.confidence.end());
+  return cloud.confidence[cloud.confidence.size() / 2];
+}
+
+TEST(Fuse, PointConfidenceFallsWhenItsSamplesDisagree) {
+  // Agreeing samples: chi-square ~ 0, factor 1.
+  EXPECT_GT(MedianPointConfidence(1.0, true), 0.95f);
+  // 0.9% apart with sigmas of 0.3% each: merged (2.1 combined sigmas < merge_sigmas 3), but
+  // chi-square 0.009^2 / (2 * 0.003^2) = 4.5 for one degree of freedom: exp(-(4.5 - 1) / 2) ~ 0.17.
+  const float disagreeing = MedianPointConfidence(1.009, true);
+  EXPECT_GT(disagreeing, 0.05f);
+  EXPECT_LT(disagreeing, 0.35f);
+  // Off: the mean of the samples' confidences (1).
+  EXPECT_GT(MedianPointConfidence(1.009, false), 0.95f);
+}
+
 TEST(Fuse, LowConfidenceSamplesMakeNoPoints) {
   FuseOptions options;
   PointFuser fuser(options);
@@ -278,6 +307,7 @@ TEST(FuseStage, WritesAReadablePlyAndRecordsAccuracy) {
     if (spec.type == ParamType::kInt) context.params.Set(spec.key, static_cast<int64_t>(std::stoll(spec.default_yaml)));
     if (spec.type == ParamType::kDouble) context.params.Set(spec.key, std::stod(spec.default_yaml));
     if (spec.type == ParamType::kString) context.params.Set(spec.key, spec.default_yaml);
+    if (spec.type == ParamType::kBool) context.params.Set(spec.key, spec.default_yaml == "true");
   }
   context.params.Set("eval_samples", int64_t{20000});
   ASSERT_FALSE(stage->CheckParams(context.params).has_value());

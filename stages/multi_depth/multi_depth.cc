@@ -3,6 +3,7 @@
 #include "stages/multi_depth/multi_depth.h"
 
 #include "pipeline/core/depth_normals.h"
+#include "stages/multi_depth/geometric_consistency.h"
 
 #include <Eigen/Geometry>
 #include <algorithm>
@@ -106,6 +107,9 @@ bool MultiDepthOptions::Check(std::string* error) const {
                 "got " + std::to_string(max_neighbors) + ": raise max_neighbors or set fill_from_neighbors: false");
   }
   if (!(max_view_angle_deg > 0 && max_view_angle_deg <= 180)) return fail("max_view_angle_deg: must be in (0, 180], got " + std::to_string(max_view_angle_deg));
+  if (!(geometric_sigma >= 0 && geometric_sigma <= 0.5)) return fail("geometric_sigma: must be in [0, 0.5] (0: off), got " + std::to_string(geometric_sigma));
+  if (!(view_agreement_reference >= 0 && view_agreement_reference <= 1))
+    return fail("view_agreement_reference: must be in [0, 1] (0: off), got " + std::to_string(view_agreement_reference));
   if (!(min_baseline_ratio >= 0 && min_baseline_ratio < 1)) return fail("min_baseline_ratio: must be in [0, 1), got " + std::to_string(min_baseline_ratio));
   return true;
 }
@@ -142,6 +146,8 @@ struct Votes {
   int confirmations = 0;
   int violations = 0;
   double weight_sum = 0, weighted_depth = 0, confidence_sum = 0;
+  float geometric = 1;  // GeometricConsistency of the neighbours that see the point (1: off or none)
+  int seen = 0;         // neighbours that see it
 };
 
 Votes Vote(const Eigen::Vector3f& ray, float depth, float confidence, const std::vector<PreparedNeighbor>& prepared,
@@ -149,6 +155,7 @@ Votes Vote(const Eigen::Vector3f& ray, float depth, float confidence, const std:
   const float tolerance = static_cast<float>(options.depth_tolerance), smooth = 5 * tolerance;
   const float see_through = std::max(tolerance, static_cast<float>(options.violation_tolerance));
   Votes votes;
+  GeometricConsistency consistency(static_cast<float>(options.geometric_sigma > 0 ? options.geometric_sigma : 1.0));
   votes.weight_sum = votes.confidence_sum = confidence;
   votes.weighted_depth = confidence * depth;
   const Eigen::Vector3f point = ray * depth;
@@ -162,6 +169,8 @@ Votes Vote(const Eigen::Vector3f& ray, float depth, float confidence, const std:
     const float neighbor_confidence = ConfidenceAt(n.view->confidence, px, py);
     if (neighbor_confidence < options.min_confidence) continue;
     const float relative = (neighbor_depth - in_neighbor.z()) / in_neighbor.z();
+    // Seen (not behind a clearly nearer surface): the disagreement counts against the point.
+    if (relative >= -see_through) consistency.Add(relative);
     if (relative < -tolerance) continue;  // visibility: a nearer surface hides the point from this view
     if (relative > see_through) {         // the neighbour saw through the point: free-space violation
       ++votes.violations;
@@ -176,6 +185,8 @@ Votes Vote(const Eigen::Vector3f& ray, float depth, float confidence, const std:
       votes.weight_sum += neighbor_confidence;
     }
   }
+  if (options.geometric_sigma > 0) votes.geometric = consistency.Value();
+  votes.seen = consistency.seen();
   return votes;
 }
 
@@ -225,6 +236,18 @@ bool KeptRange(const DepthMap& depth, int x, int y, int radius, float* lo, float
   return *hi > 0;
 }
 
+// The confidence factor of a key view whose samples agree with its neighbours by `agreement` on
+// average: agreement / view_agreement_reference, at most 1 (1 when the reference is 0: off).
+float ViewFactor(double agreement, const MultiDepthOptions& options) {
+  if (!(options.view_agreement_reference > 0)) return 1.f;
+  return static_cast<float>(std::clamp(agreement / options.view_agreement_reference, 0.0, 1.0));
+}
+
+void ScaleConfidence(float factor, FloatMap* confidence) {
+  if (factor == 1.f) return;
+  for (float& c : confidence->data) c *= factor;
+}
+
 }  // namespace
 
 MultiDepthResult MakeDepthConsistent(const DepthView& key, const std::vector<const DepthView*>& neighbors,
@@ -246,11 +269,19 @@ MultiDepthResult MakeDepthConsistent(const DepthView& key, const std::vector<con
     // lets through): the sample's own depth.
     const bool refine = options.refine_depth && votes.weight_sum > 0;
     result.depth.At(x, y) = refine ? static_cast<float>(votes.weighted_depth / votes.weight_sum) : depth;
-    result.confidence.At(x, y) = static_cast<float>(votes.confidence_sum / (1 + votes.confirmations + votes.violations));
+    // The geometric mean of the photometric confidence (mean over the key and its confirming
+    // views, diluted by the violations) and the geometric consistency: both in [0, 1], and on the
+    // photometric scale downstream thresholds (fuse's min_confidence) were set on.
+    const double photometric = votes.confidence_sum / (1 + votes.confirmations + votes.violations);
+    result.confidence.At(x, y) = static_cast<float>(std::sqrt(photometric * votes.geometric));
     if (!(normal.squaredNorm() > 0.25f)) normal = -ray.normalized();  // unknown: face the camera
     for (int c = 0; c < 3; ++c) result.normals.At(x, y, c) = normal[c];
   };
   MultiDepthStats& stats = result.stats;
+  // The key view's agreement with its neighbours: the mean geometric consistency of its samples
+  // that some neighbour sees, kept or not (a camera whose pose is off disagrees everywhere).
+  double agreement_sum = 0;
+  size_t agreement_samples = 0;
   for (int y = 0; y < h; ++y) {
     for (int x = 0; x < w; ++x) {
       const float d = key.depth.At(x, y);
@@ -263,6 +294,7 @@ MultiDepthResult MakeDepthConsistent(const DepthView& key, const std::vector<con
       }
       const Eigen::Vector3f& ray = rays[static_cast<size_t>(y) * w + x];
       const Votes votes = Vote(ray, d, key_confidence, prepared, options);
+      if (votes.seen > 0) agreement_sum += votes.geometric, ++agreement_samples;
       if (votes.violations > options.max_violation_ratio * votes.confirmations) {
         ++stats.violated;
         continue;
@@ -275,7 +307,12 @@ MultiDepthResult MakeDepthConsistent(const DepthView& key, const std::vector<con
       store(x, y, votes, d, ray, Eigen::Vector3f(normals.At(x, y, 0), normals.At(x, y, 1), normals.At(x, y, 2)));
     }
   }
-  if (!options.fill_from_neighbors || prepared.empty()) return result;
+  stats.view_agreement = agreement_samples > 0 ? agreement_sum / static_cast<double>(agreement_samples) : 1.0;
+  const float view_factor = ViewFactor(stats.view_agreement, options);
+  if (!options.fill_from_neighbors || prepared.empty()) {
+    ScaleConfidence(view_factor, &result.confidence);
+    return result;
+  }
 
   // Depth compatibility fills the key pixels left empty where the key's own sample was missing or
   // an outlier (not where the key's stereo gave a low-confidence depth): the nearest
@@ -331,6 +368,7 @@ MultiDepthResult MakeDepthConsistent(const DepthView& key, const std::vector<con
       }
     }
   }
+  ScaleConfidence(view_factor, &result.confidence);
   if (filled.empty()) return result;
   // Filled pixels have no photometric normal: take the normal of the final depth map there.
   const FloatMap filled_normals = NormalsFromDepth(key.camera, result.depth);

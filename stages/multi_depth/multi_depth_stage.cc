@@ -15,6 +15,7 @@
 #include "pipeline/core/errors.h"
 #include "pipeline/core/per_view.h"
 #include "pipeline/core/rank_correlation.h"
+#include "pipeline/core/sparsification.h"
 #include "pipeline/core/stage_api.h"
 #include "pipeline/core/view_cache.h"
 #include "stages/multi_depth/multi_depth.h"
@@ -72,7 +73,8 @@ class MultiDepthStage : public Stage {
   std::string Summary() const override {
     return "Depth maps made consistent across views: visibility, depth compatibility, rejection (.geometric.bin)";
   }
-  std::string Version() const override { return "3"; }  // 3: confidence-error rank correlation
+  // 3: confidence-error rank correlation; 4: the confidence's geometric factor (geometric_sigma)
+  std::string Version() const override { return "4"; }
   HoldoutRole Role() const override { return HoldoutRole::kTrainingOnly; }
   bool Shardable() const override { return true; }
   double ViewMemoryMb(const StageContext& context) const override {
@@ -103,6 +105,10 @@ class MultiDepthStage : public Stage {
         {"max_view_angle_deg", ParamType::kDouble, "80", "Neighbour viewing direction within this angle of the key's, degrees"},
         {"fill_from_neighbors", ParamType::kBool, "true", "Fill missing or rejected pixels with a neighbour depth that other views confirm"},
         {"min_baseline_ratio", ParamType::kDouble, "0.05", "Neighbour baseline >= ratio * the key's median baseline, in [0, 1)"},
+        {"view_agreement_reference", ParamType::kDouble, "0.8",
+         "A view's confidence is scaled by min(1, its samples' mean geometric consistency / this), [0, 1]; 0: off"},
+        {"geometric_sigma", ParamType::kDouble, "0.003",
+         "Relative depth disagreement of a neighbour at which its factor of the confidence is exp(-1/2), [0, 0.5]; 0: off"},
     };
   }
 
@@ -173,7 +179,7 @@ class MultiDepthStage : public Stage {
       const MultiDepthStats& st = result.stats;
       nlohmann::json piece = {
           {"stats", {st.input_samples, st.low_confidence, st.unconfirmed, st.violated, st.kept, st.filled}},
-          {"without_neighbors", neighbors.empty()}};
+          {"without_neighbors", neighbors.empty()}, {"view_agreement", st.view_agreement}};
       const std::string truth_path = workspace.GroundTruthDepthPath(name);
       if (has_truth && fs::exists(truth_path)) {
         const DepthMap truth = ReadColmapArray(truth_path);  // read once for all four measures
@@ -195,10 +201,12 @@ class MultiDepthStage : public Stage {
     DepthAccuracy before, after;
     std::vector<double> pairs[4];  // over views: as the pieces' pairs
     size_t views_without_neighbors = 0;
+    std::vector<double> view_agreements;  // per view, in name order
     for (const auto& [name, piece] : summary.pieces) {
       const std::vector<size_t> st = piece.at("stats").get<std::vector<size_t>>();
       Accumulate(MultiDepthStats{st.at(0), st.at(1), st.at(2), st.at(3), st.at(4), st.at(5)}, &totals);
       if (piece.at("without_neighbors").get<bool>()) ++views_without_neighbors;
+      if (piece.contains("view_agreement")) view_agreements.push_back(piece["view_agreement"].get<double>());
       if (!piece.contains("before")) continue;
       const std::vector<size_t> b = piece["before"].get<std::vector<size_t>>();
       const std::vector<size_t> a = piece["after"].get<std::vector<size_t>>();
@@ -221,6 +229,11 @@ class MultiDepthStage : public Stage {
     m["filled_from_neighbors"] = totals.filled;
     m["kept_fraction"] = totals.input_samples ? double(totals.kept) / totals.input_samples : 0.0;
     m["views_without_neighbors"] = views_without_neighbors;
+    if (!view_agreements.empty()) {  // how well the views agree with their neighbours (geometric_sigma)
+      std::sort(view_agreements.begin(), view_agreements.end());
+      m["view_agreement_min"] = view_agreements.front();
+      m["view_agreement_median"] = view_agreements[view_agreements.size() / 2];
+    }
     if (before.truth_pixels > 0) {
       m["truth_pixels"] = before.truth_pixels;
       m["photometric_within_1pct_of_textured"] = before.FractionOfTruth();
@@ -231,6 +244,9 @@ class MultiDepthStage : public Stage {
       // Does the confidence fall where the error rises? (Spearman's rho; negative is good.)
       m["photometric_confidence_error_spearman"] = SpearmanCorrelation(pairs[0], pairs[1]);
       m["geometric_confidence_error_spearman"] = SpearmanCorrelation(pairs[2], pairs[3]);
+      // The area under each confidence's sparsification curve over the optimal one (1: perfect).
+      m["photometric_sparsification_auc_ratio"] = SparsificationAucRatio(pairs[0], pairs[1]);
+      m["geometric_sparsification_auc_ratio"] = SparsificationAucRatio(pairs[2], pairs[3]);
     }
     spdlog::info("[multi_depth] {} views: kept {} of {} samples ({:.1f}%; {} low confidence, {} unconfirmed, {} seen through), {} filled",
                  names.size(), totals.kept, totals.input_samples, 100.0 * m["kept_fraction"].get<double>(),
@@ -282,6 +298,8 @@ class MultiDepthStage : public Stage {
     options.max_neighbors = static_cast<int>(params.Int("max_neighbors"));
     options.max_view_angle_deg = params.Double("max_view_angle_deg");
     options.min_baseline_ratio = params.Double("min_baseline_ratio");
+    options.geometric_sigma = params.Double("geometric_sigma");
+    options.view_agreement_reference = params.Double("view_agreement_reference");
     options.fill_from_neighbors = params.Bool("fill_from_neighbors");
     return options;
   }

@@ -16,6 +16,7 @@
 #include "pipeline/core/colmap_text_io.h"
 #include "pipeline/core/errors.h"
 #include "pipeline/core/stage_api.h"
+#include "stages/multi_depth/geometric_consistency.h"
 
 namespace fs = std::filesystem;
 
@@ -157,6 +158,91 @@ TEST(MultiDepthOptions, RejectsInvalidRanges) {
   o = MultiDepthOptions();
   o.min_baseline_ratio = 1;
   expect_error(o, "min_baseline_ratio");
+  o = MultiDepthOptions();
+  o.geometric_sigma = -0.01;
+  expect_error(o, "geometric_sigma");
+  o.geometric_sigma = 0.6;
+  expect_error(o, "geometric_sigma");
+  o = MultiDepthOptions();
+  o.view_agreement_reference = 1.5;
+  expect_error(o, "view_agreement_reference");
+  o = MultiDepthOptions();
+  o.geometric_sigma = o.view_agreement_reference = 0;  // both off
+  EXPECT_TRUE(o.Check(&error)) << error;
+}
+
+TEST(GeometricConsistency, MeanGaussianAgreementOfTheNeighboursThatSee) {
+  GeometricConsistency none(0.01f);
+  EXPECT_FLOAT_EQ(none.Value(), 1.f);  // nothing contradicts
+  GeometricConsistency c(0.01f);
+  c.Add(0.f);
+  c.Add(0.01f);    // one sigma: exp(-1/2)
+  c.Add(-0.02f);   // two sigmas, either side: exp(-2)
+  EXPECT_EQ(c.seen(), 3);
+  EXPECT_NEAR(c.Value(), (1 + std::exp(-0.5) + std::exp(-2.0)) / 3, 1e-6);
+}
+
+// The key's median confidence among its kept samples.
+float MedianConfidence(const MultiDepthResult& result) {
+  std::vector<float> kept;
+  for (size_t i = 0; i < result.depth.data.size(); ++i) {
+    if (result.depth.data[i] > 0) kept.push_back(result.confidence.data[i]);
+  }
+  if (kept.empty()) return -1;
+  std::nth_element(kept.begin(), kept.begin() + kept.size() / 2, kept.end());
+  return kept[kept.size() / 2];
+}
+
+// A synthetic pair with a known pose error: the neighbour's depth map is exact, but its camera is
+// given `shift` (scene units) farther along its optical axis than the one that rendered it, so it
+// measures every key point `shift` nearer than the key's depth puts it: relative disagreement
+// -shift / z (z ~ 3 to 4 here, so shift 0.012 is ~0.3%, one geometric_sigma).
+MultiDepthResult PairWithPoseError(double shift, const MultiDepthOptions& options, MultiDepthStats* stats = nullptr) {
+  const Scene scene = MakeScene(8, 80, 60);
+  DepthView neighbour = scene.truth[1];
+  neighbour.cam_from_world.translation.z() += shift;
+  const MultiDepthResult result = MakeDepthConsistent(scene.truth[0], {&neighbour}, options);
+  if (stats) *stats = result.stats;
+  return result;
+}
+
+TEST(MultiDepth, GeometricConsistencyFallsWithAKnownPoseError) {
+  MultiDepthOptions options;
+  options.min_consistent_views = 1;
+  options.fill_from_neighbors = false;
+  options.refine_depth = false;
+  options.view_agreement_reference = 0;  // the per-sample factor alone
+  // No error: the geometric factor is 1, and so the confidence (confidence maps absent: 1).
+  EXPECT_GT(MedianConfidence(PairWithPoseError(0.0, options)), 0.99f);
+  // One sigma of disagreement at z ~ 4 (0.012 / 4 = 0.003): factor exp(-1/2) ~ 0.61, confidence
+  // its square root (geometric mean with the photometric 1) ~ 0.78; at z ~ 3 lower.
+  const float one_sigma = MedianConfidence(PairWithPoseError(0.012, options));
+  EXPECT_GT(one_sigma, 0.6f);
+  EXPECT_LT(one_sigma, 0.85f);
+  // Twice the error: lower still (factor ~ exp(-2)), while still within depth_tolerance (kept).
+  const float two_sigma = MedianConfidence(PairWithPoseError(0.024, options));
+  EXPECT_GT(two_sigma, 0.f);
+  EXPECT_LT(two_sigma, one_sigma - 0.2f);
+  // Off: the pose error is invisible to the confidence.
+  options.geometric_sigma = 0;
+  EXPECT_GT(MedianConfidence(PairWithPoseError(0.024, options)), 0.99f);
+}
+
+TEST(MultiDepth, ViewAgreementScalesAViewWhoseCameraIsOff) {
+  MultiDepthOptions options;
+  options.min_consistent_views = 1;
+  options.fill_from_neighbors = false;
+  options.refine_depth = false;
+  MultiDepthStats clean, off;
+  const float clean_confidence = MedianConfidence(PairWithPoseError(0.0, options, &clean));
+  const float off_confidence = MedianConfidence(PairWithPoseError(0.024, options, &off));
+  EXPECT_GT(clean.view_agreement, 0.85);  // silhouette pixels disagree across a depth edge
+  EXPECT_LT(off.view_agreement, 0.5);
+  EXPECT_GT(clean_confidence, 0.99f);  // at least the reference: factor 1
+  // The view factor (agreement / 0.8) multiplies the per-sample geometric mean.
+  options.view_agreement_reference = 0;
+  const float without_view_factor = MedianConfidence(PairWithPoseError(0.024, options));
+  EXPECT_NEAR(off_confidence, without_view_factor * off.view_agreement / 0.8, 0.02);
 }
 
 TEST(SelectNeighbors, ClosestDirectionsFirstAndNoZeroBaseline) {

@@ -98,6 +98,14 @@ cv::Mat MedianInBands(const cv::Mat& image, int r) {
   return out;
 }
 
+// The certainty's scales of `options`.
+sweep::CertaintyOptions Certainty(const PlaneSweepOptions& options) {
+  sweep::CertaintyOptions certainty;
+  certainty.margin_scale = options.confidence_scale;
+  certainty.peak_ratio_scale = options.peak_ratio_scale;
+  return certainty;
+}
+
 }  // namespace
 
 bool PlaneSweepOptions::Check(std::string* error) const {
@@ -117,6 +125,8 @@ bool PlaneSweepOptions::Check(std::string* error) const {
   if (p2 < p1 || p2 > 6000) return Fail(error, "p2", "must be in [p1, 6000]", p2);
   if (!(p2_gamma >= 0)) return Fail(error, "p2_gamma", "must be >= 0", p2_gamma);
   if (!(confidence_scale > 0)) return Fail(error, "confidence_scale", "must be > 0", confidence_scale);
+  if (!(peak_ratio_scale >= 0 && peak_ratio_scale <= 100))
+    return Fail(error, "peak_ratio_scale", "must be in [0, 100] (0: off)", peak_ratio_scale);
   if (!(texture_scale >= 0)) return Fail(error, "texture_scale", "must be >= 0", texture_scale);
   if (!(confidence_threshold >= 0 && confidence_threshold <= 1))
     return Fail(error, "confidence_threshold", "must be in [0, 1]", confidence_threshold);
@@ -169,7 +179,7 @@ StereoPairResult StereoPair(const cv::Mat& left_image, const cv::Mat& right_imag
   lap("cost volume");
   sweep::Aggregate(volume, left, engine, &aggregated);
   lap("aggregation");
-  const sweep::Winners winners = sweep::WinnerTakeAll(aggregated, nullptr, options.confidence_scale, options.lr_check);
+  const sweep::Winners winners = sweep::WinnerTakeAll(aggregated, nullptr, sweep::CertaintyOptions{}, options.lr_check);
   lap("winner");
   cv::Mat disparity = winners.plane;
   tbb::parallel_for(0, disparity.rows, [&](int y) {
@@ -387,7 +397,7 @@ PlaneSweepResult PlaneSweep(const SweepView& reference, const std::vector<SweepV
     // The semi-global passes run on this thread (and a helper of its own), outside any parallel
     // loop, so its CPU clock counts them alone.
     const double aggregation_started = sweep::ThreadCpuSeconds();
-    const sweep::Winners winners = sweep::AggregateAndPick(volume, part_gray, engine, options.confidence_scale, &sums);
+    const sweep::Winners winners = sweep::AggregateAndPick(volume, part_gray, engine, Certainty(options), &sums);
     if (engine.semi_global) result.aggregation_seconds += sweep::ThreadCpuSeconds() - aggregation_started;
     result.volume_bytes = std::max(result.volume_bytes, (volume.data.size() + sums.size()) * sizeof(uint16_t));
     const cv::Rect own(region.x, y0, region.width, y1 - y0);

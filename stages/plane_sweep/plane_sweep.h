@@ -9,7 +9,9 @@
 // Follows seed 000, lines 3659-3760 (dense stereo along epipolar lines, multiple baselines),
 // 5300-5525 (section 2, "Depth maps": generalized disparity space, matching cost, aggregation,
 // winner-take-all, sub-pixel, certainty) and 4352-4453 (section 4: parabola sub-pixel and its
-// variance). Census: Zabih & Woodfill 1994; semi-global matching: Hirschmueller 2008.
+// variance). Census: Zabih & Woodfill 1994; semi-global matching: Hirschmueller 2008. The
+// confidence combines cost-curve measures of Hu & Mordohai (PAMI 2012): the margin below the
+// curve's mean and the peak ratio against a second minimum (cost_curve_confidence.h).
 #pragma once
 
 #include <Eigen/Core>
@@ -46,8 +48,14 @@ struct PlaneSweepOptions {
   int p1 = 240;                   // small-jump penalty, cost units (1000 ~ worst match), in [0, 2000]
   int p2 = 1200;                  // large-jump penalty, cost units, in [p1, 6000]
   double p2_gamma = 12.0;         // P2 / (1 + |grey step| / gamma) at edges, grey levels; 0: constant
-  double confidence_scale = 3.0;  // confidence = scale * (mean cost - winner cost) / mean cost,
-                                  // times the texture factor, clipped to [0, 1]; > 0
+  double confidence_scale = 3.0;  // margin factor = Saturate(scale * (mean cost - winner cost) / mean
+                                  // cost): the value up to 1/2, then smoothly below 1; > 0
+                                  // (cost_curve_confidence.h)
+  // Peak-ratio factor = Saturate(scale * (1 - c1 / c2m)): c1 the winner's aggregated cost, c2m the
+  // lowest other local minimum of the aggregated cost curve (Hu & Mordohai 2012, PKR); 0 where
+  // another depth is about as cheap after aggregation (repetitive texture). In [0, 100]; 0: off.
+  // The confidence is the margin factor times the peak-ratio factor times the texture factor.
+  double peak_ratio_scale = 20.0;
   double confidence_threshold = 0.5;   // depth set to 0 where confidence < this, in [0, 1]
   double texture_scale = 6.0;     // grey-level std. dev. over the census window at which the
                                   // texture factor of the confidence reaches 1, >= 0 (0: off)

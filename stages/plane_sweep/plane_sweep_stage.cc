@@ -82,8 +82,9 @@ class PlaneSweepStage : public Stage {
   // 2: hull bounds that reach the camera are not used; 3: fixed-point bilinear census weights (1/256 px),
   // per-pixel near bounds from hull/hull.ply
   // 4: pixels too untextured to keep a depth are not matched; 5: the census cost interpolated along
-  // the epipolar lines (census_sampling: epipolar)
-  std::string Version() const override { return "5"; }
+  // the epipolar lines (census_sampling: epipolar); 6: the confidence's peak-ratio factor
+  // (peak_ratio_scale)
+  std::string Version() const override { return "6"; }
   HoldoutRole Role() const override { return HoldoutRole::kTrainingOnly; }
   bool Shardable() const override { return true; }
   double ViewMemoryMb(const StageContext& context) const override {
@@ -126,7 +127,9 @@ class PlaneSweepStage : public Stage {
         {"p1", ParamType::kInt, s(d.p1), "Small-jump penalty, cost units (1000 ~ worst match)"},
         {"p2", ParamType::kInt, s(d.p2), "Large-jump penalty, cost units, [p1, 6000]"},
         {"p2_gamma", ParamType::kDouble, s(d.p2_gamma), "P2 divided by 1 + |grey step|/gamma; 0: constant"},
-        {"confidence_scale", ParamType::kDouble, s(d.confidence_scale), "Confidence = scale * (mean cost - winner cost) / mean cost x texture, clipped"},
+        {"confidence_scale", ParamType::kDouble, s(d.confidence_scale), "Margin factor of the confidence = scale * (mean cost - winner cost) / mean cost, clipped"},
+        {"peak_ratio_scale", ParamType::kDouble, s(d.peak_ratio_scale),
+         "Peak-ratio factor of the confidence = scale * (1 - winner cost / next local minimum), clipped, [0, 100]; 0: off"},
         {"texture_scale", ParamType::kDouble, s(d.texture_scale),
          "Grey std. dev. over the census window giving full confidence; 0: no texture factor"},
         {"confidence_threshold", ParamType::kDouble, s(d.confidence_threshold),
@@ -376,6 +379,7 @@ class PlaneSweepStage : public Stage {
     o.p2 = static_cast<int>(p.Int("p2"));
     o.p2_gamma = p.Double("p2_gamma");
     o.confidence_scale = p.Double("confidence_scale");
+    o.peak_ratio_scale = p.Double("peak_ratio_scale");
     o.confidence_threshold = p.Double("confidence_threshold");
     o.texture_scale = p.Double("texture_scale");
     o.min_depth = p.Double("min_depth");

@@ -420,7 +420,7 @@ TEST(SweepEngine, APartAtItsOriginMatchesLikeTheWholeView) {
     sweep::Aggregated whole_sums;
     sweep::BuildCostVolume(ref, neighbours, options, &whole_volume, &ranges);
     sweep::Aggregate(whole_volume, ref, options, &whole_sums, true);
-    const sweep::Winners whole = sweep::WinnerTakeAll(whole_sums, &whole_volume, 1.0);
+    const sweep::Winners whole = sweep::WinnerTakeAll(whole_sums, &whole_volume, sweep::CertaintyOptions{1.0});
 
     const int margin = 2 * options.window_radius;
     const cv::Rect part(block.x - margin, block.y - margin, block.width + 2 * margin, block.height + 2 * margin);
@@ -438,7 +438,7 @@ TEST(SweepEngine, APartAtItsOriginMatchesLikeTheWholeView) {
     sweep::Aggregated part_sums;
     sweep::BuildCostVolume(part_gray, neighbours, options, &part_volume, &part_ranges, &part_census, part.tl());
     sweep::Aggregate(part_volume, part_gray, options, &part_sums, true);
-    const sweep::Winners in_part = sweep::WinnerTakeAll(part_sums, &part_volume, 1.0);
+    const sweep::Winners in_part = sweep::WinnerTakeAll(part_sums, &part_volume, sweep::CertaintyOptions{1.0});
 
     int with_winner = 0;
     for (int y = block.y; y < block.br().y; ++y) {
@@ -716,8 +716,8 @@ TEST(SweepEngine, UnmatchedPixelsLeaveTheMatchedSumsAndHaveNoWinner) {
           for (int d = 0; d < planes; ++d) differ += got.Sum(pixel, d) != expected.Sum(pixel, d);
         }
         EXPECT_EQ(differ, 0u);
-        const sweep::Winners want = sweep::WinnerTakeAll(expected, &all, 3.0);
-        const sweep::Winners have = sweep::WinnerTakeAll(got, &some, 3.0);
+        const sweep::Winners want = sweep::WinnerTakeAll(expected, &all, sweep::CertaintyOptions{3.0});
+        const sweep::Winners have = sweep::WinnerTakeAll(got, &some, sweep::CertaintyOptions{3.0});
         for (int y = 0; y < h; ++y) {
           for (int x = 0; x < w; ++x) {
             const size_t pixel = static_cast<size_t>(y) * w + x;
@@ -807,8 +807,8 @@ TEST(SweepEngine, PathsCrossLeftOutPixelsAsIfSteppedThroughEach) {
                 EXPECT_EQ(differ, 0u) << (one_buffer ? "one buffer" : "two buffers");
               }
               LargeBuffer<uint16_t> sums_all, sums_some;
-              const sweep::Winners want = sweep::AggregateAndPick(all, gray, options, 3.0, &sums_all);
-              const sweep::Winners have = sweep::AggregateAndPick(some, gray, options, 3.0, &sums_some);
+              const sweep::Winners want = sweep::AggregateAndPick(all, gray, options, sweep::CertaintyOptions{3.0}, &sums_all);
+              const sweep::Winners have = sweep::AggregateAndPick(some, gray, options, sweep::CertaintyOptions{3.0}, &sums_some);
               size_t differ = 0;
               for (int y = 0; y < h; ++y) {
                 for (int x = 0; x < w; ++x) {
@@ -868,7 +868,7 @@ TEST(SweepEngine, PickingWinnersInTheBackwardPassEqualsSearchingTheSums) {
         options.paths = paths > 0 ? paths : 8;
         sweep::Aggregated aggregated;
         sweep::Aggregate(volume, gray, options, &aggregated, /*one_buffer=*/true);
-        const sweep::Winners want = sweep::WinnerTakeAll(aggregated, &volume, 0.5);
+        const sweep::Winners want = sweep::WinnerTakeAll(aggregated, &volume, sweep::CertaintyOptions{0.5});
         for (int threads : {1, 2}) {
           SCOPED_TRACE("threads " + std::to_string(threads));
           options.sgm_threads = threads;
@@ -884,7 +884,7 @@ TEST(SweepEngine, PickingWinnersInTheBackwardPassEqualsSearchingTheSums) {
           }
           LargeBuffer<uint16_t> sums(volume.data.size());
           for (uint16_t& v : sums) v = static_cast<uint16_t>(rng.uniform(0, 65536));
-          const sweep::Winners have = sweep::AggregateAndPick(volume, gray, options, 0.5, &sums);
+          const sweep::Winners have = sweep::AggregateAndPick(volume, gray, options, sweep::CertaintyOptions{0.5}, &sums);
           EXPECT_EQ(sums.empty(), paths == 0);  // without semi-global passes the volume is picked from
           // The matched pixels' sums only (the unmatched ones' are never read).
           if (paths > 0) EXPECT_EQ(sums.size(), (static_cast<size_t>(w) * h - unmatched) * volume.stride);

@@ -122,14 +122,14 @@ void Aggregate(const CostVolume& volume, const cv::Mat& reference_gray, const En
   IBMR_SWEEP_DISPATCH(Aggregate(volume, reference_gray, options, one_buffer, out));
 }
 
-Winners WinnerTakeAll(const Aggregated& aggregated, const CostVolume* data_cost, double confidence_scale,
+Winners WinnerTakeAll(const Aggregated& aggregated, const CostVolume* data_cost, const CertaintyOptions& certainty,
                       bool right_winners) {
-  IBMR_SWEEP_DISPATCH(WinnerTakeAll(aggregated, data_cost, confidence_scale, right_winners));
+  IBMR_SWEEP_DISPATCH(WinnerTakeAll(aggregated, data_cost, certainty, right_winners));
 }
 
 Winners AggregateAndPick(const CostVolume& volume, const cv::Mat& reference_gray, const EngineOptions& options,
-                         double confidence_scale, LargeBuffer<uint16_t>* sums) {
-  IBMR_SWEEP_DISPATCH(AggregateAndPick(volume, reference_gray, options, confidence_scale, sums));
+                         const CertaintyOptions& certainty, LargeBuffer<uint16_t>* sums) {
+  IBMR_SWEEP_DISPATCH(AggregateAndPick(volume, reference_gray, options, certainty, sums));
 }
 
 std::vector<uint64_t> CensusTransform(const cv::Mat& gray, int radius_x, int radius_y) {

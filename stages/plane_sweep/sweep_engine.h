@@ -21,6 +21,7 @@
 #include <vector>
 
 #include "pipeline/core/large_buffer.h"
+#include "stages/plane_sweep/cost_curve_confidence.h"
 
 namespace ibmr {
 namespace sweep {
@@ -165,8 +166,9 @@ void Aggregate(const CostVolume& volume, const cv::Mat& reference_gray, const En
                bool one_buffer = false);
 
 // Per-pixel winner: plane index with sub-pixel offset (-1 where undefined, as at unmatched pixels),
-// and certainty in [0, 1] from the data-cost curve (how far the winner's matching cost lies below
-// the curve's mean; 0 at unmatched pixels).
+// and certainty in [0, 1] from the data-cost curve (CurveConfidence, cost_curve_confidence.h: how
+// far the winner's matching cost lies below the curve's mean, times, when enabled, how clearly it
+// beats the best other local minimum; 0 at unmatched pixels).
 // Two-view only, `right`: the winner of each right-view pixel from the same aggregated volume
 // (plane = disparity: right pixel xr matches left pixel xr + d), integer disparities, -1 where
 // undefined; found in the same pass over the volume.
@@ -176,7 +178,7 @@ struct Winners {
   cv::Mat right;       // CV_32S, with `right_winners` only
 };
 // `data_cost` nullptr: no confidence (left at 0).
-Winners WinnerTakeAll(const Aggregated& aggregated, const CostVolume* data_cost, double confidence_scale,
+Winners WinnerTakeAll(const Aggregated& aggregated, const CostVolume* data_cost, const CertaintyOptions& certainty,
                       bool right_winners = false);
 
 // The winners of Aggregate(one_buffer) and WinnerTakeAll(data_cost = volume), found without the
@@ -190,7 +192,7 @@ Winners WinnerTakeAll(const Aggregated& aggregated, const CostVolume* data_cost,
 // several sweeps, as the multi-view stage does; with options.sgm_threads 2 each pass's paths are
 // split over two threads (one sweep at a time).
 Winners AggregateAndPick(const CostVolume& volume, const cv::Mat& reference_gray, const EngineOptions& options,
-                         double confidence_scale, LargeBuffer<uint16_t>* sums);
+                         const CertaintyOptions& certainty, LargeBuffer<uint16_t>* sums);
 
 // Cost-volume buffers lent from a process-wide pool, so that consecutive views (or pairs) reuse
 // already-faulted pages; at most one set per concurrently running sweep is alive.

@@ -468,7 +468,7 @@ inline uint16_t PadAndMinimum(uint16_t* s, int np, int stride) {
 // surfaces, or the winner matches no better than a random plane, as where it is occluded in the
 // best neighbours). Inlined: a call per pixel cost the two-view pairs 5-8% of their time.
 __attribute__((always_inline)) inline void WinnerOf(const uint16_t* s, uint16_t lowest, int np, const uint16_t* data,
-                                                    double confidence_scale, float* plane, float* confidence) {
+                                                    const CertaintyOptions& certainty, float* plane, float* confidence) {
   int best = 0;
   for (int d = 0;; d += kLaneCount) {
     const int lane = FirstLaneEqual(reinterpret_cast<UnsignedLanes>(LoadLanes<Lanes>(s + d)), lowest);
@@ -485,11 +485,7 @@ __attribute__((always_inline)) inline void WinnerOf(const uint16_t* s, uint16_t 
   }
   *plane = sub;
   if (data == nullptr) return;
-  uint32_t total = 0;
-  for (int d = 0; d < np; ++d) total += data[d];
-  const float mean = static_cast<float>(total) / np;
-  const float margin = (mean - data[best]) / std::max(1.f, mean);
-  *confidence = static_cast<float>(std::clamp(margin * confidence_scale, 0.0, 1.0));
+  *confidence = CurveConfidence(data, s, np, best, certainty);
 }
 
 // Where a backward pass that completes the sums puts each matched pixel's winner (AggregateAndPick)
@@ -497,12 +493,12 @@ __attribute__((always_inline)) inline void WinnerOf(const uint16_t* s, uint16_t 
 struct PickTarget {
   float* plane = nullptr;       // sub-pixel plane index (left untouched at unmatched pixels)
   float* confidence = nullptr;  // certainty in [0, 1]
-  double confidence_scale = 0;
+  CertaintyOptions certainty;
 
   // Pixel `pixel`'s winner from its completed sums `s` (`stride` entries; the padding ones are
   // overwritten) and its data-cost curve `data`.
   void Pick(uint16_t* s, int np, int stride, const uint16_t* data, size_t pixel) const {
-    WinnerOf(s, PadAndMinimum(s, np, stride), np, data, confidence_scale, plane + pixel, confidence + pixel);
+    WinnerOf(s, PadAndMinimum(s, np, stride), np, data, certainty, plane + pixel, confidence + pixel);
   }
 };
 
@@ -2163,7 +2159,7 @@ void Aggregate(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o,
                       [&] { SgmPass(v, gray, o, -1, false, false, &result.b); });
 }
 
-Winners WinnerTakeAll(const Aggregated& ag, const CostVolume* data, double confidence_scale, bool right_winners) {
+Winners WinnerTakeAll(const Aggregated& ag, const CostVolume* data, const CertaintyOptions& certainty, bool right_winners) {
   const int w = ag.width, h = ag.height, np = ag.planes, stride = ag.stride;
   Winners out;
   out.plane = cv::Mat(h, w, CV_32F, cv::Scalar(-1));
@@ -2206,7 +2202,7 @@ Winners WinnerTakeAll(const Aggregated& ag, const CostVolume* data, double confi
           disparity[d] = better ? d : disparity[d];
         }
       }
-      WinnerOf(s.data(), LowestUnsignedLane(low), np, data == nullptr ? nullptr : data->At(x, y), confidence_scale, plane + x,
+      WinnerOf(s.data(), LowestUnsignedLane(low), np, data == nullptr ? nullptr : data->At(x, y), certainty, plane + x,
                conf + x);
     }
     if (right_winners) {
@@ -2217,12 +2213,12 @@ Winners WinnerTakeAll(const Aggregated& ag, const CostVolume* data, double confi
   return out;
 }
 
-Winners AggregateAndPick(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, double confidence_scale,
+Winners AggregateAndPick(const CostVolume& v, const cv::Mat& gray, const EngineOptions& o, const CertaintyOptions& certainty,
                          LargeBuffer<uint16_t>* sums) {
   Winners out;
   out.plane = cv::Mat(v.height, v.width, CV_32F, cv::Scalar(-1));
   out.confidence = cv::Mat(v.height, v.width, CV_32F, cv::Scalar(0));
-  const PickTarget pick{out.plane.ptr<float>(), out.confidence.ptr<float>(), confidence_scale};
+  const PickTarget pick{out.plane.ptr<float>(), out.confidence.ptr<float>(), certainty};
   if (!o.semi_global) {  // the (box-filtered) costs are the sums: picked from the volume itself
     sums->clear();       // not used (its capacity stays in the pool)
     tbb::parallel_for(0, v.height, [&](int y) {

@@ -11,10 +11,11 @@
                              const std::vector<uint64_t>* reference_census, cv::Point origin);                 \
   void Aggregate(const CostVolume& volume, const cv::Mat& reference_gray, const EngineOptions& options,         \
                  bool one_buffer, Aggregated* out);                                                           \
-  Winners WinnerTakeAll(const Aggregated& aggregated, const CostVolume* data_cost, double confidence_scale,     \
+  Winners WinnerTakeAll(const Aggregated& aggregated, const CostVolume* data_cost,                               \
+                        const CertaintyOptions& certainty,                                                     \
                         bool right_winners);                                                                   \
   Winners AggregateAndPick(const CostVolume& volume, const cv::Mat& reference_gray, const EngineOptions& options,  \
-                           double confidence_scale, LargeBuffer<uint16_t>* sums);                              \
+                           const CertaintyOptions& certainty, LargeBuffer<uint16_t>* sums);                   \
   std::vector<uint64_t> CensusTransform(const cv::Mat& gray, int radius_x, int radius_y);
 
 namespace ibmr {

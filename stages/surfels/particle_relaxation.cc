@@ -52,6 +52,19 @@ struct NeighbourLists {
   }
 };
 
+// The confidence the data term counts as 1: the median of the data points' (at least 0.05; 1
+// without confidences). The term weighs points relative to the cloud's own scale, so a stereo
+// confidence that is calibrated differently (the margin no longer clipped at 1, the geometric
+// factors of multi_depth and fuse) shifts the weight among points but not the balance between the
+// data and the particles' potentials that the weights were tuned for.
+double DataConfidenceUnit(const PointCloud& data) {
+  if (data.confidence.empty()) return 1.0;
+  std::vector<float> c(data.confidence.begin(), data.confidence.end());
+  std::nth_element(c.begin(), c.begin() + c.size() / 2, c.end());
+  const float median = c[c.size() / 2];
+  return std::isfinite(median) ? std::max(0.05, static_cast<double>(median)) : 1.0;
+}
+
 }  // namespace
 
 double RelaxParticles(const PointCloud& data, double spacing, const ParticleWeights& weights, int sweeps,
@@ -65,6 +78,7 @@ double RelaxParticles(const PointCloud& data, double spacing, const ParticleWeig
   // missed.
   const double margin = 1.0 * spacing;
   const double max_step = 0.3 * spacing;
+  const double confidence_unit = DataConfidenceUnit(data);
   const PointIndex data_index(data.positions);
   NeighbourLists data_near, particle_near;
   std::vector<Eigen::Vector3f> data_anchor, particle_anchor;
@@ -108,7 +122,7 @@ double RelaxParticles(const PointCloud& data, double spacing, const ParticleWeig
           const uint32_t k = data_near.indices[e];
           const Eigen::Vector3d q = data.positions[k].cast<double>();
           if ((q - p).squaredNorm() > data_radius2) continue;
-          const double c = data.confidence.empty() ? 1.0 : std::max(0.0f, data.confidence[k]);
+          const double c = data.confidence.empty() ? 1.0 : std::max(0.0f, data.confidence[k]) / confidence_unit;
           DataEnergy(p, normal, q, c, spacing, weights, &gradient.p_i, &gradient.n_i, &curvature);
         }
         Eigen::Vector3d step = -gradient.p_i * spacing * spacing / curvature.position;

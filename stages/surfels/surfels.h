@@ -13,7 +13,8 @@
 //     (when a closed hull mesh is given), and particles with too little data nearby or too few
 //     particle neighbours (outliers) are deleted.
 //  4. Relaxation: the energy of surfel_potentials.h (co-planarity, co-normality, co-circularity,
-//     repulsion and the confidence-weighted data term) is lowered by Jacobi sweeps of
+//     repulsion and the confidence-weighted data term, the confidences relative to the points'
+//     median, so that their calibration does not tip the balance) is lowered by Jacobi sweeps of
 //     preconditioned gradient steps: every particle moves by its gradient divided by an upper
 //     estimate of its local curvature, all from the previous sweep's state. Why not Ceres: the
 //     energy is a sum of short-range pair terms whose neighbour sets change as particles move, so

@@ -40,7 +40,8 @@ class SurfelsStage : public Stage {
   }
   // 2: mesh faces in a canonical order; 3: surfel radii 0.75 spacing; 4: the advancing front breaks
   // ties by creation order and vertex indices, not addresses (the same mesh from run to run)
-  std::string Version() const override { return "5"; }
+  // 6: the data term's confidences relative to the fused points' median (particle_relaxation.cc)
+  std::string Version() const override { return "6"; }
   HoldoutRole Role() const override { return HoldoutRole::kTrainingOnly; }
 
   std::vector<ParamSpec> Parameters() const override {
@@ -229,6 +230,7 @@ class SurfelsStage : public Stage {
     const PointSetAccuracy p = EvaluatePointSet(particles, truth, {}, a.threshold);
     context.metrics["particle_accuracy_90"] = p.accuracy_90;
     context.metrics["confidence_error_spearman"] = p.confidence_error_spearman;
+    context.metrics["sparsification_auc_ratio"] = p.sparsification_auc_ratio;
     spdlog::info("[surfels] mesh accuracy (90%) {:.4g}, completeness {:.1f}% within {:.4g}", a.accuracy_90,
                  100 * a.completeness, a.threshold);
   }
