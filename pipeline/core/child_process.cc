@@ -93,6 +93,8 @@ ProcessResult RunProcess(const std::vector<std::string>& args, const std::string
   struct rusage usage {};
   ::wait4(pid, &status, 0, &usage);
   result.wall_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  result.cpu_seconds = static_cast<double>(usage.ru_utime.tv_sec + usage.ru_stime.tv_sec) +
+                       1e-6 * static_cast<double>(usage.ru_utime.tv_usec + usage.ru_stime.tv_usec);
   result.peak_memory_mb = usage.ru_maxrss / 1024.0;
   result.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
   for (const std::string& line : tail) result.last_lines += line + "\n";

@@ -11,6 +11,7 @@ namespace ibmr {
 struct ProcessResult {
   int exit_code = -1;        // -1 when it could not start or was killed by a signal
   double wall_seconds = 0;
+  double cpu_seconds = 0;     // the child's user + system time
   double peak_memory_mb = 0;  // the child's maximum resident set size
   std::string last_lines;     // the last lines of output (for error messages)
 };

@@ -10,66 +10,37 @@
 //   default configs: configs/middlebury_temple_ring.yaml configs/synth_dense.yaml
 //   configs/synth_texture.yaml configs/synth_layers.yaml; workspaces in DIR/<config name>
 //   (default bench_chain_workspaces/), removed first: every run is from scratch.
-#include <spawn.h>
-#include <fcntl.h>
-#include <sys/wait.h>
-
 #include <algorithm>
-#include <chrono>
 #include <filesystem>
-#include <fstream>
+#include <optional>
 #include <iostream>
 #include <nlohmann/json.hpp>
 #include <string>
 #include <vector>
 
 #include "pipeline/core/atomic_file.h"
+#include "pipeline/core/child_process.h"
 #include "pipeline/core/colmap_text_io.h"
+#include "pipeline/core/json_file.h"
+#include "pipeline/runner/record.h"
 
-extern char** environ;
 namespace fs = std::filesystem;
 
 namespace {
-
-// Runs `args` with its output appended to `log`; returns the exit status (-1: not started/killed).
-int RunLogged(const std::vector<std::string>& args, const std::string& log) {
-  std::vector<char*> argv;
-  for (const std::string& a : args) argv.push_back(const_cast<char*>(a.c_str()));
-  argv.push_back(nullptr);
-  posix_spawn_file_actions_t actions;
-  posix_spawn_file_actions_init(&actions);
-  posix_spawn_file_actions_addopen(&actions, 1, log.c_str(), O_WRONLY | O_CREAT | O_APPEND, 0644);
-  posix_spawn_file_actions_adddup2(&actions, 1, 2);
-  pid_t pid = 0;
-  const int spawned = posix_spawn(&pid, argv[0], &actions, nullptr, argv.data(), environ);
-  posix_spawn_file_actions_destroy(&actions);
-  if (spawned != 0) return -1;
-  int status = 0;
-  waitpid(pid, &status, 0);
-  return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-}
-
-nlohmann::json ReadJson(const fs::path& path) {
-  std::ifstream in(path);
-  return nlohmann::json::parse(in, nullptr, /*allow_exceptions=*/false);
-}
 
 // One config's figures from its finished workspace.
 nlohmann::json Figures(const fs::path& workspace) {
   nlohmann::json out;
   // Views and their sizes from the sparse model; held-out views from any record that lists them.
   std::vector<std::string> heldout;
-  std::vector<nlohmann::json> records;
+  std::vector<ibmr::StageRecord> records;
   for (const auto& entry : fs::directory_iterator(workspace / "records")) {
     if (entry.path().extension() != ".json") continue;
-    nlohmann::json record = ReadJson(entry.path());
-    if (!record.is_object() || !record.contains("stage")) continue;
-    if (heldout.empty() && record.contains("heldout")) heldout = record["heldout"].get<std::vector<std::string>>();
-    records.push_back(std::move(record));
+    std::optional<ibmr::StageRecord> record = ibmr::ReadRecord(entry.path().string());
+    if (!record) continue;
+    if (heldout.empty()) heldout = record->heldout.get<std::vector<std::string>>();
+    records.push_back(std::move(*record));
   }
-  std::sort(records.begin(), records.end(), [](const nlohmann::json& a, const nlohmann::json& b) {
-    return a.value("started", "") < b.value("started", "");
-  });
   double view_mp = 0, training_mp = 0, heldout_mp = 0;
   int training_views = 0;
   if (fs::exists(workspace / "sparse" / "images.txt")) {
@@ -91,17 +62,15 @@ nlohmann::json Figures(const fs::path& workspace) {
   out["heldout_views"] = heldout.size();
   const double frame_mp = heldout.empty() ? 0.0 : heldout_mp / heldout.size();
   double total = 0;
-  for (const nlohmann::json& record : records) {
-    const std::string stage = record["stage"];
-    const double seconds = record.value("wall_seconds", 0.0);
-    total += seconds;
-    nlohmann::json s = {{"seconds", seconds},
-                        {"cpu_seconds", record.value("cpu_seconds", 0.0)},
-                        {"peak_memory_mb", record.value("peak_memory_mb", 0.0)}};
-    if (training_mp > 0) s["seconds_per_training_megapixel"] = seconds / training_mp;
-    out["stages"][stage] = s;
-    if (stage == "render" && record.contains("metrics") && frame_mp > 0) {
-      for (const auto& [key, value] : record["metrics"].items()) {
+  for (const ibmr::StageRecord& record : records) {
+    total += record.wall_seconds;
+    nlohmann::json s = {{"seconds", record.wall_seconds},
+                        {"cpu_seconds", record.cpu_seconds},
+                        {"peak_memory_mb", record.peak_memory_mb}};
+    if (training_mp > 0) s["seconds_per_training_megapixel"] = record.wall_seconds / training_mp;
+    out["stages"][record.stage] = s;
+    if (record.stage == "render" && frame_mp > 0) {
+      for (const auto& [key, value] : record.metrics.items()) {
         if (key.rfind("ms_per_frame_", 0) != 0 || !value.is_number()) continue;
         const double ms = value.get<double>();
         out["render_models"][key.substr(13)] = {{"ms_per_frame", ms}, {"seconds_per_frame_megapixel", 1e-3 * ms / frame_mp}};
@@ -109,7 +78,7 @@ nlohmann::json Figures(const fs::path& workspace) {
     }
   }
   out["stage_seconds_total"] = total;
-  const nlohmann::json scores = ReadJson(workspace / "scores" / "heldout.json");
+  const nlohmann::json scores = ibmr::ReadJsonOr((workspace / "scores" / "heldout.json").string(), nullptr);
   if (scores.is_object() && scores.contains("proxies")) {
     size_t models = 0;
     for (const auto& [model, entry] : scores["proxies"].items()) {
@@ -164,9 +133,9 @@ int main(int argc, char** argv) {
     std::vector<std::string> args = {ibmr, "run", config, "--workspace", workspace.string()};
     if (!jobs.empty()) args.insert(args.end(), {"--jobs", jobs});
     std::cout << "bench_chain: " << name << " ..." << std::flush;
-    const auto start = std::chrono::steady_clock::now();
-    const int status = RunLogged(args, log);
-    const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    const ibmr::ProcessResult run = ibmr::RunProcess(args, log, [](const std::string&) {});
+    const int status = run.exit_code;
+    const double seconds = run.wall_seconds;
     std::cout << " " << seconds << " s" << (status == 0 ? "" : " (FAILED, see " + log + ")") << "\n";
     // A workspace the figures cannot be read from is noted and the other configs still run.
     nlohmann::json entry = nlohmann::json::object();

@@ -5,16 +5,12 @@
 //    against peer_sgbm_pair (read, StereoSGBM blockSize 5, write PFM), with both outputs' bad-1.0
 //    against the ground truth (missing counted as bad), read back from the PFMs they wrote.
 // Each measure is run by turns with its peer, `repeat` times (a slow spell of a shared machine
-// then falls on both); the record holds each one's median wall and CPU (user + system, from
-// wait4) milliseconds and the median of the per-repeat ratios. Timing only: nothing asserted.
+// then falls on both), through RunProcess (output read and dropped, for both alike); the record
+// holds each one's median wall and CPU (user + system) milliseconds and the median of the
+// per-repeat ratios. Timing only: nothing asserted.
 //
 // Usage: bench_process_start [--data DIR] [--out FILE.json] [--repeat N] [--ibmr PATH]
 //   --ibmr: another build's executable (to compare builds in one run; default this build's)
-#include <spawn.h>
-#include <sys/resource.h>
-#include <sys/wait.h>
-#include <fcntl.h>
-
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -26,43 +22,11 @@
 #include <vector>
 
 #include "pipeline/core/atomic_file.h"
+#include "pipeline/core/child_process.h"
 #include "pipeline/core/image_io.h"
 #include "stages/plane_sweep/bench_disparity_score.h"
 
-extern char** environ;
-
 namespace {
-
-struct Timing {
-  double wall_ms = 0, cpu_ms = 0;
-  int exit_code = -1;
-};
-
-// Runs argv with stdout and stderr to /dev/null; wall time from spawn to reap, CPU from wait4.
-Timing Run(const std::vector<std::string>& args) {
-  std::vector<char*> argv;
-  for (const std::string& a : args) argv.push_back(const_cast<char*>(a.c_str()));
-  argv.push_back(nullptr);
-  posix_spawn_file_actions_t actions;
-  posix_spawn_file_actions_init(&actions);
-  posix_spawn_file_actions_addopen(&actions, 1, "/dev/null", O_WRONLY, 0);
-  posix_spawn_file_actions_addopen(&actions, 2, "/dev/null", O_WRONLY, 0);
-  Timing t;
-  const auto start = std::chrono::steady_clock::now();
-  pid_t pid = 0;
-  if (posix_spawn(&pid, argv[0], &actions, nullptr, argv.data(), environ) != 0) {
-    posix_spawn_file_actions_destroy(&actions);
-    return t;
-  }
-  int status = 0;
-  rusage usage{};
-  wait4(pid, &status, 0, &usage);
-  t.wall_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
-  t.cpu_ms = 1e3 * (usage.ru_utime.tv_sec + usage.ru_stime.tv_sec) + 1e-3 * (usage.ru_utime.tv_usec + usage.ru_stime.tv_usec);
-  t.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  posix_spawn_file_actions_destroy(&actions);
-  return t;
-}
 
 double Median(std::vector<double> v) {
   std::sort(v.begin(), v.end());
@@ -72,18 +36,19 @@ double Median(std::vector<double> v) {
 // `ours` and `peer` by turns, `repeat` times (after one unrecorded run of each: page cache).
 nlohmann::json Compare(const std::vector<std::string>& ours, const std::vector<std::string>& peer, int repeat, bool* ok) {
   std::vector<double> ours_wall, ours_cpu, peer_wall, peer_cpu, ratios;
-  Run(ours), Run(peer);
+  const auto run = [](const std::vector<std::string>& args) { return ibmr::RunProcess(args, "", [](const std::string&) {}); };
+  run(ours), run(peer);
   for (int r = 0; r < repeat; ++r) {
-    const Timing a = Run(ours), b = Run(peer);
+    const ibmr::ProcessResult a = run(ours), b = run(peer);
     if (a.exit_code != 0 || b.exit_code != 0) {
       std::cerr << "bench_process_start: " << ours[0] << " exited " << a.exit_code << ", " << peer[0] << " exited "
                 << b.exit_code << "\n";
       *ok = false;
       return {};
     }
-    ours_wall.push_back(a.wall_ms), ours_cpu.push_back(a.cpu_ms);
-    peer_wall.push_back(b.wall_ms), peer_cpu.push_back(b.cpu_ms);
-    ratios.push_back(a.wall_ms / b.wall_ms);
+    ours_wall.push_back(1e3 * a.wall_seconds), ours_cpu.push_back(1e3 * a.cpu_seconds);
+    peer_wall.push_back(1e3 * b.wall_seconds), peer_cpu.push_back(1e3 * b.cpu_seconds);
+    ratios.push_back(a.wall_seconds / b.wall_seconds);
   }
   return {{"ms", Median(ours_wall)}, {"cpu_ms", Median(ours_cpu)}, {"peer_ms", Median(peer_wall)},
           {"peer_cpu_ms", Median(peer_cpu)}, {"ms_above_peer", Median(ours_wall) - Median(peer_wall)},
