@@ -372,11 +372,10 @@ int UlrRenderer::Blend(const Eigen::Vector3d& p, const Eigen::Vector3d& desired_
     const DepthMap& depth = (*sources_)[c.source].proxy_depth;
     return depth.Empty() || VisibleInSource(depth, c.u, c.v, c.z, options_.visibility_epsilon);
   };
-  // The k smallest (penalty, source) among the visible sources, in order, in `best`; whether at
-  // least k sources are visible.
+  // The k smallest (penalty, source) among the visible sources, in order, in `best[0, n)`; n == k
+  // exactly when at least k sources are visible.
   Candidate* best = scratch->best.data();
   int n = 0;
-  bool at_least_k = false;
   if (exhaustive || !bounded || !prunable_) {
     // The definition: every visible source's penalty, the k smallest kept.
     int count = 0;
@@ -390,7 +389,6 @@ int UlrRenderer::Blend(const Eigen::Vector3d& p, const Eigen::Vector3d& desired_
     n = std::min(count, k);
     std::partial_sort(candidates, candidates + n, candidates + count, by_penalty);
     std::copy(candidates, candidates + n, best);
-    at_least_k = count >= k;
   } else {
     // The same k from the lowest bounds up: a source whose bound exceeds the k-th smallest
     // penalty found so far cannot rank before it, nor can any after it; the sources never
@@ -402,26 +400,19 @@ int UlrRenderer::Blend(const Eigen::Vector3d& p, const Eigen::Vector3d& desired_
     int remaining = in_view;
     while (remaining > 0) {
       const Candidate& next = candidates[heap[0]];
-      if (n == k && next.lower > best[k - 1].penalty) {
-        at_least_k = true;
-        break;
-      }
+      if (n == k && next.lower > best[k - 1].penalty) break;
       std::pop_heap(heap, heap + remaining, higher_bound);
       Candidate c = candidates[heap[--remaining]];
       if (!visible(c)) continue;
       c.penalty = Penalty(c);
       // Insert into the sorted `best`, keeping k.
-      int at = std::min(n, k);
-      if (at == k && !by_penalty(c, best[k - 1])) {
-        at_least_k = true;
-        continue;
-      }
+      if (n == k && !by_penalty(c, best[k - 1])) continue;
+      int at = n;
       while (at > 0 && by_penalty(c, best[at - 1])) {
         if (at < k) best[at] = best[at - 1];
         --at;
       }
       best[at] = c;
-      if (n == k) at_least_k = true;
       n = std::min(n + 1, k);
     }
     if (n == 0) return 0;
@@ -430,7 +421,7 @@ int UlrRenderer::Blend(const Eigen::Vector3d& p, const Eigen::Vector3d& desired_
   // The k-th smallest penalty is the threshold [U 124], capped at max_penalty: with fewer than k
   // usable cameras the missing ones count as penalty max_penalty, so a camera's weight still
   // falls continuously to 0 as it leaves (field of view, visibility) however few cameras remain.
-  const double thresh = at_least_k || n == k ? std::min(best[n - 1].penalty, options_.max_penalty) : options_.max_penalty;
+  const double thresh = n == k ? std::min(best[n - 1].penalty, options_.max_penalty) : options_.max_penalty;
   double sum = 0;
   if (options_.epipole_consistent && best[0].penalty <= kZeroPenalty) {
     // The desired ray passes through a source centre: 1/penalty is infinite for it [U 130].
