@@ -120,11 +120,9 @@ ScreenVertex Project(const ClipVertex& v, const Intrinsics& k) {
   return {k.fx * v.point.x() * inv_z + k.cx, k.fy * v.point.y() * inv_z + k.cy, inv_z};
 }
 
-// Rasterizes the rows [row_lo, row_hi) of one clipped triangle of face `face_id` into `result`,
-// which holds the image's rows from `first_row` on; `weights[i]` maps vertex i of this triangle to
-// the original face's vertices.
-// The same for a triangle already projected: `tri` null for a face's own corners (weights the
-// identity), else the clipped triangle whose weights map the barycentrics to the face's.
+// Rasterizes the rows [row_lo, row_hi) of a projected triangle of face `face_id` into `result`,
+// which holds the image's rows from `first_row` on. `tri`: null for the face's own corners, else
+// the clipped triangle whose weights map vertex i to the original face's vertices.
 void DrawScreenTriangle(const ScreenVertex v[3], const ClipVertex* tri, int face_id, const Intrinsics& k, int row_lo,
                         int row_hi, int first_row, RasterResult* result) {
   const double area = (v[1].x - v[0].x) * (v[2].y - v[0].y) - (v[1].y - v[0].y) * (v[2].x - v[0].x);
@@ -219,17 +217,16 @@ void RasterizeWindows(const TriangleMesh& mesh, const Camera& camera, const Rigi
   const Eigen::Matrix3d rotation = cam_from_world.R();
   const size_t num_vertices = mesh.vertices.size();
   std::vector<Eigen::Vector3d> points_in_cam(num_vertices);
-  // The row each vertex projects to (NaN before the near plane: its faces are never skipped).
-  std::vector<double> row_of(num_vertices);
-  // Each vertex projected once (a vertex is a corner of about six faces), for the faces in front of
-  // the near plane, which are drawn from these without clipping; the same arithmetic as Project.
+  // Each vertex projected once (a vertex is a corner of about six faces): the faces in front of the
+  // near plane are drawn from these without clipping (the same arithmetic as Project), and its row
+  // places a face in the strips below (NaN before the near plane: such faces are never skipped).
   std::vector<ScreenVertex> screen(num_vertices);
   tbb::parallel_for(tbb::blocked_range<size_t>(0, num_vertices, 4096), [&](const tbb::blocked_range<size_t>& range) {
     for (size_t i = range.begin(); i < range.end(); ++i) {
       points_in_cam[i] = rotation * mesh.vertices[i].cast<double>() + cam_from_world.translation;
       const double z = points_in_cam[i].z();
-      row_of[i] = z >= options.near_z ? k.fy * points_in_cam[i].y() / z + k.cy : std::numeric_limits<double>::quiet_NaN();
       screen[i] = Project({points_in_cam[i], Eigen::Vector3d::Zero()}, k);
+      if (!(z >= options.near_z)) screen[i].y = std::numeric_limits<double>::quiet_NaN();
     }
   });
   // Face f's rows widened by two, [*lo, *hi], all rows for a face with a vertex before the near
@@ -240,7 +237,7 @@ void RasterizeWindows(const TriangleMesh& mesh, const Camera& camera, const Rigi
   const auto face_rows = [&](size_t f, double* lo, double* hi) {
     const Eigen::Vector3i& face = mesh.faces[f];
     if (!valid_face(face)) return false;
-    const double r0 = row_of[face[0]], r1 = row_of[face[1]], r2 = row_of[face[2]];
+    const double r0 = screen[face[0]].y, r1 = screen[face[1]].y, r2 = screen[face[2]].y;
     if (std::isnan(r0) || std::isnan(r1) || std::isnan(r2)) {
       *lo = -std::numeric_limits<double>::infinity(), *hi = std::numeric_limits<double>::infinity();
     } else {
