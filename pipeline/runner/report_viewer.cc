@@ -6,7 +6,6 @@
 
 #include <tiny_gltf.h>
 
-#include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
 #include <Eigen/Eigenvalues>

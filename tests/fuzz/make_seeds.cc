@@ -10,12 +10,14 @@
 #include <filesystem>
 #include <fstream>
 #include <iostream>
-#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgcodecs.hpp>  // the IMWRITE_ flags; encoding through image_codecs.h
 #include <string>
 #include <vector>
 
+#include "pipeline/core/atomic_file.h"
 #include "pipeline/core/colmap_array_io.h"
 #include "pipeline/core/colmap_text_io.h"
+#include "pipeline/core/image_codecs.h"
 #include "pipeline/core/image_io.h"
 #include "pipeline/core/nerf_formats.h"
 #include "pipeline/core/ply_io.h"
@@ -34,11 +36,6 @@ void Put(const std::string& harness, const std::string& name, const std::string&
   fs::create_directories(out_dir / harness);
   std::ofstream(out_dir / harness / name, std::ios::binary) << bytes;
   ++written;
-}
-
-std::string Slurp(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  return std::string(std::istreambuf_iterator<char>(in), {});
 }
 
 // --- PNG by hand (stored deflate blocks): every bit depth and colour type of the PNG spec, which
@@ -91,7 +88,7 @@ std::string Png(int width, int height, int bit_depth, int color_type, const std:
 
 std::string Encode(const std::string& ext, const cv::Mat& image, const std::vector<int>& params = {}) {
   std::vector<uchar> bytes;
-  if (!cv::imencode(ext, image, bytes, params)) throw std::runtime_error("cannot encode " + ext);
+  if (!ibmr::EncodeImage(ext, image, &bytes, params)) throw std::runtime_error("cannot encode " + ext);
   return std::string(bytes.begin(), bytes.end());
 }
 
@@ -146,23 +143,23 @@ void Plys(const fs::path& scratch) {
   mesh.vertices = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}, {0, 0, 1}};
   mesh.faces = {{0, 2, 1}, {0, 1, 3}, {0, 3, 2}, {1, 2, 3}};
   ibmr::WriteMeshPly((scratch / "m.ply").string(), mesh);
-  Put("ply", "tetrahedron_binary.ply", Slurp(scratch / "m.ply"));
+  Put("ply", "tetrahedron_binary.ply", ibmr::ReadFile((scratch / "m.ply").string()));
   mesh.ComputeVertexNormals();
   mesh.colors = {{255, 0, 0}, {0, 255, 0}, {0, 0, 255}, {9, 9, 9}};
   mesh.comments = {"ibmr conservative_hull 1"};
   ibmr::WriteMeshPly((scratch / "m.ply").string(), mesh);
-  Put("ply", "tetrahedron_normals_colours_binary.ply", Slurp(scratch / "m.ply"));
+  Put("ply", "tetrahedron_normals_colours_binary.ply", ibmr::ReadFile((scratch / "m.ply").string()));
 
   ibmr::PointCloud cloud;
   cloud.positions = {{0, 0, 0}, {1, 2, 3}, {-1, 0.5f, 2}};
   ibmr::WritePointCloudPly((scratch / "c.ply").string(), cloud);
-  Put("ply", "cloud_binary.ply", Slurp(scratch / "c.ply"));
+  Put("ply", "cloud_binary.ply", ibmr::ReadFile((scratch / "c.ply").string()));
   cloud.normals = {{0, 0, 1}, {0, 1, 0}, {1, 0, 0}};
   cloud.colors = {{1, 2, 3}, {4, 5, 6}, {7, 8, 9}};
   cloud.radius = {0.1f, 0.2f, 0.3f};
   cloud.confidence = {1, 0.5f, 0.25f};
   ibmr::WritePointCloudPly((scratch / "c.ply").string(), cloud);
-  Put("ply", "surfels_binary.ply", Slurp(scratch / "c.ply"));
+  Put("ply", "surfels_binary.ply", ibmr::ReadFile((scratch / "c.ply").string()));
 
   Put("ply", "triangle_ascii.ply",
       "ply\nformat ascii 1.0\ncomment a triangle\nelement vertex 3\nproperty float x\nproperty float y\n"
@@ -242,7 +239,8 @@ void ColmapAndNerf(const fs::path& scratch) {
     const fs::path folder = scratch / m.name;
     ibmr::WriteSparseModelText(folder.string(), model);
     Put("colmap_text", m.name,
-        Slurp(folder / "cameras.txt") + "\n%%\n" + Slurp(folder / "images.txt") + "\n%%\n" + Slurp(folder / "points3D.txt"));
+        ibmr::ReadFile((folder / "cameras.txt").string()) + "\n%%\n" + ibmr::ReadFile((folder / "images.txt").string()) +
+            "\n%%\n" + ibmr::ReadFile((folder / "points3D.txt").string()));
     if (m.model == CameraModelId::kPinhole || m.model == CameraModelId::kSimplePinhole || m.model == CameraModelId::kOpenCV) {
       Put("transforms", std::string(m.name) + ".json", ibmr::WriteTransformsJson(model, "images/"));
     }
@@ -273,7 +271,7 @@ void ColmapAndNerf(const fs::path& scratch) {
     ibmr::FloatMap map(a.w, a.h, a.c);
     for (size_t i = 0; i < map.data.size(); ++i) map.data[i] = 0.5f + 0.25f * static_cast<float>(i % 7);
     ibmr::WriteColmapArray((scratch / "a.bin").string(), map);
-    Put("colmap_array", std::string(a.name) + ".bin", Slurp(scratch / "a.bin"));
+    Put("colmap_array", std::string(a.name) + ".bin", ibmr::ReadFile((scratch / "a.bin").string()));
   }
   // PFM: little and big endian (negative and positive scale), NaN and infinity included.
   for (const auto& [w, h, name] : {std::tuple<int, int, const char*>{4, 3, "4x3"}, {1, 1, "1x1"}, {5, 2, "5x2"}}) {
@@ -281,7 +279,7 @@ void ColmapAndNerf(const fs::path& scratch) {
     for (int i = 0; i < w * h; ++i) image.at<float>(i) = 1.5f * static_cast<float>(i) - 2.0f;
     if (w * h > 2) image.at<float>(1) = std::numeric_limits<float>::infinity();
     ibmr::WritePfm((scratch / "p.pfm").string(), image);
-    Put("pfm", std::string(name) + ".pfm", Slurp(scratch / "p.pfm"));
+    Put("pfm", std::string(name) + ".pfm", ibmr::ReadFile((scratch / "p.pfm").string()));
   }
   std::string big = "Pf\n2 2\n1.0\n";
   for (const uint32_t bits : {0x3f800000u, 0x40000000u, 0x7fc00000u, 0xbf800000u}) big += BigEndian32(bits);
@@ -305,7 +303,7 @@ void ImportTexts() {
                                                  " 1e-2 0 6e-1\nb.png " + k + " " + r[2] + " 0 0 1\n");
   for (int i = 0; i < 3; ++i) {
     Put("strecha_camera", "view" + std::to_string(i) + ".camera",
-        "2759.48 0 1520.69\n0 2764.16 1006.81\n0 0 1\n0 0 0\n" + r[i].substr(0, r[i].size()) + "\n" +
+        "2759.48 0 1520.69\n0 2764.16 1006.81\n0 0 1\n0 0 0\n" + r[i] + "\n" +
             std::to_string(-7.0 + i) + " 3.5 0.9\n3072 2048\n");
   }
   Put("strecha_camera", "small.camera", "50 0 31.5\n0 50 23.5\n0 0 1\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n0 0 -3\n64 48\n");
@@ -377,7 +375,7 @@ void CheckSeeds(const fs::path& scratch) {
     if (folder.path() == scratch) continue;
     for (const auto& entry : fs::directory_iterator(folder.path())) {
       const std::string path = entry.path().string(), name = entry.path().filename().string();
-      const std::string bytes = Slurp(path);
+      const std::string bytes = ibmr::ReadFile(path);
       try {
         if (harness == "image") {
           if (ibmr::ReadImageUnchanged(path).empty() || ibmr::ReadImageColor(path).empty()) throw std::runtime_error("empty");
