@@ -117,7 +117,7 @@ nlohmann::json StabilityMatrix(const nlohmann::json& variants, const SweepPlan& 
         // A variant that failed before this method's stage ran: the method produced nothing, quality 0.
         const bool failed = variant->value("status", "") != "ok" && !std::isfinite(value);
         const double rel = failed ? 0.0 : relative(m, value);
-        const double rho = m.confidence.empty() ? kNaN : VariantMetric(*variant, m.confidence);
+        const double rho = VariantMetricOrNaN(variant, m.confidence);
         const double auc = VariantMetricOrNaN(variant, m.sparsification);
         out["cells"].push_back({{"degradation", degradation}, {"strength", strength}, {"method", m.name},
                                 {"value", Number(value)}, {"relative", Number(rel)}, {"confidence_rho", Number(rho)},

@@ -12,6 +12,7 @@
 #include "pipeline/core/colmap_array_io.h"
 #include "pipeline/core/errors.h"
 #include "pipeline/core/image_io.h"
+#include "pipeline/core/params.h"
 #include "pipeline/core/ply_io.h"
 #include "pipeline/core/stage_api.h"
 #include "stages/fuse/fuse.h"
@@ -42,7 +43,7 @@ class FuseStage : public Stage {
         {"merge_pixel_radius", ParamType::kDouble, "0.71",
          "Re-projection distance to the centre of the pixel it falls in for a merge, pixels, (0, 0.71]; 0.71: anywhere in it"},
         {"max_normal_angle_deg", ParamType::kDouble, "60", "Normals of merged samples within this, degrees, (0, 180]"},
-        {"min_confidence", ParamType::kDouble, "0.02", "Samples below this confidence are skipped, [0, 1]"},
+        {"min_confidence", ParamType::kDouble, DefaultNumberText(FuseOptions().min_confidence), "Samples below this confidence are skipped, [0, 1]"},
         {"agreement_weighting", ParamType::kBool, "true",
          "Point confidence times the samples' agreement (chi-square about the merged position per view beyond 1 lowers it)"},
         {"min_views", ParamType::kInt, "2", "Views that must have contributed to a point, [1, 1000]"},

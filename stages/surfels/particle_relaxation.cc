@@ -78,7 +78,12 @@ double RelaxParticles(const PointCloud& data, double spacing, const ParticleWeig
   // missed.
   const double margin = 1.0 * spacing;
   const double max_step = 0.3 * spacing;
-  const double confidence_unit = DataConfidenceUnit(data);
+  // Each data point's weight in the data term, once per call rather than per particle and sweep.
+  std::vector<double> data_weight(data.positions.size(), 1.0);
+  if (!data.confidence.empty()) {
+    const double confidence_unit = DataConfidenceUnit(data);
+    for (size_t k = 0; k < data_weight.size(); ++k) data_weight[k] = std::max(0.0f, data.confidence[k]) / confidence_unit;
+  }
   const PointIndex data_index(data.positions);
   NeighbourLists data_near, particle_near;
   std::vector<Eigen::Vector3f> data_anchor, particle_anchor;
@@ -122,7 +127,7 @@ double RelaxParticles(const PointCloud& data, double spacing, const ParticleWeig
           const uint32_t k = data_near.indices[e];
           const Eigen::Vector3d q = data.positions[k].cast<double>();
           if ((q - p).squaredNorm() > data_radius2) continue;
-          const double c = data.confidence.empty() ? 1.0 : std::max(0.0f, data.confidence[k]) / confidence_unit;
+          const double c = data_weight[k];
           DataEnergy(p, normal, q, c, spacing, weights, &gradient.p_i, &gradient.n_i, &curvature);
         }
         Eigen::Vector3d step = -gradient.p_i * spacing * spacing / curvature.position;
