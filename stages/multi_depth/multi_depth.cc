@@ -273,7 +273,9 @@ MultiDepthResult MakeDepthConsistent(const DepthView& key, const std::vector<con
     // views, diluted by the violations) and the geometric consistency: both in [0, 1], and on the
     // photometric scale downstream thresholds (fuse's min_confidence) were set on.
     const double photometric = votes.confidence_sum / (1 + votes.confirmations + votes.violations);
-    result.confidence.At(x, y) = static_cast<float>(std::sqrt(photometric * votes.geometric));
+    // With geometric_sigma 0 (off) the photometric confidence as it was, not its square root.
+    result.confidence.At(x, y) =
+        static_cast<float>(options.geometric_sigma > 0 ? std::sqrt(photometric * votes.geometric) : photometric);
     if (!(normal.squaredNorm() > 0.25f)) normal = -ray.normalized();  // unknown: face the camera
     for (int c = 0; c < 3; ++c) result.normals.At(x, y, c) = normal[c];
   };
