@@ -34,23 +34,13 @@ class VolumeModel : public RenderModel {
   // sums (16) when several volumes are blended, and the drawn image (4); the volumes are loaded once
   // (Prepare). Asked before Prepare: the volume folders are counted on disk.
   double ViewBytes(const StageContext& context, double pixels) const override {
-    size_t folders = 0;
-    std::error_code ec;
-    for (fs::directory_iterator it(folder_, ec), end; !ec && it != end; it.increment(ec)) {
-      folders += fs::exists(it->path() / "volume.json") ? 1 : 0;
-    }
-    const size_t blended = std::min<size_t>(folders, static_cast<size_t>(context.params.Int("volume_blend")));
+    const size_t blended = std::min<size_t>(VolumeFolders().size(), static_cast<size_t>(context.params.Int("volume_blend")));
     return pixels * (17.0 + 4.0 + (blended > 1 ? 16.0 : 0.0));
   }
 
   std::optional<std::string> Prepare(const RenderScene& scene, nlohmann::json* facts) override {
     blend_ = static_cast<size_t>(scene.context->params.Int("volume_blend"));
-    std::error_code ec;
-    std::vector<std::string> folders;
-    for (fs::directory_iterator it(folder_, ec), end; !ec && it != end; it.increment(ec)) {
-      if (fs::exists(it->path() / "volume.json")) folders.push_back(it->path().string());
-    }
-    std::sort(folders.begin(), folders.end());
+    const std::vector<std::string> folders = VolumeFolders();
     if (folders.empty()) return folder_ + " holds no volume (run the volume stage)";
     try {
       for (const std::string& folder : folders) {
@@ -153,6 +143,16 @@ class VolumeModel : public RenderModel {
   }
 
  private:
+  // The volume stage's folders under folder_ (each with a volume.json), sorted.
+  std::vector<std::string> VolumeFolders() const {
+    std::vector<std::string> folders;
+    std::error_code ec;
+    for (fs::directory_iterator it(folder_, ec), end; !ec && it != end; it.increment(ec)) {
+      if (fs::exists(it->path() / "volume.json")) folders.push_back(it->path().string());
+    }
+    std::sort(folders.begin(), folders.end());
+    return folders;
+  }
   // Volume i drawn into the view: plane by plane (warps) where every ray meets every plane ahead,
   // else ray by ray.
   void Composite(size_t i, const DesiredView& view, cv::Mat* colour, cv::Mat* coverage) const {

@@ -47,14 +47,14 @@ SweepStatistics Accumulate(const std::vector<LevelView>& views, const PlaneVolum
   stats.weight.assign(cells * stats.planes, 0.f);
   std::vector<double> inverse_depths;
   for (const double z : volume.depths) inverse_depths.push_back(1.0 / z);
+  // Each pixel's ray once per view (the planes then only step along it); one buffer for every view.
+  std::vector<VolumeRays::Ray> view_rays;
   for (const LevelView& view : views) {
     const int vw = view.camera.width, vh = view.camera.height;
     const std::vector<Eigen::Matrix3d> homographies =
         PlaneHomographies(volume.camera, volume.cam_from_world, view.camera, view.cam_from_world, inverse_depths);
     cv::Mat transmittance(vh, vw, CV_32F, cv::Scalar(1.f));
     const VolumeRays rays(volume, view.camera, view.cam_from_world);
-    // Each pixel's ray once per view (the planes then only step along it).
-    std::vector<VolumeRays::Ray> view_rays;
     if (visibility) {
       view_rays.resize(static_cast<size_t>(vw) * vh);
       tbb::parallel_for(0, vh, [&](int y) {
