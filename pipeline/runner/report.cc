@@ -247,21 +247,20 @@ function sweepReport(R) {
         i => R.variants[i].status === 'ok' ? '' : 'failed');
 
   if (R.stability && R.stability.length) {
-    el('h2', {}, content, 'Stability: error against the strength of each degradation');
-    const s = el('div', {class: 'charts'});
-    for (const curve of R.stability) {
-      chart(s, 480, 300, {type: 'line', data: {labels: curve.strengths.map(x => String(x)), datasets: curve.series.map((d, i) => ({
-          label: d.label, data: d.values, borderColor: palette[i % palette.length], backgroundColor: palette[i % palette.length]}))},
-        options: {plugins: {title: {display: true, text: curve.title}}, scales: {x: axis(curve.axis), y: axis(curve.value)}}});
-    }
-    if (R.stability_sparsification && R.stability_sparsification.length) {
-      el('h3', {}, content, 'Confidence: area under the sparsification curve over the optimal one (1: the confidence orders the errors perfectly)');
-      const a = el('div', {class: 'charts'});
-      for (const curve of R.stability_sparsification) {
-        chart(a, 480, 300, {type: 'line', data: {labels: curve.strengths.map(x => String(x)), datasets: curve.series.map((d, i) => ({
+    // One line chart per curve: strengths along x, a series per method.
+    const strengthCharts = (curves) => {
+      const box = el('div', {class: 'charts'});
+      for (const curve of curves) {
+        chart(box, 480, 300, {type: 'line', data: {labels: curve.strengths.map(x => String(x)), datasets: curve.series.map((d, i) => ({
             label: d.label, data: d.values, borderColor: palette[i % palette.length], backgroundColor: palette[i % palette.length]}))},
           options: {plugins: {title: {display: true, text: curve.title}}, scales: {x: axis(curve.axis), y: axis(curve.value)}}});
       }
+    };
+    el('h2', {}, content, 'Stability: error against the strength of each degradation');
+    strengthCharts(R.stability);
+    if (R.stability_sparsification && R.stability_sparsification.length) {
+      el('h3', {}, content, 'Confidence: area under the sparsification curve over the optimal one (1: the confidence orders the errors perfectly)');
+      strengthCharts(R.stability_sparsification);
     }
     el('h3', {}, content, 'Where each method breaks (quality below 0.8 of the clean scene) and its confidence there');
     table(content, ['degradation', 'method', 'breaks at strength', 'confidence-error rho there', 'sparsification AUC / optimal there'],
