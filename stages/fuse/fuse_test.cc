@@ -2,6 +2,7 @@
 // noisy depth maps of an analytic unit sphere seen by 12 ring views at 160x120: merged points lie
 // closer to the surface than single samples, cover the seen surface, face outwards, and
 // low-confidence samples produce no points. One adapter run writes a readable dense/fused.ply.
+#include "pipeline/runner/config.h"
 #include "stages/fuse/fuse.h"
 
 #include <gtest/gtest.h>
@@ -303,12 +304,7 @@ TEST(FuseStage, WritesAReadablePlyAndRecordsAccuracy) {
   context.heldout_images = {"s7.png"};
   NullProgress progress;
   context.progress = &progress;
-  for (const ParamSpec& spec : stage->Parameters()) {
-    if (spec.type == ParamType::kInt) context.params.Set(spec.key, static_cast<int64_t>(std::stoll(spec.default_yaml)));
-    if (spec.type == ParamType::kDouble) context.params.Set(spec.key, std::stod(spec.default_yaml));
-    if (spec.type == ParamType::kString) context.params.Set(spec.key, spec.default_yaml);
-    if (spec.type == ParamType::kBool) context.params.Set(spec.key, spec.default_yaml == "true");
-  }
+  context.params = DefaultParams(*stage, ".");
   context.params.Set("eval_samples", int64_t{20000});
   ASSERT_FALSE(stage->CheckParams(context.params).has_value());
   stage->Run(context);
