@@ -153,10 +153,17 @@ void DrawScreenTriangle(const ScreenVertex v[3], const ClipVertex* tri, int face
   float* bary = result->barycentric.data.data();
   for (int r = r0; r <= r1; ++r) {
     const double py = r + 0.5;
+    // Along a row each edge function is monotone in the column (every rounding step of Evaluate
+    // is), so the covered centres of a row are one run: the first miss after a hit ends the row.
+    bool entered = false;
     for (int c = c0; c <= c1; ++c) {
       const double px = c + 0.5;
       const double e0 = edges[0].Evaluate(px, py), e1 = edges[1].Evaluate(px, py), e2 = edges[2].Evaluate(px, py);
-      if (!edges[0].Inside(e0) || !edges[1].Inside(e1) || !edges[2].Inside(e2)) continue;
+      if (!edges[0].Inside(e0) || !edges[1].Inside(e1) || !edges[2].Inside(e2)) {
+        if (entered) break;
+        continue;
+      }
+      entered = true;
       // Screen weights e_i / sum, then divided by z_i for perspective correctness.
       const double w0 = e0 * v[0].inv_z, w1 = e1 * v[1].inv_z, w2 = e2 * v[2].inv_z;
       const double sum_w = w0 + w1 + w2;
@@ -234,9 +241,26 @@ void RasterizeWindows(const TriangleMesh& mesh, const Camera& camera, const Rigi
   const auto valid_face = [&](const Eigen::Vector3i& face) {
     return (face.array() >= 0).all() && (face.array() < static_cast<int>(num_vertices)).all();
   };
+  // Back faces, when culled, are found once here (not in every strip the face meets), and they
+  // are left out of the strips' lists: facing away when the normal of the counter-clockwise face
+  // points away from the centre.
+  const size_t face_total = mesh.faces.size();
+  std::vector<uint8_t> back_face;
+  if (options.cull_backfaces) {
+    back_face.assign(face_total, 0);
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, face_total, 4096), [&](const tbb::blocked_range<size_t>& range) {
+      for (size_t f = range.begin(); f < range.end(); ++f) {
+        const Eigen::Vector3i& face = mesh.faces[f];
+        if (!valid_face(face)) continue;
+        const Eigen::Vector3d& a = points_in_cam[face[0]];
+        const Eigen::Vector3d normal = (points_in_cam[face[1]] - a).cross(points_in_cam[face[2]] - a);
+        back_face[f] = normal.dot(a) >= 0.0;
+      }
+    });
+  }
   const auto face_rows = [&](size_t f, double* lo, double* hi) {
     const Eigen::Vector3i& face = mesh.faces[f];
-    if (!valid_face(face)) return false;
+    if (!valid_face(face) || (!back_face.empty() && back_face[f])) return false;
     const double r0 = screen[face[0]].y, r1 = screen[face[1]].y, r2 = screen[face[2]].y;
     if (std::isnan(r0) || std::isnan(r1) || std::isnan(r2)) {
       *lo = -std::numeric_limits<double>::infinity(), *hi = std::numeric_limits<double>::infinity();
@@ -251,7 +275,6 @@ void RasterizeWindows(const TriangleMesh& mesh, const Camera& camera, const Rigi
   // set up in both strips, and strips of 74 rows drew a full-size castle layer's 8 M faces 25%
   // slower than strips of 530.
   const int threads = std::max(1, tbb::this_task_arena::max_concurrency());
-  const size_t face_total = mesh.faces.size();
   std::vector<int> strip_start, window_strips(static_cast<size_t>(windows) + 1, 0);
   for (int w = 0; w < windows; ++w) {
     const int first_row = w * window_rows, rows = std::min(k.height, first_row + window_rows) - first_row;
@@ -328,13 +351,7 @@ void RasterizeWindows(const TriangleMesh& mesh, const Camera& camera, const Rigi
       for (size_t i = begin; i < end; ++i) {
         const size_t f = strips > 1 ? strip_faces[i] : i;
         const Eigen::Vector3i& face = mesh.faces[f];
-        if (!valid_face(face)) continue;
-        if (options.cull_backfaces) {
-          // Facing away when the normal of the counter-clockwise face points away from the centre.
-          const Eigen::Vector3d& a = points_in_cam[face[0]];
-          const Eigen::Vector3d normal = (points_in_cam[face[1]] - a).cross(points_in_cam[face[2]] - a);
-          if (normal.dot(a) >= 0.0) continue;
-        }
+        if (!valid_face(face) || (!back_face.empty() && back_face[f])) continue;
         if (points_in_cam[face[0]].z() >= options.near_z && points_in_cam[face[1]].z() >= options.near_z &&
             points_in_cam[face[2]].z() >= options.near_z) {  // nothing to clip
           const ScreenVertex v[3] = {screen[face[0]], screen[face[1]], screen[face[2]]};

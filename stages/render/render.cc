@@ -173,16 +173,18 @@ DepthMap MeshDepth(const std::vector<const TriangleMesh*>& layers, const Camera&
 std::vector<int> HoleSources(const DepthMap& depth, int radius) {
   const int w = depth.width, h = depth.height;
   const size_t n = static_cast<size_t>(w) * h;
-  std::vector<int> source(n, -1);
+  std::vector<int> source(n);
   cv::Mat valid(h, w, CV_8UC1);
-  for (int y = 0; y < h; ++y) {
-    uint8_t* row = valid.ptr<uint8_t>(y);
-    for (int x = 0; x < w; ++x) {
-      const size_t i = static_cast<size_t>(y) * w + x;
-      row[x] = IsValidDepth(depth.data[i]);
-      if (row[x]) source[i] = static_cast<int>(i);
+  tbb::parallel_for(tbb::blocked_range<int>(0, h, 32), [&](const tbb::blocked_range<int>& rows) {
+    for (int y = rows.begin(); y < rows.end(); ++y) {
+      uint8_t* row = valid.ptr<uint8_t>(y);
+      for (int x = 0; x < w; ++x) {
+        const size_t i = static_cast<size_t>(y) * w + x;
+        row[x] = IsValidDepth(depth.data[i]);
+        source[i] = row[x] ? static_cast<int>(i) : -1;
+      }
     }
-  }
+  });
   if (radius <= 0 || n == 0) return source;
   // Each step, a hole next to a pixel with a depth (8-neighbourhood) takes the front-most such
   // neighbour's depth and source (the first of equals in row-major order): a 3x3 erosion of the
@@ -238,9 +240,12 @@ std::vector<int> HoleSources(const DepthMap& depth, int radius) {
 void ExtendIntoHoles(DepthMap* depth, int radius) {
   if (radius <= 0 || depth->Empty()) return;
   const std::vector<int> source = HoleSources(*depth, radius);
-  for (size_t i = 0; i < source.size(); ++i) {
-    if (source[i] >= 0) depth->data[i] = depth->data[source[i]];
-  }
+  // A hole's source is a pixel the mesh covers, whose depth this loop never changes: rows in any order.
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, source.size(), 1 << 15), [&](const tbb::blocked_range<size_t>& range) {
+    for (size_t i = range.begin(); i < range.end(); ++i) {
+      if (source[i] >= 0) depth->data[i] = depth->data[source[i]];
+    }
+  });
 }
 
 std::vector<uint8_t> ExtendIntoHoles(RasterResult* raster, int radius) {
@@ -248,15 +253,18 @@ std::vector<uint8_t> ExtendIntoHoles(RasterResult* raster, int radius) {
   std::vector<uint8_t> extended(raster->face_id.size(), 0);
   const std::vector<int> source = HoleSources(raster->depth, radius);
   const int w = raster->depth.width;
-  for (size_t i = 0; i < source.size(); ++i) {
-    if (source[i] < 0 || source[i] == static_cast<int>(i)) continue;
-    const int x = static_cast<int>(i % w), y = static_cast<int>(i / w);
-    const int sx = source[i] % w, sy = source[i] / w;
-    raster->depth.data[i] = raster->depth.data[source[i]];
-    raster->face_id[i] = raster->face_id[source[i]];
-    for (int c = 0; c < 3; ++c) raster->barycentric.At(x, y, c) = raster->barycentric.At(sx, sy, c);
-    extended[i] = 1;
-  }
+  // As above: each hole copies from a covered pixel, which stays as it is.
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, source.size(), 1 << 15), [&](const tbb::blocked_range<size_t>& range) {
+    for (size_t i = range.begin(); i < range.end(); ++i) {
+      if (source[i] < 0 || source[i] == static_cast<int>(i)) continue;
+      const int x = static_cast<int>(i % w), y = static_cast<int>(i / w);
+      const int sx = source[i] % w, sy = source[i] / w;
+      raster->depth.data[i] = raster->depth.data[source[i]];
+      raster->face_id[i] = raster->face_id[source[i]];
+      for (int c = 0; c < 3; ++c) raster->barycentric.At(x, y, c) = raster->barycentric.At(sx, sy, c);
+      extended[i] = 1;
+    }
+  });
   return extended;
 }
 
@@ -497,29 +505,36 @@ RenderResult Downsample(const RenderResult& fine, const ProxySurface& fine_surfa
   RenderResult result;
   result.image = cv::Mat(height, width, CV_8UC3, cv::Scalar::all(0));
   result.coverage = cv::Mat(height, width, CV_8UC1, cv::Scalar::all(0));
-  for (int y = 0; y < height; ++y) {
-    for (int x = 0; x < width; ++x) {
-      double bgr[3] = {0, 0, 0};
-      int covered = 0, missed = 0;
-      for (int j = 0; j < factor; ++j) {
-        const int fy = y * factor + j;
-        const uint8_t* row = fine.image.ptr<uint8_t>(fy);
-        const uint8_t* cov = fine.coverage.ptr<uint8_t>(fy);
-        for (int i = 0; i < factor; ++i) {
-          const int fx = x * factor + i;
-          if (!fine_surface.hit[static_cast<size_t>(fy) * fine_surface.width + fx]) ++missed;
-          if (!cov[fx]) continue;
-          ++covered;
-          for (int c = 0; c < 3; ++c) bgr[c] += row[3 * fx + c];
+  // Rows on the threads, each counting its covered pixels.
+  std::vector<size_t> row_covered(static_cast<size_t>(std::max(height, 0)), 0);
+  tbb::parallel_for(tbb::blocked_range<int>(0, height, 16), [&](const tbb::blocked_range<int>& rows) {
+    for (int y = rows.begin(); y < rows.end(); ++y) {
+      uint8_t* out = result.image.ptr<uint8_t>(y);
+      uint8_t* out_coverage = result.coverage.ptr<uint8_t>(y);
+      for (int x = 0; x < width; ++x) {
+        double bgr[3] = {0, 0, 0};
+        int covered = 0, missed = 0;
+        for (int j = 0; j < factor; ++j) {
+          const int fy = y * factor + j;
+          const uint8_t* row = fine.image.ptr<uint8_t>(fy);
+          const uint8_t* cov = fine.coverage.ptr<uint8_t>(fy);
+          for (int i = 0; i < factor; ++i) {
+            const int fx = x * factor + i;
+            if (!fine_surface.hit[static_cast<size_t>(fy) * fine_surface.width + fx]) ++missed;
+            if (!cov[fx]) continue;
+            ++covered;
+            for (int c = 0; c < 3; ++c) bgr[c] += row[3 * fx + c];
+          }
         }
+        if (covered == 0) continue;
+        const double count = covered + missed;
+        for (int c = 0; c < 3; ++c) out[3 * x + c] = cv::saturate_cast<uint8_t>(bgr[c] / count);
+        out_coverage[x] = static_cast<uint8_t>(std::max(1L, std::lround(255.0 * covered / count)));
+        ++row_covered[y];
       }
-      if (covered == 0) continue;
-      const double count = covered + missed;
-      for (int c = 0; c < 3; ++c) result.image.at<cv::Vec3b>(y, x)[c] = cv::saturate_cast<uint8_t>(bgr[c] / count);
-      result.coverage.at<uint8_t>(y, x) = static_cast<uint8_t>(std::max(1L, std::lround(255.0 * covered / count)));
-      ++result.covered_pixels;
     }
-  }
+  });
+  for (const size_t count : row_covered) result.covered_pixels += count;
   return result;
 }
 

@@ -86,8 +86,9 @@ class RenderStage : public Stage {
   }
   // 2: splat models, background fill; 3: elliptical splat footprints; 4: model sizes; 5: textured
   // and vdtm models (texture stage), ms_per_frame_<model> metrics; 6: vdtm per-pixel depth test;
-  // 7: no frame times in renders.json (the record has them).
-  std::string Version() const override { return "8"; }
+  // 7: no frame times in renders.json (the record has them); 8: partly covered silhouette pixels
+  // keep their coverage as alpha; 9: vdtm culls back faces.
+  std::string Version() const override { return "9"; }
   HoldoutRole Role() const override { return HoldoutRole::kScoring; }
   // Shards are held-out views: each renders every model for its views; the merge gathers them
   // and writes renders.json.

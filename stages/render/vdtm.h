@@ -12,9 +12,12 @@
 //     (leave-one-out) are dropped and the others renormalised; when none remains, the face's
 //     remaining view nearest to the desired direction in the map plane takes weight 1 (what the
 //     grid would hold without the dropped views: each sample keeps the nearest view, §7);
-//  2. per covered pixel (rasterizer: nearest face, perspective-correct barycentrics): the world
-//     point p from the barycentrics, projected into each of the face's views (projective texture
-//     mapping, §4) and sampled bilinearly; colour = sum w_i I_i(p) / sum w_i over the views where p
+//  2. per covered pixel (rasterizer: nearest front-facing face, perspective-correct
+//     barycentrics; back faces, the inside of the surface that no photo shows, are culled): the
+//     world point p from the barycentrics, projected into each of the face's views (projective
+//     texture mapping, §4; done as the barycentric blend of the face's corners projected once per
+//     frame, which is the same point since projection is linear in homogeneous coordinates) and
+//     sampled bilinearly; colour = sum w_i I_i(p) / sum w_i over the views where p
 //     falls inside the image and, when the sources carry the mesh's depth (SourceView::proxy_depth,
 //     computed once per render stage: the image-space form of §5's splitting of partly visible
 //     polygons), is not behind it by more than visibility_epsilon of its depth. The view maps list
@@ -90,6 +93,15 @@ class VdtmRenderer {
   int MatchedViews() const { return matched_views_; }
 
  private:
+  // Blend's views and weights without the fallbacks; `mapped_direction`: the desired direction in
+  // the face's map plane; `may_fall_back`: false when the map triangle's views were all dropped
+  // and the nearest remaining view was taken (no fallback then).
+  FaceBlend BlendViews(int face, const Eigen::Vector3d& desired_center, int exclude_source,
+                       Eigen::Vector2f* mapped_direction, bool* may_fall_back) const;
+  // Fills blend->fallback: the face's views nearest to `mapped` that are sources, not blended and
+  // not `exclude_source`, nearest first (at most four).
+  void AddFallbacks(int face, const Eigen::Vector2f& mapped, int exclude_source, FaceBlend* blend) const;
+
   struct Prepared {  // per source: projection constants
     Eigen::Matrix3d rotation;
     Eigen::Vector3d translation;

@@ -254,6 +254,26 @@ TEST(Vdtm, ViewsWithoutASourceAreNeverUsed) {
   EXPECT_GT(covered, 1000u);
 }
 
+// The plane seen from below (z < 0) shows its back, the inside no photo shows: vdtm draws none of
+// it, where the rasterizer without culling covers most of the image.
+TEST(Vdtm, BackFacesAreNotDrawn) {
+  const Fixture fx;
+  const std::vector<SourceView> sources = Sources();
+  const VdtmRenderer renderer(&fx.mesh, &fx.maps, &sources);
+  const Eigen::Vector3d below(0.3, 0.2, -4);
+  const RasterResult raster = Rasterize(fx.mesh.mesh, TestCamera(), PoseAt(below));
+  size_t drawable = 0;
+  for (const int face : raster.face_id) drawable += face >= 0;
+  ASSERT_GT(drawable, 1000u);
+  VdtmStats stats;
+  const RenderResult result = renderer.Render(TestCamera(), PoseAt(below), -1, &stats, 2);
+  EXPECT_EQ(result.covered_pixels, 0u);
+  EXPECT_EQ(cv::countNonZero(result.coverage), 0);
+  EXPECT_EQ(stats.blended_pixels + stats.atlas_pixels, 0u);
+  // From above, the same renderer draws the plane.
+  EXPECT_GT(renderer.Render(TestCamera(), PoseAt(Eigen::Vector3d(0.3, 0.2, 4))).covered_pixels, 1000u);
+}
+
 TEST(Vdtm, FaceCountMismatchIsAnInputError) {
   const Fixture fx;
   ViewMaps maps = fx.maps;
