@@ -135,6 +135,40 @@ ViewBlend BlendFor(const ViewMaps& maps, int face_index, const Eigen::Matrix3d& 
                                                                                     : Eigen::Vector2d::Zero());
 }
 
+namespace {
+
+// The grid cell holding mapped direction p: its lower corner (i, j) and p's place inside it.
+struct GridCell {
+  int i, j;
+  double fx, fy;
+};
+
+GridCell LocateInGrid(int grid, const Eigen::Vector2d& p) {
+  // Continuous grid coordinates, clamped to the grid (directions beyond the horizon take the
+  // border's views).
+  const double scale = (grid - 1) / (2.0 * kPi);
+  const double gx = std::clamp((p.x() + kPi) * scale, 0.0, grid - 1.0);
+  const double gy = std::clamp((p.y() + kPi) * scale, 0.0, grid - 1.0);
+  GridCell cell;
+  cell.i = std::min(static_cast<int>(gx), grid - 2);
+  cell.j = std::min(static_cast<int>(gy), grid - 2);
+  cell.fx = gx - cell.i;
+  cell.fy = gy - cell.j;
+  return cell;
+}
+
+}  // namespace
+
+void PrefetchBlendAt(const ViewMaps& maps, int face_index, const Eigen::Vector2d& p) {
+  const FaceViewMap& face = maps.faces[face_index];
+  __builtin_prefetch(face.views.data());
+  if (face.views.size() < 2 || face.nearest.empty()) return;
+  const GridCell cell = LocateInGrid(maps.grid, p);
+  const uint8_t* row = face.nearest.data() + static_cast<size_t>(cell.j) * maps.grid + cell.i;
+  __builtin_prefetch(row);
+  __builtin_prefetch(row + maps.grid + 1);
+}
+
 ViewBlend BlendAt(const ViewMaps& maps, int face_index, const Eigen::Vector2d& p) {
   ViewBlend blend;
   const FaceViewMap& face = maps.faces[face_index];
@@ -146,14 +180,9 @@ ViewBlend BlendAt(const ViewMaps& maps, int face_index, const Eigen::Vector2d& p
     return blend;
   }
   const int grid = maps.grid;
-  // Continuous grid coordinates, clamped to the grid (directions beyond the horizon take the
-  // border's views).
-  const double scale = (grid - 1) / (2.0 * kPi);
-  const double gx = std::clamp((p.x() + kPi) * scale, 0.0, grid - 1.0);
-  const double gy = std::clamp((p.y() + kPi) * scale, 0.0, grid - 1.0);
-  const int i = std::min(static_cast<int>(gx), grid - 2);
-  const int j = std::min(static_cast<int>(gy), grid - 2);
-  const double fx = gx - i, fy = gy - j;
+  const GridCell cell = LocateInGrid(grid, p);
+  const int i = cell.i, j = cell.j;
+  const double fx = cell.fx, fy = cell.fy;
   // The cell splits along its diagonal from (i, j) to (i+1, j+1): barycentric weights of the
   // triangle holding (fx, fy).
   std::array<std::pair<int, int>, 3> corners;

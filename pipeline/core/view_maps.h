@@ -68,6 +68,10 @@ ViewBlend BlendFor(const ViewMaps& maps, int face, const Eigen::Matrix3d& frame,
 // The same blend for the direction already mapped into the plane (MapDirection), for a caller that
 // needs the mapped point too.
 ViewBlend BlendAt(const ViewMaps& maps, int face, const Eigen::Vector2d& mapped);
+// Asks the processor to start fetching what BlendAt(maps, face, mapped) reads (the face's views
+// and the two grid rows of its cell), for a caller that walks many faces: the maps of a large
+// mesh are hundreds of megabytes, each face's grid cell a miss to memory otherwise.
+void PrefetchBlendAt(const ViewMaps& maps, int face, const Eigen::Vector2d& mapped);
 
 void WriteViewMaps(const ViewMaps& maps, const std::string& path);  // atomically; throws IoError
 ViewMaps ReadViewMaps(const std::string& path);                     // throws InputError naming the file

@@ -68,19 +68,22 @@ VdtmRenderer::VdtmRenderer(const TexturedMesh* mesh, const ViewMaps* maps, const
   }
 }
 
-FaceBlend VdtmRenderer::BlendViews(int face, const Eigen::Vector3d& desired_center, int exclude_source,
-                                     Eigen::Vector2f* mapped_direction, bool* may_fall_back) const {
-  FaceBlend blend;
-  *may_fall_back = false;
-  const FaceViewMap& map = maps_->faces[face];
-  if (map.views.empty()) return blend;  // seen by no view: the atlas (hole filling, §6)
+Eigen::Vector2d VdtmRenderer::MapToFace(int face, const Eigen::Vector3d& desired_center) const {
   const Corners corners = CornersOf(mesh_->mesh, face);
   const Eigen::Vector3d centroid = (corners.a + corners.b + corners.c) / 3.0;
   const Eigen::Matrix3d frame = FaceFrame(FaceNormal(corners));
   Eigen::Vector3d direction = desired_center - centroid;
   direction = direction.norm() > 0 ? Eigen::Vector3d(direction.normalized()) : Eigen::Vector3d(frame.col(2));
-  const Eigen::Vector2d mapped = MapDirection(frame, direction);
-  *mapped_direction = mapped.cast<float>();
+  return MapDirection(frame, direction);
+}
+
+FaceBlend VdtmRenderer::BlendViews(int face, const Eigen::Vector2d& mapped, int exclude_source,
+                                   bool* may_fall_back) const {
+  FaceBlend blend;
+  *may_fall_back = false;
+  const FaceViewMap& map = maps_->faces[face];
+  if (map.views.empty()) return blend;  // seen by no view: the atlas (hole filling, §6)
+  const Eigen::Vector2f mapped_direction = mapped.cast<float>();
   const ViewBlend views = BlendAt(*maps_, face, mapped);
   float sum = 0.f;
   for (int i = 0; i < views.count; ++i) {
@@ -103,7 +106,7 @@ FaceBlend VdtmRenderer::BlendViews(int face, const Eigen::Vector3d& desired_cent
   for (size_t k = 0; k < map.views.size(); ++k) {
     const int source = source_of_view_[map.views[k]];
     if (source < 0 || source == exclude_source) continue;
-    const float d = (map.directions[k] - *mapped_direction).squaredNorm();
+    const float d = (map.directions[k] - mapped_direction).squaredNorm();
     if (d < best) {
       best = d;
       blend.count = 1;
@@ -140,10 +143,10 @@ void VdtmRenderer::AddFallbacks(int face, const Eigen::Vector2f& mapped, int exc
 }
 
 FaceBlend VdtmRenderer::Blend(int face, const Eigen::Vector3d& desired_center, int exclude_source) const {
-  Eigen::Vector2f mapped;
+  const Eigen::Vector2d mapped = MapToFace(face, desired_center);
   bool may_fall_back;
-  FaceBlend blend = BlendViews(face, desired_center, exclude_source, &mapped, &may_fall_back);
-  if (may_fall_back) AddFallbacks(face, mapped, exclude_source, &blend);
+  FaceBlend blend = BlendViews(face, mapped, exclude_source, &may_fall_back);
+  if (may_fall_back) AddFallbacks(face, mapped.cast<float>(), exclude_source, &blend);
   return blend;
 }
 
@@ -193,9 +196,21 @@ RenderResult VdtmRenderer::Render(const Camera& camera, const Rigid3d& cam_from_
   const std::vector<Eigen::Vector3f>& vertices = mesh_->mesh.vertices;
   std::vector<FaceDraw> draws(slots);
   tbb::parallel_for(tbb::blocked_range<size_t>(0, faces.size(), 256), [&](const tbb::blocked_range<size_t>& range) {
+    // Each face's direction is mapped kAhead faces before its blend, and what the blend will read
+    // of the view maps is fetched meanwhile (a miss to memory a face otherwise).
+    constexpr size_t kAhead = 8;
+    std::array<Eigen::Vector2d, kAhead> ahead;
+    const auto map_ahead = [&](size_t i) {
+      ahead[i % kAhead] = MapToFace(faces[i], desired_center);
+      PrefetchBlendAt(*maps_, faces[i], ahead[i % kAhead]);
+    };
+    for (size_t i = range.begin(); i < std::min(range.end(), range.begin() + kAhead); ++i) map_ahead(i);
     for (size_t i = range.begin(); i < range.end(); ++i) {
+      const Eigen::Vector2d mapped = ahead[i % kAhead];
+      if (i + kAhead < range.end()) map_ahead(i + kAhead);
       FaceDraw& draw = draws[slot_of_face[faces[i]]];
-      draw.blend = BlendViews(faces[i], desired_center, exclude_source, &draw.mapped, &draw.may_fall_back);
+      draw.mapped = mapped.cast<float>();
+      draw.blend = BlendViews(faces[i], mapped, exclude_source, &draw.may_fall_back);
       const Eigen::Vector3i& f = mesh_->mesh.faces[faces[i]];
       for (int k = 0; k < draw.blend.count; ++k) {
         const Prepared& s = prepared_[draw.blend.sources[k]];

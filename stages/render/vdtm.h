@@ -93,11 +93,12 @@ class VdtmRenderer {
   int MatchedViews() const { return matched_views_; }
 
  private:
-  // Blend's views and weights without the fallbacks; `mapped_direction`: the desired direction in
-  // the face's map plane; `may_fall_back`: false when the map triangle's views were all dropped
-  // and the nearest remaining view was taken (no fallback then).
-  FaceBlend BlendViews(int face, const Eigen::Vector3d& desired_center, int exclude_source,
-                       Eigen::Vector2f* mapped_direction, bool* may_fall_back) const;
+  // The direction from face `face` toward the desired centre, in the face's view map plane.
+  Eigen::Vector2d MapToFace(int face, const Eigen::Vector3d& desired_center) const;
+  // Blend's views and weights, without the fallbacks, at direction `mapped` (MapToFace);
+  // `may_fall_back`: false when the map triangle's views were all dropped and the nearest
+  // remaining view was taken (no fallback then).
+  FaceBlend BlendViews(int face, const Eigen::Vector2d& mapped, int exclude_source, bool* may_fall_back) const;
   // Fills blend->fallback: the face's views nearest to `mapped` that are sources, not blended and
   // not `exclude_source`, nearest first (at most four).
   void AddFallbacks(int face, const Eigen::Vector2f& mapped, int exclude_source, FaceBlend* blend) const;
