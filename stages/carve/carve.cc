@@ -367,6 +367,39 @@ std::vector<HullCell> HullCells(const Octree& octree, int level) {
   return cells;
 }
 
+std::vector<HullCell> SurfaceHullCells(const Octree& octree, int level) {
+  level = std::min(level, octree.MaxLevel());
+  if (level > 8) return HullCells(octree, level);
+  const std::vector<uint8_t> dense = DenseHull(octree, level);
+  const int64_t n = int64_t{1} << level;
+  const auto occupied = [&](int64_t x, int64_t y, int64_t z) {
+    return x >= 0 && y >= 0 && z >= 0 && x < n && y < n && z < n && dense[static_cast<size_t>((z * n + y) * n + x)];
+  };
+  // Whether every voxel next to the cell's faces is in the hull (face-adjacent, outside the cell).
+  const auto enclosed = [&](const OctreeNode& node, int64_t span) {
+    const int64_t x0 = node.x * span, y0 = node.y * span, z0 = node.z * span;
+    for (int64_t a = 0; a < span; ++a) {
+      for (int64_t b = 0; b < span; ++b) {
+        if (!occupied(x0 - 1, y0 + a, z0 + b) || !occupied(x0 + span, y0 + a, z0 + b) ||
+            !occupied(x0 + a, y0 - 1, z0 + b) || !occupied(x0 + a, y0 + span, z0 + b) ||
+            !occupied(x0 + a, y0 + b, z0 - 1) || !occupied(x0 + a, y0 + b, z0 + span)) {
+          return false;
+        }
+      }
+    }
+    return true;
+  };
+  std::vector<HullCell> cells;
+  for (int l = 0; l <= level; ++l) {
+    const int64_t span = int64_t{1} << (level - l);
+    for (size_t i = 0; i < octree.levels[l].size(); ++i) {
+      if (!InHull(octree, l, level, i) || enclosed(octree.levels[l][i], span)) continue;
+      cells.push_back(HullCell{octree.CellMin(l, octree.levels[l][i]), octree.CellSize(l)});
+    }
+  }
+  return cells;
+}
+
 std::vector<uint8_t> DenseHull(const Octree& octree, int level) {
   const size_t n = size_t{1} << level;
   std::vector<uint8_t> grid(n * n * n, 0);

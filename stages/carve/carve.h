@@ -122,6 +122,11 @@ struct HullCell {
 // The hull at `level` (<= MaxLevel): full nodes of levels <= level and partial nodes of `level`
 // (only those whose centre passes the centre test, when Octree::centre_kept holds that level).
 std::vector<HullCell> HullCells(const Octree& octree, int level);
+// The same cells less those whose six neighbours across their faces all belong to the hull: what a
+// view sees of the hull, since a line of sight from outside reaches an inner cell only through a
+// surface one (ProjectHull draws the same silhouette from these, several times faster). At levels
+// above 8 (a dense grid of more than 16 M cells) every cell is returned.
+std::vector<HullCell> SurfaceHullCells(const Octree& octree, int level);
 
 struct LevelStats {
   int level = 0;

@@ -101,7 +101,7 @@ std::vector<std::map<std::string, double>> ValidateOnHeldOut(const StageContext&
     views.push_back({name, image, mask});
   }
   for (size_t level = 0; level < octree.levels.size(); ++level) {
-    const std::vector<HullCell> cells = HullCells(octree, static_cast<int>(level));
+    const std::vector<HullCell> cells = SurfaceHullCells(octree, static_cast<int>(level));
     std::vector<double> ious(views.size());
     tbb::parallel_for(size_t{0}, views.size(), [&](size_t i) {
       const Camera& camera = full.CameraOf(*views[i].image);
@@ -228,7 +228,9 @@ class CarveStage : public Stage {
     }
 
     // Training-view agreement of the chosen and the finest hull.
-    const std::vector<HullCell> chosen_cells = HullCells(octree, chosen);
+    // What the views see of the finest and the chosen hull: their surface cells.
+    const std::vector<HullCell> finest_surface = SurfaceHullCells(octree, finest);
+    const std::vector<HullCell> chosen_surface = SurfaceHullCells(octree, chosen);
     std::vector<double> train_iou_chosen(views.size(), -1.0), train_iou_finest(views.size(), -1.0);
     std::vector<bool> used(views.size(), true);
     for (const std::string& name : carved.views_not_seeing_volume) {
@@ -236,9 +238,9 @@ class CarveStage : public Stage {
     }
     tbb::parallel_for(size_t{0}, views.size(), [&](size_t i) {
       if (!used[i]) return;
-      train_iou_finest[i] = MaskIou(ProjectHull(finest_cells, views[i].camera, views[i].cam_from_world), views[i].mask);
+      train_iou_finest[i] = MaskIou(ProjectHull(finest_surface, views[i].camera, views[i].cam_from_world), views[i].mask);
       train_iou_chosen[i] = chosen == finest ? train_iou_finest[i]
-                                              : MaskIou(ProjectHull(chosen_cells, views[i].camera,
+                                              : MaskIou(ProjectHull(chosen_surface, views[i].camera,
                                                                     views[i].cam_from_world), views[i].mask);
     });
     std::vector<double> finest_values, chosen_values;

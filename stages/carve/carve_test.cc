@@ -296,6 +296,52 @@ TEST(CarveSynthetic, DepthBoundsEncloseTrueDepth) {
   }
 }
 
+// The silhouette of the surface cells is the hull's (every view of the ring, at two levels: one
+// with coarse full nodes inside, one of the finest cells), from fewer cells; and no surface cell
+// has all six face neighbours in the hull.
+TEST(CarveSynthetic, SurfaceCellsDrawTheHullsSilhouette) {
+  const Ring& ring = TheRing();
+  Eigen::Vector3d origin;
+  double size;
+  RingCube(ring, &origin, &size);
+  CarveOptions options;
+  options.levels = 6;
+  const CarveResult result = CarveOctree(ring.views, origin, size, options);
+  for (const int level : {4, 6}) {
+    const std::vector<HullCell> all = HullCells(result.octree, level);
+    const std::vector<HullCell> surface = SurfaceHullCells(result.octree, level);
+    ASSERT_FALSE(surface.empty());
+    EXPECT_LT(surface.size(), all.size()) << "level " << level;
+    for (const CarveView& view : ring.views) {
+      const cv::Mat expected = ProjectHull(all, view.camera, view.cam_from_world);
+      const cv::Mat got = ProjectHull(surface, view.camera, view.cam_from_world);
+      ASSERT_GT(cv::countNonZero(expected), 100) << view.name;
+      EXPECT_EQ(cv::countNonZero(expected != got), 0) << view.name << " level " << level;
+    }
+    // Surface cells touch the outside: at least one finest-level voxel beside a face is empty.
+    const std::vector<uint8_t> dense = DenseHull(result.octree, level);
+    const int n = 1 << level;
+    const double voxel = size / n;
+    for (const HullCell& cell : surface) {
+      const Eigen::Vector3i lo = ((cell.min - origin) / voxel).array().round().cast<int>();
+      const int span = static_cast<int>(std::lround(cell.size / voxel));
+      bool open = false;
+      for (int a = 0; a < span && !open; ++a) {
+        for (int b = 0; b < span && !open; ++b) {
+          const Eigen::Vector3i beside[6] = {{lo.x() - 1, lo.y() + a, lo.z() + b}, {lo.x() + span, lo.y() + a, lo.z() + b},
+                                             {lo.x() + a, lo.y() - 1, lo.z() + b}, {lo.x() + a, lo.y() + span, lo.z() + b},
+                                             {lo.x() + a, lo.y() + b, lo.z() - 1}, {lo.x() + a, lo.y() + b, lo.z() + span}};
+          for (const Eigen::Vector3i& v : beside) {
+            const bool inside = (v.array() >= 0).all() && (v.array() < n).all();
+            open = open || !inside || !dense[(static_cast<size_t>(v.z()) * n + v.y()) * n + v.x()];
+          }
+        }
+      }
+      ASSERT_TRUE(open) << "an enclosed cell among the surface cells, level " << level;
+    }
+  }
+}
+
 TEST(Octree, FileRoundTripAndErrors) {
   const Ring& ring = TheRing();
   Eigen::Vector3d origin;
