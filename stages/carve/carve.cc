@@ -418,7 +418,32 @@ std::vector<uint8_t> DenseHull(const Octree& octree, int level) {
   return grid;
 }
 
+namespace {
+
+// Camera::ImgFromCam with the intrinsics read once: for a camera without distortion the same
+// arithmetic inline (the same pixel to the bit), which the per-corner loops below call millions
+// of times; other models go through the camera.
+class CornerProjector {
+ public:
+  explicit CornerProjector(const Camera& camera)
+      : camera_(camera), pinhole_(!camera.HasDistortion()), fx_(camera.FocalX()), fy_(camera.FocalY()),
+        cx_(camera.PrincipalX()), cy_(camera.PrincipalY()) {}
+  Eigen::Vector2d operator()(const Eigen::Vector3d& point_in_cam) const {
+    if (!pinhole_) return camera_.ImgFromCam(point_in_cam);
+    const Eigen::Vector2d d = point_in_cam.hnormalized();
+    return {fx_ * d.x() + cx_, fy_ * d.y() + cy_};
+  }
+
+ private:
+  const Camera& camera_;
+  bool pinhole_;
+  double fx_, fy_, cx_, cy_;
+};
+
+}  // namespace
+
 cv::Mat ProjectHull(const std::vector<HullCell>& cells, const Camera& camera, const Rigid3d& cam_from_world) {
+  const CornerProjector project(camera);
   cv::Mat mask = cv::Mat::zeros(camera.height, camera.width, CV_8UC1);
   const Eigen::Matrix3d rotation = cam_from_world.rotation.toRotationMatrix();
   constexpr int kShift = 8;
@@ -438,7 +463,7 @@ cv::Mat ProjectHull(const std::vector<HullCell>& cells, const Camera& camera, co
         drawable = false;
         break;
       }
-      const Eigen::Vector2d pixel = camera.ImgFromCam(x);
+      const Eigen::Vector2d pixel = project(x);
       if (std::abs(pixel.x()) > limit || std::abs(pixel.y()) > limit) {
         drawable = false;
         break;
@@ -462,6 +487,7 @@ double MaskIou(const cv::Mat& a, const cv::Mat& b) {
 
 bool HullDepthBounds(const std::vector<HullCell>& cells, const Camera& camera, const Rigid3d& cam_from_world,
                      double* near_z, double* far_z) {
+  const CornerProjector project(camera);
   const Eigen::Matrix3d rotation = cam_from_world.rotation.toRotationMatrix();
   double near_value = std::numeric_limits<double>::infinity(), far_value = 0.0;
   for (const HullCell& cell : cells) {
@@ -480,7 +506,7 @@ bool HullDepthBounds(const std::vector<HullCell>& cells, const Camera& camera, c
         straddles = true;
         continue;
       }
-      const Eigen::Vector2d pixel = camera.ImgFromCam(x);
+      const Eigen::Vector2d pixel = project(x);
       u0 = std::min(u0, pixel.x());
       u1 = std::max(u1, pixel.x());
       w0 = std::min(w0, pixel.y());
