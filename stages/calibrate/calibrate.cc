@@ -8,6 +8,7 @@
 #include <opencv2/imgproc.hpp>
 #include <sstream>
 
+#include "pipeline/core/median.h"
 #include "pipeline/core/errors.h"
 
 namespace ibmr {
@@ -82,12 +83,6 @@ double ViewRms(const std::vector<cv::Point3f>& object, const std::vector<cv::Poi
     sum += d.x * d.x + d.y * d.y;
   }
   return std::sqrt(sum / corners.size());
-}
-
-double Median(std::vector<double> values) {
-  std::sort(values.begin(), values.end());
-  const size_t n = values.size();
-  return n % 2 ? values[n / 2] : 0.5 * (values[n / 2 - 1] + values[n / 2]);
 }
 
 // One calibrateCamera over the views flagged `used`; fills rms and per-view errors of used views.

@@ -26,6 +26,7 @@
 #include <filesystem>
 #include <numeric>
 
+#include "pipeline/core/median.h"
 #include "pipeline/core/atomic_file.h"
 #include "pipeline/core/colmap_text_io.h"
 #include "pipeline/core/errors.h"
@@ -44,13 +45,6 @@ namespace {
 const std::vector<std::string> kOutsideNames = {"auto", "unknown", "empty"};
 const std::vector<std::string> kLeafTestNames = {"centre", "box"};
 const std::vector<std::string> kVolumeNames = {"auto", "bbox", "sparse", "frustums"};
-
-double Median(std::vector<double> values) {
-  if (values.empty()) return 0.0;
-  std::sort(values.begin(), values.end());
-  const size_t n = values.size();
-  return n % 2 ? values[n / 2] : 0.5 * (values[n / 2 - 1] + values[n / 2]);
-}
 
 double Mean(const std::vector<double>& values) {
   return values.empty() ? 0.0 : std::accumulate(values.begin(), values.end(), 0.0) / values.size();

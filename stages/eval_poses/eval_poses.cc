@@ -5,18 +5,12 @@
 #include <algorithm>
 #include <cmath>
 
+#include "pipeline/core/median.h"
 #include "pipeline/core/errors.h"
 
 namespace ibmr {
 
 namespace {
-
-double Median(std::vector<double> values) {
-  if (values.empty()) return 0;
-  std::sort(values.begin(), values.end());
-  const size_t n = values.size();
-  return n % 2 ? values[n / 2] : 0.5 * (values[n / 2 - 1] + values[n / 2]);
-}
 
 double RingDiameter(const std::vector<Eigen::Vector3d>& centres) {
   double diameter = 0;

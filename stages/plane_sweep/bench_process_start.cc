@@ -21,6 +21,7 @@
 #include <string>
 #include <vector>
 
+#include "pipeline/core/median.h"
 #include "pipeline/core/atomic_file.h"
 #include "pipeline/core/child_process.h"
 #include "pipeline/core/image_io.h"
@@ -28,10 +29,7 @@
 
 namespace {
 
-double Median(std::vector<double> v) {
-  std::sort(v.begin(), v.end());
-  return v.empty() ? 0.0 : v[v.size() / 2];
-}
+using ibmr::Median;
 
 // `ours` and `peer` by turns, `repeat` times (after one unrecorded run of each: page cache).
 nlohmann::json Compare(const std::vector<std::string>& ours, const std::vector<std::string>& peer, int repeat, bool* ok) {

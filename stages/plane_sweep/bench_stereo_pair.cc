@@ -26,6 +26,7 @@
 #include <opencv2/imgcodecs.hpp>
 #include <thread>
 
+#include "pipeline/core/median.h"
 #include "pipeline/core/process_memory.h"
 #include "stages/plane_sweep/bench_disparity_score.h"
 #include "pipeline/core/atomic_file.h"
@@ -41,6 +42,8 @@
 
 namespace {
 
+using ibmr::Median;
+
 struct Pair {
   std::string name, left, right, gt;
   double gt_scale;
@@ -50,11 +53,6 @@ struct Pair {
 using Score = ibmr::DisparityScore;
 Score Evaluate(const cv::Mat& disparity, const cv::Mat& gt, double scale) {
   return ibmr::ScoreDisparity(disparity, gt, scale);
-}
-
-double Median(std::vector<double> v) {
-  std::sort(v.begin(), v.end());
-  return v[v.size() / 2];
 }
 
 }  // namespace
