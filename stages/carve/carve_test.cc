@@ -143,6 +143,15 @@ void RingCube(const Ring& ring, Eigen::Vector3d* origin, double* size) {
   *origin = box.center() - Eigen::Vector3d::Constant(0.5 * *size);
 }
 
+// The ring's views carved to `levels` with the default options in the ring's cube.
+CarveResult CarveRing(int levels, Eigen::Vector3d* origin, double* size) {
+  const Ring& ring = TheRing();
+  RingCube(ring, origin, size);
+  CarveOptions options;
+  options.levels = levels;
+  return CarveOctree(ring.views, *origin, *size, options);
+}
+
 TEST(CarveOptions, DefaultsAreValid) {
   std::string error;
   EXPECT_TRUE(CarveOptions().Check(&error)) << error;
@@ -267,10 +276,7 @@ TEST(CarveSynthetic, DepthBoundsEncloseTrueDepth) {
   const Ring& ring = TheRing();
   Eigen::Vector3d origin;
   double size;
-  RingCube(ring, &origin, &size);
-  CarveOptions options;
-  options.levels = 6;
-  const CarveResult result = CarveOctree(ring.views, origin, size, options);
+  const CarveResult result = CarveRing(6, &origin, &size);
   const std::vector<HullCell> cells = HullCells(result.octree, 6);
   for (size_t i = 0; i < ring.views.size(); ++i) {
     double near_z, far_z;
@@ -303,10 +309,7 @@ TEST(CarveSynthetic, SurfaceCellsDrawTheHullsSilhouette) {
   const Ring& ring = TheRing();
   Eigen::Vector3d origin;
   double size;
-  RingCube(ring, &origin, &size);
-  CarveOptions options;
-  options.levels = 6;
-  const CarveResult result = CarveOctree(ring.views, origin, size, options);
+  const CarveResult result = CarveRing(6, &origin, &size);
   for (const int level : {4, 6}) {
     const std::vector<HullCell> all = HullCells(result.octree, level);
     const std::vector<HullCell> surface = SurfaceHullCells(result.octree, level);
@@ -343,13 +346,9 @@ TEST(CarveSynthetic, SurfaceCellsDrawTheHullsSilhouette) {
 }
 
 TEST(Octree, FileRoundTripAndErrors) {
-  const Ring& ring = TheRing();
   Eigen::Vector3d origin;
   double size;
-  RingCube(ring, &origin, &size);
-  CarveOptions options;
-  options.levels = 4;
-  const CarveResult result = CarveOctree(ring.views, origin, size, options);
+  const CarveResult result = CarveRing(4, &origin, &size);
   const std::string bytes = SerializeOctree(result.octree);
   const Octree back = DeserializeOctree(bytes);
   ASSERT_EQ(back.levels.size(), result.octree.levels.size());
