@@ -10,7 +10,7 @@ PACKAGES=(
   build-essential cmake ninja-build pkg-config
   libopencv-dev libeigen3-dev libtbb-dev libyaml-cpp-dev nlohmann-json3-dev libspdlog-dev
   libcli11-dev libgtest-dev libxxhash-dev libexif-dev libopenmesh-dev libceres-dev
-  libcgal-dev libgmp-dev libmpfr-dev libnanoflann-dev libsqlite3-dev libtinygltf-dev
+  libcgal-dev libgmp-dev libmpfr-dev libnanoflann-dev libsqlite3-dev libtinygltf-dev libpng-dev
   colmap libjs-chart.js libjs-three
 )
 

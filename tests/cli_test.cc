@@ -79,9 +79,10 @@ TEST_F(CliTest, StagesListsEveryStageWithDefaults) {
   EXPECT_NE(result.output.find("views (integer, default 24)"), std::string::npos) << result.output;
 }
 
-// OpenCV's image codecs (and GDAL's 140 libraries behind them) load with the first image, not with
-// the program (pipeline/core/image_codecs.h): --help and status never load them, a command that
-// reads images does, and a missing codecs module is an error saying what to build.
+// OpenCV's image codecs (and GDAL's 140 libraries behind them) load with the first image that
+// needs them, not with the program (pipeline/core/image_codecs.h): --help and status never load
+// them, PNGs are read without them (libpng, pipeline/core/png_decoder.h), a JPEG loads them, and a
+// missing codecs module is an error saying what to build.
 TEST_F(CliTest, ImageCodecsLoadWithTheFirstImageNotAtStart) {
   // What the dynamic loader maps at start (ldd's listing, without running main).
   CommandResult start = RunCommand("LD_TRACE_LOADED_OBJECTS=1 " + std::string(IBMR_BINARY));
@@ -90,24 +91,31 @@ TEST_F(CliTest, ImageCodecsLoadWithTheFirstImageNotAtStart) {
   EXPECT_EQ(start.output.find("libopencv_imgcodecs"), std::string::npos) << start.output;
   EXPECT_EQ(start.output.find("libgdal"), std::string::npos) << start.output;
 
-  // A pair with a 4-pixel shift: stereo-pair reads both through the module and writes a PFM.
+  // A pair with a 4-pixel shift, as PNGs and as JPEGs: stereo-pair reads both and writes a PFM.
   cv::Mat left(40, 64, CV_8UC1), right;
   cv::randu(left, 0, 255);
   right = cv::Mat::zeros(left.size(), CV_8UC1);
   left.colRange(4, 64).copyTo(right.colRange(0, 60));
-  ASSERT_TRUE(cv::imwrite((dir_ / "l.png").string(), left) && cv::imwrite((dir_ / "r.png").string(), right));
-  const std::string pair = " stereo-pair " + (dir_ / "l.png").string() + " " + (dir_ / "r.png").string() +
-                           " --max-disparity 8 --out " + (dir_ / "d.pfm").string();
-  CommandResult read = RunCommand(Ibmr(pair));
-  ASSERT_EQ(read.exit_code, 0) << read.output;
-  EXPECT_TRUE(fs::exists(dir_ / "d.pfm"));
+  const auto pair = [&](const std::string& extension) {
+    return " stereo-pair " + (dir_ / ("l" + extension)).string() + " " + (dir_ / ("r" + extension)).string() +
+           " --max-disparity 8 --out " + (dir_ / "d.pfm").string();
+  };
+  for (const std::string extension : {".png", ".jpg"}) {
+    ASSERT_TRUE(cv::imwrite((dir_ / ("l" + extension)).string(), left) && cv::imwrite((dir_ / ("r" + extension)).string(), right));
+    fs::remove(dir_ / "d.pfm");
+    CommandResult read = RunCommand(Ibmr(pair(extension)));
+    ASSERT_EQ(read.exit_code, 0) << extension << ": " << read.output;
+    EXPECT_TRUE(fs::exists(dir_ / "d.pfm")) << extension;
+  }
 
-  // Commands that touch no image run without the module at all (nothing loads it at start either).
-  for (const char* command : {"--help", "stages"}) {
-    CommandResult without = RunCommand("IBMR_IMAGE_CODECS=" + (dir_ / "nowhere.so").string() + " " + Ibmr(command));
+  // Commands that touch no image, and PNG reading, run without the module at all (nothing loads it
+  // at start either).
+  const std::string nowhere = "IBMR_IMAGE_CODECS=" + (dir_ / "nowhere.so").string() + " ";
+  for (const std::string command : {std::string("--help"), std::string("stages"), pair(".png")}) {
+    CommandResult without = RunCommand(nowhere + Ibmr(command));
     EXPECT_EQ(without.exit_code, 0) << command << ": " << without.output;
   }
-  CommandResult missing = RunCommand("IBMR_IMAGE_CODECS=" + (dir_ / "nowhere.so").string() + " " + Ibmr(pair));
+  CommandResult missing = RunCommand(nowhere + Ibmr(pair(".jpg")));
   EXPECT_NE(missing.exit_code, 0);
   EXPECT_NE(missing.output.find("cannot load the image codecs module"), std::string::npos) << missing.output;
   EXPECT_NE(missing.output.find("nowhere.so: no such file"), std::string::npos) << missing.output;

@@ -12,6 +12,7 @@
 
 #include "pipeline/core/atomic_file.h"
 #include "pipeline/core/image_codecs.h"
+#include "pipeline/core/png_decoder.h"
 #include "pipeline/core/errors.h"
 
 namespace ibmr {
@@ -66,6 +67,7 @@ cv::Mat ReadWithFlags(const std::string& path, int flags) {
   // A few hundred bytes of JPEG or PNG can declare a billion pixels, which OpenCV allocates before
   // it finds the data missing (found by fuzzing): a claim no file of that size can hold means a
   // truncated or forged file, refused unread.
+  bool png = false;
   {
     std::ifstream in(path, std::ios::binary);
     std::string head(65536, '\0');
@@ -78,8 +80,15 @@ cv::Mat ReadWithFlags(const std::string& path, int flags) {
                     std::to_string(declared.height) + " pixels, more than its " + std::to_string(bytes) +
                     " bytes can hold (truncated or corrupt)");
     }
+    png = LooksLikePng(head);
   }
   cv::Mat image;
+  // PNGs decode with libpng here, to imread's pixels, without loading OpenCV's codecs
+  // (png_decoder.h); what it does not read goes on to OpenCV.
+  if (png && (flags == cv::IMREAD_UNCHANGED || flags == (cv::IMREAD_COLOR | cv::IMREAD_IGNORE_ORIENTATION)) &&
+      DecodePng(ReadFile(path), flags == cv::IMREAD_UNCHANGED ? PngReadMode::kUnchanged : PngReadMode::kColor, &image)) {
+    return image;
+  }
   try {
     image = DecodeImageFile(path, flags);
   } catch (const cv::Exception& e) {
