@@ -375,26 +375,26 @@ std::vector<HullCell> SurfaceHullCells(const Octree& octree, int level) {
   const auto occupied = [&](int64_t x, int64_t y, int64_t z) {
     return x >= 0 && y >= 0 && z >= 0 && x < n && y < n && z < n && dense[static_cast<size_t>((z * n + y) * n + x)];
   };
-  // Whether every voxel next to the cell's faces is in the hull (face-adjacent, outside the cell).
-  const auto enclosed = [&](const OctreeNode& node, int64_t span) {
+  // The cell's faces with a voxel beside them (outside the cell) that is not in the hull.
+  const auto open_faces = [&](const OctreeNode& node, int64_t span) {
     const int64_t x0 = node.x * span, y0 = node.y * span, z0 = node.z * span;
+    uint8_t open = 0;
     for (int64_t a = 0; a < span; ++a) {
       for (int64_t b = 0; b < span; ++b) {
-        if (!occupied(x0 - 1, y0 + a, z0 + b) || !occupied(x0 + span, y0 + a, z0 + b) ||
-            !occupied(x0 + a, y0 - 1, z0 + b) || !occupied(x0 + a, y0 + span, z0 + b) ||
-            !occupied(x0 + a, y0 + b, z0 - 1) || !occupied(x0 + a, y0 + b, z0 + span)) {
-          return false;
-        }
+        open |= !occupied(x0 - 1, y0 + a, z0 + b) << 0 | !occupied(x0 + span, y0 + a, z0 + b) << 1 |
+                !occupied(x0 + a, y0 - 1, z0 + b) << 2 | !occupied(x0 + a, y0 + span, z0 + b) << 3 |
+                !occupied(x0 + a, y0 + b, z0 - 1) << 4 | !occupied(x0 + a, y0 + b, z0 + span) << 5;
       }
     }
-    return true;
+    return open;
   };
   std::vector<HullCell> cells;
   for (int l = 0; l <= level; ++l) {
     const int64_t span = int64_t{1} << (level - l);
     for (size_t i = 0; i < octree.levels[l].size(); ++i) {
-      if (!InHull(octree, l, level, i) || enclosed(octree.levels[l][i], span)) continue;
-      cells.push_back(HullCell{octree.CellMin(l, octree.levels[l][i]), octree.CellSize(l)});
+      if (!InHull(octree, l, level, i)) continue;
+      const uint8_t open = open_faces(octree.levels[l][i], span);
+      if (open != 0) cells.push_back(HullCell{octree.CellMin(l, octree.levels[l][i]), octree.CellSize(l), open});
     }
   }
   return cells;
@@ -450,7 +450,14 @@ cv::Mat ProjectHull(const std::vector<HullCell>& cells, const Camera& camera, co
   constexpr double kScale = 1 << kShift;
   const double limit = 4.0 * std::max(camera.width, camera.height) + 1e4;
   std::vector<cv::Point> corners(8), hull;
+  const Eigen::Vector3d center = cam_from_world.Inverse().translation;
   for (const HullCell& cell : cells) {
+    // The faces on whose outer side the camera is: those it could see.
+    uint8_t facing = 0;
+    for (int a = 0; a < 3; ++a) {
+      facing |= (center[a] < cell.min[a]) << (2 * a) | (center[a] > cell.min[a] + cell.size) << (2 * a + 1);
+    }
+    if ((facing & cell.open_faces) == 0) continue;
     const Eigen::Vector3d base = rotation * cell.min + cam_from_world.translation;
     const Eigen::Matrix3d steps = rotation * cell.size;
     bool drawable = true;
@@ -473,6 +480,20 @@ cv::Mat ProjectHull(const std::vector<HullCell>& cells, const Camera& camera, co
                              static_cast<int>(std::lround((pixel.y() - 0.5) * kScale)));
     }
     if (!drawable) continue;
+    // Nothing to add where every pixel of the cell's box (one pixel wider than its corners' box)
+    // is drawn already, as inside the silhouette after its neighbours: the convex hull and fill,
+    // most of a cell's cost, are skipped there.
+    int x0 = corners[0].x, x1 = x0, y0 = corners[0].y, y1 = y0;
+    for (const cv::Point& c : corners) x0 = std::min(x0, c.x), x1 = std::max(x1, c.x), y0 = std::min(y0, c.y), y1 = std::max(y1, c.y);
+    x0 = std::max(0, (x0 >> kShift) - 1), y0 = std::max(0, (y0 >> kShift) - 1);
+    x1 = std::min(mask.cols - 1, (x1 >> kShift) + 2), y1 = std::min(mask.rows - 1, (y1 >> kShift) + 2);
+    if (x0 > x1 || y0 > y1) continue;  // off the image
+    bool covered = true;
+    for (int y = y0; y <= y1 && covered; ++y) {
+      const uint8_t* row = mask.ptr<uint8_t>(y);
+      for (int x = x0; x <= x1 && covered; ++x) covered = row[x] != 0;
+    }
+    if (covered) continue;
     cv::convexHull(corners, hull);
     cv::fillConvexPoly(mask, hull, cv::Scalar(255), cv::LINE_8, kShift);
   }
@@ -493,6 +514,20 @@ bool HullDepthBounds(const std::vector<HullCell>& cells, const Camera& camera, c
   for (const HullCell& cell : cells) {
     const Eigen::Vector3d base = rotation * cell.min + cam_from_world.translation;
     const Eigen::Matrix3d steps = rotation * cell.size;
+    // A cell that can move neither bound needs no projection (its depths first: the same sums as
+    // the corners' below).
+    {
+      double lo = kBig, hi = -kBig;
+      for (int i = 0; i < 8; ++i) {
+        Eigen::Vector3d x = base;
+        if (i & 1) x += steps.col(0);
+        if (i & 2) x += steps.col(1);
+        if (i & 4) x += steps.col(2);
+        lo = std::min(lo, x.z());
+        hi = std::max(hi, x.z());
+      }
+      if (hi <= 1e-12 || !(std::max(lo, 1e-9 * cell.size) < near_value || hi > far_value)) continue;
+    }
     double z0 = kBig, z1 = -kBig, u0 = kBig, u1 = -kBig, w0 = kBig, w1 = -kBig;
     bool straddles = false;
     for (int i = 0; i < 8; ++i) {

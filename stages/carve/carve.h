@@ -117,15 +117,19 @@ struct Octree {
 struct HullCell {
   Eigen::Vector3d min = Eigen::Vector3d::Zero();
   double size = 0.0;
+  // The faces not shared with the hull (bit 2a: the face at min along axis a, bit 2a+1: at
+  // min + size); all six unless SurfaceHullCells found the neighbours.
+  uint8_t open_faces = 0x3f;
 };
 
 // The hull at `level` (<= MaxLevel): full nodes of levels <= level and partial nodes of `level`
 // (only those whose centre passes the centre test, when Octree::centre_kept holds that level).
 std::vector<HullCell> HullCells(const Octree& octree, int level);
-// The same cells less those whose six neighbours across their faces all belong to the hull: what a
-// view sees of the hull, since a line of sight from outside reaches an inner cell only through a
-// surface one (ProjectHull draws the same silhouette from these, several times faster). At levels
-// above 8 (a dense grid of more than 16 M cells) every cell is returned.
+// The same cells less those whose six neighbours across their faces all belong to the hull, each
+// with its open faces: what a view sees of the hull, since a line of sight from outside reaches an
+// inner cell only through a surface one, entering by an open face that faces the camera
+// (ProjectHull draws the same silhouette from these, several times faster). At levels above 8 (a
+// dense grid of more than 16 M cells) every cell is returned, all faces open.
 std::vector<HullCell> SurfaceHullCells(const Octree& octree, int level);
 
 struct LevelStats {
@@ -158,7 +162,8 @@ std::vector<uint8_t> CarveBruteForce(const std::vector<CarveView>& views, const 
 std::vector<uint8_t> DenseHull(const Octree& octree, int level);
 
 // The silhouette of the hull cells in a view: pixels whose centre lies in the projection of a cell
-// (each cell drawn as the convex hull of its 8 projected corners). CV_8UC1 0/255.
+// (each cell drawn as the convex hull of its 8 projected corners). Cells none of whose open faces
+// faces the camera are skipped: a line of sight meets them only after a cell that has one. CV_8UC1 0/255.
 cv::Mat ProjectHull(const std::vector<HullCell>& cells, const Camera& camera, const Rigid3d& cam_from_world);
 
 // Intersection over union of two masks' nonzero pixels (1 when both are empty).
