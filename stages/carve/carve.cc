@@ -147,12 +147,21 @@ Verdict ClassifyInView(const PreparedView& v, const Eigen::Vector3d& min, double
   return Verdict::kPartial;
 }
 
+// The node's state from every view's verdict: empty if any view says so, else partial if any
+// view sees it partly. The verdicts do not depend on the order the views are asked in, so
+// `rejecting` (optional) names the view to ask first and is set to the view that found a node
+// empty: nodes next to each other are mostly emptied by the same view.
 template <bool kBruteForce>
-NodeState Classify(const std::vector<PreparedView>& views, const Eigen::Vector3d& min, double size, bool* unseen) {
+NodeState Classify(const std::vector<PreparedView>& views, const Eigen::Vector3d& min, double size, bool* unseen,
+                   size_t* rejecting = nullptr) {
   bool any_full = false, any_partial = false;
-  for (const PreparedView& view : views) {
-    switch (ClassifyInView<kBruteForce>(view, min, size)) {
-      case Verdict::kEmpty: return NodeState::kEmpty;
+  const size_t first = rejecting != nullptr && *rejecting < views.size() ? *rejecting : 0;
+  for (size_t k = 0; k < views.size(); ++k) {
+    const size_t index = first + k < views.size() ? first + k : first + k - views.size();
+    switch (ClassifyInView<kBruteForce>(views[index], min, size)) {
+      case Verdict::kEmpty:
+        if (rejecting != nullptr) *rejecting = index;
+        return NodeState::kEmpty;
       case Verdict::kFull: any_full = true; break;
       case Verdict::kPartial: any_partial = true; break;
       case Verdict::kUnknown: break;
@@ -273,11 +282,12 @@ CarveResult CarveOctree(const std::vector<CarveView>& views, const Eigen::Vector
     std::vector<uint8_t> by_centre(nodes.size(), 0);  // partial nodes: 1 kept, 2 dropped by the centre test
     const double cell = result.octree.CellSize(level);
     tbb::parallel_for(tbb::blocked_range<size_t>(0, nodes.size(), 256), [&](const tbb::blocked_range<size_t>& range) {
+      size_t rejecting = 0;  // the view that emptied the last empty node of this range
       for (size_t i = range.begin(); i != range.end(); ++i) {
         bool is_unseen = false;
         nodes[i].state = prepared.empty() ? NodeState::kEmpty
                                           : Classify<false>(prepared, result.octree.CellMin(level, nodes[i]), cell,
-                                                            &is_unseen);
+                                                            &is_unseen, &rejecting);
         unseen[i] = is_unseen;
         if (options.leaf_test == LeafTest::kCentre && nodes[i].state == NodeState::kPartial) {
           const Eigen::Vector3d centre = result.octree.CellMin(level, nodes[i]) + Eigen::Vector3d::Constant(0.5 * cell);
