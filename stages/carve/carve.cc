@@ -261,17 +261,22 @@ CarveResult CarveOctree(const std::vector<CarveView>& views, const Eigen::Vector
   CarveResult result;
   result.octree.origin = origin;
   result.octree.size = size;
+  // The views' distance maps on the threads, then kept in the views' order.
+  std::vector<PreparedView> all(views.size());
+  std::vector<uint8_t> sees(views.size(), 0);
+  for (const CarveView& view : views) result.outside_empty.push_back(OutsideEmpty(view, options.outside));
+  tbb::parallel_for(size_t{0}, views.size(), [&](size_t i) {
+    all[i] = Prepare(views[i], result.outside_empty[i], true);
+    sees[i] = SeesCube(all[i], origin, size);
+  });
   std::vector<PreparedView> prepared;
-  for (const CarveView& view : views) {
-    const bool outside_empty = OutsideEmpty(view, options.outside);
-    result.outside_empty.push_back(outside_empty);
-    PreparedView p = Prepare(view, outside_empty, true);
+  for (size_t i = 0; i < views.size(); ++i) {
     // A view that does not see the volume would carve all of it (outside empty) or nothing.
-    if (!SeesCube(p, origin, size)) {
-      result.views_not_seeing_volume.push_back(view.name);
+    if (!sees[i]) {
+      result.views_not_seeing_volume.push_back(views[i].name);
       continue;
     }
-    prepared.push_back(std::move(p));
+    prepared.push_back(std::move(all[i]));
   }
   progress->Begin("octree levels", options.levels + 1);
   result.octree.levels.push_back({OctreeNode{}});
