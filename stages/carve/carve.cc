@@ -6,6 +6,7 @@
 #include <tbb/parallel_for.h>
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <cstring>
@@ -33,13 +34,18 @@ struct PreparedView {
   cv::Mat silhouette;          // CV_8UC1 0/1
 };
 
-PreparedView Prepare(const CarveView& view, bool outside_empty, bool with_distance_maps) {
+// Throws std::invalid_argument naming the view when its mask does not match its camera.
+void CheckMask(const CarveView& view) {
   if (view.mask.empty() || view.mask.type() != CV_8UC1 || view.mask.cols != view.camera.width ||
       view.mask.rows != view.camera.height) {
     throw std::invalid_argument("view " + view.name + ": the mask is " + std::to_string(view.mask.cols) + "x" +
                                 std::to_string(view.mask.rows) + " (8-bit, one channel expected) but the camera is " +
                                 std::to_string(view.camera.width) + "x" + std::to_string(view.camera.height));
   }
+}
+
+PreparedView Prepare(const CarveView& view, bool outside_empty, bool with_distance_maps) {
+  CheckMask(view);
   PreparedView p;
   p.view = &view;
   p.rotation = view.cam_from_world.rotation.toRotationMatrix();
@@ -98,6 +104,20 @@ bool NoValueInRect(const cv::Mat& silhouette, const PixelRect& rect, uint8_t val
 
 constexpr double kBig = 1e9;
 
+// The 8 corners of a cube in a camera's frame, from its min corner there and its edges (columns):
+// corner i adds edge a when bit a of i is set (every caller sums in this order: the same values).
+std::array<Eigen::Vector3d, 8> CubeCorners(const Eigen::Vector3d& base, const Eigen::Matrix3d& steps) {
+  std::array<Eigen::Vector3d, 8> corners;
+  for (int i = 0; i < 8; ++i) {
+    Eigen::Vector3d x = base;
+    if (i & 1) x += steps.col(0);
+    if (i & 2) x += steps.col(1);
+    if (i & 4) x += steps.col(2);
+    corners[i] = x;
+  }
+  return corners;
+}
+
 // The per-view verdict on the cube [min, min + size]^3 (see carve.h for the rules).
 template <bool kBruteForce>
 Verdict ClassifyInView(const PreparedView& v, const Eigen::Vector3d& min, double size) {
@@ -105,11 +125,9 @@ Verdict ClassifyInView(const PreparedView& v, const Eigen::Vector3d& min, double
   int behind = 0;
   const Eigen::Vector3d base = v.rotation * min + v.translation;
   const Eigen::Matrix3d steps = v.rotation * size;
+  const std::array<Eigen::Vector3d, 8> cube = CubeCorners(base, steps);
   for (int i = 0; i < 8; ++i) {
-    Eigen::Vector3d x = base;
-    if (i & 1) x += steps.col(0);
-    if (i & 2) x += steps.col(1);
-    if (i & 4) x += steps.col(2);
+    const Eigen::Vector3d& x = cube[i];
     if (x.z() <= 1e-12) {
       ++behind;
       continue;
@@ -264,7 +282,10 @@ CarveResult CarveOctree(const std::vector<CarveView>& views, const Eigen::Vector
   // The views' distance maps on the threads, then kept in the views' order.
   std::vector<PreparedView> all(views.size());
   std::vector<uint8_t> sees(views.size(), 0);
-  for (const CarveView& view : views) result.outside_empty.push_back(OutsideEmpty(view, options.outside));
+  for (const CarveView& view : views) {
+    CheckMask(view);  // in the views' order: the first bad mask is the one named
+    result.outside_empty.push_back(OutsideEmpty(view, options.outside));
+  }
   tbb::parallel_for(size_t{0}, views.size(), [&](size_t i) {
     all[i] = Prepare(views[i], result.outside_empty[i], true);
     sees[i] = SeesCube(all[i], origin, size);
@@ -274,6 +295,7 @@ CarveResult CarveOctree(const std::vector<CarveView>& views, const Eigen::Vector
     // A view that does not see the volume would carve all of it (outside empty) or nothing.
     if (!sees[i]) {
       result.views_not_seeing_volume.push_back(views[i].name);
+      all[i] = PreparedView();  // its distance maps are not needed
       continue;
     }
     prepared.push_back(std::move(all[i]));
@@ -476,11 +498,9 @@ cv::Mat ProjectHull(const std::vector<HullCell>& cells, const Camera& camera, co
     const Eigen::Vector3d base = rotation * cell.min + cam_from_world.translation;
     const Eigen::Matrix3d steps = rotation * cell.size;
     bool drawable = true;
+    const std::array<Eigen::Vector3d, 8> cube = CubeCorners(base, steps);
     for (int i = 0; i < 8 && drawable; ++i) {
-      Eigen::Vector3d x = base;
-      if (i & 1) x += steps.col(0);
-      if (i & 2) x += steps.col(1);
-      if (i & 4) x += steps.col(2);
+      const Eigen::Vector3d& x = cube[i];
       if (x.z() <= 1e-12) {
         drawable = false;
         break;
@@ -515,6 +535,25 @@ cv::Mat ProjectHull(const std::vector<HullCell>& cells, const Camera& camera, co
   return mask;
 }
 
+cv::Mat ProjectHullSurface(const Octree& octree, int level, const std::vector<HullCell>& surface, const Camera& camera,
+                           const Rigid3d& cam_from_world) {
+  const CornerProjector project(camera);
+  const Eigen::Matrix3d rotation = cam_from_world.rotation.toRotationMatrix();
+  const Eigen::Vector3d base = rotation * octree.origin + cam_from_world.translation;
+  const Eigen::Matrix3d steps = rotation * octree.size;
+  // Margins well above ProjectHull's (z > 1e-12, |pixel| <= limit): a cell corner, a point of the
+  // cube, is then in front and in reach however its own sums round.
+  const double reach = 2.0 * std::max(camera.width, camera.height) + 5e3;
+  bool whole_cube_drawable = true;
+  const std::array<Eigen::Vector3d, 8> cube = CubeCorners(base, steps);
+  for (int i = 0; i < 8 && whole_cube_drawable; ++i) {
+    const Eigen::Vector3d& x = cube[i];
+    const Eigen::Vector2d pixel = x.z() > 1e-6 * octree.size ? project(x) : Eigen::Vector2d::Constant(2 * reach);
+    whole_cube_drawable = std::abs(pixel.x()) < reach && std::abs(pixel.y()) < reach;
+  }
+  return ProjectHull(whole_cube_drawable ? surface : HullCells(octree, level), camera, cam_from_world);
+}
+
 double MaskIou(const cv::Mat& a, const cv::Mat& b) {
   const int intersection = cv::countNonZero((a != 0) & (b != 0));
   const int united = cv::countNonZero((a != 0) | (b != 0));
@@ -529,29 +568,16 @@ bool HullDepthBounds(const std::vector<HullCell>& cells, const Camera& camera, c
   for (const HullCell& cell : cells) {
     const Eigen::Vector3d base = rotation * cell.min + cam_from_world.translation;
     const Eigen::Matrix3d steps = rotation * cell.size;
-    // A cell that can move neither bound needs no projection (its depths first: the same sums as
-    // the corners' below).
-    {
-      double lo = kBig, hi = -kBig;
-      for (int i = 0; i < 8; ++i) {
-        Eigen::Vector3d x = base;
-        if (i & 1) x += steps.col(0);
-        if (i & 2) x += steps.col(1);
-        if (i & 4) x += steps.col(2);
-        lo = std::min(lo, x.z());
-        hi = std::max(hi, x.z());
-      }
-      if (hi <= 1e-12 || !(std::max(lo, 1e-9 * cell.size) < near_value || hi > far_value)) continue;
-    }
-    double z0 = kBig, z1 = -kBig, u0 = kBig, u1 = -kBig, w0 = kBig, w1 = -kBig;
+    const std::array<Eigen::Vector3d, 8> cube = CubeCorners(base, steps);
+    double z0 = kBig, z1 = -kBig;
+    for (const Eigen::Vector3d& x : cube) z0 = std::min(z0, x.z()), z1 = std::max(z1, x.z());
+    if (z1 <= 1e-12) continue;
+    // A cell that can move neither bound needs no projection.
+    if (!(std::max(z0, 1e-9 * cell.size) < near_value || z1 > far_value)) continue;
+    double u0 = kBig, u1 = -kBig, w0 = kBig, w1 = -kBig;
     bool straddles = false;
     for (int i = 0; i < 8; ++i) {
-      Eigen::Vector3d x = base;
-      if (i & 1) x += steps.col(0);
-      if (i & 2) x += steps.col(1);
-      if (i & 4) x += steps.col(2);
-      z0 = std::min(z0, x.z());
-      z1 = std::max(z1, x.z());
+      const Eigen::Vector3d& x = cube[i];
       if (x.z() <= 1e-12) {
         straddles = true;
         continue;
@@ -562,7 +588,6 @@ bool HullDepthBounds(const std::vector<HullCell>& cells, const Camera& camera, c
       w0 = std::min(w0, pixel.y());
       w1 = std::max(w1, pixel.y());
     }
-    if (z1 <= 1e-12) continue;
     if (!straddles && (u1 < 0 || w1 < 0 || u0 > camera.width || w0 > camera.height)) continue;
     near_value = std::min(near_value, std::max(z0, 1e-9 * cell.size));
     far_value = std::max(far_value, z1);

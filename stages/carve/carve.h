@@ -128,8 +128,8 @@ std::vector<HullCell> HullCells(const Octree& octree, int level);
 // The same cells less those whose six neighbours across their faces all belong to the hull, each
 // with its open faces: what a view sees of the hull, since a line of sight from outside reaches an
 // inner cell only through a surface one, entering by an open face that faces the camera
-// (ProjectHull draws the same silhouette from these, several times faster). At levels above 8 (a
-// dense grid of more than 16 M cells) every cell is returned, all faces open.
+// (ProjectHullSurface draws the same silhouette from these, several times faster). At levels above
+// 8 (a dense grid of more than 16 M cells) every cell is returned, all faces open.
 std::vector<HullCell> SurfaceHullCells(const Octree& octree, int level);
 
 struct LevelStats {
@@ -165,6 +165,12 @@ std::vector<uint8_t> DenseHull(const Octree& octree, int level);
 // (each cell drawn as the convex hull of its 8 projected corners). Cells none of whose open faces
 // faces the camera are skipped: a line of sight meets them only after a cell that has one. CV_8UC1 0/255.
 cv::Mat ProjectHull(const std::vector<HullCell>& cells, const Camera& camera, const Rigid3d& cam_from_world);
+// The hull's silhouette at `level` from its surface cells (SurfaceHullCells(octree, level)): the
+// same mask as ProjectHull of every cell when the whole root cube is in front of the camera and
+// projects within reach (then no cell is left undrawn, and a line of sight meets an inner cell only
+// after a surface one); otherwise, a camera near or inside the volume, drawn from every cell.
+cv::Mat ProjectHullSurface(const Octree& octree, int level, const std::vector<HullCell>& surface, const Camera& camera,
+                           const Rigid3d& cam_from_world);
 
 // Intersection over union of two masks' nonzero pixels (1 when both are empty).
 double MaskIou(const cv::Mat& a, const cv::Mat& b);

@@ -99,7 +99,8 @@ std::vector<std::map<std::string, double>> ValidateOnHeldOut(const StageContext&
     std::vector<double> ious(views.size());
     tbb::parallel_for(size_t{0}, views.size(), [&](size_t i) {
       const Camera& camera = full.CameraOf(*views[i].image);
-      ious[i] = MaskIou(ProjectHull(cells, camera, views[i].image->cam_from_world), views[i].mask);
+      ious[i] = MaskIou(ProjectHullSurface(octree, static_cast<int>(level), cells, camera, views[i].image->cam_from_world),
+                        views[i].mask);
     });
     for (size_t i = 0; i < views.size(); ++i) per_level[level][views[i].name] = ious[i];
   }
@@ -232,9 +233,10 @@ class CarveStage : public Stage {
     }
     tbb::parallel_for(size_t{0}, views.size(), [&](size_t i) {
       if (!used[i]) return;
-      train_iou_finest[i] = MaskIou(ProjectHull(finest_surface, views[i].camera, views[i].cam_from_world), views[i].mask);
+      train_iou_finest[i] =
+          MaskIou(ProjectHullSurface(octree, finest, finest_surface, views[i].camera, views[i].cam_from_world), views[i].mask);
       train_iou_chosen[i] = chosen == finest ? train_iou_finest[i]
-                                              : MaskIou(ProjectHull(chosen_surface, views[i].camera,
+                                              : MaskIou(ProjectHullSurface(octree, chosen, chosen_surface, views[i].camera,
                                                                     views[i].cam_from_world), views[i].mask);
     });
     std::vector<double> finest_values, chosen_values;

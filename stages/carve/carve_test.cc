@@ -317,10 +317,19 @@ TEST(CarveSynthetic, SurfaceCellsDrawTheHullsSilhouette) {
     EXPECT_LT(surface.size(), all.size()) << "level " << level;
     for (const CarveView& view : ring.views) {
       const cv::Mat expected = ProjectHull(all, view.camera, view.cam_from_world);
-      const cv::Mat got = ProjectHull(surface, view.camera, view.cam_from_world);
+      const cv::Mat got = ProjectHullSurface(result.octree, level, surface, view.camera, view.cam_from_world);
       ASSERT_GT(cv::countNonZero(expected), 100) << view.name;
       EXPECT_EQ(cv::countNonZero(expected != got), 0) << view.name << " level " << level;
     }
+    // A camera inside the carving cube, looking through the hull: cells behind it are not drawn,
+    // and inner cells can show; ProjectHullSurface then draws every cell, as ProjectHull does.
+    const CarveView& view = ring.views.front();
+    Rigid3d inside = view.cam_from_world;
+    inside.translation = view.cam_from_world.rotation * (-(origin + Eigen::Vector3d::Constant(0.5 * size)));
+    const cv::Mat expected = ProjectHull(all, view.camera, inside);
+    ASSERT_GT(cv::countNonZero(expected), 100);
+    EXPECT_EQ(cv::countNonZero(expected != ProjectHullSurface(result.octree, level, surface, view.camera, inside)), 0)
+        << "level " << level;
     // Surface cells touch the outside: at least one finest-level voxel beside a face is empty.
     const std::vector<uint8_t> dense = DenseHull(result.octree, level);
     const int n = 1 << level;

@@ -243,7 +243,7 @@ void ExtendIntoHoles(DepthMap* depth, int radius) {
   // A hole's source is a pixel the mesh covers, whose depth this loop never changes: rows in any order.
   tbb::parallel_for(tbb::blocked_range<size_t>(0, source.size(), 1 << 15), [&](const tbb::blocked_range<size_t>& range) {
     for (size_t i = range.begin(); i < range.end(); ++i) {
-      if (source[i] >= 0) depth->data[i] = depth->data[source[i]];
+      if (source[i] >= 0 && source[i] != static_cast<int>(i)) depth->data[i] = depth->data[source[i]];
     }
   });
 }
