@@ -4,11 +4,16 @@
 #include <png.h>
 
 #include <csetjmp>
+#include <cstdint>
+#include <cstdlib>
 #include <cstring>
+#include <exception>
 #include <vector>
 
 namespace ibmr {
 namespace {
+
+static_assert(__BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__, "16-bit samples are swapped to the host order as on x86");
 
 constexpr unsigned char kSignature[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'};
 
@@ -47,6 +52,15 @@ struct PngReader {
   bool Ready() const { return png && info && end; }
 };
 
+// One of OpenCV's image size limits: the environment's value when it sets one, else the default.
+uint64_t LimitFromEnvironment(const char* name, uint64_t fallback) {
+  const char* value = std::getenv(name);
+  if (value == nullptr || *value == '\0') return fallback;
+  char* end = nullptr;
+  const unsigned long long parsed = std::strtoull(value, &end, 10);
+  return end != nullptr && *end == '\0' ? parsed : fallback;
+}
+
 // The Mat type imread allocates for a PNG header in `mode` (OpenCV's PngDecoder::readHeader, then
 // imread's flag rules: IMREAD_COLOR forces 8-bit, 3 channels).
 int MatType(png_structp png, png_infop info, int bit_depth, int color_type, PngReadMode mode) {
@@ -75,9 +89,11 @@ bool DecodeInto(PngReader& reader, Source* source, PngReadMode mode, cv::Mat* im
   png_uint_32 width = 0, height = 0;
   int bit_depth = 0, color_type = 0;
   png_get_IHDR(png, info, &width, &height, &bit_depth, &color_type, nullptr, nullptr, nullptr);
-  // imread's limits (validateInputImageSize): larger images are OpenCV's to refuse.
-  if (width == 0 || height == 0 || width > (1u << 20) || height > (1u << 20) ||
-      static_cast<uint64_t>(width) * height > (uint64_t{1} << 30)) {
+  // imread's limits (validateInputImageSize, with its environment overrides): larger images are
+  // OpenCV's to refuse.
+  if (width == 0 || height == 0 || width > LimitFromEnvironment("OPENCV_IO_MAX_IMAGE_WIDTH", uint64_t{1} << 20) ||
+      height > LimitFromEnvironment("OPENCV_IO_MAX_IMAGE_HEIGHT", uint64_t{1} << 20) ||
+      static_cast<uint64_t>(width) * height > LimitFromEnvironment("OPENCV_IO_MAX_IMAGE_PIXELS", uint64_t{1} << 30)) {
     return false;
   }
   image->create(static_cast<int>(height), static_cast<int>(width), MatType(png, info, bit_depth, color_type, mode));
@@ -127,7 +143,11 @@ bool DecodePng(const std::string& bytes, PngReadMode mode, cv::Mat* image) {
   Source source{&bytes, 0};
   std::vector<png_bytep> rows;
   cv::Mat decoded;
-  if (!DecodeInto(reader, &source, mode, &decoded, &rows)) return false;
+  try {
+    if (!DecodeInto(reader, &source, mode, &decoded, &rows)) return false;
+  } catch (const std::exception&) {  // the image's allocation: OpenCV reports it in its words
+    return false;
+  }
   *image = decoded;
   return true;
 }

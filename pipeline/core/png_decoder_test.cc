@@ -30,20 +30,6 @@ struct PngSpec {
   bool transparency = false;  // a tRNS chunk (palette alphas, or one transparent grey / RGB value)
 };
 
-int Channels(int color_type) {
-  switch (color_type) {
-    case PNG_COLOR_TYPE_GRAY:
-    case PNG_COLOR_TYPE_PALETTE:
-      return 1;
-    case PNG_COLOR_TYPE_GRAY_ALPHA:
-      return 2;
-    case PNG_COLOR_TYPE_RGB:
-      return 3;
-    default:
-      return 4;
-  }
-}
-
 void AppendBytes(png_structp png, png_bytep data, png_size_t length) {
   auto* out = static_cast<std::string*>(png_get_io_ptr(png));
   out->append(reinterpret_cast<const char*>(data), length);
@@ -140,7 +126,6 @@ TEST(DecodePng, EveryKindOfPngAsOpenCvReadsIt) {
     for (const auto& [width, height] : {std::pair<int, int>{1, 1}, {37, 23}}) {
       const std::string bytes = WritePng(spec, width, height, seed++);
       ASSERT_FALSE(bytes.empty()) << spec.name;
-      EXPECT_EQ(Channels(spec.color_type) > 0, true);
       ExpectSameAsOpenCv(bytes, spec.name + " " + std::to_string(width) + "x" + std::to_string(height));
     }
   }
@@ -183,7 +168,9 @@ TEST(DecodePng, RefusesWhatLibpngCannotRead) {
     EXPECT_TRUE(out.empty());
   }
   std::string corrupt = bytes;
-  corrupt[40] ^= 0x5a;  // inside IDAT: its CRC no longer matches
+  const size_t idat = corrupt.find("IDAT");
+  ASSERT_NE(idat, std::string::npos);
+  corrupt[idat + 6] ^= 0x5a;  // in the IDAT chunk's data: its CRC no longer matches
   EXPECT_FALSE(DecodePng(corrupt, PngReadMode::kUnchanged, &out));
   EXPECT_TRUE(out.empty());
 }

@@ -16,8 +16,8 @@
 //     barycentrics; back faces, the inside of the surface that no photo shows, are culled): the
 //     world point p from the barycentrics, projected into each of the face's views (projective
 //     texture mapping, §4; done as the barycentric blend of the face's corners projected once per
-//     frame, which is the same point since projection is linear in homogeneous coordinates) and
-//     sampled bilinearly; colour = sum w_i I_i(p) / sum w_i over the views where p
+//     frame, the same point since projection is linear in homogeneous coordinates, in float: about
+//     1e-4 pixel from the double-precision projection) and sampled bilinearly; colour = sum w_i I_i(p) / sum w_i over the views where p
 //     falls inside the image and, when the sources carry the mesh's depth (SourceView::proxy_depth,
 //     computed once per render stage: the image-space form of §5's splitting of partly visible
 //     polygons), is not behind it by more than visibility_epsilon of its depth. The view maps list
