@@ -228,6 +228,32 @@ TEST(MultiDepth, GeometricConsistencyFallsWithAKnownPoseError) {
   EXPECT_GT(MedianConfidence(PairWithPoseError(0.024, options)), 0.99f);
 }
 
+// With geometric_sigma 0 (off) the confidence is the photometric one itself, not the geometric
+// mean with a factor of 1 (its square root, which raised every confidence below 1: commit 91b50b2).
+// The pair agrees exactly (no pose error), the key's and the neighbour's photometric confidence are
+// 0.36 everywhere: their mean over the key and its one confirming view is 0.36 (0.6 when square-rooted).
+TEST(MultiDepth, GeometricConsistencyOffKeepsThePhotometricConfidence) {
+  const Scene scene = MakeScene(8, 80, 60);
+  DepthView key = scene.truth[0], neighbour = scene.truth[1];
+  key.confidence = FloatMap(key.depth.width, key.depth.height, 1, 0.36f);
+  neighbour.confidence = FloatMap(neighbour.depth.width, neighbour.depth.height, 1, 0.36f);
+  MultiDepthOptions options;
+  options.min_consistent_views = 1;
+  options.fill_from_neighbors = false;
+  options.geometric_sigma = 0;
+  options.view_agreement_reference = 0;
+  const MultiDepthResult off = MakeDepthConsistent(key, {&neighbour}, options);
+  ASSERT_GT(off.stats.kept, 500u);
+  EXPECT_NEAR(MedianConfidence(off), 0.36f, 1e-4f);
+  for (size_t i = 0; i < off.depth.data.size(); ++i) {
+    if (off.depth.data[i] > 0) ASSERT_LE(off.confidence.data[i], 0.36f + 1e-4f) << "pixel " << i;
+  }
+  // On, with the same exact pair: the geometric factor is about 1, the geometric mean of 0.36 and
+  // 1 is 0.6, so the two settings are told apart by this scene.
+  options.geometric_sigma = 0.003;
+  EXPECT_GT(MedianConfidence(MakeDepthConsistent(key, {&neighbour}, options)), 0.55f);
+}
+
 TEST(MultiDepth, ViewAgreementScalesAViewWhoseCameraIsOff) {
   MultiDepthOptions options;
   options.min_consistent_views = 1;

@@ -79,10 +79,13 @@ inline float PeakRatioConfidence(const uint16_t* curve, int np, int best, double
 // the margin factor of the matching cost `data` times, when enabled, the peak-ratio factor of the
 // aggregated curve (after the smoothness term a second minimum is an ambiguity the aggregation
 // did not resolve; on the raw matching cost, which the aggregation overrules where it is noisy,
-// most pixels of a noisy or repetitive scene have one).
+// most pixels of a noisy or repetitive scene have one). `margin`, when not null, receives the
+// margin factor alone: whether there is a match at all (the sweep's confidence_threshold compares
+// it), apart from whether it is ambiguous.
 inline float CurveConfidence(const uint16_t* data, const uint16_t* aggregated, int np, int best,
-                             const CertaintyOptions& options) {
+                             const CertaintyOptions& options, float* margin = nullptr) {
   float confidence = MarginConfidence(data, np, best, options.margin_scale);
+  if (margin != nullptr) *margin = confidence;
   if (options.peak_ratio_scale > 0 && confidence > 0) {
     confidence *= PeakRatioConfidence(aggregated, np, best, options.peak_ratio_scale);
   }

@@ -53,6 +53,11 @@ TEST(CostCurveConfidence, TwoEqualMinimaAreCaughtByThePeakRatioOnly) {
   sweep::CertaintyOptions both;
   both.peak_ratio_scale = 2.0;
   EXPECT_FLOAT_EQ(sweep::CurveConfidence(c.data(), c.data(), kPlanes, 15, both), 0.f);
+  // The margin factor alone (what the sweep's confidence_threshold compares): a match exists.
+  float margin = -1;
+  EXPECT_FLOAT_EQ(sweep::CurveConfidence(c.data(), c.data(), kPlanes, 15, both, &margin), 0.f);
+  EXPECT_FLOAT_EQ(margin, sweep::MarginConfidence(c.data(), kPlanes, 15, both.margin_scale));
+  EXPECT_GT(margin, 0.9f);
   // Off: the certainty is the margin alone.
   EXPECT_GT(sweep::CurveConfidence(c.data(), c.data(), kPlanes, 15, sweep::CertaintyOptions{}), 0.9f);
   // A dip within the winner's own basin (two planes off) is not a competitor.

@@ -56,7 +56,8 @@ struct PlaneSweepOptions {
   // another depth is about as cheap after aggregation (repetitive texture). In [0, 100]; 0: off.
   // The confidence is the margin factor times the peak-ratio factor times the texture factor.
   double peak_ratio_scale = 20.0;
-  double confidence_threshold = 0.5;   // depth set to 0 where confidence < this, in [0, 1]
+  double confidence_threshold = 0.5;   // depth set to 0 where the margin factor times the texture
+                                       // factor (the confidence without the peak ratio) < this, in [0, 1]
   double texture_scale = 6.0;     // grey-level std. dev. over the census window at which the
                                   // texture factor of the confidence reaches 1, >= 0 (0: off)
   double min_depth = -1;          // fallback depth bounds, scene units (-1: none)

@@ -83,8 +83,9 @@ class PlaneSweepStage : public Stage {
   // per-pixel near bounds from hull/hull.ply
   // 4: pixels too untextured to keep a depth are not matched; 5: the census cost interpolated along
   // the epipolar lines (census_sampling: epipolar); 6: the confidence's peak-ratio factor
-  // (peak_ratio_scale)
-  std::string Version() const override { return "6"; }
+  // (peak_ratio_scale); 7: confidence_threshold compares the confidence without the peak ratio (an
+  // ambiguous match keeps its depth at its lowered confidence)
+  std::string Version() const override { return "7"; }
   HoldoutRole Role() const override { return HoldoutRole::kTrainingOnly; }
   bool Shardable() const override { return true; }
   double ViewMemoryMb(const StageContext& context) const override {
@@ -133,7 +134,7 @@ class PlaneSweepStage : public Stage {
         {"texture_scale", ParamType::kDouble, s(d.texture_scale),
          "Grey std. dev. over the census window giving full confidence; 0: no texture factor"},
         {"confidence_threshold", ParamType::kDouble, s(d.confidence_threshold),
-         "Depth dropped (0) where confidence < this, [0, 1]"},
+         "Depth dropped (0) where the confidence without its peak-ratio factor < this, [0, 1]"},
         {"min_depth", ParamType::kDouble, "-1", "Fallback near depth, scene units; -1: none"},
         {"max_depth", ParamType::kDouble, "-1", "Fallback far depth, scene units; -1: none"},
         {"bounding_box", ParamType::kDoubleList, "[]",

@@ -166,6 +166,29 @@ TEST_F(TexturedPlane, IsFound) {
   for (float c : result.confidence.data) ASSERT_TRUE(c >= 0 && c <= 1);
 }
 
+// The peak ratio lowers the confidence of an ambiguous match but does not decide whether a pixel
+// has a depth: confidence_threshold compares the margin and texture factors. With the peak-ratio
+// factor scaled down to nearly 0 (scale 0.01: at most 0.01 wherever the aggregated curve has a
+// second local minimum) those pixels' confidences fall below the threshold, yet the depth map is
+// the one of the default scale, pixel for pixel.
+TEST_F(TexturedPlane, PeakRatioLowersTheConfidenceNotWhichPixelsHaveADepth) {
+  PlaneSweepOptions options;
+  options.num_planes = 48;
+  options.confidence_threshold = 0.3;
+  const PlaneSweepResult standard = PlaneSweep(ref, neighbours, 3.0, 10.0, options);
+  options.peak_ratio_scale = 0.01;
+  const PlaneSweepResult ambiguous = PlaneSweep(ref, neighbours, 3.0, 10.0, options);
+  size_t kept = 0, below = 0;
+  for (size_t i = 0; i < standard.depth.data.size(); ++i) {
+    ASSERT_EQ(standard.depth.data[i], ambiguous.depth.data[i]) << "pixel " << i;
+    ASSERT_LE(ambiguous.confidence.data[i], standard.confidence.data[i]) << "pixel " << i;
+    kept += standard.depth.data[i] > 0;
+    below += standard.depth.data[i] > 0 && ambiguous.confidence.data[i] < options.confidence_threshold;
+  }
+  EXPECT_GT(kept, 0.9 * w * h);
+  EXPECT_GT(below, kept / 2) << "kept pixels whose confidence the peak ratio took below the threshold";
+}
+
 // Whichever way the epipolar lines run (here close to the columns), the census cost, interpolated
 // along them, finds the plane at least as precisely as the bilinear cost (here more: 3119 pixels
 // within 0.3% against 680; the bilinear weights blur the codes across the line too).

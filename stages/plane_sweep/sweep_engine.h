@@ -174,7 +174,8 @@ void Aggregate(const CostVolume& volume, const cv::Mat& reference_gray, const En
 // undefined; found in the same pass over the volume.
 struct Winners {
   cv::Mat plane;       // CV_32F, sub-pixel plane index, -1: none
-  cv::Mat confidence;  // CV_32F in [0, 1]
+  cv::Mat confidence;  // CV_32F in [0, 1]: the certainty (margin times peak ratio)
+  cv::Mat margin;      // CV_32F in [0, 1]: its margin factor alone (whether there is a match)
   cv::Mat right;       // CV_32S, with `right_winners` only
 };
 // `data_cost` nullptr: no confidence (left at 0).

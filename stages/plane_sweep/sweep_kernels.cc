@@ -466,9 +466,11 @@ inline uint16_t PadAndMinimum(uint16_t* s, int np, int stride) {
 // sub-pixel offset, and, given `data` (the pixel's data-cost curve), the certainty: how far the
 // winner's matching cost lies below the curve's mean (0: the curve is flat, as on untextured
 // surfaces, or the winner matches no better than a random plane, as where it is occluded in the
-// best neighbours). Inlined: a call per pixel cost the two-view pairs 5-8% of their time.
+// best neighbours; times the peak ratio, cost_curve_confidence.h) and its margin factor alone.
+// Inlined: a call per pixel cost the two-view pairs 5-8% of their time.
 __attribute__((always_inline)) inline void WinnerOf(const uint16_t* s, uint16_t lowest, int np, const uint16_t* data,
-                                                    const CertaintyOptions& certainty, float* plane, float* confidence) {
+                                                    const CertaintyOptions& certainty, float* plane, float* confidence,
+                                                    float* margin) {
   int best = 0;
   for (int d = 0;; d += kLaneCount) {
     const int lane = FirstLaneEqual(reinterpret_cast<UnsignedLanes>(LoadLanes<Lanes>(s + d)), lowest);
@@ -485,7 +487,7 @@ __attribute__((always_inline)) inline void WinnerOf(const uint16_t* s, uint16_t 
   }
   *plane = sub;
   if (data == nullptr) return;
-  *confidence = CurveConfidence(data, s, np, best, certainty);
+  *confidence = CurveConfidence(data, s, np, best, certainty, margin);
 }
 
 // Where a backward pass that completes the sums puts each matched pixel's winner (AggregateAndPick)
@@ -493,12 +495,13 @@ __attribute__((always_inline)) inline void WinnerOf(const uint16_t* s, uint16_t 
 struct PickTarget {
   float* plane = nullptr;       // sub-pixel plane index (left untouched at unmatched pixels)
   float* confidence = nullptr;  // certainty in [0, 1]
+  float* margin = nullptr;      // its margin factor alone, in [0, 1]
   CertaintyOptions certainty;
 
   // Pixel `pixel`'s winner from its completed sums `s` (`stride` entries; the padding ones are
   // overwritten) and its data-cost curve `data`.
   void Pick(uint16_t* s, int np, int stride, const uint16_t* data, size_t pixel) const {
-    WinnerOf(s, PadAndMinimum(s, np, stride), np, data, certainty, plane + pixel, confidence + pixel);
+    WinnerOf(s, PadAndMinimum(s, np, stride), np, data, certainty, plane + pixel, confidence + pixel, margin + pixel);
   }
 };
 
@@ -2164,6 +2167,7 @@ Winners WinnerTakeAll(const Aggregated& ag, const CostVolume* data, const Certai
   Winners out;
   out.plane = cv::Mat(h, w, CV_32F, cv::Scalar(-1));
   out.confidence = cv::Mat(h, w, CV_32F, cv::Scalar(0));
+  out.margin = cv::Mat(h, w, CV_32F, cv::Scalar(0));
   if (right_winners) out.right = cv::Mat(h, w, CV_32S, cv::Scalar(-1));
   // 0xFFFF at the padding planes, to OR into their sums.
   std::vector<uint16_t> padding(stride, 0);
@@ -2176,6 +2180,7 @@ Winners WinnerTakeAll(const Aggregated& ag, const CostVolume* data, const Certai
     std::vector<int32_t> right_disparity(right_winners ? w : 0, -1);
     float* plane = out.plane.ptr<float>(y);
     float* conf = out.confidence.ptr<float>(y);
+    float* margin = out.margin.ptr<float>(y);
     for (int x = 0; x < w; ++x) {
       const size_t pixel = static_cast<size_t>(y) * w + x;
       if (!ag.Matched(pixel)) continue;  // no winner, certainty 0
@@ -2203,7 +2208,7 @@ Winners WinnerTakeAll(const Aggregated& ag, const CostVolume* data, const Certai
         }
       }
       WinnerOf(s.data(), LowestUnsignedLane(low), np, data == nullptr ? nullptr : data->At(x, y), certainty, plane + x,
-               conf + x);
+               conf + x, margin + x);
     }
     if (right_winners) {
       int* right = out.right.ptr<int>(y);
@@ -2218,7 +2223,8 @@ Winners AggregateAndPick(const CostVolume& v, const cv::Mat& gray, const EngineO
   Winners out;
   out.plane = cv::Mat(v.height, v.width, CV_32F, cv::Scalar(-1));
   out.confidence = cv::Mat(v.height, v.width, CV_32F, cv::Scalar(0));
-  const PickTarget pick{out.plane.ptr<float>(), out.confidence.ptr<float>(), certainty};
+  out.margin = cv::Mat(v.height, v.width, CV_32F, cv::Scalar(0));
+  const PickTarget pick{out.plane.ptr<float>(), out.confidence.ptr<float>(), out.margin.ptr<float>(), certainty};
   if (!o.semi_global) {  // the (box-filtered) costs are the sums: picked from the volume itself
     sums->clear();       // not used (its capacity stays in the pool)
     tbb::parallel_for(0, v.height, [&](int y) {
