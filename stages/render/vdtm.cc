@@ -273,12 +273,13 @@ RenderResult VdtmRenderer::Render(const Camera& camera, const Rigid3d& cam_from_
             const Eigen::Vector3i& f = mesh_->mesh.faces[face];
             return (bary[0] * vertices[f[0]] + bary[1] * vertices[f[1]] + bary[2] * vertices[f[2]]).cast<double>();
           };
+          const Eigen::Vector3d ray_point = on_ray ? point() : Eigen::Vector3d::Zero();
           Eigen::Vector3f color;
           for (int i = 0; i < draw.blend.count; ++i) {
             const int source = draw.blend.sources[i];
             bool seen;
             if (on_ray) {
-              seen = sample_point(source, point(), &color);
+              seen = sample_point(source, ray_point, &color);
             } else {
               const Eigen::Vector3f q = draw.corners[i] * bary;
               seen = q.z() > 0.f && sample(source, q.x() / q.z(), q.y() / q.z(), q.z(), &color);
@@ -291,7 +292,7 @@ RenderResult VdtmRenderer::Render(const Camera& camera, const Rigid3d& cam_from_
             // Every blended view hidden or outside here: the face's next views by map distance.
             FaceBlend others = draw.blend;
             AddFallbacks(face, draw.mapped, exclude_source, &others);
-            const Eigen::Vector3d p = point();
+            const Eigen::Vector3d p = on_ray ? ray_point : point();
             for (int i = 0; i < others.fallback_count && !(sum > 0.f); ++i) {
               if (sample_point(others.fallback[i], p, &color)) bgr = color, sum = 1.f;
             }
