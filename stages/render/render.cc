@@ -499,6 +499,18 @@ RenderResult UlrRenderer::Render(const Camera& camera, const Rigid3d& cam_from_w
   return result;
 }
 
+ProxySurface HitsOf(const RenderResult& fine) {
+  ProxySurface surface;
+  surface.width = fine.coverage.cols;
+  surface.height = fine.coverage.rows;
+  surface.hit.assign(static_cast<size_t>(surface.width) * surface.height, 0);
+  for (int y = 0; y < surface.height; ++y) {
+    const uint8_t* row = fine.coverage.ptr<uint8_t>(y);
+    for (int x = 0; x < surface.width; ++x) surface.hit[static_cast<size_t>(y) * surface.width + x] = row[x] != 0;
+  }
+  return surface;
+}
+
 RenderResult Downsample(const RenderResult& fine, const ProxySurface& fine_surface, int factor) {
   if (factor <= 1) return fine;
   const int width = fine.image.cols / factor, height = fine.image.rows / factor;

@@ -155,6 +155,9 @@ struct RenderResult {
 // nothing. Held out, holes black, against the earlier rule (covered when half of them are): synthetic
 // ring textured 35.7 -> 37.9 dB, ULR 30.5 -> 31.2; templeRing's surfel mesh 24.84 -> 24.93.
 RenderResult Downsample(const RenderResult& fine, const ProxySurface& fine_surface, int factor);
+// Which sub-samples a model drew, for Downsample, where that is its coverage (splats, textured
+// meshes: every drawn sub-sample has a colour).
+ProxySurface HitsOf(const RenderResult& fine);
 
 // A model's render with its holes filled by a background render of the same view (issue: "a
 // background fallback for every renderer"): covered pixels keep the model's colour, uncovered ones

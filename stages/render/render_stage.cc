@@ -43,20 +43,6 @@ using Clock = std::chrono::steady_clock;
 
 double SecondsSince(Clock::time_point start) { return std::chrono::duration<double>(Clock::now() - start).count(); }
 
-// Which sub-samples a model drew, for Downsample, where that is its coverage (splats, textured
-// meshes: every drawn sub-sample has a colour).
-ProxySurface HitsOf(const RenderResult& fine) {
-  ProxySurface surface;
-  surface.width = fine.coverage.cols;
-  surface.height = fine.coverage.rows;
-  surface.hit.assign(static_cast<size_t>(surface.width) * surface.height, 0);
-  for (int y = 0; y < surface.height; ++y) {
-    const uint8_t* row = fine.coverage.ptr<uint8_t>(y);
-    for (int x = 0; x < surface.width; ++x) surface.hit[static_cast<size_t>(y) * surface.width + x] = row[x] != 0;
-  }
-  return surface;
-}
-
 // One view drawn by a model at the output size, with its facts for <stem>.json.
 struct DrawnView {
   RenderResult result;
