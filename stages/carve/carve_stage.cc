@@ -66,7 +66,8 @@ Eigen::Vector3d NearestToAxes(const std::vector<CarveView>& views) {
 
 // Held-out validation, kept apart from carving: the hull's silhouette at every level against each
 // held-out view's mask from heldout/masks/. Returns per level the per-view IoUs (name -> IoU).
-std::vector<std::map<std::string, double>> ValidateOnHeldOut(const StageContext& context, const Octree& octree) {
+std::vector<std::map<std::string, double>> ValidateOnHeldOut(const StageContext& context, const Octree& octree,
+                                                            const std::vector<std::vector<HullCell>>& surface) {
   std::vector<std::map<std::string, double>> per_level(octree.levels.size());
   if (context.heldout_images.empty()) return per_level;
   // Only the held-out cameras are taken from the full model; their photos are never read.
@@ -95,7 +96,7 @@ std::vector<std::map<std::string, double>> ValidateOnHeldOut(const StageContext&
     views.push_back({name, image, mask});
   }
   for (size_t level = 0; level < octree.levels.size(); ++level) {
-    const std::vector<HullCell> cells = SurfaceHullCells(octree, static_cast<int>(level));
+    const std::vector<HullCell>& cells = surface[level];
     std::vector<double> ious(views.size());
     tbb::parallel_for(size_t{0}, views.size(), [&](size_t i) {
       const Camera& camera = full.CameraOf(*views[i].image);
@@ -202,7 +203,10 @@ class CarveStage : public Stage {
     }
 
     // Validation on held-out silhouettes (never used above), and the level choice.
-    const auto heldout_ious = ValidateOnHeldOut(context, octree);
+    // Each level's surface cells, what the views see of its hull (SurfaceHullCells), once.
+    std::vector<std::vector<HullCell>> surface(octree.levels.size());
+    for (size_t level = 0; level < surface.size(); ++level) surface[level] = SurfaceHullCells(octree, static_cast<int>(level));
+    const auto heldout_ious = ValidateOnHeldOut(context, octree, surface);
     nlohmann::json levels_json = nlohmann::json::array();
     std::vector<double> level_seconds;
     std::vector<double> heldout_mean(octree.levels.size(), 0.0);
@@ -223,9 +227,8 @@ class CarveStage : public Stage {
     }
 
     // Training-view agreement of the chosen and the finest hull.
-    // What the views see of the finest and the chosen hull: their surface cells.
-    const std::vector<HullCell> finest_surface = SurfaceHullCells(octree, finest);
-    const std::vector<HullCell> chosen_surface = SurfaceHullCells(octree, chosen);
+    const std::vector<HullCell>& finest_surface = surface[finest];
+    const std::vector<HullCell>& chosen_surface = surface[chosen];
     std::vector<double> train_iou_chosen(views.size(), -1.0), train_iou_finest(views.size(), -1.0);
     std::vector<bool> used(views.size(), true);
     for (const std::string& name : carved.views_not_seeing_volume) {
