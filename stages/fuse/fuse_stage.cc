@@ -34,19 +34,20 @@ class FuseStage : public Stage {
   HoldoutRole Role() const override { return HoldoutRole::kTrainingOnly; }
 
   std::vector<ParamSpec> Parameters() const override {
+    const FuseOptions d;  // the defaults are the options struct's
     return {
         {"input_type", ParamType::kString, "geometric", "Which depth maps to fuse (layered: layered_stereo's combined maps)",
          {"geometric", "photometric", "layered"}},
-        {"relative_depth_sigma", ParamType::kDouble, "0.003", "Depth std / depth of a confidence-1 sample, in (0, 0.2]"},
-        {"lateral_sigma_pixels", ParamType::kDouble, "0.5", "Std across the ray in pixels of footprint, in (0, 10]"},
-        {"merge_sigmas", ParamType::kDouble, "3", "Uncertainty-weighted depth distance for a merge, in (0, 100]"},
-        {"merge_pixel_radius", ParamType::kDouble, "0.71",
+        {"relative_depth_sigma", ParamType::kDouble, DefaultNumberText(d.relative_depth_sigma), "Depth std / depth of a confidence-1 sample, in (0, 0.2]"},
+        {"lateral_sigma_pixels", ParamType::kDouble, DefaultNumberText(d.lateral_sigma_pixels), "Std across the ray in pixels of footprint, in (0, 10]"},
+        {"merge_sigmas", ParamType::kDouble, DefaultNumberText(d.merge_sigmas), "Uncertainty-weighted depth distance for a merge, in (0, 100]"},
+        {"merge_pixel_radius", ParamType::kDouble, DefaultNumberText(d.merge_pixel_radius),
          "Re-projection distance to the centre of the pixel it falls in for a merge, pixels, (0, 0.71]; 0.71: anywhere in it"},
-        {"max_normal_angle_deg", ParamType::kDouble, "60", "Normals of merged samples within this, degrees, (0, 180]"},
-        {"min_confidence", ParamType::kDouble, DefaultNumberText(FuseOptions().min_confidence), "Samples below this confidence are skipped, [0, 1]"},
-        {"agreement_weighting", ParamType::kBool, "true",
+        {"max_normal_angle_deg", ParamType::kDouble, DefaultNumberText(d.max_normal_angle_deg), "Normals of merged samples within this, degrees, (0, 180]"},
+        {"min_confidence", ParamType::kDouble, DefaultNumberText(d.min_confidence), "Samples below this confidence are skipped, [0, 1]"},
+        {"agreement_weighting", ParamType::kBool, d.agreement_weighting ? "true" : "false",
          "Point confidence times the samples' agreement (chi-square about the merged position per view beyond 1 lowers it)"},
-        {"min_views", ParamType::kInt, "2", "Views that must have contributed to a point, [1, 1000]"},
+        {"min_views", ParamType::kInt, std::to_string(d.min_views), "Views that must have contributed to a point, [1, 1000]"},
         {"eval_threshold", ParamType::kDouble, "-1", "Completeness distance, scene units; -1: 1% of the true mesh's bounding-box diagonal"},
         {"eval_samples", ParamType::kInt, "200000", "Surface samples for completeness, [1000, 10000000]"},
     };
