@@ -264,6 +264,9 @@ MultiDepthResult MakeDepthConsistent(const DepthView& key, const std::vector<con
   for (const DepthView* n : neighbors) {
     if (n != nullptr && !n->depth.Empty()) prepared.push_back(Prepare(key, *n));
   }
+  // The key view's agreement factor (ViewFactor), known after the first pass: the first pass's
+  // confidences are scaled by it then, the fill pass's as they are stored.
+  float view_factor = 1.f;
   auto store = [&](int x, int y, const Votes& votes, float depth, const Eigen::Vector3f& ray, Eigen::Vector3f normal) {
     // No weight (the key and its confirming views all of confidence 0, which min_confidence 0
     // lets through): the sample's own depth.
@@ -275,7 +278,7 @@ MultiDepthResult MakeDepthConsistent(const DepthView& key, const std::vector<con
     const double photometric = votes.confidence_sum / (1 + votes.confirmations + votes.violations);
     // With geometric_sigma 0 (off) the photometric confidence as it was, not its square root.
     result.confidence.At(x, y) =
-        static_cast<float>(options.geometric_sigma > 0 ? std::sqrt(photometric * votes.geometric) : photometric);
+        static_cast<float>(options.geometric_sigma > 0 ? std::sqrt(photometric * votes.geometric) : photometric) * view_factor;
     if (!(normal.squaredNorm() > 0.25f)) normal = -ray.normalized();  // unknown: face the camera
     for (int c = 0; c < 3; ++c) result.normals.At(x, y, c) = normal[c];
   };
@@ -310,11 +313,9 @@ MultiDepthResult MakeDepthConsistent(const DepthView& key, const std::vector<con
     }
   }
   stats.view_agreement = agreement_samples > 0 ? agreement_sum / static_cast<double>(agreement_samples) : 1.0;
-  const float view_factor = ViewFactor(stats.view_agreement, options);
-  if (!options.fill_from_neighbors || prepared.empty()) {
-    ScaleConfidence(view_factor, &result.confidence);
-    return result;
-  }
+  view_factor = ViewFactor(stats.view_agreement, options);
+  ScaleConfidence(view_factor, &result.confidence);
+  if (!options.fill_from_neighbors || prepared.empty()) return result;
 
   // Depth compatibility fills the key pixels left empty where the key's own sample was missing or
   // an outlier (not where the key's stereo gave a low-confidence depth): the nearest
@@ -370,7 +371,6 @@ MultiDepthResult MakeDepthConsistent(const DepthView& key, const std::vector<con
       }
     }
   }
-  ScaleConfidence(view_factor, &result.confidence);
   if (filled.empty()) return result;
   // Filled pixels have no photometric normal: take the normal of the final depth map there.
   const FloatMap filled_normals = NormalsFromDepth(key.camera, result.depth);
