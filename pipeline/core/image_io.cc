@@ -68,11 +68,13 @@ cv::Mat ReadWithFlags(const std::string& path, int flags) {
   // it finds the data missing (found by fuzzing): a claim no file of that size can hold means a
   // truncated or forged file, refused unread.
   bool png = false;
+  std::string head(65536, '\0');
+  bool whole = false;  // the head holds the whole file
   {
     std::ifstream in(path, std::ios::binary);
-    std::string head(65536, '\0');
     in.read(head.data(), static_cast<std::streamsize>(head.size()));
     head.resize(static_cast<size_t>(in.gcount()));
+    whole = in.eof();
     const DeclaredSize declared = ReadDeclaredSize(head);
     const uint64_t bytes = std::filesystem::file_size(path, ec);
     if (!ec && declared.width * declared.height > declared.max_pixels_per_byte * bytes) {
@@ -86,7 +88,8 @@ cv::Mat ReadWithFlags(const std::string& path, int flags) {
   // PNGs decode with libpng here, to imread's pixels, without loading OpenCV's codecs
   // (png_decoder.h); what it does not read goes on to OpenCV.
   if (png && (flags == cv::IMREAD_UNCHANGED || flags == (cv::IMREAD_COLOR | cv::IMREAD_IGNORE_ORIENTATION)) &&
-      DecodePng(ReadFile(path), flags == cv::IMREAD_UNCHANGED ? PngReadMode::kUnchanged : PngReadMode::kColor, &image)) {
+      DecodePng(whole ? head : ReadFile(path), flags == cv::IMREAD_UNCHANGED ? PngReadMode::kUnchanged : PngReadMode::kColor,
+                &image)) {
     return image;
   }
   try {

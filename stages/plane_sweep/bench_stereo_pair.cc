@@ -50,10 +50,6 @@ struct Pair {
   int max_disparity;
 };
 
-using Score = ibmr::DisparityScore;
-Score Evaluate(const cv::Mat& disparity, const cv::Mat& gt, double scale) {
-  return ibmr::ScoreDisparity(disparity, gt, scale);
-}
 
 }  // namespace
 
@@ -188,9 +184,9 @@ int main(int argc, char** argv) {
       layered_times.push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
     }
     if (!dump.empty()) ibmr::WritePfm(dump + "/" + pair.name + "_layered.pfm", layered.disparity);
-    const Score s = Evaluate(sgbm_disparity, gt, pair.gt_scale);
-    const Score o = Evaluate(ours.disparity, gt, pair.gt_scale);
-    const Score ls = Evaluate(layered.disparity, gt, pair.gt_scale);
+    const ibmr::DisparityScore s = ibmr::ScoreDisparity(sgbm_disparity, gt, pair.gt_scale);
+    const ibmr::DisparityScore o = ibmr::ScoreDisparity(ours.disparity, gt, pair.gt_scale);
+    const ibmr::DisparityScore ls = ibmr::ScoreDisparity(layered.disparity, gt, pair.gt_scale);
     const double ts = Median(sgbm_times), to = Median(our_times), tl = Median(layered_times), ratio = Median(ratios);
     const bool ok = o.bad1 <= s.bad1 && ratio <= 1;  // more accurate and no slower: dominates SGBM
     all_ok &= ok;
