@@ -24,44 +24,67 @@ double Psnr(double sum_squared, size_t samples) {
 // window (sigma 1.5) over each channel's means, variances and covariance. The products and the
 // index are computed pixel by pixel in one pass each, into the working images `s` (SsimBuffers):
 // on full-size photos (1600 x 1202) the matrix expressions this replaces allocated about twenty
-// fresh 15 MB matrices a channel, whose page faults took most of the score stage's time (21.3 s
-// for 12 renders of the Sceaux castle, 4.9 s now with the stage's views in parallel). The values
-// differ from those of the expressions in the last bits (OpenCV's arithmetic may fuse multiply-adds):
-// 2e-14 at most on the castle's scores.
-cv::Mat SsimMap(const cv::Mat& a8, const cv::Mat& b8, SsimBuffers& s) {
+// fresh 15 MB matrices a channel, whose page faults took most of the score stage's time.
+// The blurs run in float on the values less 128 (variances and covariance do not change with the
+// shift; the means get it back): OpenCV's float filters are vectorised, its double ones are not,
+// and the blurs were most of the SSIM's time. The shift keeps the squares below 2^14 so that
+// E[a^2] - E[a]^2 loses little to rounding: against the double computation the index moves by at
+// most 2e-6 in templeRing's scores (14 models, 6 views), 5e-6 in the tests' bright, flat images.
+constexpr double kSsimSigma = 1.5;
+const cv::Size kSsimWindow(11, 11);
+
+// Channel c of an 8-bit image less kSsimShift, and its squares, as floats.
+constexpr float kSsimShift = 128.f;
+void ChannelAndSquare(const cv::Mat& image8, int c, cv::Mat* values, cv::Mat* squares) {
+  const int channels = image8.channels();
+  values->create(image8.size(), CV_32F);
+  squares->create(image8.size(), CV_32F);
+  for (int y = 0; y < image8.rows; ++y) {
+    const uint8_t* p = image8.ptr<uint8_t>(y) + c;
+    float *v = values->ptr<float>(y), *sq = squares->ptr<float>(y);
+    for (int x = 0; x < image8.cols; ++x) {
+      v[x] = p[x * channels] - kSsimShift;
+      sq[x] = v[x] * v[x];
+    }
+  }
+}
+
+cv::Mat SsimMap(const cv::Mat& a8, const cv::Mat& b8, SsimBuffers& s, const SsimReference* reference) {
   const double c1 = (0.01 * 255) * (0.01 * 255), c2 = (0.03 * 255) * (0.03 * 255);
-  const cv::Size window(11, 11);
-  const double sigma = 1.5;
   const int channels = a8.channels(), rows = a8.rows, cols = a8.cols;
   const double share = 1.0 / channels;
-  for (cv::Mat* m : {&s.a, &s.b, &s.aa, &s.bb, &s.ab}) m->create(a8.size(), CV_64F);
+  s.ab.create(a8.size(), CV_32F);  // ChannelAndSquare makes the others (a's not at all with a reference)
   cv::Mat mean(a8.size(), CV_64F, cv::Scalar(0));
   for (int c = 0; c < channels; ++c) {
-    for (int y = 0; y < rows; ++y) {
-      const uint8_t *pa = a8.ptr<uint8_t>(y) + c, *pb = b8.ptr<uint8_t>(y) + c;
-      double *a = s.a.ptr<double>(y), *b = s.b.ptr<double>(y);
-      double *aa = s.aa.ptr<double>(y), *bb = s.bb.ptr<double>(y), *ab = s.ab.ptr<double>(y);
-      for (int x = 0; x < cols; ++x) {
-        a[x] = pa[x * channels];
-        b[x] = pb[x * channels];
-        aa[x] = a[x] * a[x];
-        bb[x] = b[x] * b[x];
-        ab[x] = a[x] * b[x];
-      }
+    // a's statistics from the reference when there is one (the same blurs of the same values).
+    if (reference == nullptr) {
+      ChannelAndSquare(a8, c, &s.a, &s.aa);
+      cv::GaussianBlur(s.a, s.mu_a, kSsimWindow, kSsimSigma);
+      cv::GaussianBlur(s.aa, s.blur_aa, kSsimWindow, kSsimSigma);
     }
-    cv::GaussianBlur(s.a, s.mu_a, window, sigma);
-    cv::GaussianBlur(s.b, s.mu_b, window, sigma);
-    cv::GaussianBlur(s.aa, s.blur_aa, window, sigma);
-    cv::GaussianBlur(s.bb, s.blur_bb, window, sigma);
-    cv::GaussianBlur(s.ab, s.blur_ab, window, sigma);
+    ChannelAndSquare(b8, c, &s.b, &s.bb);
     for (int y = 0; y < rows; ++y) {
-      const double *mu_a = s.mu_a.ptr<double>(y), *mu_b = s.mu_b.ptr<double>(y);
-      const double *blur_aa = s.blur_aa.ptr<double>(y), *blur_bb = s.blur_bb.ptr<double>(y), *blur_ab = s.blur_ab.ptr<double>(y);
+      const uint8_t* pa = a8.ptr<uint8_t>(y) + c;
+      const float* b = s.b.ptr<float>(y);
+      float* ab = s.ab.ptr<float>(y);
+      for (int x = 0; x < cols; ++x) ab[x] = (pa[x * channels] - kSsimShift) * b[x];
+    }
+    cv::GaussianBlur(s.b, s.mu_b, kSsimWindow, kSsimSigma);
+    cv::GaussianBlur(s.bb, s.blur_bb, kSsimWindow, kSsimSigma);
+    cv::GaussianBlur(s.ab, s.blur_ab, kSsimWindow, kSsimSigma);
+    const cv::Mat& mu_a_map = reference ? reference->mean[c] : s.mu_a;
+    const cv::Mat& blur_aa_map = reference ? reference->mean_square[c] : s.blur_aa;
+    for (int y = 0; y < rows; ++y) {
+      const float *mu_a = mu_a_map.ptr<float>(y), *mu_b = s.mu_b.ptr<float>(y);
+      const float *blur_aa = blur_aa_map.ptr<float>(y), *blur_bb = s.blur_bb.ptr<float>(y), *blur_ab = s.blur_ab.ptr<float>(y);
       double* out = mean.ptr<double>(y);
       for (int x = 0; x < cols; ++x) {
-        const double mu_aa = mu_a[x] * mu_a[x], mu_bb = mu_b[x] * mu_b[x], mu_ab = mu_a[x] * mu_b[x];
-        const double numerator = (2 * mu_ab + c1) * (2 * (blur_ab[x] - mu_ab) + c2);
-        const double denominator = (mu_aa + mu_bb + c1) * ((blur_aa[x] - mu_aa) + (blur_bb[x] - mu_bb) + c2);
+        // Variances and covariance of the shifted values (the same as of the values), means unshifted.
+        const double ma = mu_a[x], mb = mu_b[x];
+        const double var_a = blur_aa[x] - ma * ma, var_b = blur_bb[x] - mb * mb, cov = blur_ab[x] - ma * mb;
+        const double mean_a = ma + kSsimShift, mean_b = mb + kSsimShift;
+        const double numerator = (2 * mean_a * mean_b + c1) * (2 * cov + c2);
+        const double denominator = (mean_a * mean_a + mean_b * mean_b + c1) * (var_a + var_b + c2);
         out[x] += (denominator != 0 ? numerator / denominator : 0.0) * share;
       }
     }
@@ -136,14 +159,29 @@ bool MeanOfFinitePoints(const std::vector<Eigen::Vector3d>& points, Eigen::Vecto
   return true;
 }
 
+SsimReference PrepareSsimReference(const cv::Mat& real) {
+  SsimReference reference;
+  reference.channels = std::min(real.channels(), 3);
+  cv::Mat values, squares;
+  for (int c = 0; c < reference.channels; ++c) {
+    ChannelAndSquare(real, c, &values, &squares);
+    cv::GaussianBlur(values, reference.mean[c], kSsimWindow, kSsimSigma);
+    cv::GaussianBlur(squares, reference.mean_square[c], kSsimWindow, kSsimSigma);
+  }
+  return reference;
+}
+
 ImageScore ScoreImage(const cv::Mat& real, const cv::Mat& rendered_in, const cv::Mat& coverage, const cv::Mat& mask,
-                      const ScoreOptions& options, SsimBuffers* buffers) {
+                      const ScoreOptions& options, SsimBuffers* buffers, const SsimReference* reference) {
   SsimBuffers own;
   SsimBuffers& working = buffers != nullptr ? *buffers : own;
   if (real.type() != CV_8UC3 || rendered_in.type() != CV_8UC3 || coverage.type() != CV_8UC1 ||
       real.size() != rendered_in.size() || real.size() != coverage.size() ||
       (!mask.empty() && (mask.type() != CV_8UC1 || mask.size() != real.size()))) {
     throw std::invalid_argument("ScoreImage: images must be CV_8UC3 (real, render) and CV_8UC1 (coverage, mask) of one size");
+  }
+  if (reference != nullptr && !reference->Matches(real)) {
+    throw std::invalid_argument("ScoreImage: the SSIM reference was prepared from an image of another size");
   }
   ImageScore score;
   cv::Mat rendered = rendered_in.clone();
@@ -170,7 +208,7 @@ ImageScore ScoreImage(const cv::Mat& real, const cv::Mat& rendered_in, const cv:
     }
   }
   const cv::Mat covered = coverage > 0;
-  const cv::Mat ssim = SsimMap(real, rendered, working);
+  const cv::Mat ssim = SsimMap(real, rendered, working, reference);
   score.all = Accumulate(real, rendered, ssim, covered, SsimSupport(covered), static_cast<size_t>(real.total()));
   if (!mask.empty()) {
     score.has_mask = true;
@@ -189,7 +227,7 @@ ImageScore ScoreImage(const cv::Mat& real, const cv::Mat& rendered_in, const cv:
   rendered.copyTo(black_holes, covered);
   // Renders are already black where uncovered (render.h): the SSIM map is then the one above.
   const bool same = cv::norm(black_holes, rendered, cv::NORM_INF) == 0;
-  score.photo = Accumulate(real, black_holes, same ? ssim : SsimMap(real, black_holes, working), lit, SsimSupport(lit),
+  score.photo = Accumulate(real, black_holes, same ? ssim : SsimMap(real, black_holes, working, reference), lit, SsimSupport(lit),
                            static_cast<size_t>(cv::countNonZero(lit)));
   score.photo.coverage = score.photo.pixels ? static_cast<double>(cv::countNonZero(lit & covered)) / score.photo.pixels : 0.0;
   return score;

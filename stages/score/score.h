@@ -53,18 +53,31 @@ struct ImageScore {
   double gains[3] = {1, 1, 1};  // B, G, R gains applied (1 without gain correction)
 };
 
-// Working images of the SSIM computation (ten doubles a pixel), reused from one ScoreImage call to
+// Working images of the SSIM computation (up to ten floats a pixel), reused from one ScoreImage call to
 // the next when the caller keeps them: a fresh full-size image costs its page faults at first
 // touch, most of the scoring time on photo-sized renders.
 struct SsimBuffers {
   cv::Mat a, b, aa, bb, ab, mu_a, mu_b, blur_aa, blur_bb, blur_ab;  // blur_*: the products' Gaussian means
 };
 
+// The real photo's share of the SSIM statistics: per channel, the Gaussian means of its values and
+// of their squares. Every model's render of a held-out view is scored against the same photo, so
+// two of the five blurs of each channel are the same each time: computed once per photo and
+// passed to ScoreImage they are reused as they are (the scores are identical to the bit).
+struct SsimReference {
+  cv::Mat mean[3], mean_square[3];  // CV_32F per channel of the photo, of its values less 128
+  int channels = 0;
+  bool Matches(const cv::Mat& real) const { return channels == real.channels() && mean[0].size() == real.size(); }
+};
+SsimReference PrepareSsimReference(const cv::Mat& real);
+
 // `real`, `rendered`: CV_8UC3 of one size; `coverage`: CV_8UC1, nonzero where covered; `mask`:
 // CV_8UC1 (nonzero = foreground) or empty. Throws std::invalid_argument on size mismatch.
-// `buffers`: optional, see SsimBuffers (one set per thread).
+// `buffers`: optional, see SsimBuffers (one set per thread). `reference`: optional,
+// PrepareSsimReference(real) (std::invalid_argument when it was made from another size).
 ImageScore ScoreImage(const cv::Mat& real, const cv::Mat& rendered, const cv::Mat& coverage, const cv::Mat& mask,
-                      const ScoreOptions& options, SsimBuffers* buffers = nullptr);
+                      const ScoreOptions& options, SsimBuffers* buffers = nullptr,
+                      const SsimReference* reference = nullptr);
 
 // real | rendered | |real - rendered| * error_gain (uncovered pixels of the error panel dark blue).
 cv::Mat SideBySide(const cv::Mat& real, const cv::Mat& rendered, const cv::Mat& coverage, int error_gain);

@@ -11,6 +11,7 @@
 #include <Eigen/Eigenvalues>
 #include <Eigen/Cholesky>
 
+#include <algorithm>
 #include <filesystem>
 #include <limits>
 #include <map>
@@ -24,6 +25,7 @@
 #include "pipeline/core/json_file.h"
 #include "pipeline/core/per_view.h"
 #include "pipeline/core/stage_api.h"
+#include "stages/score/photo_cache.h"
 #include "stages/score/score.h"
 
 namespace fs = std::filesystem;
@@ -67,7 +69,8 @@ class ScoreStage : public Stage {
   std::string Summary() const override {
     return "Held-out-view cross-validation: PSNR, SSIM, coverage, masked error, angle to the nearest training view";
   }
-  std::string Version() const override { return "3"; }  // 2: photo_* scores; 3: filled_* scores
+  // 2: photo_* scores; 3: filled_* scores; 4: SSIM blurred in float (scores move by up to 2e-6)
+  std::string Version() const override { return "4"; }
   HoldoutRole Role() const override { return HoldoutRole::kScoring; }
 
   std::vector<ParamSpec> Parameters() const override {
@@ -101,11 +104,12 @@ class ScoreStage : public Stage {
     return outputs;
   }
 
-  // One render's scoring at its peak, about 120 bytes a pixel: the photo, render, coverage, mask
-  // and side-by-side images (about 20) and the SSIM's working images (SsimBuffers, ten of doubles,
-  // and its map: 88), which stay with the thread for its next render. On the Sceaux castle's
-  // 1600x1202 renders (estimate 220 MB): 216 MB above the stage's start with one render in
-  // flight, 412 MB with two.
+  // One render's scoring at its peak, at most 120 bytes a pixel: the render, coverage, mask and
+  // side-by-side images (about 20), the SSIM's working images (SsimBuffers, six to ten floats, and
+  // its map of doubles: 32-48) which stay with the thread for its next render, and its share of
+  // the photos PhotoCache keeps (one photo and its SSIM reference per thread and one more: 27 each).
+  // Measured with double working images and no cache, on the Sceaux castle's 1600x1202 renders
+  // (estimate 220 MB): 216 MB above the stage's start with one render in flight, 412 MB with two.
   double ViewMemoryMb(const StageContext& context) const override {
     return LargestTrainingImage(context).Pixels() * 120.0 / 1048576.0;
   }
@@ -186,14 +190,23 @@ class ScoreStage : public Stage {
     }
     first_item.push_back(items.size());
     tbb::enumerable_thread_specific<SsimBuffers> buffers;  // one set per thread scoring; freed when the stage is done
-    const PerViewSummary summary = ForEachView(context, "score", item_names, [&](const std::string& item_name) {
+    // Each held-out photo is read and blurred once for the renders of all models (PhotoCache), so
+    // the items run view by view: the threads then share the few photos they work on.
+    std::vector<std::string> view_major = item_names;
+    std::stable_sort(view_major.begin(), view_major.end(), [&](const std::string& a, const std::string& b) {
+      return items[item_of.at(a)].image < items[item_of.at(b)].image;
+    });
+    PhotoCache photos(static_cast<size_t>(tbb::this_task_arena::max_concurrency()) + 1, [](const std::string& path) {
+      return ReadImageColor(path);
+    });
+    const PerViewSummary summary = ForEachView(context, "score", view_major, [&](const std::string& item_name) {
       const Item& item = items[item_of.at(item_name)];
       nlohmann::json result;
       // Isolated: while this view's OpenCV calls wait for parallel work, this thread takes no other
       // view (which would use the same buffers).
       tbb::this_task_arena::isolate([&] {
         result = ScoreView(context, options, item.proxy, item.image, item.info, model, training_centers, training_names,
-                           scene_center, &buffers.local());
+                           scene_center, &photos, &buffers.local());
       });
       return result;
     });
@@ -250,7 +263,7 @@ class ScoreStage : public Stage {
                                   const std::string& image_name, const nlohmann::json& info, const SparseModel& model,
                                   const std::vector<Eigen::Vector3d>& training_centers,
                                   const std::vector<std::string>& training_names, const Eigen::Vector3d& scene_center,
-                                  SsimBuffers* buffers) {
+                                  PhotoCache* photos, SsimBuffers* buffers) {
     const Workspace& ws = context.workspace;
     // The render as renders.json lists it (its file name is render's, not rebuilt here from the
     // image name); older renders.json files without the entry used renders/<proxy>/<stem>.png.
@@ -271,7 +284,8 @@ class ScoreStage : public Stage {
                          proxy + "; re-run the render stage");
       }
     }
-    const cv::Mat real = ReadImageColor(real_path);
+    const std::shared_ptr<const ScoredPhoto> photo = photos->Get(real_path);
+    const cv::Mat& real = photo->image;
     const cv::Mat rendered = ReadImageColor(render_path);
     const cv::Mat coverage = ReadImageUnchanged(coverage_path);
     if (rendered.size() != real.size() || coverage.size() != real.size() || coverage.type() != CV_8UC1) {
@@ -292,7 +306,7 @@ class ScoreStage : public Stage {
       v["mask"] = std::string(folder) + "/" + image_name + ".png";
       break;
     }
-    const ImageScore score = ScoreImage(real, rendered, coverage, mask, options, buffers);
+    const ImageScore score = ScoreImage(real, rendered, coverage, mask, options, buffers, &photo->reference);
     // A render that covers no pixel has no PSNR or SSIM (ScoreImage's 0 is not a score): they are
     // left out, so the means run over the views that have them, as for photo_*; coverage says 0.
     if (score.all.pixels > 0) {
@@ -332,7 +346,7 @@ class ScoreStage : public Stage {
       if (filled.size() != real.size() || filled_coverage.size() != real.size() || filled_coverage.type() != CV_8UC1) {
         throw InputError(filled_path + ": size differs from the photo " + real_path + "; re-run the render stage");
       }
-      const ImageScore filled_score = ScoreImage(real, filled, filled_coverage, mask, options, buffers);
+      const ImageScore filled_score = ScoreImage(real, filled, filled_coverage, mask, options, buffers, &photo->reference);
       if (filled_score.all.pixels > 0) {
         v["filled_psnr"] = filled_score.all.psnr;
         v["filled_ssim"] = filled_score.all.ssim;
