@@ -45,6 +45,27 @@ std::vector<std::string> ListImages(const std::string& folder) {
   return names;
 }
 
+// Where a folder holds no photos but its subfolders do (a dataset's `images/` beside its
+// calibration, as fountain-P11 ships): "; its subfolder images holds 11: use that folder as
+// inputs.images (IBMR_IMAGES)", naming the subfolder with the most; "" when none has any.
+std::string SubfolderHint(const std::string& folder) {
+  std::string best;
+  size_t most = 0;
+  std::error_code error;
+  for (const auto& entry : fs::directory_iterator(folder, error)) {
+    std::error_code entry_error;
+    if (!entry.is_directory(entry_error)) continue;
+    size_t count = 0;
+    for (const auto& file : fs::directory_iterator(entry.path(), entry_error)) count += file.is_regular_file(entry_error) && IsImageFile(file.path());
+    if (count > most || (count == most && count > 0 && entry.path().filename().string() < best)) {
+      most = count;
+      best = entry.path().filename().string();
+    }
+  }
+  if (most == 0) return "";
+  return "; its subfolder " + best + " holds " + std::to_string(most) + ": use that folder as inputs.images (IBMR_IMAGES)";
+}
+
 // The size the stages see: decoded as they decode it (ReadImageColor: as stored, EXIF orientation
 // not applied).
 std::pair<int, int> ImageSize(const std::string& path) {
@@ -365,7 +386,8 @@ class ImportStage : public Stage {
     *names_in_out = names;
     if (names.empty()) {
       throw InputError(source + ": no usable images (png, jpg, tif, bmp, ppm, pgm) in this folder" +
-                       (skipped->empty() ? std::string() : " (" + std::to_string(skipped->size()) + " skipped, see the warnings)"));
+                       (skipped->empty() ? std::string() : " (" + std::to_string(skipped->size()) + " skipped, see the warnings)") +
+                       SubfolderHint(source));
     }
     for (const std::string& name : names) {
       const std::string path = source + "/" + name;

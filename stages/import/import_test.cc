@@ -261,5 +261,25 @@ TEST(ImportFolder, MissingSourceIsAClearError) {
   fs::remove_all(workspace);
 }
 
+// A dataset folder whose photos sit in a subfolder (fountain-P11's images/ beside its calibration):
+// the error names the subfolder with the most photos and how many it holds.
+TEST(ImportFolder, PhotosInASubfolderAreNamedInTheError) {
+  const std::string source = TempDir("subfolder_source"), workspace = TempDir("subfolder");
+  fs::create_directories(source + "/images");
+  fs::create_directories(source + "/calibration");
+  for (int i = 0; i < 3; ++i) WriteImage(source + "/images/" + std::to_string(i) + ".png", cv::Mat(30, 40, CV_8UC3, cv::Scalar(10 * i, 50, 90)));
+  WriteImage(source + "/calibration/chart.png", cv::Mat(30, 40, CV_8UC3, cv::Scalar(1, 2, 3)));
+  try {
+    RunImport(source, workspace);
+    FAIL() << "expected an error";
+  } catch (const InputError& e) {
+    const std::string message = e.what();
+    EXPECT_NE(message.find("no usable images"), std::string::npos) << message;
+    EXPECT_NE(message.find("subfolder images holds 3"), std::string::npos) << message;
+  }
+  fs::remove_all(source);
+  fs::remove_all(workspace);
+}
+
 }  // namespace
 }  // namespace ibmr
