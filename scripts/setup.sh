@@ -11,6 +11,7 @@ PACKAGES=(
   libopencv-dev libeigen3-dev libtbb-dev libyaml-cpp-dev nlohmann-json3-dev libspdlog-dev
   libcli11-dev libgtest-dev libxxhash-dev libexif-dev libopenmesh-dev libceres-dev
   libcgal-dev libgmp-dev libmpfr-dev libnanoflann-dev libsqlite3-dev libtinygltf-dev libpng-dev
+  libdeflate-dev
   colmap libjs-chart.js libjs-three
 )
 

@@ -1,6 +1,7 @@
 // Image reading and writing through OpenCV with errors that name the file, atomic writes via a
 // temporary that keeps the extension (so OpenCV picks the codec), and the PFM float format
-// (header "Pf\nW H\nSCALE\n", negative scale = little-endian, rows stored bottom to top).
+// (header "Pf\nW H\nSCALE\n", negative scale = little-endian, rows stored bottom to top). PNGs
+// are read with libpng (png_decoder.h) and written with libdeflate (png_encoder.h) where they can be.
 #include "pipeline/core/image_io.h"
 
 #include <cstdint>
@@ -13,6 +14,7 @@
 #include "pipeline/core/atomic_file.h"
 #include "pipeline/core/image_codecs.h"
 #include "pipeline/core/png_decoder.h"
+#include "pipeline/core/png_encoder.h"
 #include "pipeline/core/errors.h"
 
 namespace ibmr {
@@ -104,6 +106,13 @@ cv::Mat ReadWithFlags(const std::string& path, int flags) {
   return image;
 }
 
+// True for a path ending in ".png" in any case ("x.PNG" too, as imwrite chooses its codec).
+bool HasPngExtension(const std::string& path) {
+  std::string extension = std::filesystem::path(path).extension().string();
+  for (char& c : extension) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+  return extension == ".png";
+}
+
 // Reads the next whitespace-separated token of a PFM header; PFM allows any whitespace.
 std::string NextToken(const std::string& bytes, size_t* pos) {
   while (*pos < bytes.size() && std::isspace(static_cast<unsigned char>(bytes[*pos]))) ++*pos;
@@ -127,6 +136,14 @@ cv::Mat ReadImageUnchanged(const std::string& path) { return ReadWithFlags(path,
 
 void WriteImage(const std::string& path, const cv::Mat& image) {
   if (image.empty()) throw IoError("cannot write image " + path + ": the image is empty");
+  // PNGs of the types the pipeline writes are encoded here with libdeflate (png_encoder.h: about
+  // twice as fast as imwrite, the same pixels), without loading OpenCV's codecs; other types and
+  // formats go to OpenCV.
+  std::string png;
+  if (HasPngExtension(path) && EncodePng(image, &png)) {
+    WriteFileAtomic(path, png);
+    return;
+  }
   WriteViaTemporary(path, [&](const std::string& tmp_path) {
     bool ok = false;
     std::string reason = "OpenCV could not encode it for this extension";

@@ -11,7 +11,8 @@ namespace ibmr {
 cv::Mat ReadImageColor(const std::string& path);
 // Reads an image keeping its depth and channel count (e.g. 16-bit PNG). Throws IoError.
 cv::Mat ReadImageUnchanged(const std::string& path);
-// Writes any image OpenCV can encode for the extension, atomically. Throws IoError.
+// Writes any image OpenCV can encode for the extension, atomically. Throws IoError. A .png of a
+// type EncodePng takes (png_encoder.h: 8/16-bit grey, BGR, BGRA) is encoded by it, not OpenCV.
 void WriteImage(const std::string& path, const cv::Mat& image);
 // Portable float map (PFM, 1 channel, bottom-to-top rows as the format requires).
 cv::Mat ReadPfm(const std::string& path);  // CV_32FC1, top row first
