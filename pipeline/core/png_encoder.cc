@@ -70,14 +70,20 @@ void SubFilter(const unsigned char* row, size_t size, size_t pixel_bytes, unsign
   for (size_t i = first; i < size; ++i) out[i] = static_cast<unsigned char>(row[i] - row[i - pixel_bytes]);
 }
 
-// The image data before compression: each row, file-ordered and SUB-filtered, after its filter byte.
-std::vector<unsigned char> FilteredRows(const cv::Mat& image) {
+// Bytes left uninitialised: every one is written before it is read (a zero-filled vector of an
+// atlas page's size costs its page faults twice).
+using Bytes = std::unique_ptr<unsigned char[]>;
+
+// The image data before compression: each row, file-ordered and SUB-filtered, after its filter
+// byte; `size` set to its length.
+Bytes FilteredRows(const cv::Mat& image, size_t* size) {
   const size_t pixel_bytes = image.elemSize();
   const size_t row_bytes = pixel_bytes * image.cols;
-  std::vector<unsigned char> filtered((1 + row_bytes) * image.rows);
+  *size = (1 + row_bytes) * image.rows;
+  Bytes filtered(new unsigned char[*size]);
   std::vector<unsigned char> row(row_bytes);
   for (int y = 0; y < image.rows; ++y) {
-    unsigned char* out = filtered.data() + (1 + row_bytes) * y;
+    unsigned char* out = filtered.get() + (1 + row_bytes) * y;
     out[0] = kSubFilter;
     RowToFileOrder(image, y, row.data());
     SubFilter(row.data(), row_bytes, pixel_bytes, out + 1);
@@ -99,12 +105,14 @@ bool EncodePng(const cv::Mat& image, std::string* bytes, int level) {
   const std::unique_ptr<libdeflate_compressor, decltype(&libdeflate_free_compressor)> compressor(
       libdeflate_alloc_compressor(level), libdeflate_free_compressor);
   if (!compressor) return false;  // out of memory, or a level outside 0-12
-  std::vector<unsigned char> zlib;
+  Bytes zlib;
   size_t zlib_size = 0;
   try {
-    const std::vector<unsigned char> filtered = FilteredRows(image);
-    zlib.resize(libdeflate_zlib_compress_bound(compressor.get(), filtered.size()));
-    zlib_size = libdeflate_zlib_compress(compressor.get(), filtered.data(), filtered.size(), zlib.data(), zlib.size());
+    size_t filtered_size = 0;
+    const Bytes filtered = FilteredRows(image, &filtered_size);
+    const size_t bound = libdeflate_zlib_compress_bound(compressor.get(), filtered_size);
+    zlib.reset(new unsigned char[bound]);
+    zlib_size = libdeflate_zlib_compress(compressor.get(), filtered.get(), filtered_size, zlib.get(), bound);
   } catch (const std::bad_alloc&) {  // an image too large for memory: OpenCV reports it in its words
     return false;
   }
@@ -124,7 +132,7 @@ bool EncodePng(const cv::Mat& image, std::string* bytes, int level) {
   bytes->append(kSignature, sizeof(kSignature));
   AppendChunk("IHDR", header.data(), header.size(), bytes);
   for (size_t at = 0; at < zlib_size; at += kIdatBytes) {
-    AppendChunk("IDAT", zlib.data() + at, std::min(kIdatBytes, zlib_size - at), bytes);
+    AppendChunk("IDAT", zlib.get() + at, std::min(kIdatBytes, zlib_size - at), bytes);
   }
   AppendChunk("IEND", nullptr, 0, bytes);
   return true;

@@ -48,19 +48,22 @@ std::vector<std::string> ListImages(const std::string& folder) {
 // Where a folder holds no photos but its subfolders do (a dataset's `images/` beside its
 // calibration, as fountain-P11 ships): "; its subfolder images holds 11: use that folder as
 // inputs.images (IBMR_IMAGES)", naming the subfolder with the most; "" when none has any.
+// A folder that cannot be listed gives no hint (the error it is part of stays the one shown).
 std::string SubfolderHint(const std::string& folder) {
   std::string best;
   size_t most = 0;
-  std::error_code error;
-  for (const auto& entry : fs::directory_iterator(folder, error)) {
-    std::error_code entry_error;
-    if (!entry.is_directory(entry_error)) continue;
-    size_t count = 0;
-    for (const auto& file : fs::directory_iterator(entry.path(), entry_error)) count += file.is_regular_file(entry_error) && IsImageFile(file.path());
-    if (count > most || (count == most && count > 0 && entry.path().filename().string() < best)) {
-      most = count;
-      best = entry.path().filename().string();
+  try {
+    for (const auto& entry : fs::directory_iterator(folder)) {
+      if (!entry.is_directory()) continue;
+      size_t count = 0;
+      for (const auto& file : fs::directory_iterator(entry.path())) count += file.is_regular_file() && IsImageFile(file.path());
+      if (count > most || (count == most && count > 0 && entry.path().filename().string() < best)) {
+        most = count;
+        best = entry.path().filename().string();
+      }
     }
+  } catch (const fs::filesystem_error&) {
+    return "";
   }
   if (most == 0) return "";
   return "; its subfolder " + best + " holds " + std::to_string(most) + ": use that folder as inputs.images (IBMR_IMAGES)";

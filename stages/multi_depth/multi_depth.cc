@@ -165,10 +165,12 @@ Votes Vote(const Eigen::Vector3f& ray, float depth, float confidence, const std:
   votes.weighted_depth = confidence * depth;
   const Eigen::Vector3f point = ray * depth;
   const int count = static_cast<int>(prepared.size());
-  // The fill pass's relative depths of the neighbours that see the point, kept for the end.
-  const bool defer = needed > 0 && count <= 64;  // max_neighbors <= 64 (Check)
+  // The fill pass's relative depths of the neighbours that see the point, kept for the end: at
+  // most 64 in the stage (max_neighbors' range); a longer list from another caller adds them as
+  // they come, the same sums in the same order.
+  const bool defer = needed > 0 && count <= 64;
   float seen_relative[64];
-  int seen = 0;
+  int seen_count = 0;
   for (int i = 0; i < count; ++i) {
     if (needed > 0 && votes.confirmations + (count - i) < needed) break;
     const PreparedNeighbor& n = prepared[i];
@@ -184,7 +186,7 @@ Votes Vote(const Eigen::Vector3f& ray, float depth, float confidence, const std:
     // Seen (not behind a clearly nearer surface): the disagreement counts against the point.
     if (relative >= -see_through) {
       if (defer) {
-        seen_relative[seen++] = relative;  // its exponential only if the point passes
+        seen_relative[seen_count++] = relative;  // its exponential only if the point passes
       } else {
         consistency.Add(relative);
       }
@@ -205,7 +207,7 @@ Votes Vote(const Eigen::Vector3f& ray, float depth, float confidence, const std:
     }
   }
   if (needed > 0 && (votes.violations > 0 || votes.confirmations < needed)) return votes;
-  for (int i = 0; i < seen; ++i) consistency.Add(seen_relative[i]);  // in neighbour order, as above
+  for (int i = 0; i < seen_count; ++i) consistency.Add(seen_relative[i]);  // in neighbour order, as above
   if (options.geometric_sigma > 0) votes.geometric = consistency.Value();
   votes.seen = consistency.seen();
   return votes;

@@ -1,3 +1,4 @@
+// Part of held-out-view scoring (seed 000, BMVC'99 section 6, lines 5906-5920; see score.h).
 // The held-out photos the score stage compares renders with, each decoded once with its SSIM
 // reference (score.h: the Gaussian means of its values and squares), shared by the renders of
 // every model of that view. Before, each render re-read its photo and blurred it again: on
@@ -5,7 +6,8 @@
 // render is scored too).
 //
 // Bounded: it keeps the `capacity` photos used last and forgets the older ones (a photo asked for
-// again is read again, with identical results). The score stage lists its items view by view, so
+// again is read again, with identical results); the score stage sets the capacity from the items
+// it runs at once, which the memory budget decides. The score stage lists its items view by view, so
 // the threads work on a few views at a time and the photos they need are the recent ones.
 // Thread-safe: a photo asked for by several threads at once is prepared by the first and waited
 // for by the others.
@@ -13,11 +15,13 @@
 
 #include <condition_variable>
 #include <functional>
+#include <iterator>
 #include <list>
 #include <map>
 #include <memory>
 #include <mutex>
 #include <string>
+#include <utility>
 
 #include <opencv2/core.hpp>
 
@@ -37,6 +41,7 @@ class PhotoCache {
   PhotoCache(size_t capacity, std::function<cv::Mat(const std::string& path)> load)
       : capacity_(capacity < 1 ? 1 : capacity), load_(std::move(load)) {}
 
+  // The photo at `path`, read and prepared by this call or an earlier one.
   std::shared_ptr<const ScoredPhoto> Get(const std::string& path) {
     std::unique_lock<std::mutex> lock(mutex_);
     for (;;) {
@@ -65,8 +70,21 @@ class PhotoCache {
     }
     lock.lock();
     entries_[path].photo = photo;
-    // Forget the least recently used photos beyond the capacity (never one being prepared: its
-    // preparer holds no reference in `entries_` yet and would find it gone).
+    EvictBeyondCapacity();
+    ready_.notify_all();
+    return photo;
+  }
+
+  // At least 1; photos beyond it are forgotten at the next Get.
+  void SetCapacity(size_t capacity) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    capacity_ = capacity < 1 ? 1 : capacity;
+  }
+
+ private:
+  // Forgets the least recently used photos beyond the capacity, keeping the most recent (the one
+  // just prepared) and never one being prepared (its preparer finds its entry by path). Under the lock.
+  void EvictBeyondCapacity() {
     for (auto it = std::prev(order_.end()); entries_.size() > capacity_ && it != order_.begin();) {
       auto previous = std::prev(it);
       if (entries_[*it].photo) {
@@ -75,11 +93,8 @@ class PhotoCache {
       }
       it = previous;
     }
-    ready_.notify_all();
-    return photo;
   }
 
- private:
   struct Entry {
     std::shared_ptr<const ScoredPhoto> photo;  // null while being prepared
     std::list<std::string>::iterator place;    // in order_

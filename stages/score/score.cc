@@ -27,9 +27,12 @@ double Psnr(double sum_squared, size_t samples) {
 // fresh 15 MB matrices a channel, whose page faults took most of the score stage's time.
 // The blurs run in float on the values less 128 (variances and covariance do not change with the
 // shift; the means get it back): OpenCV's float filters are vectorised, its double ones are not,
-// and the blurs were most of the SSIM's time. The shift keeps the squares below 2^14 so that
+// and the blurs were most of the SSIM's time. The shift keeps the squares at most 2^14 so that
 // E[a^2] - E[a]^2 loses little to rounding: against the double computation the index moves by at
-// most 2e-6 in templeRing's scores (14 models, 6 views), 5e-6 in the tests' bright, flat images.
+// most 2e-6 in templeRing's scores (14 models, 6 views), 5e-6 in the tests' bright, flat images
+// (measured, not a bound: a single pixel of a flat, saturated window can move by a few 1e-5).
+// `reference`: the photo `a8`'s blurred values and squares, PrepareSsimReference(a8), or null
+// to blur them here.
 constexpr double kSsimSigma = 1.5;
 const cv::Size kSsimWindow(11, 11);
 
@@ -160,8 +163,9 @@ bool MeanOfFinitePoints(const std::vector<Eigen::Vector3d>& points, Eigen::Vecto
 }
 
 SsimReference PrepareSsimReference(const cv::Mat& real) {
+  if (real.type() != CV_8UC3) throw std::invalid_argument("PrepareSsimReference: the photo must be CV_8UC3");
   SsimReference reference;
-  reference.channels = std::min(real.channels(), 3);
+  reference.channels = 3;
   cv::Mat values, squares;
   for (int c = 0; c < reference.channels; ++c) {
     ChannelAndSquare(real, c, &values, &squares);

@@ -69,6 +69,7 @@ struct SsimReference {
   int channels = 0;
   bool Matches(const cv::Mat& real) const { return channels == real.channels() && mean[0].size() == real.size(); }
 };
+// `real`: CV_8UC3 (ScoreImage's photo); throws std::invalid_argument for another type.
 SsimReference PrepareSsimReference(const cv::Mat& real);
 
 // `real`, `rendered`: CV_8UC3 of one size; `coverage`: CV_8UC1, nonzero where covered; `mask`:

@@ -106,8 +106,10 @@ class ScoreStage : public Stage {
 
   // One render's scoring at its peak, at most 120 bytes a pixel: the render, coverage, mask and
   // side-by-side images (about 20), the SSIM's working images (SsimBuffers, six to ten floats, and
-  // its map of doubles: 32-48) which stay with the thread for its next render, and its share of
-  // the photos PhotoCache keeps (one photo and its SSIM reference per thread and one more: 27 each).
+  // its maps of doubles, two at once for the photo score: 40-56) which stay with the thread for
+  // its next render, the PNG encoder's filtered rows and output while the side-by-side image is
+  // written (about 18), and its share of the photos PhotoCache keeps (one photo with its SSIM
+  // reference per item in flight and one more: 27 each).
   // Measured with double working images and no cache, on the Sceaux castle's 1600x1202 renders
   // (estimate 220 MB): 216 MB above the stage's start with one render in flight, 412 MB with two.
   double ViewMemoryMb(const StageContext& context) const override {
@@ -200,10 +202,16 @@ class ScoreStage : public Stage {
       return ReadImageColor(path);
     });
     const PerViewSummary summary = ForEachView(context, "score", view_major, [&](const std::string& item_name) {
+      // One photo per item in flight and one more: ForEachView has fitted the items in flight to
+      // the memory budget by now (ViewMemoryMb counts a photo per item).
+      const int threads = tbb::this_task_arena::max_concurrency();
+      const int slots = context.max_views_in_flight > 0 ? std::min(context.max_views_in_flight, threads) : threads;
+      photos.SetCapacity(static_cast<size_t>(slots) + 1);
       const Item& item = items[item_of.at(item_name)];
       nlohmann::json result;
       // Isolated: while this view's OpenCV calls wait for parallel work, this thread takes no other
-      // view (which would use the same buffers).
+      // view, which would use the same buffers, or could wait in PhotoCache for the photo this
+      // thread is itself preparing (a deadlock).
       tbb::this_task_arena::isolate([&] {
         result = ScoreView(context, options, item.proxy, item.image, item.info, model, training_centers, training_names,
                            scene_center, &photos, &buffers.local());

@@ -7,12 +7,13 @@
 #include <gtest/gtest.h>
 
 #include <atomic>
+#include <chrono>
 #include <cmath>
-#include <thread>
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
 #include <opencv2/imgproc.hpp>
+#include <thread>
 
 #include "pipeline/core/atomic_file.h"
 #include "pipeline/core/colmap_text_io.h"
@@ -241,14 +242,52 @@ TEST(PhotoCache, ReadsOncePerRecentPhotoAndRetriesAFailure) {
   EXPECT_TRUE(a->reference.Matches(a->image));
   EXPECT_THROW(cache.Get("bad"), std::runtime_error);
   EXPECT_NE(cache.Get("bad"), nullptr);  // tried again
-  // Eight threads asking for one new photo at once: one read, one photo.
-  const int before = reads;
-  std::vector<std::shared_ptr<const ScoredPhoto>> got(8);
-  std::vector<std::thread> threads;
-  for (int t = 0; t < 8; ++t) threads.emplace_back([&, t] { got[t] = cache.Get("dddd"); });
-  for (std::thread& thread : threads) thread.join();
-  EXPECT_EQ(reads, before + 1);
-  for (const auto& photo : got) EXPECT_EQ(photo, got[0]);
+}
+
+// Threads asking for a photo while another prepares it wait for it (one read, one photo); when the
+// preparation fails the waiters do not hang: each tries in turn and gets the error or the photo.
+TEST(PhotoCache, ThreadsWaitForAPhotoBeingPreparedAndSurviveItsFailure) {
+  for (const bool first_read_fails : {false, true}) {
+    std::atomic<int> reads{0}, waiting{0};
+    std::atomic<bool> failed_once{false};
+    constexpr int kThreads = 8;
+    PhotoCache cache(4, [&](const std::string&) {
+      const int read = ++reads;
+      // The first read holds on until the other threads have asked (they then wait in Get).
+      if (read == 1) {
+        for (int spin = 0; spin < 2000 && waiting < kThreads - 1; ++spin) std::this_thread::sleep_for(std::chrono::milliseconds(1));
+        std::this_thread::sleep_for(std::chrono::milliseconds(20));
+        if (first_read_fails && !failed_once.exchange(true)) throw std::runtime_error("unreadable");
+      }
+      return Noise(16, 12, 3);
+    });
+    std::vector<std::shared_ptr<const ScoredPhoto>> got(kThreads);
+    std::atomic<int> errors{0};
+    std::vector<std::thread> threads;
+    for (int t = 0; t < kThreads; ++t) {
+      threads.emplace_back([&, t] {
+        if (t > 0) {
+          while (reads == 0) std::this_thread::yield();  // the first read has begun
+          ++waiting;
+        }
+        try {
+          got[t] = cache.Get("photo");
+        } catch (const std::runtime_error&) {
+          ++errors;
+        }
+      });
+    }
+    for (std::thread& thread : threads) thread.join();
+    EXPECT_EQ(errors, first_read_fails ? 1 : 0);
+    EXPECT_EQ(reads, first_read_fails ? 2 : 1);  // after a failure, one of the waiters reads again
+    std::shared_ptr<const ScoredPhoto> photo;
+    for (const auto& p : got) {
+      if (!p) continue;
+      if (!photo) photo = p;
+      EXPECT_EQ(p, photo);
+    }
+    EXPECT_NE(photo, nullptr);
+  }
 }
 
 TEST(ScoreImage, RejectsSizeMismatch) {
