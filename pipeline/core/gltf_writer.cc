@@ -12,13 +12,11 @@
 #include <Eigen/Geometry>
 #include <cstring>
 #include <limits>
-#include <opencv2/imgcodecs.hpp>  // the flags; the codecs through image_codecs.h
 #include <sstream>
 
 #include "pipeline/core/atomic_file.h"
 #include "pipeline/core/errors.h"
-#include "pipeline/core/image_codecs.h"
-#include "pipeline/core/png_encoder.h"
+#include "pipeline/core/image_io.h"
 #include "pipeline/core/textured_mesh.h"
 
 namespace ibmr {
@@ -113,19 +111,12 @@ tinygltf::Primitive PagePrimitive(const TexturedMesh& textured, int page, tinygl
 
 // Image, texture and material of `page` (all with index `page`), the PNG in the buffer.
 void AddPageMaterial(const cv::Mat& image, int page, const std::string& path, tinygltf::Model* model) {
-  // The pages (8-bit BGR) are encoded as WriteImage writes their files (png_encoder.h, with RGB
-  // colours in the file); a type it does not take goes to OpenCV.
+  // The pages (8-bit BGR) are encoded as WriteImage writes their files (RGB colours in the file).
   std::string png;
-  if (!EncodePng(image, &png)) {
-    std::vector<unsigned char> encoded;
-    bool ok = false;
-    try {
-      ok = EncodeImage(".png", image, &encoded);
-    } catch (const cv::Exception& e) {
-      throw IoError("cannot write " + path + ": encoding atlas page " + std::to_string(page) + " as PNG failed: " + e.what());
-    }
-    if (!ok) throw IoError("cannot write " + path + ": OpenCV could not encode atlas page " + std::to_string(page));
-    png.assign(encoded.begin(), encoded.end());
+  try {
+    png = EncodePngBytes(image);
+  } catch (const IoError& e) {
+    throw IoError("cannot write " + path + ": encoding atlas page " + std::to_string(page) + " as PNG failed: " + e.what());
   }
 
   const std::string name = "atlas_" + std::to_string(page);

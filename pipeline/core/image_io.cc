@@ -69,29 +69,32 @@ cv::Mat ReadWithFlags(const std::string& path, int flags) {
   // A few hundred bytes of JPEG or PNG can declare a billion pixels, which OpenCV allocates before
   // it finds the data missing (found by fuzzing): a claim no file of that size can hold means a
   // truncated or forged file, refused unread.
+  // PNGs decode with libpng here, to imread's pixels, without loading OpenCV's codecs
+  // (png_decoder.h), in the two modes ibmr reads; what it does not read goes on to OpenCV.
+  const bool png_mode = flags == cv::IMREAD_UNCHANGED || flags == (cv::IMREAD_COLOR | cv::IMREAD_IGNORE_ORIENTATION);
   bool png = false;
-  std::string head(65536, '\0');
-  bool whole = false;  // the head holds the whole file
+  std::string bytes(65536, '\0');  // the head, and the whole file for a PNG read here
   {
     std::ifstream in(path, std::ios::binary);
-    in.read(head.data(), static_cast<std::streamsize>(head.size()));
-    head.resize(static_cast<size_t>(in.gcount()));
-    whole = in.eof();
-    const DeclaredSize declared = ReadDeclaredSize(head);
-    const uint64_t bytes = std::filesystem::file_size(path, ec);
-    if (!ec && declared.width * declared.height > declared.max_pixels_per_byte * bytes) {
+    in.read(bytes.data(), static_cast<std::streamsize>(bytes.size()));
+    bytes.resize(static_cast<size_t>(in.gcount()));
+    const DeclaredSize declared = ReadDeclaredSize(bytes);
+    const uint64_t file_size = std::filesystem::file_size(path, ec);
+    if (!ec && declared.width * declared.height > declared.max_pixels_per_byte * file_size) {
       throw IoError("cannot decode image " + path + ": its header declares " + std::to_string(declared.width) + " x " +
-                    std::to_string(declared.height) + " pixels, more than its " + std::to_string(bytes) +
+                    std::to_string(declared.height) + " pixels, more than its " + std::to_string(file_size) +
                     " bytes can hold (truncated or corrupt)");
     }
-    png = LooksLikePng(head);
+    png = png_mode && LooksLikePng(bytes);
+    if (png && !ec && file_size > bytes.size()) {  // the rest of the file, from where the head ended
+      const size_t head = bytes.size();
+      bytes.resize(file_size);
+      in.read(bytes.data() + head, static_cast<std::streamsize>(file_size - head));
+      bytes.resize(head + static_cast<size_t>(in.gcount()));  // shorter if it shrank meanwhile: libpng refuses it
+    }
   }
   cv::Mat image;
-  // PNGs decode with libpng here, to imread's pixels, without loading OpenCV's codecs
-  // (png_decoder.h); what it does not read goes on to OpenCV.
-  if (png && (flags == cv::IMREAD_UNCHANGED || flags == (cv::IMREAD_COLOR | cv::IMREAD_IGNORE_ORIENTATION)) &&
-      DecodePng(whole ? head : ReadFile(path), flags == cv::IMREAD_UNCHANGED ? PngReadMode::kUnchanged : PngReadMode::kColor,
-                &image)) {
+  if (png && DecodePng(bytes, flags == cv::IMREAD_UNCHANGED ? PngReadMode::kUnchanged : PngReadMode::kColor, &image)) {
     return image;
   }
   try {
@@ -134,13 +137,32 @@ cv::Mat ReadImageColor(const std::string& path) {
 
 cv::Mat ReadImageUnchanged(const std::string& path) { return ReadWithFlags(path, cv::IMREAD_UNCHANGED); }
 
+std::string EncodePngBytes(const cv::Mat& image) {
+  // The types the pipeline writes are encoded with libdeflate (png_encoder.h: the pixels imwrite
+  // writes, in 0.6-0.8 of its time), without loading OpenCV's codecs; OpenCV encodes the others.
+  std::string png;
+  if (EncodePng(image, &png)) return png;
+  std::vector<uchar> encoded;
+  bool ok = false;
+  std::string reason = "OpenCV could not encode it as PNG";
+  try {
+    ok = EncodeImage(".png", image, &encoded);
+  } catch (const cv::Exception& e) {
+    reason = e.what();
+  }
+  if (!ok) throw IoError(reason);
+  return std::string(encoded.begin(), encoded.end());
+}
+
 void WriteImage(const std::string& path, const cv::Mat& image) {
   if (image.empty()) throw IoError("cannot write image " + path + ": the image is empty");
-  // PNGs of the types the pipeline writes are encoded here with libdeflate (png_encoder.h: about
-  // twice as fast as imwrite, the same pixels), without loading OpenCV's codecs; other types and
-  // formats go to OpenCV.
-  std::string png;
-  if (HasPngExtension(path) && EncodePng(image, &png)) {
+  if (HasPngExtension(path)) {
+    std::string png;
+    try {
+      png = EncodePngBytes(image);
+    } catch (const IoError& e) {
+      throw IoError("cannot write image " + path + ": " + e.what());
+    }
     WriteFileAtomic(path, png);
     return;
   }

@@ -102,7 +102,7 @@ bool DecodeInto(PngReader& reader, Source* source, PngReadMode mode, cv::Mat* im
   if (image->depth() == CV_8U && bit_depth == 16) {
     png_set_strip_16(png);
   } else {
-    png_set_swap(png);  // little-endian host (image_io.cc asserts it)
+    png_set_swap(png);  // little-endian host (asserted above)
   }
   if (image->channels() < 4) {
     png_set_strip_alpha(png);
