@@ -205,9 +205,9 @@ StereoPairResult StereoPair(const cv::Mat& left_image, const cv::Mat& right_imag
 }
 
 double SweepFixedBytesPerPixel(int num_neighbors) {
-  // Grey images (1 byte each), winners (12: plane, confidence, margin), texture factor (4), plane
-  // ranges (4), the output maps (4 + 12 + 4) and the float working copies of the texture factor (12).
-  return 1.0 + num_neighbors + 12 + 4 + 4 + 20 + 12;
+  // Grey images (1 byte each), winners (8: plane, confidence), texture factor (4), plane ranges
+  // (4), the output maps (4 + 12 + 4) and the float working copies of the texture factor (12).
+  return 1.0 + num_neighbors + 8 + 4 + 4 + 20 + 12;
 }
 
 namespace {
@@ -353,7 +353,6 @@ PlaneSweepResult PlaneSweep(const SweepView& reference, const std::vector<SweepV
   }
   result.full_evaluations = static_cast<int64_t>(np) * w * h * static_cast<int64_t>(neighbours.size());
   cv::Mat winner_plane(h, w, CV_32F, cv::Scalar(-1.f)), winner_confidence(h, w, CV_32F, cv::Scalar(0.f));
-  cv::Mat winner_margin(h, w, CV_32F, cv::Scalar(0.f));
   sweep::BufferLease buffers;
   if (result.bands == 1) {
     // The pooled volumes keep the capacity of a whole view, so that the parts of different sizes
@@ -404,7 +403,19 @@ PlaneSweepResult PlaneSweep(const SweepView& reference, const std::vector<SweepV
     const cv::Rect own(region.x, y0, region.width, y1 - y0);
     winners.plane.rowRange(y0 - c0, y1 - c0).copyTo(winner_plane(own));
     winners.confidence.rowRange(y0 - c0, y1 - c0).copyTo(winner_confidence(own));
-    winners.margin.rowRange(y0 - c0, y1 - c0).copyTo(winner_margin(own));
+    // Whether a depth exists: the margin and texture factors, as before the peak ratio. The peak
+    // ratio says how ambiguous a match is, not whether there is one: an ambiguous pixel keeps
+    // its depth at its lowered confidence and multi_depth's views decide (on the synthetic ring,
+    // dropping them here lost fused completeness 0.9146 -> 0.9131). Decided per band, so that the
+    // margins need not outlive it.
+    for (int y = y0; y < y1; ++y) {
+      float* plane = winner_plane.ptr<float>(y) + region.x;
+      const float* margin = winners.margin.ptr<float>(y - c0);
+      const float* texture_row = texture.ptr<float>(y) + region.x;
+      for (int x = 0; x < region.width; ++x) {
+        if (margin[x] * texture_row[x] < options.confidence_threshold) plane[x] = -1.f;
+      }
+    }
   }
   result.depth = DepthMap(w, h, 1, 0.f);
   result.confidence = FloatMap(w, h, 1, 0.f);
@@ -412,15 +423,10 @@ PlaneSweepResult PlaneSweep(const SweepView& reference, const std::vector<SweepV
   for (int y = 0; y < h; ++y) {
     const float* plane = winner_plane.ptr<float>(y);
     const float* conf = winner_confidence.ptr<float>(y);
-    const float* margin = winner_margin.ptr<float>(y);
     const float* texture_row = texture.ptr<float>(y);
     for (int x = 0; x < w; ++x) {
       result.confidence.At(x, y) = conf[x] * texture_row[x];
-      // Whether a depth exists: the margin and texture factors, as before the peak ratio. The peak
-      // ratio says how ambiguous a match is, not whether there is one: an ambiguous pixel keeps
-      // its depth at its lowered confidence and multi_depth's views decide (on the synthetic ring,
-      // dropping them here lost fused completeness 0.9146 -> 0.9131).
-      if (plane[x] < 0 || margin[x] * texture_row[x] < options.confidence_threshold) continue;
+      if (plane[x] < 0) continue;  // no winner, or below the confidence threshold (above)
       if (!ranges.first.empty()) {  // smoothing can carry a winner out of the pixel's bounds: no surface there
         const size_t i = static_cast<size_t>(y) * w + x;
         if (plane[x] < ranges.first[i] - 0.5f || plane[x] > ranges.last[i] + 0.5f) continue;
