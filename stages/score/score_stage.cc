@@ -25,7 +25,7 @@
 #include "pipeline/core/json_file.h"
 #include "pipeline/core/per_view.h"
 #include "pipeline/core/stage_api.h"
-#include "stages/score/photo_cache.h"
+#include "pipeline/core/view_cache.h"
 #include "stages/score/score.h"
 
 namespace fs = std::filesystem;
@@ -35,6 +35,16 @@ namespace ibmr {
 namespace {
 
 const char* const kMaskFolders[] = {"ground_truth/masks", "heldout/masks", "masks"};
+
+// A held-out photo with its share of the SSIM statistics, prepared once for every model's render
+// of its view: before, each render re-read its photo and blurred it again (on templeRing 14
+// models x 6 views read and blurred each photo 14-28 times, twice where a filled render is
+// scored too).
+struct ScoredPhoto {
+  cv::Mat image;            // CV_8UC3
+  SsimReference reference;  // PrepareSsimReference(image)
+};
+using PhotoCache = ViewCache<ScoredPhoto>;
 
 nlohmann::json ToJson(const MaskedScore& s) {
   return {{"psnr", s.psnr}, {"ssim", s.ssim}, {"coverage", s.coverage}, {"pixels", s.pixels}};
@@ -108,8 +118,8 @@ class ScoreStage : public Stage {
   // side-by-side images (about 20), the SSIM's working images (SsimBuffers, six to ten floats, and
   // its maps of doubles, two at once for the photo score: 40-56) which stay with the thread for
   // its next render, the PNG encoder's filtered rows and output while the side-by-side image is
-  // written (about 18), and its share of the photos PhotoCache keeps (one photo with its SSIM
-  // reference per item in flight and one more: 27 each).
+  // written (about 18), and its share of the photos the stage's cache keeps (one photo with its
+  // SSIM reference per item in flight and one more: 27 each).
   // Measured with double working images and no cache, on the Sceaux castle's 1600x1202 renders
   // (estimate 220 MB): 216 MB above the stage's start with one render in flight, 412 MB with two.
   double ViewMemoryMb(const StageContext& context) const override {
@@ -192,26 +202,26 @@ class ScoreStage : public Stage {
     }
     first_item.push_back(items.size());
     tbb::enumerable_thread_specific<SsimBuffers> buffers;  // one set per thread scoring; freed when the stage is done
-    // Each held-out photo is read and blurred once for the renders of all models (PhotoCache), so
-    // the items run view by view: the threads then share the few photos they work on.
+    // Each held-out photo is read and blurred once for the renders of all models (ScoredPhoto), so
+    // the items run view by view: the threads then share the few photos they work on. The cache
+    // keeps one photo per item in flight (the memory budget's, as ViewMemoryMb counts it) and one more.
     std::vector<std::string> view_major = item_names;
     std::stable_sort(view_major.begin(), view_major.end(), [&](const std::string& a, const std::string& b) {
       return items[item_of.at(a)].image < items[item_of.at(b)].image;
     });
-    PhotoCache photos(static_cast<size_t>(tbb::this_task_arena::max_concurrency()) + 1, [](const std::string& path) {
-      return ReadImageColor(path);
+    const int threads = tbb::this_task_arena::max_concurrency();
+    const int in_flight = context.max_views_in_flight > 0 ? std::min(context.max_views_in_flight, threads) : threads;
+    PhotoCache photos(static_cast<size_t>(in_flight) + 1, [](const std::string& path) {
+      ScoredPhoto photo;
+      photo.image = ReadImageColor(path);
+      photo.reference = PrepareSsimReference(photo.image);
+      return photo;
     });
     const PerViewSummary summary = ForEachView(context, "score", view_major, [&](const std::string& item_name) {
-      // One photo per item in flight and one more: ForEachView has fitted the items in flight to
-      // the memory budget by now (ViewMemoryMb counts a photo per item).
-      const int threads = tbb::this_task_arena::max_concurrency();
-      const int slots = context.max_views_in_flight > 0 ? std::min(context.max_views_in_flight, threads) : threads;
-      photos.SetCapacity(static_cast<size_t>(slots) + 1);
       const Item& item = items[item_of.at(item_name)];
       nlohmann::json result;
       // Isolated: while this view's OpenCV calls wait for parallel work, this thread takes no other
-      // view, which would use the same buffers, or could wait in PhotoCache for the photo this
-      // thread is itself preparing (a deadlock).
+      // view (which would use the same buffers).
       tbb::this_task_arena::isolate([&] {
         result = ScoreView(context, options, item.proxy, item.image, item.info, model, training_centers, training_names,
                            scene_center, &photos, &buffers.local());

@@ -2,18 +2,14 @@
 // coverage and masks, gain correction, nearest-camera angle, option checks, and the adapter on a
 // tiny workspace with a skipped proxy.
 #include "stages/score/score.h"
-#include "stages/score/photo_cache.h"
 
 #include <gtest/gtest.h>
 
-#include <atomic>
-#include <chrono>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
 #include <opencv2/imgproc.hpp>
-#include <thread>
 
 #include "pipeline/core/atomic_file.h"
 #include "pipeline/core/colmap_text_io.h"
@@ -187,7 +183,7 @@ TEST(ScoreImage, SsimFollowsTheDefinitionWithReusedBuffers) {
   EXPECT_NE(reused.photo.ssim, reused.all.ssim);
 }
 
-// The photo's statistics prepared once (PhotoCache) give every score exactly as computed afresh,
+// The photo's statistics prepared once (the stage's cache) give every score exactly as computed afresh,
 // with a mask, for the photo score's second SSIM map and with reused buffers; a reference of
 // another size is refused.
 TEST(ScoreImage, PreparedPhotoStatisticsGiveIdenticalScores) {
@@ -215,79 +211,6 @@ TEST(ScoreImage, PreparedPhotoStatisticsGiveIdenticalScores) {
   const cv::Mat other = Noise(32, 48, 1);
   EXPECT_THROW(ScoreImage(other, other, cv::Mat(48, 32, CV_8UC1, cv::Scalar(255)), cv::Mat(), every, &buffers, &reference),
                std::invalid_argument);
-}
-
-// The cache reads each photo once while it stays among the most recent `capacity`, forgets older
-// ones (read again when asked for), hands every thread asking at once the same photo, and lets a
-// failed read be tried again.
-TEST(PhotoCache, ReadsOncePerRecentPhotoAndRetriesAFailure) {
-  std::atomic<int> reads{0};
-  std::atomic<bool> fail{true};
-  PhotoCache cache(2, [&](const std::string& path) {
-    ++reads;
-    if (path == "bad" && fail.exchange(false)) throw std::runtime_error("unreadable");
-    return Noise(16, 12, static_cast<int>(path.size()));
-  });
-  const auto a = cache.Get("a");
-  EXPECT_EQ(cache.Get("a"), a);
-  EXPECT_EQ(reads, 1);
-  cache.Get("bb");
-  cache.Get("a");  // a is now the most recent; bb the oldest
-  cache.Get("ccc");
-  EXPECT_EQ(reads, 3);
-  EXPECT_EQ(cache.Get("a"), a);  // kept
-  cache.Get("bb");               // forgotten, read again
-  EXPECT_EQ(reads, 4);
-  EXPECT_EQ(cv::norm(a->image, Noise(16, 12, 1), cv::NORM_INF), 0);
-  EXPECT_TRUE(a->reference.Matches(a->image));
-  EXPECT_THROW(cache.Get("bad"), std::runtime_error);
-  EXPECT_NE(cache.Get("bad"), nullptr);  // tried again
-}
-
-// Threads asking for a photo while another prepares it wait for it (one read, one photo); when the
-// preparation fails the waiters do not hang: each tries in turn and gets the error or the photo.
-TEST(PhotoCache, ThreadsWaitForAPhotoBeingPreparedAndSurviveItsFailure) {
-  for (const bool first_read_fails : {false, true}) {
-    std::atomic<int> reads{0}, waiting{0};
-    std::atomic<bool> failed_once{false};
-    constexpr int kThreads = 8;
-    PhotoCache cache(4, [&](const std::string&) {
-      const int read = ++reads;
-      // The first read holds on until the other threads have asked (they then wait in Get).
-      if (read == 1) {
-        for (int spin = 0; spin < 2000 && waiting < kThreads - 1; ++spin) std::this_thread::sleep_for(std::chrono::milliseconds(1));
-        std::this_thread::sleep_for(std::chrono::milliseconds(20));
-        if (first_read_fails && !failed_once.exchange(true)) throw std::runtime_error("unreadable");
-      }
-      return Noise(16, 12, 3);
-    });
-    std::vector<std::shared_ptr<const ScoredPhoto>> got(kThreads);
-    std::atomic<int> errors{0};
-    std::vector<std::thread> threads;
-    for (int t = 0; t < kThreads; ++t) {
-      threads.emplace_back([&, t] {
-        if (t > 0) {
-          while (reads == 0) std::this_thread::yield();  // the first read has begun
-          ++waiting;
-        }
-        try {
-          got[t] = cache.Get("photo");
-        } catch (const std::runtime_error&) {
-          ++errors;
-        }
-      });
-    }
-    for (std::thread& thread : threads) thread.join();
-    EXPECT_EQ(errors, first_read_fails ? 1 : 0);
-    EXPECT_EQ(reads, first_read_fails ? 2 : 1);  // after a failure, one of the waiters reads again
-    std::shared_ptr<const ScoredPhoto> photo;
-    for (const auto& p : got) {
-      if (!p) continue;
-      if (!photo) photo = p;
-      EXPECT_EQ(p, photo);
-    }
-    EXPECT_NE(photo, nullptr);
-  }
 }
 
 TEST(ScoreImage, RejectsSizeMismatch) {
