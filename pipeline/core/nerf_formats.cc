@@ -100,9 +100,14 @@ SparseModel ParseTransformsJson(const std::string& text, const std::string& path
     // Intrinsics.
     double w = Lookup(frame, top, "w"), h = Lookup(frame, top, "h");
     if (!(w > 0 && h > 0)) {
-      const auto [iw, ih] = image_size(name);
-      w = iw;
-      h = ih;
+      std::pair<int, int> size;
+      try {
+        size = image_size(name);
+      } catch (const std::exception& e) {  // a missing or unreadable photo: say which frame names it
+        throw IoError(where + " (\"" + name + "\"): " + e.what());
+      }
+      w = size.first;
+      h = size.second;
     }
     if (!(w >= 1 && h >= 1 && w <= 1e6 && h <= 1e6) || w != std::floor(w) || h != std::floor(h)) {
       throw IoError(where + ": image size \"w\" x \"h\" must be whole pixels in [1, 1000000]");

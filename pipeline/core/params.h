@@ -23,6 +23,9 @@ struct ParamSpec {
   std::string doc;                   // one line: meaning, unit, valid range
   std::vector<std::string> choices;  // allowed values of a string parameter; empty: any
   bool affects_result = true;        // false for resource knobs (threads, caches): never make a stage stale
+  // A string that may also be written as a flow list of scalars (import.background: [255, 255, 255]),
+  // read as its text "[255, 255, 255]" for the stage to parse; other strings refuse a list.
+  bool list_as_text = false;
 };
 
 using ParamValue = std::variant<int64_t, double, bool, std::string, std::vector<int64_t>,

@@ -36,6 +36,9 @@ struct StageContext {
   std::map<std::string, std::string> inputs;  // the config's named inputs (absolute paths)
   HoldoutRole role = HoldoutRole::kAllViews;
   std::set<std::string> heldout_images;    // names of held-out images (empty: no holdout)
+  // kScoring: the held-out views to draw and score, where the holdout policy scores a subset of
+  // them (holdout: {split: test, every: 8}); empty: every held-out view.
+  std::set<std::string> scored_heldout;
   ProgressReporter* progress = nullptr;    // never null while running
   ViewCheckpoint checkpoint;               // per-view resumption for this run's cache key
   nlohmann::json metrics = nlohmann::json::object();  // the stage's own metrics, kept in the record

@@ -97,8 +97,19 @@ bool ToValue(const YAML::Node& node, const ParamSpec& spec, const std::string& d
         return true;
       case ParamType::kString:
       case ParamType::kPath: {
-        if (!node.IsScalar()) throw YAML::Exception(YAML::Mark(), "");
-        std::string s = node.Scalar();
+        std::string s;
+        if (spec.type == ParamType::kString && spec.list_as_text && node.IsSequence()) {
+          // A free-form string given as a flow list of scalars (import.background: [255, 255, 255])
+          // reads as its text, "[255, 255, 255]", for the stage to parse.
+          for (const auto& item : node) {
+            if (!item.IsScalar()) throw YAML::Exception(YAML::Mark(), "");
+            s += (s.empty() ? "[" : ", ") + item.Scalar();
+          }
+          s += s.empty() ? "[]" : "]";
+        } else {
+          if (!node.IsScalar()) throw YAML::Exception(YAML::Mark(), "");
+          s = node.Scalar();
+        }
         if (!spec.choices.empty() && std::find(spec.choices.begin(), spec.choices.end(), s) == spec.choices.end()) {
           std::string list;
           for (const auto& c : spec.choices) list += (list.empty() ? "" : ", ") + c;
@@ -211,7 +222,7 @@ StageConfig ParseStage(const YAML::Node& entry, const StageRegistry& registry, c
 
 void ParseHoldout(const YAML::Node& node, Config* config) {
   if (!node.IsMap()) throw ConfigError(Where(config->path, LineOf(node), "holdout", "expected a map (every, offset, images)"));
-  const std::vector<std::string> valid = {"every", "offset", "images"};
+  const std::vector<std::string> valid = {"every", "offset", "images", "split"};
   int offset_line = LineOf(node);
   for (const auto& kv : node) {
     const std::string key = kv.first.Scalar();
@@ -225,6 +236,14 @@ void ParseHoldout(const YAML::Node& node, Config* config) {
       } else if (key == "offset") {
         config->holdout.offset = kv.second.as<int>();
         offset_line = line;
+      } else if (key == "split") {
+        if (!kv.second.IsScalar()) throw YAML::Exception(YAML::Mark(), "");
+        config->holdout.split = kv.second.Scalar();
+        config->holdout.split_line = line;
+        if (config->holdout.split != "train" && config->holdout.split != "val" && config->holdout.split != "test") {
+          throw ConfigError(Where(config->path, line, "holdout.split",
+                                  "must be test or val (a split import read), got '" + config->holdout.split + "'"));
+        }
       } else if (key == "images") {
         // Item by item: as<std::vector<std::string>>() reads a null item as the name "null".
         if (!kv.second.IsSequence()) throw YAML::Exception(YAML::Mark(), "");
@@ -238,7 +257,9 @@ void ParseHoldout(const YAML::Node& node, Config* config) {
       }
     } catch (const YAML::Exception&) {
       throw ConfigError(Where(config->path, LineOf(kv.second), "holdout." + key,
-                              key == "images" ? "expected a list of image names" : "expected integer"));
+                              key == "images"  ? "expected a list of image names"
+                              : key == "split" ? "expected a split name (test or val)"
+                                               : "expected integer"));
     }
   }
   if (config->holdout.every > 0 && (config->holdout.offset < 0 || config->holdout.offset >= config->holdout.every)) {
@@ -422,9 +443,15 @@ std::string ExpandVariables(const std::string& text, const std::string& file) {
   return ExpandScalar(masked.text, masked, file);
 }
 
-std::set<std::string> HoldoutPolicy::Select(const std::vector<std::string>& sorted_names) const {
+std::set<std::string> HoldoutPolicy::Select(const std::vector<std::string>& sorted_names,
+                                            const std::map<std::string, std::string>& splits) const {
   std::set<std::string> out(images.begin(), images.end());
-  if (every > 0) {
+  if (!split.empty()) {
+    for (const std::string& name : sorted_names) {
+      const auto it = splits.find(name);
+      if (it != splits.end() && it->second == split) out.insert(name);
+    }
+  } else if (every > 0) {
     for (size_t i = 0; i < sorted_names.size(); ++i) {
       if (static_cast<int>(i % every) == offset) out.insert(sorted_names[i]);
     }
@@ -432,10 +459,29 @@ std::set<std::string> HoldoutPolicy::Select(const std::vector<std::string>& sort
   return out;
 }
 
+std::set<std::string> HoldoutPolicy::Scored(const std::vector<std::string>& sorted_names,
+                                            const std::map<std::string, std::string>& splits) const {
+  std::set<std::string> out;
+  if (split.empty() || every == 0) return out;
+  out.insert(images.begin(), images.end());
+  int index = 0;  // within the split, in sorted name order
+  for (const std::string& name : sorted_names) {
+    const auto it = splits.find(name);
+    if (it == splits.end() || it->second != split) continue;
+    if (index++ % every == offset) out.insert(name);
+  }
+  return out;
+}
+
 std::string HoldoutPolicy::Describe() const {
   if (!Active()) return "none";
   std::string s;
-  if (every > 0) s = "every " + std::to_string(every) + " from index " + std::to_string(offset);
+  if (!split.empty()) {
+    s = "the " + split + " split";
+    if (every > 0) s += " (every " + std::to_string(every) + " of it from index " + std::to_string(offset) + " scored)";
+  } else if (every > 0) {
+    s = "every " + std::to_string(every) + " from index " + std::to_string(offset);
+  }
   if (!images.empty()) s += (s.empty() ? "" : " and ") + std::to_string(images.size()) + " named";
   return s;
 }

@@ -11,6 +11,9 @@
 //     every: 8         # every 8th view of the sorted image list, starting at `offset`
 //     offset: 0
 //     images: [a.png]  # and/or explicit names
+//     split: test      # or: every image of the capture's test split (import's splits.json, NeRF's
+//                      # Blender layout); `every`/`offset` then pick the views scored among them,
+//                      # the others kept out of every stage but import
 //   stages:
 //     - synth: {scene: object_ring, views: 24}
 //     - carve:
@@ -35,13 +38,20 @@ class ConfigError : public std::runtime_error {
 
 struct HoldoutPolicy {
   int every = 0;   // 0: no periodic holdout
-  int offset = 0;  // first held-out index in the sorted image list
+  int offset = 0;  // first held-out index in the sorted image list (of the split's, with `split`)
   std::vector<std::string> images;
   std::vector<int> image_lines;  // 1-based config line of each of `images` (0: not from a file)
+  std::string split;             // "": none; else every image of this split is held out
+  int split_line = 0;
 
-  bool Active() const { return every > 0 || !images.empty(); }
-  // The held-out subset of `sorted_names`.
-  std::set<std::string> Select(const std::vector<std::string>& sorted_names) const;
+  bool Active() const { return every > 0 || !images.empty() || !split.empty(); }
+  // The held-out subset of `sorted_names`; `splits` (name -> split) is used with `split`.
+  std::set<std::string> Select(const std::vector<std::string>& sorted_names,
+                               const std::map<std::string, std::string>& splits = {}) const;
+  // The held-out views render draws and score scores: with `split` and `every`, every `every`-th
+  // of the split's sorted images from `offset` (and the named `images`); empty: all held-out views.
+  std::set<std::string> Scored(const std::vector<std::string>& sorted_names,
+                               const std::map<std::string, std::string>& splits) const;
   std::string Describe() const;
 };
 

@@ -237,6 +237,28 @@ TEST_F(ConfigTest, HoldoutSelectsEveryNthAndNamed) {
   EXPECT_EQ(held, (std::set<std::string>{"a", "d", "g", "z.png"}));
 }
 
+// holdout: {split: test}: every image of the capture's test split is held out; `every`/`offset`
+// pick the ones scored within the split, in its sorted order, never training images.
+TEST_F(ConfigTest, HoldoutSplitHoldsTheSplitOutAndScoresEveryNthOfIt) {
+  const std::map<std::string, std::string> splits = {{"test/r_0.png", "test"}, {"test/r_1.png", "test"},
+                                                     {"test/r_2.png", "test"}, {"test/r_3.png", "test"},
+                                                     {"test/r_4.png", "test"}, {"train/r_0.png", "train"},
+                                                     {"train/r_1.png", "train"}, {"val/r_0.png", "val"}};
+  std::vector<std::string> names;
+  for (const auto& [name, split] : splits) names.push_back(name);
+  const Config all = LoadConfig(Write("workspace: ws\nholdout:\n  split: test\nstages:\n  - produce\n"), registry_);
+  const std::set<std::string> tests = {"test/r_0.png", "test/r_1.png", "test/r_2.png", "test/r_3.png", "test/r_4.png"};
+  EXPECT_EQ(all.holdout.Select(names, splits), tests);
+  EXPECT_TRUE(all.holdout.Scored(names, splits).empty()) << "no every: all held-out views are scored";
+  const Config some =
+      LoadConfig(Write("workspace: ws\nholdout:\n  split: test\n  every: 2\n  offset: 1\nstages:\n  - produce\n"), registry_);
+  EXPECT_EQ(some.holdout.Select(names, splits), tests) << "the unscored test views stay out of training too";
+  EXPECT_EQ(some.holdout.Scored(names, splits), (std::set<std::string>{"test/r_1.png", "test/r_3.png"}));
+  EXPECT_NE(some.holdout.Describe().find("test split"), std::string::npos) << some.holdout.Describe();
+  const std::string error = ErrorOf("workspace: ws\nholdout:\n  split: tset\nstages:\n  - produce\n");
+  EXPECT_NE(error.find("c.yaml:3: key 'holdout.split'"), std::string::npos) << error;
+}
+
 TEST_F(ConfigTest, SetOverridesAndChecks) {
   Config config = LoadConfig(Write("workspace: ws\nstages:\n  - produce\n"), registry_);
   ApplyOverride("produce.value=12", registry_, &config);

@@ -14,6 +14,7 @@
 #include <thread>
 
 #include "pipeline/core/atomic_file.h"
+#include "pipeline/core/capture_info.h"
 #include "pipeline/core/colmap_text_io.h"
 #include "pipeline/core/content_hash.h"
 #include "pipeline/core/per_view.h"
@@ -81,6 +82,23 @@ void CheckHeldoutNames(const Config& config, const std::vector<std::string>& sor
   }
 }
 
+// Throws ConfigError for `holdout.split` when the capture has no image of that split (no
+// splits.json: not a capture with splits), naming the key and what the capture holds.
+void CheckHeldoutSplit(const Config& config, const std::vector<std::string>& sorted_names, const ImageSplits& splits) {
+  if (config.holdout.split.empty() || sorted_names.empty()) return;
+  std::map<std::string, int> counts;
+  for (const std::string& name : sorted_names) {
+    const auto it = splits.find(name);
+    ++counts[it == splits.end() ? "none" : it->second];
+  }
+  if (counts.count(config.holdout.split)) return;
+  std::string held;
+  for (const auto& [split, count] : counts) held += (held.empty() ? "" : ", ") + split + " " + std::to_string(count);
+  throw ConfigError(config.path + ":" + std::to_string(config.holdout.split_line) + ": key 'holdout.split': the capture has no image of the " +
+                    config.holdout.split + " split (" + held + (splits.empty() ? "; no splits.json: import a capture with splits, such as NeRF's Blender layout with transforms_" + config.holdout.split + ".json" : "") +
+                    "); use holdout.every or holdout.images instead");
+}
+
 }  // namespace
 
 ViewCheckpoint Runner::CheckpointOf(const Stage& stage, const std::string& key) const {
@@ -111,7 +129,10 @@ StageContext Runner::MakeContext(const Stage& stage, const StageConfig& stage_co
   if (context.role != HoldoutRole::kAllViews && config_.holdout.Active()) {
     const std::vector<std::string> names = SortedImageNames(context.workspace);
     CheckHeldoutNames(config_, names);
-    context.heldout_images = config_.holdout.Select(names);
+    const ImageSplits splits = config_.holdout.split.empty() ? ImageSplits() : ReadImageSplits(context.workspace);
+    CheckHeldoutSplit(config_, names, splits);
+    context.heldout_images = config_.holdout.Select(names, splits);
+    if (context.role == HoldoutRole::kScoring) context.scored_heldout = config_.holdout.Scored(names, splits);
   }
   return context;
 }
@@ -127,6 +148,8 @@ std::string Runner::CacheKey(const Stage& stage, const StageContext& context, nl
                                {"params", context.params.ResultJson(stage.Parameters())},
                                {"heldout", context.heldout_images},
                                {"inputs", *input_hashes}};
+  // Only where a subset is scored, so that every other stage's key stays as it was.
+  if (!context.scored_heldout.empty()) key_source["scored"] = context.scored_heldout;
   // Equal to a plain dump() for UTF-8 names, so that cache keys stay as they were.
   return HashBytes(DumpJson(key_source));
 }

@@ -8,6 +8,7 @@
 #include <filesystem>
 #include <fstream>
 
+#include "pipeline/core/capture_info.h"
 #include "pipeline/core/colmap_text_io.h"
 #include "pipeline/core/process_memory.h"
 #include "pipeline/runner/fake_stages_for_test.h"
@@ -189,6 +190,37 @@ TEST_F(RunnerTest, UnknownHeldOutImageNameIsAnError) {
   std::ofstream(dir_ / "c.yaml") << "workspace: ws\nholdout:\n  images: [view_003.png]\nstages:\n  - produce\n  - consume\n";
   EXPECT_EQ(Run().second, 1);
   EXPECT_EQ(ReadRecord((dir_ / "ws/records/consume.json").string())->heldout, nlohmann::json({"view_003.png"}));
+}
+
+// holdout: {split: test} reads the import's splits.json; a capture without that split is an error
+// naming the key and what the capture holds.
+TEST_F(RunnerTest, HoldoutSplitReadsTheCapturesSplits) {
+  SparseModel model;
+  model.cameras[1] = Camera::Pinhole(4, 4, 2, 2, 2, 2);
+  const std::vector<std::string> names = {"test/r_0.png", "test/r_1.png", "train/r_0.png", "train/r_1.png"};
+  for (size_t i = 0; i < names.size(); ++i) {
+    Image image;
+    image.image_id = static_cast<int>(i) + 1;
+    image.camera_id = 1;
+    image.name = names[i];
+    model.images[image.image_id] = image;
+  }
+  WriteSparseModelText((dir_ / "ws" / "sparse").string(), model);
+  std::ofstream(dir_ / "c.yaml") << "workspace: ws\nholdout:\n  split: test\nstages:\n  - produce\n  - consume\n";
+  try {
+    Run();
+    ADD_FAILURE() << "ran without splits";
+  } catch (const ConfigError& e) {
+    const std::string message = e.what();
+    EXPECT_NE(message.find("c.yaml:3: key 'holdout.split': the capture has no image of the test split"), std::string::npos)
+        << message;
+    EXPECT_NE(message.find("no splits.json"), std::string::npos) << message;
+  }
+  WriteImageSplits(Workspace((dir_ / "ws").string()), {{"test/r_0.png", "test"}, {"test/r_1.png", "test"},
+                                                      {"train/r_0.png", "train"}, {"train/r_1.png", "train"}});
+  EXPECT_EQ(Run().second, 1);
+  EXPECT_EQ(ReadRecord((dir_ / "ws/records/consume.json").string())->heldout,
+            nlohmann::json({"test/r_0.png", "test/r_1.png"}));
 }
 
 // A workspace inside the folder a stage reads (inputs.images: . with workspace: ibmr_out): the

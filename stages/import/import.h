@@ -9,11 +9,17 @@
 //   strecha     a Strecha folder: images/ and gt_dense_cameras/<image>.camera (K, distortion, R
 //               camera-to-world, centre C, "w h"; projection K [R^T | -R^T C], pixel centre (0,0)).
 //   colmap      a COLMAP text model folder (cameras.txt, images.txt, points3D.txt) and an image folder.
+//   transforms  NeRF's Blender layout (transforms_{train,val,test}.json) or nerfstudio's
+//               transforms.json, with their splits (transforms_splits.h).
+//   llff        poses_bounds.npy beside images/ (nerf_formats.h).
+// Photos with an alpha channel are composited over a background colour, their alpha kept in
+// alpha/<name>.png (import.alpha; alpha_composite.h).
 // Pixel convention: COLMAP puts the top-left pixel centre at (0.5, 0.5), Middlebury and Strecha
 // at (0, 0); their principal points get +0.5 here (BRIEF.md, "Conventions that bite").
 #pragma once
 
 #include <functional>
+#include <opencv2/core.hpp>
 #include <string>
 #include <vector>
 
@@ -23,8 +29,16 @@ namespace ibmr {
 
 enum class ImportFormat { kAuto, kFolder, kMiddlebury, kStrecha, kColmap, kTransforms, kLlff };
 
+// What becomes of a photo's alpha channel (alpha_composite.h): composited over `background` with
+// the alpha kept in alpha/ (the silhouettes' source), kept in alpha/ only (colour as stored), or
+// dropped.
+enum class AlphaMode { kComposite, kMask, kIgnore };
+
 struct ImportOptions {
   ImportFormat format = ImportFormat::kAuto;
+  AlphaMode alpha = AlphaMode::kComposite;
+  cv::Vec3b background{255, 255, 255};  // BGR; white as NeRF composites its Blender captures
+  bool alpha_premultiplied = false;     // PNG's alpha is straight (not premultiplied)
   // Focal length prior for images without EXIF, as a multiple of max(width, height); > 0.
   double focal_prior = 1.2;
   // Camera model for a plain folder (COLMAP name); SIMPLE_RADIAL as COLMAP's default.

@@ -11,6 +11,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "pipeline/core/atomic_file.h"
+#include "pipeline/core/capture_info.h"
 #include "pipeline/core/colmap_text_io.h"
 #include "pipeline/core/content_hash.h"
 #include "pipeline/core/errors.h"
@@ -18,7 +19,9 @@
 #include "pipeline/core/image_io.h"
 #include "pipeline/core/nerf_formats.h"
 #include "pipeline/core/stage_api.h"
+#include "stages/import/alpha_composite.h"
 #include "stages/import/import.h"
+#include "stages/import/transforms_splits.h"
 
 namespace fs = std::filesystem;
 
@@ -28,6 +31,23 @@ namespace {
 
 const std::vector<std::string> kFormatNames = {"auto",   "folder",     "middlebury", "strecha",
                                                "colmap", "transforms", "llff"};
+const std::vector<std::string> kAlphaNames = {"composite", "mask", "ignore"};
+
+// Whether a photo carries an alpha channel, from its PNG header (IHDR colour type 4: grey and
+// alpha, 6: RGBA) without decoding it; other formats are decoded (TIFF can hold alpha; JPEG,
+// BMP and the PNM formats cannot).
+bool FileHasAlpha(const std::string& path) {
+  std::string ext = fs::path(path).extension().string();
+  std::transform(ext.begin(), ext.end(), ext.begin(), ::tolower);
+  if (ext == ".png") {
+    std::ifstream file(path, std::ios::binary);
+    char head[26] = {};
+    if (!file.read(head, sizeof(head))) return false;
+    return head[25] == 4 || head[25] == 6;
+  }
+  if (ext == ".tif" || ext == ".tiff") return HasAlpha(DecodeImageFile(path, cv::IMREAD_UNCHANGED));
+  return false;
+}
 
 bool IsImageFile(const fs::path& path) {
   std::string ext = path.extension().string();
@@ -78,7 +98,7 @@ std::pair<int, int> ImageSize(const std::string& path) {
 
 // Why a photo of a plain folder cannot be used ("" when it can), and what was converted (added to
 // `notes`): every photo is decoded as the stages will decode it.
-std::string ScreenPhoto(const std::string& path, std::string* notes, std::pair<int, int>* size) {
+std::string ScreenPhoto(const std::string& path, AlphaMode alpha, std::string* notes, std::pair<int, int>* size) {
   std::error_code ec;
   const auto bytes = fs::file_size(path, ec);
   if (ec) return "cannot read the file (" + ec.message() + ")";
@@ -103,7 +123,11 @@ std::string ScreenPhoto(const std::string& path, std::string* notes, std::pair<i
   }
   *size = {raw.cols, raw.rows};  // as ReadImageColor decodes it: orientation is not applied
   std::vector<std::string> converted;
-  if (raw.channels() == 4) converted.push_back("alpha channel ignored");
+  if (HasAlpha(raw)) {
+    converted.push_back(alpha == AlphaMode::kComposite ? "alpha composited on import.background, kept in alpha/"
+                        : alpha == AlphaMode::kMask   ? "alpha kept in alpha/, colour as stored"
+                                                      : "alpha channel ignored");
+  }
   if (raw.channels() == 1) converted.push_back("greyscale read as colour");
   if (raw.depth() == CV_16U) converted.push_back("16-bit samples scaled to 8 bits");
   // Every stage reads photos as stored (as COLMAP does): a rotation the camera asked for in EXIF is
@@ -130,7 +154,8 @@ class ImportStage : public Stage {
   std::string Summary() const override {
     return "Image folder (EXIF focal), Middlebury _par.txt, Strecha .camera or COLMAP model into sparse/ and images/";
   }
-  std::string Version() const override { return "2"; }  // 2: photos screened, max_image_size, transforms/llff
+  // 2: photos screened, max_image_size, transforms/llff; 3: splits, alpha composited
+  std::string Version() const override { return "3"; }
   HoldoutRole Role() const override { return HoldoutRole::kAllViews; }
 
   std::vector<ParamSpec> Parameters() const override {
@@ -147,6 +172,21 @@ class ImportStage : public Stage {
         {"focal_prior", ParamType::kDouble, "1.2", "Focal length without EXIF, times max(width, height); > 0"},
         {"folder_camera_model", ParamType::kString, "SIMPLE_RADIAL", "Camera model for a plain image folder",
          {"SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV"}},
+        {"splits", ParamType::kStringList, "[train, test]",
+         "transforms: the splits read (Blender layout transforms_<split>.json, nerfstudio *_filenames); train "
+         "needed; hold one out with holdout: {split: test}",
+         {}},
+        {"alpha", ParamType::kString, "composite",
+         "photos with alpha: composite (colour over `background`, alpha to alpha/), mask (alpha to alpha/, colour as "
+         "stored) or ignore",
+         kAlphaNames},
+        {"background", ParamType::kString, "white",
+         "colour transparent pixels are composited on: white, black or [r, g, b] (0-255); render fills holes with it",
+         {},
+         /*affects_result=*/true,
+         /*list_as_text=*/true},
+        {"alpha_premultiplied", ParamType::kBool, "false",
+         "the photos' colour is already multiplied by alpha (PNG's is not: straight alpha)", {}},
         {"cameras", ParamType::kString, "\"\"",
          "Plain folder: a COLMAP cameras.txt whose camera every photo takes (calibrate's calibration/cameras.txt; "
          "workspace-relative unless absolute); empty: from EXIF and focal_prior"},
@@ -157,6 +197,13 @@ class ImportStage : public Stage {
     std::string error;
     if (!ToOptions(params).Check(&error)) return ParamError::FromCheck(error);
     if (params.Int("llff_downscale") < 1) return ParamError{"llff_downscale", "must be >= 1"};
+    cv::Vec3b colour;
+    if (!ParseBackgroundColor(params.String("background"), &colour, &error)) return ParamError{"background", error};
+    for (const std::string& split : params.StringList("splits")) {
+      if (split != "train" && split != "val" && split != "test") {
+        return ParamError{"splits", "each must be train, val or test, got \"" + split + "\""};
+      }
+    }
     const int64_t max_size = params.Int("max_image_size");
     if (max_size != 0 && (max_size < 16 || max_size > 100000)) {
       return ParamError{"max_image_size", "must be 0 (keep) or in [16, 100000], got " + std::to_string(max_size)};
@@ -174,7 +221,7 @@ class ImportStage : public Stage {
   }
   ModelFolders WritesModel() const override { return {"sparse", "images"}; }
   std::vector<std::string> Outputs(const StageContext&) const override {
-    return {"images", "sparse", "image_list.txt"};
+    return {"images", "sparse", "image_list.txt", kAlphaFolder, kSplitsFile, kBackgroundFile};
   }
 
   void Run(StageContext& context) const override {
@@ -185,7 +232,29 @@ class ImportStage : public Stage {
     if (options.format == ImportFormat::kAuto) options.format = DetectFormat(source);
     Capture capture = ReadCapture(source, options, context.params, CalibratedCamera(context));
     const size_t resized = LimitImageSize(&capture, static_cast<int>(context.params.Int("max_image_size")));
-    CopyImages(capture, context);
+    const size_t with_alpha = CopyImages(capture, options, context);
+    WriteImageSplits(context.workspace, capture.splits);
+    // The background the photos show where they were transparent: every model's holes take it.
+    std::optional<CaptureBackground> background;
+    if (with_alpha > 0 && options.alpha == AlphaMode::kComposite) {
+      background = CaptureBackground{options.background, "import.background " + context.params.String("background") +
+                                                             " (alpha composited)"};
+    }
+    WriteCaptureBackground(context.workspace, background);
+    if (with_alpha > 0) {
+      context.metrics["alpha_images"] = with_alpha;
+      context.metrics["alpha"] = context.params.String("alpha");
+      spdlog::info("[import] {} photos with alpha: {}{}", with_alpha, context.params.String("alpha"),
+                   background ? " on " + context.params.String("background") + ", alpha in alpha/" : "");
+    }
+    if (!capture.splits.empty()) {
+      std::map<std::string, int> counts;
+      for (const auto& [name, split] : capture.splits) ++counts[split];
+      context.metrics["splits"] = counts;
+      std::string text;
+      for (const auto& [split, count] : counts) text += (text.empty() ? "" : ", ") + split + " " + std::to_string(count);
+      spdlog::info("[import] splits: {} (holdout: {{split: test}} holds the test split out)", text);
+    }
     if (resized > 0) {
       context.metrics["resized_images"] = resized;
       spdlog::info("[import] {} images resampled to at most {} px", resized, context.params.Int("max_image_size"));
@@ -221,6 +290,11 @@ class ImportStage : public Stage {
     options.format = static_cast<ImportFormat>(std::find(kFormatNames.begin(), kFormatNames.end(), format) - kFormatNames.begin());
     options.focal_prior = params.Double("focal_prior");
     options.folder_camera_model = params.String("folder_camera_model");
+    const std::string& alpha = params.String("alpha");
+    options.alpha = alpha == "mask" ? AlphaMode::kMask : alpha == "ignore" ? AlphaMode::kIgnore : AlphaMode::kComposite;
+    std::string error;
+    ParseBackgroundColor(params.String("background"), &options.background, &error);  // checked in CheckParams
+    options.alpha_premultiplied = params.Bool("alpha_premultiplied");
     return options;
   }
 
@@ -239,6 +313,7 @@ class ImportStage : public Stage {
     nlohmann::json skipped = nlohmann::json::object();    // photo -> why it was left out
     nlohmann::json converted = nlohmann::json::object();  // photo -> what reading it converts
     nlohmann::json depth_bounds = nlohmann::json::object();  // LLFF: photo -> {near, far}
+    ImageSplits splits;  // transforms: photo -> train / val / test
   };
 
   Capture ReadCapture(const std::string& source, const ImportOptions& options, const Params& params,
@@ -252,14 +327,19 @@ class ImportStage : public Stage {
         capture.model = ReadStrecha(source, capture.image_dir);
         break;
       case ImportFormat::kTransforms: {
-        // nerfstudio / instant-ngp transforms.json, or the Blender layout's transforms_train.json
-        // (its test and val splits are other files; hold views out with `holdout` instead).
-        const fs::path json = fs::exists(fs::path(source) / "transforms.json") ? fs::path(source) / "transforms.json"
-                                                                              : fs::path(source) / "transforms_train.json";
-        std::vector<std::string> names;
-        capture.model = ParseTransformsJson(ReadFile(json.string()), json.string(),
-                                            [&](const std::string& image) { return ImageSize(source + "/" + image); },
-                                            &names);
+        // nerfstudio / instant-ngp transforms.json, or the Blender layout's transforms_<split>.json,
+        // each photo's size read once.
+        std::map<std::string, std::pair<int, int>> sizes;
+        const auto size_of = [&](const std::string& image) {
+          auto it = sizes.find(image);
+          if (it != sizes.end()) return it->second;
+          const std::string path = source + "/" + image;
+          if (!fs::exists(path)) throw InputError(path + ": no such photo");
+          return sizes[image] = ImageSize(path);
+        };
+        SplitCapture read = ReadTransformsCapture(source, params.StringList("splits"), size_of);
+        capture.model = std::move(read.model);
+        capture.splits = std::move(read.splits);
         break;
       }
       case ImportFormat::kLlff: {
@@ -368,7 +448,7 @@ class ImportStage : public Stage {
       const std::string path = source + "/" + name;
       std::string notes;
       std::pair<int, int> size;
-      std::string reason = ScreenPhoto(path, &notes, &size);
+      std::string reason = ScreenPhoto(path, options.alpha, &notes, &size);
       if (reason.empty()) {
         const std::string hash = HashPath(path);
         const auto [it, fresh] = first_with_hash.emplace(hash, name);
@@ -449,21 +529,51 @@ class ImportStage : public Stage {
     return resized;
   }
 
-  void CopyImages(const Capture& capture, const StageContext& context) const {
+  // Places every photo in images/ (a hard link where it is used as it is) and, for photos with an
+  // alpha channel (import.alpha not ignore), writes the alpha to alpha/<name>.png and the colour
+  // composited over the background (composite). Returns how many photos had an alpha channel.
+  size_t CopyImages(const Capture& capture, const ImportOptions& options, const StageContext& context) const {
     const fs::path target = context.workspace.ImagesDir();
+    const fs::path alpha_dir = context.workspace.Path(kAlphaFolder);
     fs::create_directories(target);
+    fs::remove_all(alpha_dir);  // an earlier import's alpha would not match these photos
+    fs::create_directories(alpha_dir);  // a declared output: empty for photos without alpha
+    size_t with_alpha = 0;
     for (const std::string& name : capture.names) {
       const fs::path from = fs::path(capture.image_dir) / name;
       if (!fs::exists(from)) throw InputError(from.string() + ": image named in the camera file is missing");
       fs::create_directories((target / name).parent_path());  // transforms.json paths may hold folders
       const auto resize = capture.resize_to.find(name);
-      if (resize == capture.resize_to.end()) {
+      const bool alpha = options.alpha != AlphaMode::kIgnore && FileHasAlpha(from.string());
+      if (resize == capture.resize_to.end() && !alpha) {
         PlaceImage(from, target / name);
         continue;
       }
-      cv::Mat image = ReadImageColor(from.string());
-      cv::resize(image, image, resize->second, 0, 0, cv::INTER_AREA);
+      cv::Mat image, alpha_image;
+      if (alpha) {
+        ++with_alpha;
+        AlphaComposite composite;
+        try {
+          composite = CompositeOverBackground(DecodeImageFile(from.string(), cv::IMREAD_UNCHANGED), options.background,
+                                              options.alpha_premultiplied);
+        } catch (const std::invalid_argument& e) {
+          throw InputError(from.string() + ": " + e.what() + "; set import.alpha: ignore to use its colour only");
+        }
+        image = options.alpha == AlphaMode::kComposite ? composite.bgr : ReadImageColor(from.string());
+        alpha_image = composite.alpha;
+      } else {
+        image = ReadImageColor(from.string());
+      }
+      if (resize != capture.resize_to.end()) {
+        cv::resize(image, image, resize->second, 0, 0, cv::INTER_AREA);
+        if (alpha) cv::resize(alpha_image, alpha_image, resize->second, 0, 0, cv::INTER_AREA);
+      }
       WriteImage((target / name).string(), image);  // atomic
+      if (alpha) {
+        const fs::path alpha_path = alpha_dir / (name + ".png");
+        fs::create_directories(alpha_path.parent_path());
+        WriteImage(alpha_path.string(), alpha_image);
+      }
     }
     // Images of an earlier import that are not part of this one would confuse later stages.
     for (const auto& entry : fs::directory_iterator(target)) {
@@ -473,6 +583,7 @@ class ImportStage : public Stage {
       });
       if (!used) fs::remove_all(entry.path());
     }
+    return with_alpha;
   }
 };
 

@@ -43,6 +43,10 @@ SparseModel RunImport(const std::string& source, const std::string& workspace, i
   context.params.Set("folder_camera_model", std::string("SIMPLE_RADIAL"));
   context.params.Set("max_image_size", max_image_size);
   context.params.Set("llff_downscale", int64_t{1});
+  context.params.Set("splits", std::vector<std::string>{"train", "test"});
+  context.params.Set("alpha", std::string("composite"));
+  context.params.Set("background", std::string("white"));
+  context.params.Set("alpha_premultiplied", false);
   NullProgress progress;
   context.progress = &progress;
   EXPECT_FALSE(stage->CheckParams(context.params).has_value());

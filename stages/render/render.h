@@ -164,6 +164,11 @@ ProxySurface HitsOf(const RenderResult& fine);
 // take the background's where it is covered; pixels the model covers less than half of (alpha below
 // 128) count as uncovered here.
 RenderResult FillHoles(const RenderResult& model, const RenderResult& background);
+// A model's render over a known background colour (a capture composited on white, issue
+// "Captures as people download them"): every pixel covered, a partly covered one blended by its
+// coverage as the composited photo blends its alpha (the render is premultiplied: colour over
+// black), so that the figures over the whole image measure the model, not the background.
+RenderResult FillWithColour(const RenderResult& model, const cv::Vec3b& background_bgr);
 
 // The renderer: prepares per-source projection data once, then renders any number of views.
 class UlrRenderer {

@@ -12,7 +12,10 @@
 // view's coverage, sources, files), the primary's copies as renders/<stem>.png and .coverage.png,
 // and renders/renders.json. With `background: plane`, every other model's holes are also filled
 // from the plane model's render of the view (drawn once: the plane model takes it) in
-// <stem>.filled.png and .filled.coverage.png, scored apart (a view rendered without a fill loses
+// <stem>.filled.png and .filled.coverage.png, scored apart; with `background: capture` (`auto`'s
+// choice where import composited the photos on a colour, background.json), every model's render
+// is composited over that colour instead, so that its filled scores are figures over the whole
+// image as the published protocols give them (a view rendered without a fill loses
 // such files of an earlier run). Two views with one stem, or two models with one name, are refused.
 #include <spdlog/spdlog.h>
 #include <tbb/parallel_for.h>
@@ -25,6 +28,7 @@
 #include <set>
 
 #include "pipeline/core/atomic_file.h"
+#include "pipeline/core/capture_info.h"
 #include "pipeline/core/errors.h"
 #include "pipeline/core/image_io.h"
 #include "pipeline/core/per_view.h"
@@ -102,6 +106,9 @@ class RenderStage : public Stage {
   // depend on where the workspace sits (a sweep's variants, a copy, a cluster's mount point).
   std::vector<std::string> Inputs(const StageContext& context) const override {
     std::vector<std::string> inputs = {context.workspace.ImagesRelative(), context.workspace.SparseRelative()};
+    if (context.params.String("background") == "auto" || context.params.String("background") == "capture") {
+      inputs.push_back(kBackgroundFile);
+    }
     for (const auto& model : Models(context)) {
       for (const std::string& input : model->Inputs(context)) {
         if (std::find(inputs.begin(), inputs.end(), input) == inputs.end()) inputs.push_back(input);
@@ -121,16 +128,33 @@ class RenderStage : public Stage {
     }
     return models;
   }
-  // The photographed views to render: render.views, else the held-out ones.
+  // The photographed views to render: render.views, else the held-out ones (those scored, where
+  // the holdout policy scores a subset of them).
   static std::vector<std::string> PhotoViewNames(const StageContext& context) {
     std::vector<std::string> names = context.params.StringList("views");
-    if (names.empty()) names.assign(context.heldout_images.begin(), context.heldout_images.end());
-    return names;
+    if (!names.empty()) return names;
+    const std::set<std::string>& views = context.scored_heldout.empty() ? context.heldout_images : context.scored_heldout;
+    return std::vector<std::string>(views.begin(), views.end());
+  }
+  // The colour every model's holes take (render.background capture, or auto where the capture
+  // has one); nullopt: the plane's render or nothing fills them.
+  static std::optional<cv::Vec3b> CaptureColour(const StageContext& context) {
+    const std::string& mode = context.params.String("background");
+    if (mode != "auto" && mode != "capture") return std::nullopt;
+    const std::optional<CaptureBackground> background = ReadCaptureBackground(context.workspace);
+    if (!background && mode == "capture") {
+      throw InputError("render.background: capture: the capture has no background colour (" +
+                       context.workspace.Path(kBackgroundFile) +
+                       " absent or empty: its photos had no alpha to composite); use plane or none");
+    }
+    if (!background) return std::nullopt;
+    return background->bgr;
   }
   // Draws every desired view with `model`, writes their files and returns renders.json's entry.
   static nlohmann::json RenderModelViews(StageContext& context, const RenderScene& scene, const RenderModel& model,
                                          const std::vector<DesiredView>& desired, bool is_primary,
-                                         const std::map<std::string, DrawnView>& background, ShardFinished* shard_done);
+                                         const std::map<std::string, DrawnView>& background,
+                                         const std::optional<cv::Vec3b>& colour, ShardFinished* shard_done);
 };
 
 std::vector<ParamSpec> RenderStage::Parameters() const {
@@ -158,8 +182,11 @@ std::vector<ParamSpec> RenderStage::Parameters() const {
        {}},
       {"supersample", ParamType::kInt, "1", "sub-samples per pixel side, box-filtered (anti-aliased silhouettes), in [1, 4]",
        {}},
-      {"background", ParamType::kString, "plane",
-       "fills every model's holes in a second image <view>.filled.png, scored apart: plane (the plane proxy) or none", {}},
+      {"background", ParamType::kString, "auto",
+       "fills every model's holes in a second image <view>.filled.png, scored apart: capture (the colour import "
+       "composited transparent photos on, background.json), plane (the plane proxy), none, or auto (capture where "
+       "the capture has one, else plane)",
+       {}},
       {"novel_look_at", ParamType::kDoubleList, "[]",
        "extra camera: eye x y z, target x y z [, up x y z] (intrinsics of the first training view); rendered as "
        "novel.png",
@@ -179,12 +206,12 @@ std::optional<ParamError> RenderStage::CheckParams(const Params& params) const {
   }
   const std::string background = params.String("background");
   // The background is drawn by the model its value names, one that can serve as one (the plane).
-  bool serves = background == "none";
+  bool serves = background == "none" || background == "capture" || background == "auto";
   try {
     serves = serves || MakeRenderModel(background, Workspace("."))->IsBackground();
   } catch (const InputError&) {
   }
-  if (!serves) return ParamError{"background", "must be plane or none, got \"" + background + "\""};
+  if (!serves) return ParamError{"background", "must be auto, capture, plane or none, got \"" + background + "\""};
   if (params.Int("supersample") < 1 || params.Int("supersample") > 4) {
     return ParamError{"supersample", "must be in [1, 4], got " + std::to_string(params.Int("supersample"))};
   }
@@ -221,8 +248,13 @@ void RenderStage::Run(StageContext& context) const {
   // memory only (no per-view checkpoint: a resumed run needs it for every view it renders). A
   // background that cannot be placed (no sparse points, parallel axes) fills nothing.
   std::map<std::string, DrawnView> background;
-  if (context.params.String("background") != "none") {
-    std::unique_ptr<RenderModel> model = MakeRenderModel(context.params.String("background"), context.workspace);
+  const std::optional<cv::Vec3b> colour = CaptureColour(context);
+  if (colour) {
+    spdlog::info("[render] holes filled with the capture's background (B, G, R) = ({}, {}, {})", (*colour)[0], (*colour)[1],
+                 (*colour)[2]);
+  } else if (context.params.String("background") != "none") {
+    const std::string& mode = context.params.String("background");
+    std::unique_ptr<RenderModel> model = MakeRenderModel(mode == "auto" ? "plane" : mode, context.workspace);
     nlohmann::json facts;
     bool prepared = false;
     try {
@@ -272,7 +304,7 @@ void RenderStage::Run(StageContext& context) const {
     context.metrics["prepare_seconds_" + model->Name()] = SecondsSince(start);
     const bool is_primary = primary.empty();
     if (is_primary) primary = model->Name();
-    nlohmann::json pj = RenderModelViews(context, scene, *model, desired, is_primary, background, &shard_done);
+    nlohmann::json pj = RenderModelViews(context, scene, *model, desired, is_primary, background, colour, &shard_done);
     pj.update(facts);
     models_json.push_back(pj);
     model->AddMetrics(&context.metrics);
@@ -299,7 +331,7 @@ void RenderStage::Run(StageContext& context) const {
 nlohmann::json RenderStage::RenderModelViews(StageContext& context, const RenderScene& scene, const RenderModel& model,
                                              const std::vector<DesiredView>& desired, bool is_primary,
                                              const std::map<std::string, DrawnView>& background,
-                                             ShardFinished* shard_done) {
+                                             const std::optional<cv::Vec3b>& colour, ShardFinished* shard_done) {
   const std::string name = model.Name();
   if (scene.exclude_self && model.MadeFromEveryPhoto()) {
     std::string in_model;
@@ -345,8 +377,8 @@ nlohmann::json RenderStage::RenderModelViews(StageContext& context, const Render
                          {"coverage", static_cast<double>(result.covered_pixels) /
                                           (static_cast<double>(view.camera.width) * view.camera.height)}};
     vj.update(drawn.facts);
-    if (!model.IsBackground() && fill != background.end()) {
-      const RenderResult filled = FillHoles(result, fill->second.result);
+    if (colour || (!model.IsBackground() && fill != background.end())) {
+      const RenderResult filled = colour ? FillWithColour(result, *colour) : FillHoles(result, fill->second.result);
       WriteImage(folder + "/" + view.stem + ".filled.png", filled.image);
       WriteImage(folder + "/" + view.stem + ".filled.coverage.png", filled.coverage);
       vj["filled"] = "renders/" + name + "/" + view.stem + ".filled.png";

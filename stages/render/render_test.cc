@@ -569,6 +569,28 @@ TEST(Downsample, PartlyCoveredPixelsKeepTheirShareAndLessThanHalfIsFilled) {
   EXPECT_EQ(cv::countNonZero(filled.coverage == 255), 4);
 }
 
+// A capture composited on a colour (import.alpha composite): every model's render goes over that
+// colour as the photos' alpha went over it: holes take it, covered pixels keep their colour, a
+// partly covered one (premultiplied, coverage as alpha) blends as the composited photo does.
+TEST(FillWithColour, HolesTakeTheCapturesBackgroundAndEdgesBlendByCoverage) {
+  RenderResult render;
+  render.image = cv::Mat(1, 3, CV_8UC3, cv::Scalar::all(0));
+  render.coverage = cv::Mat(1, 3, CV_8UC1, cv::Scalar::all(0));
+  render.image.at<cv::Vec3b>(0, 0) = cv::Vec3b(10, 20, 30);  // covered
+  render.coverage.at<uint8_t>(0, 0) = 255;
+  render.image.at<cv::Vec3b>(0, 1) = cv::Vec3b(25, 25, 25);  // a quarter covered by a colour of 100
+  render.coverage.at<uint8_t>(0, 1) = 64;
+  render.covered_pixels = 2;
+  for (const cv::Vec3b colour : {cv::Vec3b(255, 255, 255), cv::Vec3b(0, 0, 0), cv::Vec3b(40, 80, 120)}) {
+    const RenderResult filled = FillWithColour(render, colour);
+    EXPECT_EQ(filled.image.at<cv::Vec3b>(0, 0), cv::Vec3b(10, 20, 30));
+    EXPECT_EQ(filled.image.at<cv::Vec3b>(0, 2), colour) << "a hole takes the background";
+    for (int c = 0; c < 3; ++c) EXPECT_NEAR(filled.image.at<cv::Vec3b>(0, 1)[c], 25 + colour[c] * 191.0 / 255, 0.51);
+    EXPECT_EQ(filled.covered_pixels, 3u);
+    EXPECT_EQ(cv::countNonZero(filled.coverage == 255), 3);
+  }
+}
+
 TEST(ProxyPlane, MeanInverseDepthAndNearestToAxes) {
   const Rigid3d cam = LookAt(Eigen::Vector3d(0, 0, 5), Eigen::Vector3d::Zero(), Eigen::Vector3d(0, 1, 0));
   Plane plane;

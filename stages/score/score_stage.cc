@@ -250,6 +250,10 @@ class ScoreStage : public Stage {
                            {"mean_excluding_near", Mean(views, [&](const nlohmann::json& v) { return !is_near(v); })},
                            {"mean_near", Mean(views, is_near)}};
       context.metrics[name] = pj["mean"];
+      if (pj["mean"].contains("filled_psnr")) {
+        spdlog::info("[score] {}: holes filled (render.background): PSNR {:.2f} dB over {:.3f} of the image", name,
+                     pj["mean"].value("filled_psnr", 0.0), pj["mean"].value("filled_coverage", 0.0));
+      }
       spdlog::info("[score] {}: mean PSNR {:.2f} dB, SSIM {:.3f}, coverage {:.3f}; lit photo pixels (holes black) "
                    "{:.2f} dB, covered {:.3f}; over {} views",
                    name, pj["mean"].value("psnr", 0.0), pj["mean"].value("ssim", 0.0), pj["mean"].value("coverage", 0.0),

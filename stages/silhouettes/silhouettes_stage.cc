@@ -10,6 +10,7 @@
 #include <filesystem>
 
 #include "pipeline/core/atomic_file.h"
+#include "pipeline/core/capture_info.h"
 #include "pipeline/core/errors.h"
 #include "pipeline/core/image_io.h"
 #include "pipeline/core/per_view.h"
@@ -23,7 +24,7 @@ namespace ibmr {
 
 namespace {
 
-const std::vector<std::string> kModeNames = {"threshold", "background", "user"};
+const std::vector<std::string> kModeNames = {"threshold", "background", "user", "alpha"};
 const char kHeldoutMasksDir[] = "heldout/masks";
 
 nlohmann::json ReportJson(const SilhouetteReport& report) {
@@ -61,13 +62,14 @@ class SilhouettesStage : public Stage {
   std::string Summary() const override {
     return "foreground masks (threshold+morphology+components, background difference, user masks) into masks/";
   }
-  std::string Version() const override { return "1"; }
+  std::string Version() const override { return "2"; }  // 2: mode alpha
   HoldoutRole Role() const override { return HoldoutRole::kScoring; }
 
   std::vector<ParamSpec> Parameters() const override {
     return {
         {"mode", ParamType::kString, "threshold",
-         "threshold: max(R,G,B) > threshold; background: difference to `background`; user: copy `mask_folder`",
+         "threshold: max(R,G,B) > threshold; background: difference to `background`; user: copy `mask_folder`; alpha: "
+         "the photos' alpha > 0.5 (import's alpha/)",
          kModeNames},
         {"threshold", ParamType::kDouble, "0.19", "intensity or difference threshold, fraction of full scale, in [0, 1)"},
         {"dilate_px", ParamType::kInt, "10", "dilation disc radius in pixels, in [0, 200]"},
@@ -109,7 +111,7 @@ class SilhouettesStage : public Stage {
     std::vector<std::string> inputs = {context.workspace.ImagesRelative(), context.workspace.SparseRelative()};
     const std::string& mode = context.params.String("mode");
     if (mode == "background") inputs.push_back(context.params.String("background"));
-    if (mode == "user") inputs.push_back(MaskFolderInput(context));
+    if (mode == "user" || mode == "alpha") inputs.push_back(MaskFolderInput(context));
     return inputs;
   }
   std::vector<std::string> Outputs(const StageContext&) const override { return {"masks", kHeldoutMasksDir}; }
@@ -145,6 +147,11 @@ class SilhouettesStage : public Stage {
       cv::Mat input;
       std::string input_path;
       if (options.mode == SilhouetteMode::kUserMask) {
+        if (context.params.String("mode") == "alpha" && !fs::exists(mask_folder + "/" + name + ".png")) {
+          throw InputError("silhouettes.mode: alpha: no alpha for view " + name + " (" + mask_folder + "/" + name +
+                           ".png): its photo had no alpha channel, or import.alpha was ignore; use mode threshold, "
+                           "background or user");
+        }
         input_path = FindUserMask(mask_folder, name);
         input = ReadImageUnchanged(input_path);
         if (input.depth() != CV_8U) input.convertTo(input, CV_8U, input.depth() == CV_16U ? 1.0 / 257.0 : 255.0);
@@ -215,9 +222,9 @@ class SilhouettesStage : public Stage {
   static SilhouetteOptions ToOptions(const Params& params) {
     SilhouetteOptions options;
     const std::string& mode = params.String("mode");
-    options.mode = mode == "background" ? SilhouetteMode::kBackground
-                   : mode == "user"     ? SilhouetteMode::kUserMask
-                                        : SilhouetteMode::kThreshold;
+    options.mode = mode == "background"                   ? SilhouetteMode::kBackground
+                   : mode == "user" || mode == "alpha" ? SilhouetteMode::kUserMask  // alpha: user masks import wrote
+                                                       : SilhouetteMode::kThreshold;
     options.threshold = params.Double("threshold");
     options.dilate_px = static_cast<int>(std::clamp<int64_t>(params.Int("dilate_px"), -1, 100000));
     options.erode_px = static_cast<int>(std::clamp<int64_t>(params.Int("erode_px"), -1, 100000));
@@ -229,12 +236,14 @@ class SilhouettesStage : public Stage {
 
   // mask_folder: "workspace:<relative>" names a workspace folder; otherwise an absolute path.
   static std::string MaskFolder(const StageContext& context) {
+    if (context.params.String("mode") == "alpha") return context.workspace.Path(kAlphaFolder);
     const std::string& value = context.params.String("mask_folder");
     const size_t prefix = value.find("workspace:");
     if (prefix != std::string::npos) return context.workspace.Path(value.substr(prefix + 10));
     return value;
   }
   static std::string MaskFolderInput(const StageContext& context) {
+    if (context.params.String("mode") == "alpha") return kAlphaFolder;
     const std::string& value = context.params.String("mask_folder");
     const size_t prefix = value.find("workspace:");
     return prefix != std::string::npos ? value.substr(prefix + 10) : value;

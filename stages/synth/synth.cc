@@ -234,6 +234,7 @@ SynthView RenderSynthView(const SynthScene& scene, int view_index, const SynthOp
   const int width = camera.width, height = camera.height;
   std::vector<Eigen::Vector3d> sum(static_cast<size_t>(width) * height, Eigen::Vector3d::Zero());
   std::vector<int> foreground_samples(sum.size(), 0);
+  std::vector<Eigen::Vector3d> foreground_sum(sum.size(), Eigen::Vector3d::Zero());
   for (int y = 0; y < fine.height; ++y) {
     for (int x = 0; x < fine.width; ++x) {
       const size_t pixel = static_cast<size_t>(y / s) * width + x / s;
@@ -252,16 +253,21 @@ SynthView RenderSynthView(const SynthScene& scene, int view_index, const SynthOp
       const int part = scene.face_part[face];
       if (!scene.parts[part].smooth || !(normal.norm() > 1e-12)) normal = face_normals[face];
       normal.normalize();
-      sum[pixel] += SurfaceRadiance(scene, part, point, normal);
+      Eigen::Vector3d radiance = SurfaceRadiance(scene, part, point, normal);
       const double highlight = scene.degradation.Highlight(normal, scene.light_direction, eye - point);
-      if (highlight > 0) sum[pixel] += Eigen::Vector3d::Constant(highlight);
-      if (scene.parts[part].foreground) ++foreground_samples[pixel];
+      if (highlight > 0) radiance += Eigen::Vector3d::Constant(highlight);
+      sum[pixel] += radiance;
+      if (scene.parts[part].foreground) {
+        ++foreground_samples[pixel];
+        foreground_sum[pixel] += radiance;
+      }
     }
   }
 
   SynthView result;
   result.image.create(height, width, CV_8UC3);
   result.mask.create(height, width, CV_8UC1);
+  result.rgba.create(height, width, CV_8UC4);
   GaussianSource gaussian(Mix64(static_cast<uint64_t>(options.seed) * 0x9E3779B1ull + view_index + 1));
   const double samples = static_cast<double>(s) * s;
   const double gain = scene.degradation.Gain(view_index);
@@ -276,6 +282,12 @@ SynthView RenderSynthView(const SynthScene& scene, int view_index, const SynthOp
         const double noise = sigma > 0 ? sigma * gaussian.Next() : 0.0;
         bgr[2 - c] = ToByte(rgb[c] + noise);
       }
+      const int hits = foreground_samples[pixel];
+      cv::Vec4b& bgra = result.rgba.at<cv::Vec4b>(y, x);
+      bgra[3] = ToByte(255.0 * hits / samples);
+      const Eigen::Vector3d straight = hits > 0 ? Eigen::Vector3d(foreground_sum[pixel] * (255.0 * gain / hits))
+                                                : Eigen::Vector3d::Zero();
+      for (int c = 0; c < 3; ++c) bgra[2 - c] = ToByte(straight[c]);
       const bool foreground = 2 * foreground_samples[pixel] >= s * s;
       result.mask.at<uint8_t>(y, x) = foreground ? 255 : 0;
       foreground_pixels += foreground;

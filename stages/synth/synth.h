@@ -135,6 +135,9 @@ Eigen::Vector3d SurfaceRadiance(const SynthScene& scene, int part, const Eigen::
 struct SynthView {
   cv::Mat image;   // CV_8UC3, BGR
   cv::Mat mask;    // CV_8UC1, 255 where >= half of the sub-samples hit a foreground part, else 0
+  cv::Mat rgba;    // CV_8UC4 BGRA, the foreground alone as a photo on a transparent background: alpha
+                   // the fraction of sub-samples on a foreground part, colour their mean (straight,
+                   // not premultiplied; no image noise), 0 where alpha is 0
   DepthMap depth;  // z depth at native pixel centres, 0 where no surface
   double foreground_fraction = 0.0;  // fraction of mask pixels set
 };
