@@ -366,7 +366,10 @@ void BackwardSplats(const GaussianSplats& splats, const SplatCamera& camera, con
       const Eigen::Vector3f d_mu_camera = d_h.col(2);
       gradients->position[i] += camera.rotation.transpose() * d_mu_camera;
       const float z = frame.view_depth[i];
-      gradients->screen[i] += std::hypot(d_mu_camera.x() * z / camera.fx, d_mu_camera.y() * z / camera.fy);
+      // As 3DGS measures it: the gradient of the projected centre in normalised device
+      // coordinates (x in [-1, 1] across the width), which does not change with the resolution.
+      gradients->screen[i] += std::hypot(d_mu_camera.x() * z / camera.fx * 0.5f * camera.width,
+                                         d_mu_camera.y() * z / camera.fy * 0.5f * camera.height);
       const Eigen::Vector4f q_raw = splats.rotation[i];
       const float q_norm = q_raw.norm();
       const Eigen::Vector4f q = q_raw / q_norm;

@@ -90,7 +90,8 @@ struct SplatGradients {
   std::vector<Eigen::Vector2f> log_scale;
   std::vector<float> opacity_logit;
   std::vector<float> sh;
-  std::vector<float> screen;  // |d loss / d projected centre| (pixels), for density control
+  std::vector<float> screen;  // |d loss / d projected centre| in normalised device coordinates
+                              // (3DGS's density statistic; the same at any resolution)
   void Reset(const GaussianSplats& splats);  // sized to the splats, zero
 };
 

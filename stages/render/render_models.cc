@@ -14,7 +14,8 @@
   X(Textured)                      \
   X(Vdtm)                          \
   X(Layers)                        \
-  X(Volume)
+  X(Volume)                        \
+  X(SplatFit)
 
 namespace ibmr {
 

@@ -1,0 +1,356 @@
+// The splat fit: Adam on the re-synthesis error with density control (see splat_fit.h).
+#include "stages/splat_fit/splat_fit.h"
+
+#include <Eigen/Geometry>
+#include <tbb/parallel_for.h>
+#include <tbb/parallel_reduce.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <numeric>
+#include <opencv2/imgproc.hpp>
+#include <random>
+#include <stdexcept>
+
+namespace ibmr {
+
+bool SplatFitOptions::Check(std::string* error) const {
+  const auto fail = [&](const std::string& message) {
+    *error = message;
+    return false;
+  };
+  if (iterations < 1) return fail("iterations: must be >= 1");
+  if (sh_degree < 0 || sh_degree > 3) return fail("sh_degree: must be in [0, 3]");
+  if (sh_every < 1) return fail("sh_every: must be >= 1");
+  if (!(coarse_fraction >= 0 && coarse_fraction <= 1)) return fail("coarse_fraction: must be in [0, 1]");
+  for (const auto& [key, value] : std::vector<std::pair<const char*, double>>{{"lr_position", lr_position},
+                                                                             {"lr_position_final", lr_position_final},
+                                                                             {"lr_rotation", lr_rotation},
+                                                                             {"lr_scale", lr_scale},
+                                                                             {"lr_opacity", lr_opacity},
+                                                                             {"lr_sh_dc", lr_sh_dc},
+                                                                             {"lr_sh_rest", lr_sh_rest}}) {
+    if (!(value >= 0 && value < 10)) return fail(std::string(key) + ": must be in [0, 10)");
+  }
+  if (densify_every < 1) return fail("densify_every: must be >= 1");
+  if (densify_from < 0) return fail("densify_from: must be >= 0");
+  if (!(densify_until >= 0 && densify_until <= 1)) return fail("densify_until: must be in [0, 1]");
+  if (!(densify_gradient > 0)) return fail("densify_gradient: must be > 0");
+  if (!(dense_fraction > 0 && dense_fraction < 1)) return fail("dense_fraction: must be in (0, 1)");
+  if (!(prune_opacity >= 0 && prune_opacity < 1)) return fail("prune_opacity: must be in [0, 1)");
+  if (!(max_scale_fraction > 0 && max_scale_fraction <= 10)) return fail("max_scale_fraction: must be in (0, 10]");
+  if (max_splats < 1) return fail("max_splats: must be >= 1");
+  if (seed < 0) return fail("seed: must be >= 0");
+  return true;
+}
+
+double SceneExtent(const std::vector<SplatFitView>& views, double floor) {
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+  for (const SplatFitView& view : views) mean += view.camera.Centre().cast<double>();
+  mean /= std::max<size_t>(1, views.size());
+  double radius = 0;
+  for (const SplatFitView& view : views) radius = std::max(radius, (view.camera.Centre().cast<double>() - mean).norm());
+  return std::max(floor, 1.1 * radius);
+}
+
+void RaiseShDegree(int degree, GaussianSplats* splats) {
+  if (degree <= splats->sh_degree) return;
+  const int old_k = splats->ShCount();
+  const int new_k = (degree + 1) * (degree + 1);
+  std::vector<float> sh(splats->size() * new_k * 3, 0.0f);
+  for (size_t i = 0; i < splats->size(); ++i) {
+    std::copy(splats->sh.begin() + i * old_k * 3, splats->sh.begin() + (i + 1) * old_k * 3, sh.begin() + i * new_k * 3);
+  }
+  splats->sh = std::move(sh);
+  splats->sh_degree = degree;
+}
+
+namespace {
+
+float Sigmoid(float x) { return 1.0f / (1.0f + std::exp(-x)); }
+
+// Adam (Kingma & Ba 2015) over one flat array of parameters.
+struct Adam {
+  std::vector<float> m, v;
+  void Resize(size_t n) {
+    m.assign(n, 0.0f);
+    v.assign(n, 0.0f);
+  }
+  // One step on `x` with gradient `g` (both n floats), step size `lr`, at step `t` (1-based).
+  void Step(float* x, const float* g, size_t n, float lr, int t) {
+    constexpr float kBeta1 = 0.9f, kBeta2 = 0.999f, kEps = 1e-15f;
+    const float c1 = 1.0f - std::pow(kBeta1, static_cast<float>(t));
+    const float c2 = 1.0f - std::pow(kBeta2, static_cast<float>(t));
+    const float step = lr * std::sqrt(c2) / c1;
+    tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 1 << 14), [&](const tbb::blocked_range<size_t>& range) {
+      for (size_t i = range.begin(); i != range.end(); ++i) {
+        m[i] = kBeta1 * m[i] + (1.0f - kBeta1) * g[i];
+        v[i] = kBeta2 * v[i] + (1.0f - kBeta2) * g[i] * g[i];
+        x[i] -= step * m[i] / (std::sqrt(v[i]) + kEps);
+      }
+    });
+  }
+  // Keeps the state of the splats that remain, per `origin` (index before the pass or -1: zero),
+  // each splat `width` floats wide.
+  void Remap(const std::vector<int>& origin, size_t width) {
+    std::vector<float> new_m(origin.size() * width, 0.0f), new_v(origin.size() * width, 0.0f);
+    for (size_t i = 0; i < origin.size(); ++i) {
+      if (origin[i] < 0) continue;
+      std::copy_n(m.begin() + origin[i] * width, width, new_m.begin() + i * width);
+      std::copy_n(v.begin() + origin[i] * width, width, new_v.begin() + i * width);
+    }
+    m = std::move(new_m);
+    v = std::move(new_v);
+  }
+};
+
+struct Optimiser {
+  Adam position, rotation, scale, opacity, sh;
+  void Resize(const GaussianSplats& splats) {
+    position.Resize(splats.size() * 3);
+    rotation.Resize(splats.size() * 4);
+    scale.Resize(splats.size() * 2);
+    opacity.Resize(splats.size());
+    sh.Resize(splats.sh.size());
+  }
+};
+
+// The view at half resolution: the photo area-averaged, the camera scaled (pixel centres at +0.5
+// keep their meaning).
+SplatFitView HalfSize(const SplatFitView& view) {
+  SplatFitView half = view;
+  cv::resize(view.image, half.image, cv::Size(view.image.cols / 2, view.image.rows / 2), 0, 0, cv::INTER_AREA);
+  const float sx = static_cast<float>(half.image.cols) / view.image.cols;
+  const float sy = static_cast<float>(half.image.rows) / view.image.rows;
+  half.camera.width = half.image.cols;
+  half.camera.height = half.image.rows;
+  half.camera.fx *= sx;
+  half.camera.fy *= sy;
+  half.camera.cx *= sx;
+  half.camera.cy *= sy;
+  return half;
+}
+
+}  // namespace
+
+DensityCounts ControlDensity(const std::vector<float>& mean_screen_gradient, double extent, const SplatFitOptions& options,
+                             uint64_t seed, GaussianSplats* splats, std::vector<int>* origin) {
+  const size_t n = splats->size();
+  const int k3 = splats->ShCount() * 3;
+  (void)seed;
+  DensityCounts counts;
+  // Which to grow: above the threshold, the strongest first while the cap allows.
+  std::vector<size_t> grow;
+  for (size_t i = 0; i < n; ++i) {
+    if (mean_screen_gradient[i] >= options.densify_gradient) grow.push_back(i);
+  }
+  std::sort(grow.begin(), grow.end(), [&](size_t a, size_t b) { return mean_screen_gradient[a] > mean_screen_gradient[b]; });
+  const size_t room = options.max_splats > static_cast<int>(n) ? options.max_splats - n : 0;
+  if (grow.size() > room) grow.resize(room);
+  std::vector<uint8_t> action(n, 0);  // 1 clone, 2 split
+  for (size_t i : grow) {
+    const float radius = std::exp(splats->log_scale[i].maxCoeff());
+    action[i] = radius > options.dense_fraction * extent ? 2 : 1;
+  }
+  GaussianSplats out;
+  out.sh_degree = splats->sh_degree;
+  origin->clear();
+  const auto copy = [&](size_t i, int from) {
+    out.position.push_back(splats->position[i]);
+    out.rotation.push_back(splats->rotation[i]);
+    out.log_scale.push_back(splats->log_scale[i]);
+    out.opacity_logit.push_back(splats->opacity_logit[i]);
+    out.sh.insert(out.sh.end(), splats->Sh(i), splats->Sh(i) + k3);
+    origin->push_back(from);
+  };
+  for (size_t i = 0; i < n; ++i) {
+    const float opacity = Sigmoid(splats->opacity_logit[i]);
+    const float radius = std::exp(splats->log_scale[i].maxCoeff());
+    if (opacity < options.prune_opacity || radius > options.max_scale_fraction * extent) {
+      ++counts.pruned;
+      continue;
+    }
+    if (action[i] == 2) {
+      // Two discs along the longer axis at +-0.8 sigma, that axis's sigma times 0.6: the footprint's
+      // mean and variance are kept (0.6^2 + 0.8^2 = 1), so the image changes little until the
+      // gradient moves them apart (3DGS draws the two centres at random and divides both radii by
+      // 1.6, which loses a third of the footprint).
+      ++counts.splits;
+      const Eigen::Matrix3f r = RotationMatrix(splats->rotation[i]);
+      const int axis = splats->log_scale[i][0] >= splats->log_scale[i][1] ? 0 : 1;
+      const float sigma = std::exp(splats->log_scale[i][axis]);
+      for (const float side : {-1.0f, 1.0f}) {
+        copy(i, -1);
+        out.position.back() += r.col(axis) * (side * 0.8f * sigma);
+        out.log_scale.back()[axis] += std::log(0.6f);
+      }
+      continue;
+    }
+    copy(i, static_cast<int>(i));
+    if (action[i] == 1) {
+      ++counts.clones;
+      copy(i, -1);
+    }
+  }
+  *splats = std::move(out);
+  return counts;
+}
+
+SplatFitResult FitSplats(const std::vector<SplatFitView>& views, const Eigen::Vector3f& background,
+                         const SplatFitOptions& options, GaussianSplats* splats, ProgressReporter* progress) {
+  std::string error;
+  if (!options.Check(&error)) throw std::invalid_argument(error);
+  if (views.empty()) throw std::invalid_argument("no training view to fit the splats to");
+  if (splats->size() == 0) throw std::invalid_argument("no splat to start from");
+  NullProgress null_progress;
+  if (!progress) progress = &null_progress;
+  RaiseShDegree(options.sh_degree, splats);
+  SplatFitResult result;
+  result.extent = SceneExtent(views);
+  std::vector<SplatFitView> half;
+  const int coarse_steps = static_cast<int>(std::lround(options.coarse_fraction * options.iterations));
+  if (coarse_steps > 0) {
+    half.resize(views.size());
+    tbb::parallel_for(size_t{0}, views.size(), [&](size_t i) { half[i] = HalfSize(views[i]); });
+  }
+  Optimiser adam;
+  adam.Resize(*splats);
+  std::vector<float> screen_sum(splats->size(), 0.0f);
+  std::vector<int> screen_count(splats->size(), 0);
+  std::mt19937_64 rng(static_cast<uint64_t>(options.seed));
+  std::vector<size_t> order;
+  SplatFrame frame;
+  SplatGradients gradients;
+  cv::Mat d_image;
+  double window_l1 = 0, window_se = 0;
+  int window = 0;
+  const int densify_until = static_cast<int>(options.densify_until * options.iterations);
+  using Clock = std::chrono::steady_clock;
+  progress->Begin("splat fit", options.iterations);
+  for (int step = 1; step <= options.iterations; ++step) {
+    if (order.empty()) {
+      order.resize(views.size());
+      std::iota(order.begin(), order.end(), 0);
+      std::shuffle(order.begin(), order.end(), rng);
+    }
+    const size_t index = order.back();
+    order.pop_back();
+    const SplatFitView& view = step <= coarse_steps ? half[index] : views[index];
+    SplatRasterOptions raster;
+    raster.background = background;
+    raster.sh_degree = std::min(options.sh_degree, (step - 1) / options.sh_every);
+    auto start = Clock::now();
+    RenderSplats(*splats, view.camera, raster, &frame);
+    result.forward_seconds += std::chrono::duration<double>(Clock::now() - start).count();
+    result.megapixel_steps += view.image.total() / 1e6;
+    result.mean_splats += static_cast<double>(splats->size()) / options.iterations;
+    // L1: d loss / d pixel = sign(render - photo) / (3 pixels).
+    d_image.create(view.image.size(), CV_32FC3);
+    const float scale = 1.0f / (3.0f * view.image.total());
+    struct Sums {
+      double l1 = 0, se = 0;
+    };
+    const Sums sums = tbb::parallel_reduce(
+        tbb::blocked_range<int>(0, view.image.rows), Sums(),
+        [&](const tbb::blocked_range<int>& rows, Sums s) {
+          for (int y = rows.begin(); y != rows.end(); ++y) {
+            const cv::Vec3f* r = frame.image.ptr<cv::Vec3f>(y);
+            const cv::Vec3f* p = view.image.ptr<cv::Vec3f>(y);
+            cv::Vec3f* d = d_image.ptr<cv::Vec3f>(y);
+            for (int x = 0; x < view.image.cols; ++x) {
+              for (int c = 0; c < 3; ++c) {
+                const float e = r[x][c] - p[x][c];
+                d[x][c] = e > 0 ? scale : e < 0 ? -scale : 0.0f;
+                s.l1 += std::abs(e);
+                s.se += e * e;
+              }
+            }
+          }
+          return s;
+        },
+        [](Sums a, const Sums& b) {
+          a.l1 += b.l1;
+          a.se += b.se;
+          return a;
+        });
+    window_l1 += sums.l1 * scale;
+    window_se += sums.se * scale;
+    ++window;
+    start = Clock::now();
+    gradients.Reset(*splats);
+    BackwardSplats(*splats, view.camera, frame, d_image, &gradients);
+    result.backward_seconds += std::chrono::duration<double>(Clock::now() - start).count();
+    for (size_t i = 0; i < splats->size(); ++i) {
+      if (!frame.visible[i]) continue;
+      screen_sum[i] += gradients.screen[i];
+      ++screen_count[i];
+    }
+    // Adam, the position's step decaying exponentially from lr_position to lr_position_final.
+    const double t = static_cast<double>(step - 1) / std::max(1, options.iterations - 1);
+    const float lr_position = static_cast<float>(
+        result.extent * std::exp((1 - t) * std::log(options.lr_position) + t * std::log(options.lr_position_final)));
+    const size_t n = splats->size();
+    adam.position.Step(splats->position[0].data(), gradients.position[0].data(), n * 3, lr_position, step);
+    adam.rotation.Step(splats->rotation[0].data(), gradients.rotation[0].data(), n * 4, static_cast<float>(options.lr_rotation), step);
+    adam.scale.Step(splats->log_scale[0].data(), gradients.log_scale[0].data(), n * 2, static_cast<float>(options.lr_scale), step);
+    adam.opacity.Step(splats->opacity_logit.data(), gradients.opacity_logit.data(), n, static_cast<float>(options.lr_opacity), step);
+    // SH: the DC terms and the rest at their own steps (one array, two step sizes).
+    {
+      const int k3 = splats->ShCount() * 3;
+      const std::vector<float>& g = gradients.sh;
+      // Adam's state is per coefficient: one step with the DC coefficients' rate and the others'.
+      const float dc_rate = static_cast<float>(options.lr_sh_dc), rest_rate = static_cast<float>(options.lr_sh_rest);
+      constexpr float kBeta1 = 0.9f, kBeta2 = 0.999f, kEps = 1e-15f;
+      const float c1 = 1.0f - std::pow(kBeta1, static_cast<float>(step));
+      const float c2 = 1.0f - std::pow(kBeta2, static_cast<float>(step));
+      const float correction = std::sqrt(c2) / c1;
+      Adam& a = adam.sh;
+      tbb::parallel_for(tbb::blocked_range<size_t>(0, g.size(), 1 << 14), [&](const tbb::blocked_range<size_t>& range) {
+        for (size_t q = range.begin(); q != range.end(); ++q) {
+          const float rate = (q % k3) < 3 ? dc_rate : rest_rate;
+          a.m[q] = kBeta1 * a.m[q] + (1.0f - kBeta1) * g[q];
+          a.v[q] = kBeta2 * a.v[q] + (1.0f - kBeta2) * g[q] * g[q];
+          splats->sh[q] -= rate * correction * a.m[q] / (std::sqrt(a.v[q]) + kEps);
+        }
+      });
+    }
+    // Density control.
+    if (step >= options.densify_from && step <= densify_until && step % options.densify_every == 0) {
+      std::vector<float> mean(splats->size(), 0.0f);
+      for (size_t i = 0; i < splats->size(); ++i) mean[i] = screen_count[i] > 0 ? screen_sum[i] / screen_count[i] : 0.0f;
+      std::vector<int> origin;
+      const DensityCounts counts =
+          ControlDensity(mean, result.extent, options, static_cast<uint64_t>(options.seed) * 7919 + step, splats, &origin);
+      result.splits += counts.splits;
+      result.clones += counts.clones;
+      result.pruned += counts.pruned;
+      adam.position.Remap(origin, 3);
+      adam.rotation.Remap(origin, 4);
+      adam.scale.Remap(origin, 2);
+      adam.opacity.Remap(origin, 1);
+      adam.sh.Remap(origin, splats->ShCount() * 3);
+      screen_sum.assign(splats->size(), 0.0f);
+      screen_count.assign(splats->size(), 0);
+    }
+    if (step % 50 == 0 || step == options.iterations) {
+      SplatFitPoint point;
+      point.iteration = step;
+      point.l1 = window_l1 / window;
+      const double mse = window_se / window;
+      point.psnr = mse > 0 ? 10 * std::log10(1.0 / mse) : 100.0;
+      point.splats = splats->size();
+      result.curve.push_back(point);
+      window_l1 = window_se = 0;
+      window = 0;
+      progress->Advance(50, "L1 " + std::to_string(point.l1).substr(0, 6) + ", " + std::to_string(point.splats) + " splats");
+    }
+  }
+  progress->End();
+  if (const std::string problem = splats->Validate(); !problem.empty()) {
+    throw std::runtime_error("the splat fit diverged: " + problem + "; lower the step sizes (splat_fit.lr_*)");
+  }
+  return result;
+}
+
+}  // namespace ibmr
