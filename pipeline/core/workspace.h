@@ -9,7 +9,10 @@
 //   dense/stereo/depth_maps/<image name>.{photometric,geometric}.bin   COLMAP arrays
 //   dense/stereo/normal_maps/...  idem, 3 channels
 //   dense/stereo/confidence_maps/...  idem, 1 channel in [0, 1]
+//   dense/stereo/view_agreement.json  multi_depth's per-view agreement with the other views and the
+//                                 flag of views that stand out (pipeline/core/view_agreement.h)
 //   dense/fused.ply               fused points
+//   repose/sparse/, repose/repose.json  the model with the flagged views' poses refined, and how (stages/repose)
 //   ground_truth/                 synthetic truth: depth/<image name>.bin, masks/<image name>.png, mesh.ply
 //   hull/, layers/, surfels/, texture/, renders/, scores/, report/   per-representation folders
 //   records/<stage>.json          one record per stage run; logs/ the run logs
@@ -60,6 +63,9 @@ class Workspace {
   static std::string ConfidenceMapRelative(const std::string& image_name, const std::string& kind) {
     return "dense/stereo/confidence_maps/" + image_name + "." + kind + ".bin";
   }
+  // multi_depth's per-view agreement figures and flags (pipeline/core/view_agreement.h).
+  static std::string ViewAgreementRelative() { return "dense/stereo/view_agreement.json"; }
+  std::string ViewAgreementPath() const { return Path(ViewAgreementRelative()); }
   std::string GroundTruthDepthPath(const std::string& image_name) const {
     return Path("ground_truth/depth/" + image_name + ".bin");
   }

@@ -10,6 +10,7 @@
 #include "pipeline/core/atomic_file.h"
 #include "pipeline/core/errors.h"
 #include "pipeline/core/image_codecs.h"
+#include "pipeline/core/json_file.h"
 #include "pipeline/core/heldout_scores.h"
 #include "pipeline/core/workspace.h"
 #include "pipeline/runner/record.h"
@@ -160,6 +161,17 @@ function workspaceReport(R) {
   chart(charts, 640, 320, {type: 'bar', data: {labels: stages.map(s => s.stage), datasets: [
       {label: 'peak memory MB', data: stages.map(s => s.peak_memory_mb), backgroundColor: palette[2]}]},
     options: {scales: {y: axis('MB')}}});
+
+  if (R.view_agreement) {  // multi_depth's per-view flag (dense/stereo/view_agreement.json)
+    const A = R.view_agreement;
+    el('h2', {}, content, 'Views that disagree with the others');
+    el('p', {class: 'note'}, content, A.scored + ' views scored by their confirmed fraction (median over a view\'s neighbours ' +
+       'of the share of its depth samples each confirms): median ' + fmt(A.median, 3) + ', robust scale ' + fmt(A.scale, 3) +
+       '; a view is flagged ' + fmt(A.z_threshold, 1) + ' robust scales below the median (a wrong pose, or a photo the matcher fails on). ' +
+       (A.flagged.length ? A.flagged.length + ' flagged (orange in the viewer):' : 'None flagged.') +
+       (A.capture_poor ? ' The views agree poorly as a whole: every camera may be off alike.' : ''));
+    if (A.flagged.length) table(content, ['view', 'confirmed fraction', 'z'], A.flagged.map(v => [v.name, fmt(v.figure, 3), fmt(v.z, 1)]), () => 'failed');
+  }
 
   if (R.models.length) {
     el('h2', {}, content, 'Held-out views: scores per model');
@@ -326,6 +338,22 @@ void GatherScores(const Workspace& workspace, const nlohmann::json& scores, int 
   (*report)["views"] = views;
 }
 
+// dense/stereo/view_agreement.json (pipeline/core/view_agreement.h) for the page: the capture's
+// figures and the flagged views with their figure and z.
+nlohmann::json ViewAgreementSummary(const nlohmann::json& agreement) {
+  nlohmann::json flagged = nlohmann::json::array();
+  for (const auto& view : agreement.at("views")) {
+    if (!view.value("flagged", false)) continue;
+    flagged.push_back({{"name", view.at("name")}, {"figure", view.at("figure")}, {"z", view.at("z")}});
+  }
+  return {{"scored", agreement.value("scored", 0)},
+          {"median", agreement.value("median", 0.0)},
+          {"scale", agreement.value("scale", 0.0)},
+          {"z_threshold", agreement.value("z_threshold", 0.0)},
+          {"capture_poor", agreement.value("capture_poor", false)},
+          {"flagged", flagged}};
+}
+
 // The page's data from sweep.json's contents.
 nlohmann::json SweepReport(const std::string& folder, const nlohmann::json& sweep) {
   nlohmann::json report = {{"kind", "sweep"},
@@ -381,6 +409,12 @@ nlohmann::json GatherWorkspaceReport(const std::string& root, int image_width, n
     if (!uri.empty()) strips.push_back({{"folder", workspace.Relative(path.parent_path().string())}, {"src", uri}});
   }
   report["volume_strips"] = strips;
+  // multi_depth's per-view agreement and flags (issue 67), when it ran.
+  const std::string agreement_path = workspace.ViewAgreementPath();
+  const nlohmann::json agreement = ReadJsonOr(agreement_path, nlohmann::json());
+  if (agreement.is_object()) {
+    ReadingFile(agreement_path, Rerun("multi_depth"), [&] { report["view_agreement"] = ViewAgreementSummary(agreement); });
+  }
   return report;
 }
 

@@ -59,6 +59,31 @@ TEST(Report, MalformedWorkspaceFilesNameTheFileAndTheStage) {
   }
 }
 
+// multi_depth's per-view flag (issue 67) reaches the page's data; a file of another shape names
+// the file and the stage to re-run.
+TEST(Report, FlaggedViewsFromViewAgreementJson) {
+  const fs::path ws = ibmr_testing::ScratchDir("ibmr_report_view_agreement");
+  WriteFileAtomic((ws / "records/multi_depth.json").string(), R"({"stage": "multi_depth", "status": "ok", "wall_seconds": 1})");
+  EXPECT_FALSE(GatherWorkspaceReport(ws.string(), 64).contains("view_agreement"));  // not run: no section
+  WriteFileAtomic((ws / "dense/stereo/view_agreement.json").string(),
+                  R"({"scored": 3, "median": 0.8, "scale": 0.08, "z_threshold": 3.5, "capture_poor": false,
+                      "views": [{"name": "a.png", "figure": 0.8, "z": 0, "flagged": false},
+                                {"name": "b.png", "figure": 0.2, "z": -7.5, "flagged": true},
+                                {"name": "c.png", "figure": null, "z": null, "flagged": false}],
+                      "flagged": ["b.png"]})");
+  const nlohmann::json report = GatherWorkspaceReport(ws.string(), 64);
+  ASSERT_TRUE(report.contains("view_agreement")) << report.dump();
+  const nlohmann::json& a = report["view_agreement"];
+  ASSERT_EQ(a["flagged"].size(), 1u);
+  EXPECT_EQ(a["flagged"][0]["name"], "b.png");
+  EXPECT_DOUBLE_EQ(a["flagged"][0]["z"].get<double>(), -7.5);
+  EXPECT_DOUBLE_EQ(a["median"].get<double>(), 0.8);
+  WriteFileAtomic((ws / "dense/stereo/view_agreement.json").string(), R"({"views": 3})");
+  const std::string error = ErrorOf(ws, false);
+  EXPECT_NE(error.find("view_agreement.json"), std::string::npos) << error;
+  EXPECT_NE(error.find("multi_depth"), std::string::npos) << error;
+}
+
 TEST(Report, MalformedSweepJsonNamesTheFile) {
   const fs::path folder = ibmr_testing::ScratchDir("ibmr_report_sweep");
   const std::string path = (folder / "sweep.json").string();

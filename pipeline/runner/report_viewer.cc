@@ -24,6 +24,7 @@
 #include "pipeline/core/colmap_text_io.h"
 #include "pipeline/core/errors.h"
 #include "pipeline/core/ply_io.h"
+#include "pipeline/core/view_agreement.h"
 #include "pipeline/core/workspace.h"
 #include "pipeline/runner/report_encoding.h"
 #include "pipeline/runner/viewer_geometry.h"
@@ -406,6 +407,9 @@ nlohmann::json Cameras(const Workspace& workspace, const nlohmann::json& scores,
     }
   }
   const nlohmann::json proxies = scores.is_object() ? scores.value("proxies", nlohmann::json::object()) : nlohmann::json::object();
+  // Views whose agreement with the others stands out on the bad side (issue 67; multi_depth).
+  const std::vector<std::string> flagged_names = ReadFlaggedViews(workspace.ViewAgreementPath());
+  const std::set<std::string> flagged(flagged_names.begin(), flagged_names.end());
   const SparseModel model = ReadSparseModelText(workspace.Path(folder));
   std::vector<Rigid3d> training_poses;
   for (int id : model.ImageIdsByName()) {
@@ -422,6 +426,7 @@ nlohmann::json Cameras(const Workspace& workspace, const nlohmann::json& scores,
     nlohmann::json entry = {{"name", image.name}, {"heldout", heldout.count(image.name) > 0},
                             {"center", {center.x(), center.y(), center.z()}}, {"corners", corners}};
     if (!entry["heldout"]) training_poses.push_back(world_from_cam);
+    if (flagged.count(image.name)) entry["flagged"] = true;
     // The best score any model reached on this held-out view.
     for (const auto& [name, proxy] : proxies.items()) {
       if (!proxy.is_object() || !proxy.contains("views") || !proxy["views"].is_object()) continue;

@@ -18,7 +18,9 @@
 //
 // Cameras (dense/sparse, else sfm/sparse, else sparse: the last model a stage wrote) are drawn as
 // small frustums: training views grey, held-out ones (scores/heldout.json "heldout") coloured by
-// the best held-out score any model reached on that view, shown on hover.
+// the best held-out score any model reached on that view, shown on hover. Views that
+// dense/stereo/view_agreement.json flags (their depth disagrees with the other views': a likely
+// wrong pose, issue 67) are drawn in orange, and the legend and hover name them.
 //
 // Arrays are little-endian: positions float32 xyz, colours uint8 rgb, texture coordinates
 // float32 uv (v up, three.js's default flipY), indices uint32.

@@ -116,6 +116,7 @@ function viewerSection(V, parent) {
   const scored = V.cameras.filter(c => c.heldout && typeof c.score === 'number').map(c => c.score);
   const lo = scored.length ? Math.min(...scored) : 0, hi = scored.length ? Math.max(...scored) : 1;
   function cameraColor(c) {
+    if (c.flagged) return new THREE.Color(0xff7f0e);  // disagrees with the other views (view_agreement.json)
     if (!c.heldout) return new THREE.Color(0x8a8a8a);
     if (typeof c.score !== 'number') return new THREE.Color(0x7b4173);
     const t = hi > lo ? (c.score - lo) / (hi - lo) : 1;
@@ -136,9 +137,12 @@ function viewerSection(V, parent) {
     scene.add(cameraGroup);
   }
   const heldout = V.cameras.filter(c => c.heldout).length;
+  const flagged = V.cameras.filter(c => c.flagged).map(c => c.name);
   legend.textContent = V.cameras.length ? 'Cameras' + (V.cameras_from ? ' (' + V.cameras_from + ')' : '') + ': ' +
       (V.cameras.length - heldout) + ' training views in grey, ' + heldout + ' held-out views coloured by the best held-out ' + V.metric +
-      ' of any model, red ' + fmt(lo) + ' dB to green ' + fmt(hi) + ' dB; hover a camera for its name and score.'
+      ' of any model, red ' + fmt(lo) + ' dB to green ' + fmt(hi) + ' dB; hover a camera for its name and score.' +
+      (flagged.length ? ' In orange, ' + flagged.length + ' view(s) whose depth disagrees with the other views (a likely wrong pose): ' +
+       flagged.join(', ') + '.' : '')
       : 'No cameras to show' + (V.cameras_error ? ': ' + V.cameras_error : ' (no sparse model in the workspace).');
   canvas.addEventListener('mousemove', e => {
     const rect = canvas.getBoundingClientRect();
@@ -153,7 +157,8 @@ function viewerSection(V, parent) {
     tip.style.display = best ? 'block' : 'none';
     if (!best) return;
     tip.textContent = best.name + (!best.heldout ? ': training view' : typeof best.score === 'number'
-        ? ': held out, best ' + best.model + ' ' + fmt(best.score) + ' dB ' + V.metric : ': held out, not scored');
+        ? ': held out, best ' + best.model + ' ' + fmt(best.score) + ' dB ' + V.metric : ': held out, not scored') +
+        (best.flagged ? '; flagged: disagrees with the other views (view_agreement.json)' : '');
     tip.style.left = (x + 14) + 'px';
     tip.style.top = (y + 8) + 'px';
   });

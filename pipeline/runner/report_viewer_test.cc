@@ -176,6 +176,13 @@ TEST(ReportViewer, CamerasCarryTheirBestHeldOutScore) {
   EXPECT_DOUBLE_EQ(cameras[1]["corners"][2].get<double>(), 1.0);
   // Up: the training camera's -y.
   EXPECT_DOUBLE_EQ(data.viewer["up"][1].get<double>(), -1.0);
+  EXPECT_FALSE(cameras[0].contains("flagged"));
+  // multi_depth's per-view flag (issue 67): a flagged view is marked for the viewer to colour.
+  fs::create_directories(ws / "dense/stereo");
+  WriteFileAtomic((ws / "dense/stereo/view_agreement.json").string(), R"({"flagged": ["view1.png"], "views": []})");
+  const ViewerData flagged = GatherViewer(ws.string(), scores, "photo_psnr", {});
+  EXPECT_TRUE(flagged.viewer["cameras"][0].value("flagged", false));
+  EXPECT_FALSE(flagged.viewer["cameras"][1].contains("flagged"));
 }
 
 // A volume folder as the volume stage writes it (pipeline/core/plane_volume.h), with `planes` of

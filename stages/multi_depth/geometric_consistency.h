@@ -21,9 +21,12 @@ class GeometricConsistency {
 
   // A neighbour that sees the sample, its relative depth difference `relative` = (its depth - the
   // sample's depth in its camera) / the latter.
-  void Add(float relative) {
-    agreement_ += std::exp(-relative * relative * inverse_two_sigma_squared_);
+  // Returns this neighbour's term.
+  float Add(float relative) {
+    const float term = std::exp(-relative * relative * inverse_two_sigma_squared_);
+    agreement_ += term;
     ++seen_;
+    return term;
   }
 
   int seen() const { return seen_; }

@@ -3,6 +3,7 @@
 #include "stages/multi_depth/multi_depth.h"
 
 #include "pipeline/core/depth_normals.h"
+#include "pipeline/core/median.h"
 #include "stages/multi_depth/geometric_consistency.h"
 
 #include <Eigen/Geometry>
@@ -155,8 +156,9 @@ struct Votes {
 // cannot bring the confirmations to `needed`; such a point's returned votes show the failure
 // (a violation, or too few confirmations) and nothing else. On the synthetic forward-facing
 // capture the fill pass votes on 45 M candidate depths, two thirds of them seen through.
+// `tally` (the first pass; one per prepared neighbour, or null) counts each neighbour's agreement.
 Votes Vote(const Eigen::Vector3f& ray, float depth, float confidence, const std::vector<PreparedNeighbor>& prepared,
-           const MultiDepthOptions& options, int needed = 0) {
+           const MultiDepthOptions& options, int needed = 0, NeighborAgreement* tally = nullptr) {
   const float tolerance = static_cast<float>(options.depth_tolerance), smooth = 5 * tolerance;
   const float see_through = std::max(tolerance, static_cast<float>(options.violation_tolerance));
   Votes votes;
@@ -188,7 +190,13 @@ Votes Vote(const Eigen::Vector3f& ray, float depth, float confidence, const std:
       if (defer) {
         seen_relative[seen_count++] = relative;  // its exponential only if the point passes
       } else {
-        consistency.Add(relative);
+        const float term = consistency.Add(relative);
+        if (tally != nullptr) {
+          NeighborAgreement& t = tally[i];
+          ++t.seen;
+          t.consistency_sum += term;
+          if (std::abs(relative) <= tolerance) ++t.confirmed;
+        }
       }
     }
     if (relative < -tolerance) continue;  // visibility: a nearer surface hides the point from this view
@@ -306,6 +314,8 @@ MultiDepthResult MakeDepthConsistent(const DepthView& key, const std::vector<con
     for (int c = 0; c < 3; ++c) result.normals.At(x, y, c) = normal[c];
   };
   MultiDepthStats& stats = result.stats;
+  stats.neighbors.resize(prepared.size());
+  for (size_t i = 0; i < prepared.size(); ++i) stats.neighbors[i].name = prepared[i].view->name;
   // The key view's agreement with its neighbours: the mean geometric consistency of its samples
   // that some neighbour sees, kept or not (a camera whose pose is off disagrees everywhere).
   double agreement_sum = 0;
@@ -321,7 +331,7 @@ MultiDepthResult MakeDepthConsistent(const DepthView& key, const std::vector<con
         continue;
       }
       const Eigen::Vector3f& ray = rays[static_cast<size_t>(y) * w + x];
-      const Votes votes = Vote(ray, d, key_confidence, prepared, options);
+      const Votes votes = Vote(ray, d, key_confidence, prepared, options, 0, stats.neighbors.data());
       if (votes.seen > 0) agreement_sum += votes.geometric, ++agreement_samples;
       if (votes.violations > options.max_violation_ratio * votes.confirmations) {
         ++stats.violated;
@@ -406,6 +416,16 @@ MultiDepthResult MakeDepthConsistent(const DepthView& key, const std::vector<con
     for (int c = 0; c < 3; ++c) result.normals.At(x, y, c) = filled_normals.At(x, y, c);
   }
   return result;
+}
+
+bool ViewConfirmedFraction(const MultiDepthStats& stats, size_t min_seen, double* fraction) {
+  std::vector<double> fractions;
+  for (const NeighborAgreement& n : stats.neighbors) {
+    if (n.seen > 0 && n.seen >= min_seen) fractions.push_back(static_cast<double>(n.confirmed) / static_cast<double>(n.seen));
+  }
+  if (fractions.empty()) return false;
+  *fraction = Median(std::move(fractions));
+  return true;
 }
 
 DepthAccuracy CompareDepth(const DepthMap& depth, const DepthMap& truth, double relative_tolerance) {

@@ -19,6 +19,9 @@
 // Key pixels left without a depth (missing or rejected, but not dropped for low confidence) are
 // filled from the neighbours' depths forward-warped into the key view when other views confirm
 // them: the compatibility term lets neighbours inform the key's estimate (line ~5890).
+// Per key view the first pass also counts, per neighbour, the samples it sees and confirms
+// (NeighborAgreement): the view's agreement with the capture (ViewConfirmedFraction), which the
+// stage turns into issue 67's flag of views that stand out (pipeline/core/view_agreement.h).
 #pragma once
 
 #include <string>
@@ -72,6 +75,15 @@ struct DepthView {
   FloatMap confidence;
 };
 
+// How well one neighbour agrees with the key view's samples, over the first pass (the key's own
+// samples of usable confidence): issue 67's per-view figure is built from these.
+struct NeighborAgreement {
+  std::string name;
+  size_t seen = 0;             // samples the neighbour sees (its depth there not clearly nearer)
+  size_t confirmed = 0;        // of those, within depth_tolerance of the neighbour's depth
+  double consistency_sum = 0;  // sum of their geometric consistency terms (geometric_sigma)
+};
+
 struct MultiDepthStats {
   size_t input_samples = 0;      // valid key-view depths
   size_t low_confidence = 0;     // dropped for photometric confidence below min_confidence
@@ -80,7 +92,15 @@ struct MultiDepthStats {
   size_t kept = 0;               // own samples kept
   size_t filled = 0;             // pixels filled from a neighbour's confirmed depth
   double view_agreement = 1;     // mean geometric consistency of the samples a neighbour sees (1: none)
+  std::vector<NeighborAgreement> neighbors;  // one per neighbour with a depth map, in the given order
 };
+
+// The key view's agreement with the capture (issue 67, pipeline/core/view_agreement.h): the median
+// over its neighbours that see at least `min_seen` of its samples of the fraction of them the
+// neighbour confirms. A median over neighbours, not a pooled fraction, so that one badly posed
+// neighbour does not drag down the views around it while a badly posed key, which every neighbour
+// contradicts, falls. False (and *fraction untouched) when no neighbour sees enough.
+bool ViewConfirmedFraction(const MultiDepthStats& stats, size_t min_seen, double* fraction);
 
 struct MultiDepthResult {
   DepthMap depth;        // 0 where rejected

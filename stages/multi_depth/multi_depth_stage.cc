@@ -2,6 +2,10 @@
 // depth, normal and confidence maps that plane_sweep wrote, makes each training view's depth map
 // consistent with its neighbours' (multi_depth.h) and writes the .geometric.bin maps. Views are
 // streamed: a key view and its neighbours are loaded, processed and released, one key per task.
+// Per view, its agreement with the other views (issue 67): the median over its neighbours of the
+// fraction of its samples each confirms, and a flag on the views that stand out on the bad side
+// (a robust z-score, pipeline/core/view_agreement.h), written to dense/stereo/view_agreement.json,
+// into the record and, for flagged views, as a warning in the run's log.
 // When ground_truth/depth/ exists (synthetic scenes) the record holds the fraction of pixels
 // with true depth that are within 1% of it, before and after.
 #include <spdlog/spdlog.h>
@@ -17,6 +21,7 @@
 #include "pipeline/core/rank_correlation.h"
 #include "pipeline/core/sparsification.h"
 #include "pipeline/core/stage_api.h"
+#include "pipeline/core/view_agreement.h"
 #include "pipeline/core/view_cache.h"
 #include "stages/multi_depth/multi_depth.h"
 
@@ -29,6 +34,13 @@ namespace {
 // A damaged map of plane_sweep's: the runner sees plane_sweep as up to date (its inputs and
 // parameters did not change), so a plain run would not rewrite it.
 const std::string kRerunPlaneSweep = "re-run plane_sweep with --only plane_sweep --force (a plain run sees it as up to date)";
+
+// A neighbour's confirmed fraction counts towards the key's figure when it sees at least this many
+// of the key's samples (fewer: a sliver of overlap, too noisy to judge by).
+constexpr size_t kMinSeenForAgreement = 200;
+const char* const kAgreementFigure =
+    "confirmed fraction: the median over a view's neighbours of the fraction of its depth samples that a "
+    "neighbour sees and finds within depth_tolerance of its own depth";
 
 std::string ConfidencePath(const Workspace& workspace, const std::string& name, const std::string& kind) {
   return workspace.ConfidenceMapPath(name, kind);
@@ -73,8 +85,9 @@ class MultiDepthStage : public Stage {
   std::string Summary() const override {
     return "Depth maps made consistent across views: visibility, depth compatibility, rejection (.geometric.bin)";
   }
-  // 3: confidence-error rank correlation; 4: the confidence's geometric factor (geometric_sigma)
-  std::string Version() const override { return "4"; }
+  // 3: confidence-error rank correlation; 4: the confidence's geometric factor (geometric_sigma);
+  // 5: per-view agreement and flag (view_agreement.json)
+  std::string Version() const override { return "5"; }
   HoldoutRole Role() const override { return HoldoutRole::kTrainingOnly; }
   bool Shardable() const override { return true; }
   double ViewMemoryMb(const StageContext& context) const override {
@@ -109,12 +122,17 @@ class MultiDepthStage : public Stage {
          "A view's confidence is scaled by min(1, its samples' mean geometric consistency / this), [0, 1]; 0: off"},
         {"geometric_sigma", ParamType::kDouble, "0.003",
          "Relative depth disagreement of a neighbour at which its factor of the confidence is exp(-1/2), [0, 0.5]; 0: off"},
+        {"view_flag_z", ParamType::kDouble, "3.5",
+         "A view is flagged when its confirmed fraction is this many robust sigmas (1.4826 MAD) below the views' median, > 0"},
+        {"view_flag_min_scale", ParamType::kDouble, "0.08",
+         "Least robust sigma of the confirmed fraction (a clean capture's views agree too uniformly to judge by their MAD), >= 0"},
     };
   }
 
   std::optional<ParamError> CheckParams(const Params& params) const override {
     std::string error;
     if (!ToOptions(params).Check(&error)) return ParamError::FromCheck(error);
+    if (!ToFlagOptions(params).Check(&error)) return ParamError::FromCheck(error);
     return std::nullopt;
   }
 
@@ -135,7 +153,7 @@ class MultiDepthStage : public Stage {
   }
 
   std::vector<std::string> Outputs(const StageContext& context) const override {
-    std::vector<std::string> outputs = {kFusionConfig};
+    std::vector<std::string> outputs = {kFusionConfig, Workspace::ViewAgreementRelative()};
     for (const std::string& name : context.TrainingImageNamesIfReadable()) {
       outputs.push_back("dense/stereo/depth_maps/" + name + ".geometric.bin");
       outputs.push_back("dense/stereo/normal_maps/" + name + ".geometric.bin");
@@ -146,6 +164,7 @@ class MultiDepthStage : public Stage {
 
   void Run(StageContext& context) const override {
     const MultiDepthOptions options = ToOptions(context.params);
+    const ViewFlagOptions flag_options = ToFlagOptions(context.params);
     const SparseModel model = context.LoadModel();
     const std::vector<std::string> names = context.TrainingImageNames(model);
     if (names.size() < 2) {
@@ -180,6 +199,13 @@ class MultiDepthStage : public Stage {
       nlohmann::json piece = {
           {"stats", {st.input_samples, st.low_confidence, st.unconfirmed, st.violated, st.kept, st.filled}},
           {"without_neighbors", neighbors.empty()}, {"view_agreement", st.view_agreement}};
+      nlohmann::json per_neighbor = nlohmann::json::array();
+      for (const NeighborAgreement& n : st.neighbors) {
+        per_neighbor.push_back({n.name, n.seen, n.confirmed, n.seen ? n.consistency_sum / n.seen : 0.0});
+      }
+      piece["neighbor_agreement"] = std::move(per_neighbor);
+      double confirmed = 0;
+      if (ViewConfirmedFraction(st, kMinSeenForAgreement, &confirmed)) piece["confirmed_fraction"] = confirmed;
       const std::string truth_path = workspace.GroundTruthDepthPath(name);
       if (has_truth && fs::exists(truth_path)) {
         const DepthMap truth = ReadColmapArray(truth_path);  // read once for all four measures
@@ -219,6 +245,7 @@ class MultiDepthStage : public Stage {
     }
 
     WriteFileAtomic(workspace.Path(kFusionConfig), FormatFusionConfig(names));
+    FlagDisagreeingViews(summary, flag_options, context);
     nlohmann::json& m = context.metrics;
     m["views"] = names.size();
     m["input_samples"] = totals.input_samples;
@@ -273,6 +300,66 @@ class MultiDepthStage : public Stage {
       }
     }
   }
+  // Issue 67: each view's confirmed fraction against the others', the flag, the file, the record's
+  // metrics and the log's warning.
+  static void FlagDisagreeingViews(const PerViewSummary& summary, const ViewFlagOptions& flag_options, StageContext& context) {
+    std::vector<ViewAgreement> views;
+    for (const auto& [name, piece] : summary.pieces) {
+      ViewAgreement view;
+      view.name = name;
+      if (piece.contains("confirmed_fraction")) {
+        view.has_figure = true;
+        view.figure = piece["confirmed_fraction"].get<double>();
+      }
+      if (piece.contains("view_agreement")) view.extra["mean_geometric_consistency"] = piece["view_agreement"];
+      if (piece.contains("neighbor_agreement")) {
+        nlohmann::json neighbors = nlohmann::json::array();
+        for (const auto& n : piece["neighbor_agreement"]) {
+          const double seen = n.at(1).get<double>();
+          neighbors.push_back({{"name", n.at(0)}, {"seen", n.at(1)}, {"confirmed_fraction", seen > 0 ? n.at(2).get<double>() / seen : 0.0}});
+        }
+        view.extra["neighbors"] = std::move(neighbors);
+      }
+      views.push_back(std::move(view));
+    }
+    const ViewFlagResult result = FlagViews(std::move(views), /*higher_is_better=*/true, flag_options);
+    WriteFileAtomic(context.workspace.ViewAgreementPath(),
+                    ViewAgreementJson(result, kAgreementFigure, /*higher_is_better=*/true, flag_options).dump(1) + "\n");
+    nlohmann::json& m = context.metrics;
+    nlohmann::json figures = nlohmann::json::object(), z = nlohmann::json::object();
+    double worst_z = 0;
+    for (const ViewAgreement& v : result.views) {
+      if (!v.has_figure) continue;
+      figures[v.name] = v.figure;
+      z[v.name] = v.z;
+      worst_z = std::min(worst_z, v.z);
+    }
+    m["view_confirmed_fraction"] = std::move(figures);
+    m["view_confirmed_z"] = std::move(z);
+    m["view_confirmed_median"] = result.scores.median;
+    m["view_confirmed_scale"] = result.scores.scale;
+    m["view_confirmed_min_z"] = worst_z;
+    m["views_scored"] = result.scored;
+    m["views_flagged"] = result.flagged;
+    m["views_flagged_count"] = result.flagged.size();
+    m["capture_agreement_poor"] = result.capture_poor;
+    const std::string message = "[multi_depth] " + ViewFlagMessage(result, "confirmed fraction", flag_options);
+    if (result.flagged.empty() && result.scored >= static_cast<size_t>(flag_options.min_views)) {
+      spdlog::info("{}", message);
+    } else {
+      spdlog::warn("{}", message);
+    }
+    const std::string capture = CaptureAgreementMessage(result, "confirmed fraction", flag_options);
+    if (!capture.empty()) spdlog::warn("[multi_depth] {}", capture);
+  }
+
+  static ViewFlagOptions ToFlagOptions(const Params& params) {
+    ViewFlagOptions options;
+    options.z_threshold = params.Double("view_flag_z");
+    options.min_scale = params.Double("view_flag_min_scale");
+    return options;
+  }
+
   static void Accumulate(const MultiDepthStats& s, MultiDepthStats* total) {
     total->input_samples += s.input_samples;
     total->low_confidence += s.low_confidence;

@@ -11,11 +11,17 @@
 #include <filesystem>
 #include <limits>
 #include <random>
+#include <sstream>
 
+#include <spdlog/sinks/ostream_sink.h>
+#include <spdlog/spdlog.h>
+
+#include "pipeline/core/atomic_file.h"
 #include "pipeline/core/colmap_array_io.h"
 #include "pipeline/core/colmap_text_io.h"
 #include "pipeline/core/errors.h"
 #include "pipeline/core/stage_api.h"
+#include "pipeline/core/view_agreement.h"
 #include "stages/multi_depth/geometric_consistency.h"
 
 namespace fs = std::filesystem;
@@ -269,6 +275,70 @@ TEST(MultiDepth, ViewAgreementScalesAViewWhoseCameraIsOff) {
   options.view_agreement_reference = 0;
   const float without_view_factor = MedianConfidence(PairWithPoseError(0.024, options));
   EXPECT_NEAR(off_confidence, without_view_factor * off.view_agreement / 0.8, 0.02);
+}
+
+// Issue 67's flag on constructed captures: the ring's depth maps come from the true cameras (with
+// the usual noise and outliers), but the cameras the stage is given are each turned about their
+// own centre by turn_deg[i] degrees about a random axis (a wrong rotation in images.txt). Each
+// view's confirmed fraction (ViewConfirmedFraction) against its SelectNeighbors, then FlagViews.
+ViewFlagResult FlagRing(const std::vector<double>& turn_deg, unsigned seed, std::vector<double>* figures = nullptr) {
+  Scene scene = MakeScene(static_cast<int>(turn_deg.size()), 120, 90);
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> normal(0.0, 1.0);
+  std::vector<DepthView> views;
+  for (size_t i = 0; i < turn_deg.size(); ++i) {
+    DepthView view = Corrupt(scene.truth[i], static_cast<int>(i) + 1);
+    const Eigen::Vector3d axis(normal(rng), normal(rng), normal(rng));
+    const Eigen::Matrix3d turn = Eigen::AngleAxisd(turn_deg[i] * M_PI / 180, axis.normalized()).toRotationMatrix();
+    view.cam_from_world = Rigid3d(turn * view.cam_from_world.R(), turn * view.cam_from_world.translation);
+    scene.images[i].cam_from_world = view.cam_from_world;
+    views.push_back(std::move(view));
+  }
+  std::vector<const Image*> candidates;
+  for (const Image& image : scene.images) candidates.push_back(&image);
+  MultiDepthOptions options;
+  options.fill_from_neighbors = false;
+  std::vector<ViewAgreement> agreements;
+  for (size_t i = 0; i < views.size(); ++i) {
+    std::vector<const DepthView*> neighbors;
+    for (int index : SelectNeighbors(scene.images[i], candidates, options)) neighbors.push_back(&views[index]);
+    const MultiDepthResult result = MakeDepthConsistent(views[i], neighbors, options);
+    ViewAgreement agreement;
+    agreement.name = views[i].name;
+    agreement.has_figure = ViewConfirmedFraction(result.stats, 200, &agreement.figure);
+    if (figures) figures->push_back(agreement.has_figure ? agreement.figure : -1);
+    agreements.push_back(agreement);
+  }
+  return FlagViews(agreements, /*higher_is_better=*/true, ViewFlagOptions());
+}
+
+std::string Describe(const ViewFlagResult& r) {
+  std::string s = "median " + std::to_string(r.scores.median) + " scale " + std::to_string(r.scores.scale) + ":";
+  for (const ViewAgreement& v : r.views) s += " " + v.name + "=" + std::to_string(v.figure) + "(z " + std::to_string(v.z) + ")";
+  return s;
+}
+
+TEST(ViewAgreementFlag, OneTurnedCameraIsFlaggedAndNoViewOfTheCleanRing) {
+  std::vector<double> turns(16, 0.0);
+  const ViewFlagResult clean = FlagRing(turns, 7);
+  EXPECT_EQ(clean.scored, 16u);
+  EXPECT_TRUE(clean.flagged.empty()) << Describe(clean);
+  EXPECT_GT(clean.scores.median, 0.8) << Describe(clean);
+  turns[5] = 2.0;
+  const ViewFlagResult one = FlagRing(turns, 7);
+  ASSERT_EQ(one.flagged.size(), 1u) << Describe(one);
+  EXPECT_EQ(one.flagged[0], "v5.png");
+  // Its neighbours keep their figure: the median over neighbours ignores the one bad view.
+  EXPECT_GT(one.views[4].z, -1.5) << Describe(one);
+  EXPECT_GT(one.views[6].z, -1.5) << Describe(one);
+}
+
+TEST(ViewAgreementFlag, NoFlagWhenEveryCameraIsEquallyOff) {
+  // Every camera turned by 2 degrees (random axes): all views disagree alike; none stands out.
+  const ViewFlagResult noisy = FlagRing(std::vector<double>(16, 2.0), 11);
+  EXPECT_EQ(noisy.scored, 16u);
+  EXPECT_LT(noisy.scores.median, 0.6) << Describe(noisy);  // they do disagree
+  EXPECT_TRUE(noisy.flagged.empty()) << Describe(noisy);
 }
 
 TEST(SelectNeighbors, ClosestDirectionsFirstAndNoZeroBaseline) {
@@ -552,7 +622,7 @@ TEST(MultiDepthStage, RunsOnAWorkspaceAndRecordsAccuracy) {
   context.heldout_images = {"v3.png"};
   ASSERT_FALSE(stage->CheckParams(context.params).has_value());
   const std::vector<std::string> outputs = stage->Outputs(context);
-  EXPECT_EQ(outputs.size(), 3u * 15u + 1);  // the held-out view gets no map; COLMAP's fusion.cfg
+  EXPECT_EQ(outputs.size(), 3u * 15u + 2);  // the held-out view gets no map; fusion.cfg, view_agreement.json
   stage->Run(context);
   for (const std::string& output : outputs) EXPECT_TRUE(fs::exists(context.workspace.Path(output))) << output;
   EXPECT_FALSE(fs::exists(context.workspace.DepthMapPath("v3.png", "geometric")));
@@ -560,6 +630,13 @@ TEST(MultiDepthStage, RunsOnAWorkspaceAndRecordsAccuracy) {
   EXPECT_EQ(depth.width, 160);
   EXPECT_GE(context.metrics["geometric_within_1pct_of_textured"].get<double>(), 0.9) << context.metrics.dump();
   EXPECT_GT(context.metrics["kept_fraction"].get<double>(), 0.8);
+  // Issue 67: every view scored, none flagged on this clean capture; the file lists them all.
+  EXPECT_EQ(context.metrics["views_scored"].get<size_t>(), 15u) << context.metrics.dump();
+  EXPECT_TRUE(context.metrics["views_flagged"].empty()) << context.metrics.dump();
+  EXPECT_EQ(context.metrics["view_confirmed_fraction"].size(), 15u);
+  EXPECT_TRUE(ReadFlaggedViews(context.workspace.ViewAgreementPath()).empty());
+  const nlohmann::json agreement = nlohmann::json::parse(ReadFile(context.workspace.ViewAgreementPath()));
+  EXPECT_EQ(agreement["views"].size(), 15u);
   // Bad parameter and missing input give messages naming the key / file.
   Params bad = context.params;
   bad.Set("depth_tolerance", 0.0);
@@ -574,6 +651,36 @@ TEST(MultiDepthStage, RunsOnAWorkspaceAndRecordsAccuracy) {
     EXPECT_NE(std::string(e.what()).find("v5.png.photometric.bin"), std::string::npos) << e.what();
     EXPECT_NE(std::string(e.what()).find("plane_sweep"), std::string::npos) << e.what();
   }
+  fs::remove_all(root);
+}
+
+// Issue 67 through the adapter: one camera of the workspace's sparse/ turned by 2 degrees (its
+// depth map rendered from the true one): the record, the file and the log's warning name it.
+TEST(MultiDepthStage, FlagsAViewWhoseCameraIsTurnedAndWarns) {
+  Scene scene = MakeScene(16, 120, 90);
+  const std::string root = MakeWorkspace(scene, "turned");
+  Image& turned = scene.images[9];
+  const Eigen::Matrix3d turn = Eigen::AngleAxisd(2.0 * M_PI / 180, Eigen::Vector3d(0.6, 0.8, 0).normalized()).toRotationMatrix();
+  turned.cam_from_world = Rigid3d(turn * turned.cam_from_world.R(), turn * turned.cam_from_world.translation);
+  SparseModel model;
+  model.cameras[1] = scene.truth[0].camera;
+  for (const Image& image : scene.images) model.images[image.image_id] = image;
+  WriteSparseModelText(Workspace(root).SparseDir(), model);
+  StageRegistry registry;
+  RegisterStage_multi_depth(&registry);
+  const Stage* stage = registry.Find("multi_depth");
+  NullProgress progress;
+  StageContext context = MakeContext(root, *stage, &progress);
+  std::ostringstream log;
+  const auto previous = spdlog::default_logger();
+  spdlog::set_default_logger(std::make_shared<spdlog::logger>("test", std::make_shared<spdlog::sinks::ostream_sink_mt>(log)));
+  stage->Run(context);
+  spdlog::set_default_logger(previous);
+  EXPECT_EQ(context.metrics["views_flagged"], nlohmann::json::array({"v9.png"})) << context.metrics.dump();
+  EXPECT_LT(context.metrics["view_confirmed_z"]["v9.png"].get<double>(), -3.5);
+  EXPECT_EQ(ReadFlaggedViews(context.workspace.ViewAgreementPath()), std::vector<std::string>{"v9.png"});
+  EXPECT_NE(log.str().find("[warning] [multi_depth] 1 view(s) disagree with the others"), std::string::npos) << log.str();
+  EXPECT_NE(log.str().find("v9.png ("), std::string::npos) << log.str();
   fs::remove_all(root);
 }
 
