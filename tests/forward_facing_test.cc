@@ -56,7 +56,7 @@ TEST(ForwardFacing, AnLlffFolderRunsToScoresAndTheVolumePredictsBest) {
   WriteLlffFolder(root / "synth", root / "llff");
   const auto run = ibmr_e2e::RunCommand("IBMR_IMAGES='" + (root / "llff").string() + "' " +
                                         Ibmr("run '" + source + "/configs/llff.yaml' --workspace '" +
-                                             (root / "ws").string() + "' --set layered_stereo.max_layers=4"));
+                                             (root / "ws").string() + "' --set layered_stereo.max_layers=4 --set splat_fit.iterations=300"));
   ASSERT_EQ(run.exit_code, 0) << run.output;
   nlohmann::json record, scores;
   std::ifstream(root / "ws/records/volume.json") >> record;

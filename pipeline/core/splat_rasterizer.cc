@@ -11,6 +11,10 @@
 
 namespace ibmr {
 
+struct SplatBackwardScratch {
+  tbb::enumerable_thread_specific<std::vector<float>> buffers;
+};
+
 namespace {
 
 constexpr float kMaxAlpha = 0.99f;
@@ -75,7 +79,7 @@ void RenderSplats(const GaussianSplats& splats, const SplatCamera& camera, const
   frame->colour.resize(n);
   frame->opacity.resize(n);
   frame->view_depth.resize(n);
-  std::vector<std::array<int, 4>> tile_box(n);  // tx0, ty0, tx1, ty1 (inclusive)
+  frame->box.resize(n);
   Eigen::Matrix3f k = Eigen::Matrix3f::Identity();
   k(0, 0) = camera.fx;
   k(1, 1) = camera.fy;
@@ -123,10 +127,12 @@ void RenderSplats(const GaussianSplats& splats, const SplatCamera& camera, const
       y0 = std::min(y0, centre.y() - lowpass_reach);
       y1 = std::max(y1, centre.y() + lowpass_reach);
       if (x1 < 0 || y1 < 0 || x0 >= camera.width || y0 >= camera.height) continue;
-      tile_box[i] = {std::max(0, static_cast<int>(std::floor(x0)) / kSplatTile),
-                     std::max(0, static_cast<int>(std::floor(y0)) / kSplatTile),
-                     std::min(frame->tiles_x - 1, static_cast<int>(std::floor(x1)) / kSplatTile),
-                     std::min(frame->tiles_y - 1, static_cast<int>(std::floor(y1)) / kSplatTile)};
+      // Pixels (c, r) whose centres (c + 0.5, r + 0.5) lie within [x0, x1] x [y0, y1].
+      const float w = static_cast<float>(camera.width), hgt = static_cast<float>(camera.height);
+      frame->box[i] = Eigen::Vector4i(static_cast<int>(std::floor(std::clamp(x0 - 0.5f, 0.0f, w - 1))),
+                                      static_cast<int>(std::floor(std::clamp(y0 - 0.5f, 0.0f, hgt - 1))),
+                                      static_cast<int>(std::ceil(std::clamp(x1 - 0.5f, 0.0f, w - 1))),
+                                      static_cast<int>(std::ceil(std::clamp(y1 - 0.5f, 0.0f, hgt - 1))));
       frame->m[i] = m;
       frame->inverse[i] = m.cast<double>().inverse().cast<float>();  // double: near edge-on, M is ill-conditioned
       frame->centre[i] = centre;
@@ -151,7 +157,7 @@ void RenderSplats(const GaussianSplats& splats, const SplatCamera& camera, const
   for (size_t i = 0; i < n; ++i) {
     if (!frame->visible[i]) continue;
     ++frame->drawn;
-    const auto& b = tile_box[i];
+    const Eigen::Vector4i b = frame->box[i] / kSplatTile;
     for (int ty = b[1]; ty <= b[3]; ++ty) {
       for (int tx = b[0]; tx <= b[2]; ++tx) ++frame->tile_start[ty * frame->tiles_x + tx + 1];
     }
@@ -162,7 +168,7 @@ void RenderSplats(const GaussianSplats& splats, const SplatCamera& camera, const
     std::vector<uint32_t> fill(frame->tile_start.begin(), frame->tile_start.end() - 1);
     for (size_t i = 0; i < n; ++i) {
       if (!frame->visible[i]) continue;
-      const auto& b = tile_box[i];
+      const Eigen::Vector4i b = frame->box[i] / kSplatTile;
       for (int ty = b[1]; ty <= b[3]; ++ty) {
         for (int tx = b[0]; tx <= b[2]; ++tx) frame->tile_splats[fill[ty * frame->tiles_x + tx]++] = static_cast<uint32_t>(i);
       }
@@ -203,25 +209,31 @@ void RenderSplats(const GaussianSplats& splats, const SplatCamera& camera, const
       const Eigen::Vector2f& c = frame->centre[i];
       const float op = frame->opacity[i];
       const Eigen::Vector3f col = frame->colour[i].cwiseMax(0.0f);
-      for (int p = 0; p < kTilePixels; ++p) {
-        if (done[p]) continue;
-        const float x = px0 + (p % kSplatTile) + 0.5f, y = py0 + (p / kSplatTile) + 0.5f;
-        const Falloff f = Evaluate(a, c, inv_two_sigma2, cutoff, x, y);
-        const float alpha = std::min(kMaxAlpha, op * f.G());
-        if (alpha < options.min_alpha || alpha <= 0.0f) continue;
-        const float next = transmit[p] * (1.0f - alpha);
-        if (next < kMinTransmittance) {
-          done[p] = true;
-          --remaining;
-          continue;
+      const Eigen::Vector4i& box = frame->box[i];
+      const int bx0 = std::max(box[0] - px0, 0), bx1 = std::min(box[2] - px0, w - 1);
+      const int by0 = std::max(box[1] - py0, 0), by1 = std::min(box[3] - py0, hgt - 1);
+      for (int ly = by0; ly <= by1; ++ly) {
+        for (int lx = bx0; lx <= bx1; ++lx) {
+          const int p = ly * kSplatTile + lx;
+          if (done[p]) continue;
+          const float x = px0 + lx + 0.5f, y = py0 + ly + 0.5f;
+          const Falloff f = Evaluate(a, c, inv_two_sigma2, cutoff, x, y);
+          const float alpha = std::min(kMaxAlpha, op * f.G());
+          if (alpha < options.min_alpha || alpha <= 0.0f) continue;
+          const float next = transmit[p] * (1.0f - alpha);
+          if (next < kMinTransmittance) {
+            done[p] = true;
+            --remaining;
+            continue;
+          }
+          const float weight = alpha * transmit[p];
+          colour[p][0] += col[0] * weight;
+          colour[p][1] += col[1] * weight;
+          colour[p][2] += col[2] * weight;
+          if (depth[p] == 0.0f && alpha >= 0.5f) depth[p] = f.object ? 1.0f / f.w2 : frame->view_depth[i];
+          transmit[p] = next;
+          walked[p] = j - start + 1;
         }
-        const float weight = alpha * transmit[p];
-        colour[p][0] += col[0] * weight;
-        colour[p][1] += col[1] * weight;
-        colour[p][2] += col[2] * weight;
-        if (depth[p] == 0.0f && alpha >= 0.5f) depth[p] = f.object ? 1.0f / f.w2 : frame->view_depth[i];
-        transmit[p] = next;
-        walked[p] = j - start + 1;
       }
     }
     for (int p = 0; p < kTilePixels; ++p) {
@@ -254,10 +266,13 @@ void BackwardSplats(const GaussianSplats& splats, const SplatCamera& camera, con
   const float inv_two_sigma2 = 1.0f / (2.0f * options.lowpass_sigma * options.lowpass_sigma);
   const float inv_sigma2 = 2.0f * inv_two_sigma2;
   const float cutoff = Cutoff(options);
-  tbb::enumerable_thread_specific<std::vector<float>> buffers([&] { return std::vector<float>(n * kScreenGrads, 0.0f); });
+  if (!gradients->scratch) gradients->scratch = std::make_shared<SplatBackwardScratch>();
+  auto& buffers = gradients->scratch->buffers;
+  for (std::vector<float>& buffer : buffers) buffer.resize(n * kScreenGrads, 0.0f);  // new splats: zero
 
   tbb::parallel_for(0, tiles, [&](int t) {
     std::vector<float>& acc = buffers.local();
+    acc.resize(n * kScreenGrads, 0.0f);
     const int tx = t % frame.tiles_x, ty = t / frame.tiles_x;
     const int px0 = tx * kSplatTile, py0 = ty * kSplatTile;
     const int w = std::min(kSplatTile, frame.width - px0), hgt = std::min(kSplatTile, frame.height - py0);
@@ -284,9 +299,14 @@ void BackwardSplats(const GaussianSplats& splats, const SplatCamera& camera, con
       const Eigen::Vector3f col = frame.colour[i].cwiseMax(0.0f);
       float g[kScreenGrads] = {};
       bool touched = false;
-      for (int p = 0; p < kTilePixels; ++p) {
+      const Eigen::Vector4i& box = frame.box[i];
+      const int bx0 = std::max(box[0] - px0, 0), bx1 = std::min(box[2] - px0, w - 1);
+      const int by0 = std::max(box[1] - py0, 0), by1 = std::min(box[3] - py0, hgt - 1);
+      for (int ly = by0; ly <= by1; ++ly) {
+       for (int lx = bx0; lx <= bx1; ++lx) {
+        const int p = ly * kSplatTile + lx;
         if (jj >= walked[p]) continue;
-        const float x = px0 + (p % kSplatTile) + 0.5f, y = py0 + (p / kSplatTile) + 0.5f;
+        const float x = px0 + lx + 0.5f, y = py0 + ly + 0.5f;
         const Falloff f = Evaluate(a, c, inv_two_sigma2, cutoff, x, y);
         const float raw = op * f.G();
         const float alpha = std::min(kMaxAlpha, raw);
@@ -315,6 +335,7 @@ void BackwardSplats(const GaussianSplats& splats, const SplatCamera& camera, con
           g[9] += scale * (x - c.x());
           g[10] += scale * (y - c.y());
         }
+       }
       }
       if (!touched) continue;
       float* out = acc.data() + static_cast<size_t>(i) * kScreenGrads;
@@ -336,8 +357,12 @@ void BackwardSplats(const GaussianSplats& splats, const SplatCamera& camera, con
     for (size_t i = range.begin(); i != range.end(); ++i) {
       if (!frame.visible[i]) continue;
       float g[kScreenGrads] = {};
-      for (const std::vector<float>& buffer : buffers) {
-        for (int q = 0; q < kScreenGrads; ++q) g[q] += buffer[i * kScreenGrads + q];
+      for (std::vector<float>& buffer : buffers) {
+        if (buffer.size() < (i + 1) * kScreenGrads) continue;
+        for (int q = 0; q < kScreenGrads; ++q) {
+          g[q] += buffer[i * kScreenGrads + q];
+          buffer[i * kScreenGrads + q] = 0.0f;  // zero for the next call
+        }
       }
       bool any = false;
       for (int q = 0; q < kScreenGrads; ++q) any = any || g[q] != 0.0f;

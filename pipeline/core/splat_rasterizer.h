@@ -30,6 +30,7 @@
 
 #include <Eigen/Core>
 #include <cstdint>
+#include <memory>
 #include <opencv2/core.hpp>
 #include <vector>
 
@@ -75,6 +76,7 @@ struct SplatFrame {
   std::vector<Eigen::Vector3f> colour;   // RGB after +0.5, before the clamp at 0
   std::vector<float> opacity;            // sigmoid of the logit
   std::vector<float> view_depth;         // centre's depth
+  std::vector<Eigen::Vector4i> box;      // pixels the footprint reaches: x0, y0, x1, y1 (inclusive)
   SplatRasterOptions options;
   size_t drawn = 0;  // splats drawn (visible)
 };
@@ -92,6 +94,8 @@ struct SplatGradients {
   std::vector<float> sh;
   std::vector<float> screen;  // |d loss / d projected centre| in normalised device coordinates
                               // (3DGS's density statistic; the same at any resolution)
+  // Per-thread sums of the backward pass, kept from call to call (zero between calls).
+  std::shared_ptr<struct SplatBackwardScratch> scratch;
   void Reset(const GaussianSplats& splats);  // sized to the splats, zero
 };
 

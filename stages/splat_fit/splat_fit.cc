@@ -45,13 +45,23 @@ bool SplatFitOptions::Check(std::string* error) const {
   return true;
 }
 
-double SceneExtent(const std::vector<SplatFitView>& views, double floor) {
+double SceneExtent(const std::vector<SplatFitView>& views, const GaussianSplats& splats, double floor) {
   Eigen::Vector3d mean = Eigen::Vector3d::Zero();
   for (const SplatFitView& view : views) mean += view.camera.Centre().cast<double>();
   mean /= std::max<size_t>(1, views.size());
   double radius = 0;
   for (const SplatFitView& view : views) radius = std::max(radius, (view.camera.Centre().cast<double>() - mean).norm());
-  return std::max(floor, 1.1 * radius);
+  // A forward-facing capture's cameras span a small part of the scene: the splats' own reach from
+  // the cameras (the 95th percentile of their distances) bounds it from below.
+  std::vector<double> distances;
+  for (const Eigen::Vector3f& p : splats.position) distances.push_back((p.cast<double>() - mean).norm());
+  double reach = 0;
+  if (!distances.empty()) {
+    const size_t k = distances.size() * 95 / 100;
+    std::nth_element(distances.begin(), distances.begin() + k, distances.end());
+    reach = distances[k];
+  }
+  return std::max({floor, 1.1 * radius, 1.1 * reach});
 }
 
 void RaiseShDegree(int degree, GaussianSplats* splats) {
@@ -207,7 +217,7 @@ SplatFitResult FitSplats(const std::vector<SplatFitView>& views, const Eigen::Ve
   if (!progress) progress = &null_progress;
   RaiseShDegree(options.sh_degree, splats);
   SplatFitResult result;
-  result.extent = SceneExtent(views);
+  result.extent = SceneExtent(views, *splats);
   std::vector<SplatFitView> half;
   const int coarse_steps = static_cast<int>(std::lround(options.coarse_fraction * options.iterations));
   if (coarse_steps > 0) {
@@ -225,6 +235,7 @@ SplatFitResult FitSplats(const std::vector<SplatFitView>& views, const Eigen::Ve
   cv::Mat d_image;
   double window_l1 = 0, window_se = 0;
   int window = 0;
+  int advanced = 0;  // steps reported to `progress`
   const int densify_until = static_cast<int>(options.densify_until * options.iterations);
   using Clock = std::chrono::steady_clock;
   progress->Begin("splat fit", options.iterations);
@@ -343,7 +354,8 @@ SplatFitResult FitSplats(const std::vector<SplatFitView>& views, const Eigen::Ve
       result.curve.push_back(point);
       window_l1 = window_se = 0;
       window = 0;
-      progress->Advance(50, "L1 " + std::to_string(point.l1).substr(0, 6) + ", " + std::to_string(point.splats) + " splats");
+      progress->Advance(step - advanced, "L1 " + std::to_string(point.l1).substr(0, 6) + ", " + std::to_string(point.splats) + " splats");
+      advanced = step;
     }
   }
   progress->End();

@@ -83,9 +83,11 @@ struct SplatFitResult {
   double extent = 0;           // the scene extent the steps were scaled by
 };
 
-// The scene extent of 3DGS: 1.1 times the largest distance of a camera centre from their mean
-// (a capture's scale, whatever its units); at least `floor`.
-double SceneExtent(const std::vector<SplatFitView>& views, double floor = 1e-6);
+// The scene extent the steps and sizes are scaled by: 3DGS's 1.1 times the largest distance of a
+// camera centre from their mean, or 1.1 times the 95th percentile of the splats' distances from
+// that mean where it is larger (a forward-facing capture's cameras span little of its scene);
+// at least `floor`.
+double SceneExtent(const std::vector<SplatFitView>& views, const GaussianSplats& splats, double floor = 1e-6);
 
 // Fits `splats` (the initial particles; sh_degree raised to options.sh_degree) to `views`, drawn
 // over `background` (RGB in [0, 1]). Throws std::invalid_argument for bad options, no views or no

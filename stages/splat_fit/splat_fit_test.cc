@@ -208,3 +208,105 @@ TEST(SplatFit, BadOptionsAndInputsAreRefused) {
 
 }  // namespace
 }  // namespace ibmr
+
+// The stage adapter's refusals, each naming what to change.
+#include <unistd.h>
+
+#include <filesystem>
+
+#include "pipeline/core/colmap_text_io.h"
+#include "pipeline/core/errors.h"
+#include "pipeline/core/image_io.h"
+#include "pipeline/core/ply_io.h"
+#include "pipeline/core/stage_api.h"
+
+namespace ibmr {
+void RegisterStage_splat_fit(StageRegistry* registry);
+
+namespace {
+
+struct StageWorkspace {
+  std::filesystem::path root;
+  StageRegistry registry;
+  const Stage* stage = nullptr;
+  StageContext context;
+  NullProgress progress;
+
+  // `views` photos of 32x32 looking at the origin, `points` fused points.
+  StageWorkspace(const std::string& name, int views, int points) {
+    root = std::filesystem::temp_directory_path() / ("ibmr_splat_fit_stage_" + name + "_" + std::to_string(::getpid()));
+    std::filesystem::remove_all(root);
+    std::filesystem::create_directories(root / "images");
+    std::filesystem::create_directories(root / "dense");
+    RegisterStage_splat_fit(&registry);
+    stage = registry.Find("splat_fit");
+    SparseModel model;
+    model.cameras[1] = Camera::Pinhole(32, 32, 40, 40, 16, 16);
+    for (int i = 0; i < views; ++i) {
+      Image image;
+      image.image_id = i + 1;
+      image.camera_id = 1;
+      image.name = "v" + std::to_string(i) + ".png";
+      image.cam_from_world = Rigid3d(Eigen::Matrix3d::Identity(), Eigen::Vector3d(0.1 * i, 0, 3));
+      model.images[image.image_id] = image;
+      WriteImage((root / "images" / image.name).string(), cv::Mat(32, 32, CV_8UC3, cv::Scalar(10, 200, 30)));
+    }
+    WriteSparseModelText((root / "sparse").string(), model);
+    PointCloud cloud;
+    for (int i = 0; i < points; ++i) {
+      cloud.positions.push_back(Eigen::Vector3f(0.01f * i, 0.02f * (i % 7), 0));
+      cloud.normals.push_back(Eigen::Vector3f(0, 0, -1));
+      cloud.colors.push_back(Color3u8(200, 30, 10));
+    }
+    WritePointCloudPly((root / "dense/fused.ply").string(), cloud);
+    context.workspace = Workspace(root.string());
+    context.role = HoldoutRole::kTrainingOnly;
+    context.progress = &progress;
+    for (const ParamSpec& spec : stage->Parameters()) {
+      if (spec.type == ParamType::kInt) context.params.Set(spec.key, static_cast<int64_t>(std::stoll(spec.default_yaml)));
+      if (spec.type == ParamType::kDouble) context.params.Set(spec.key, std::stod(spec.default_yaml));
+      if (spec.type == ParamType::kString) context.params.Set(spec.key, spec.default_yaml);
+    }
+    context.params.Set("iterations", int64_t{20});
+  }
+  ~StageWorkspace() { std::filesystem::remove_all(root); }
+  std::string Error() {
+    try {
+      stage->Run(context);
+    } catch (const InputError& e) {
+      return e.what();
+    }
+    return "";
+  }
+};
+
+TEST(SplatFitStage, RefusesWhatItCannotFitNamingTheKey) {
+  {
+    StageWorkspace ws("one_view", 1, 50);
+    const std::string error = ws.Error();
+    EXPECT_NE(error.find("at least 2"), std::string::npos) << error;
+  }
+  {
+    StageWorkspace ws("no_points", 3, 0);
+    const std::string error = ws.Error();
+    EXPECT_NE(error.find("fused.ply"), std::string::npos) << error;
+    EXPECT_NE(error.find("no point"), std::string::npos) << error;
+  }
+  {
+    StageWorkspace ws("cap", 3, 50);
+    ws.context.params.Set("max_splats", int64_t{10});
+    const std::string error = ws.Error();
+    EXPECT_NE(error.find("splat_fit.max_splats"), std::string::npos) << error;
+  }
+  {
+    StageWorkspace ws("fits", 3, 50);
+    EXPECT_EQ(ws.Error(), "");
+    const GaussianSplats written = ReadGaussianSplatsPly((ws.root / "splat_fit/splats.ply").string());
+    EXPECT_EQ(written.size(), ws.context.metrics["splats"].get<size_t>());
+    EXPECT_EQ(written.sh_degree, 3);
+    EXPECT_TRUE(std::filesystem::exists(ws.root / "splat_fit/curve.json"));
+  }
+}
+
+}  // namespace
+}  // namespace ibmr
