@@ -61,6 +61,19 @@ inline Falloff Evaluate(const Eigen::Matrix3f& a, const Eigen::Vector2f& centre,
 
 }  // namespace
 
+SplatCamera ToSplatCamera(const Camera& camera, const Rigid3d& cam_from_world) {
+  SplatCamera out;
+  out.width = camera.width;
+  out.height = camera.height;
+  out.fx = static_cast<float>(camera.FocalX());
+  out.fy = static_cast<float>(camera.FocalY());
+  out.cx = static_cast<float>(camera.PrincipalX());
+  out.cy = static_cast<float>(camera.PrincipalY());
+  out.rotation = cam_from_world.R().cast<float>();
+  out.translation = cam_from_world.translation.cast<float>();
+  return out;
+}
+
 void RenderSplats(const GaussianSplats& splats, const SplatCamera& camera, const SplatRasterOptions& options,
                   SplatFrame* frame) {
   const size_t n = splats.size();

@@ -34,7 +34,9 @@
 #include <opencv2/core.hpp>
 #include <vector>
 
+#include "pipeline/core/camera.h"
 #include "pipeline/core/gaussian_splats.h"
+#include "pipeline/core/rigid3.h"
 
 namespace ibmr {
 
@@ -47,6 +49,9 @@ struct SplatCamera {
   Eigen::Vector3f translation = Eigen::Vector3f::Zero();
   Eigen::Vector3f Centre() const { return -rotation.transpose() * translation; }
 };
+
+// The pinhole `camera` (PINHOLE or SIMPLE_PINHOLE: no distortion) at `cam_from_world`.
+SplatCamera ToSplatCamera(const Camera& camera, const Rigid3d& cam_from_world);
 
 struct SplatRasterOptions {
   Eigen::Vector3f background = Eigen::Vector3f::Zero();  // RGB in [0, 1], behind every splat

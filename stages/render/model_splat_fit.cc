@@ -50,15 +50,7 @@ class SplatFitModel : public RenderModel {
   }
 
   ModelView Render(const RenderScene&, const DesiredView& view) const override {
-    SplatCamera camera;
-    camera.width = view.camera.width;
-    camera.height = view.camera.height;
-    camera.fx = static_cast<float>(view.camera.FocalX());
-    camera.fy = static_cast<float>(view.camera.FocalY());
-    camera.cx = static_cast<float>(view.camera.PrincipalX());
-    camera.cy = static_cast<float>(view.camera.PrincipalY());
-    camera.rotation = view.cam_from_world.R().cast<float>();
-    camera.translation = view.cam_from_world.translation.cast<float>();
+    const SplatCamera camera = ToSplatCamera(view.camera, view.cam_from_world);
     SplatFrame frame;
     RenderSplats(splats_, camera, SplatRasterOptions(), &frame);  // over black
     ModelView drawn;

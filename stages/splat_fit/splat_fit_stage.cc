@@ -162,14 +162,7 @@ class SplatFitStage : public Stage {
       cv::Mat rgb;
       cv::cvtColor(photo, rgb, cv::COLOR_BGR2RGB);
       rgb.convertTo(view.image, CV_32FC3, 1.0 / 255.0);
-      view.camera.width = camera.width;
-      view.camera.height = camera.height;
-      view.camera.fx = static_cast<float>(camera.FocalX());
-      view.camera.fy = static_cast<float>(camera.FocalY());
-      view.camera.cx = static_cast<float>(camera.PrincipalX());
-      view.camera.cy = static_cast<float>(camera.PrincipalY());
-      view.camera.rotation = image.cam_from_world.R().cast<float>();
-      view.camera.translation = image.cam_from_world.translation.cast<float>();
+      view.camera = ToSplatCamera(camera, image.cam_from_world);
       context.progress->Advance(1, names[i]);
     }
     context.progress->End();
