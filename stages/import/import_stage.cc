@@ -152,7 +152,8 @@ class ImportStage : public Stage {
  public:
   std::string Name() const override { return "import"; }
   std::string Summary() const override {
-    return "Image folder (EXIF focal), Middlebury _par.txt, Strecha .camera or COLMAP model into sparse/ and images/";
+    return "Image folder (EXIF focal), Middlebury _par.txt, Strecha .camera, COLMAP model, transforms.json / NeRF's "
+           "Blender layout (splits, RGBA) or LLFF into sparse/ and images/";
   }
   // 2: photos screened, max_image_size, transforms/llff; 3: splits, alpha composited
   std::string Version() const override { return "3"; }
