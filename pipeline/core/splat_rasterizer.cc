@@ -78,7 +78,6 @@ void RenderSplats(const GaussianSplats& splats, const SplatCamera& camera, const
                   SplatFrame* frame) {
   const size_t n = splats.size();
   const int degree = options.sh_degree < 0 ? splats.sh_degree : std::min(options.sh_degree, splats.sh_degree);
-  const int stride = splats.ShCount();
   frame->options = options;
   frame->width = camera.width;
   frame->height = camera.height;
@@ -158,7 +157,6 @@ void RenderSplats(const GaussianSplats& splats, const SplatCamera& camera, const
       for (int j = 0; j < (degree + 1) * (degree + 1); ++j) {
         for (int c = 0; c < 3; ++c) colour[c] += basis[j] * sh[j * 3 + c];
       }
-      (void)stride;
       frame->colour[i] = colour;
       frame->visible[i] = 1;
     }

@@ -45,7 +45,7 @@ bool FileHasAlpha(const std::string& path) {
     if (!file.read(head, sizeof(head))) return false;
     return head[25] == 4 || head[25] == 6;
   }
-  if (ext == ".tif" || ext == ".tiff") return HasAlpha(DecodeImageFile(path, cv::IMREAD_UNCHANGED));
+  if (ext == ".tif" || ext == ".tiff") return HasAlpha(ReadImageUnchanged(path));
   return false;
 }
 
@@ -555,7 +555,7 @@ class ImportStage : public Stage {
         ++with_alpha;
         AlphaComposite composite;
         try {
-          composite = CompositeOverBackground(DecodeImageFile(from.string(), cv::IMREAD_UNCHANGED), options.background,
+          composite = CompositeOverBackground(ReadImageUnchanged(from.string()), options.background,
                                               options.alpha_premultiplied);
         } catch (const std::invalid_argument& e) {
           throw InputError(from.string() + ": " + e.what() + "; set import.alpha: ignore to use its colour only");

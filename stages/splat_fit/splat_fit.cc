@@ -87,17 +87,20 @@ struct Adam {
     m.assign(n, 0.0f);
     v.assign(n, 0.0f);
   }
-  // One step on `x` with gradient `g` (both n floats), step size `lr`, at step `t` (1-based).
-  void Step(float* x, const float* g, size_t n, float lr, int t) {
+  // One step on `x` with gradient `g` (both n floats), step size `lr`, at step `t` (1-based). With
+  // `period` > 0, only the first `head` floats of every `period` take `lr`, the others `rest_lr`
+  // (the SH array: each splat's DC coefficients, then its higher ones).
+  void Step(float* x, const float* g, size_t n, float lr, int t, size_t period = 0, size_t head = 0, float rest_lr = 0) {
     constexpr float kBeta1 = 0.9f, kBeta2 = 0.999f, kEps = 1e-15f;
     const float c1 = 1.0f - std::pow(kBeta1, static_cast<float>(t));
     const float c2 = 1.0f - std::pow(kBeta2, static_cast<float>(t));
-    const float step = lr * std::sqrt(c2) / c1;
+    const float correction = std::sqrt(c2) / c1;
     tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 1 << 14), [&](const tbb::blocked_range<size_t>& range) {
       for (size_t i = range.begin(); i != range.end(); ++i) {
         m[i] = kBeta1 * m[i] + (1.0f - kBeta1) * g[i];
         v[i] = kBeta2 * v[i] + (1.0f - kBeta2) * g[i] * g[i];
-        x[i] -= step * m[i] / (std::sqrt(v[i]) + kEps);
+        const float rate = (period == 0 || i % period < head ? lr : rest_lr) * correction;
+        x[i] -= rate * m[i] / (std::sqrt(v[i]) + kEps);
       }
     });
   }
@@ -145,10 +148,9 @@ SplatFitView HalfSize(const SplatFitView& view) {
 }  // namespace
 
 DensityCounts ControlDensity(const std::vector<float>& mean_screen_gradient, double extent, const SplatFitOptions& options,
-                             uint64_t seed, GaussianSplats* splats, std::vector<int>* origin) {
+                             GaussianSplats* splats, std::vector<int>* origin) {
   const size_t n = splats->size();
   const int k3 = splats->ShCount() * 3;
-  (void)seed;
   DensityCounts counts;
   // Which to grow: above the threshold, the strongest first while the cap allows.
   std::vector<size_t> grow;
@@ -306,33 +308,16 @@ SplatFitResult FitSplats(const std::vector<SplatFitView>& views, const Eigen::Ve
     adam.rotation.Step(splats->rotation[0].data(), gradients.rotation[0].data(), n * 4, static_cast<float>(options.lr_rotation), step);
     adam.scale.Step(splats->log_scale[0].data(), gradients.log_scale[0].data(), n * 2, static_cast<float>(options.lr_scale), step);
     adam.opacity.Step(splats->opacity_logit.data(), gradients.opacity_logit.data(), n, static_cast<float>(options.lr_opacity), step);
-    // SH: the DC terms and the rest at their own steps (one array, two step sizes).
-    {
-      const int k3 = splats->ShCount() * 3;
-      const std::vector<float>& g = gradients.sh;
-      // Adam's state is per coefficient: one step with the DC coefficients' rate and the others'.
-      const float dc_rate = static_cast<float>(options.lr_sh_dc), rest_rate = static_cast<float>(options.lr_sh_rest);
-      constexpr float kBeta1 = 0.9f, kBeta2 = 0.999f, kEps = 1e-15f;
-      const float c1 = 1.0f - std::pow(kBeta1, static_cast<float>(step));
-      const float c2 = 1.0f - std::pow(kBeta2, static_cast<float>(step));
-      const float correction = std::sqrt(c2) / c1;
-      Adam& a = adam.sh;
-      tbb::parallel_for(tbb::blocked_range<size_t>(0, g.size(), 1 << 14), [&](const tbb::blocked_range<size_t>& range) {
-        for (size_t q = range.begin(); q != range.end(); ++q) {
-          const float rate = (q % k3) < 3 ? dc_rate : rest_rate;
-          a.m[q] = kBeta1 * a.m[q] + (1.0f - kBeta1) * g[q];
-          a.v[q] = kBeta2 * a.v[q] + (1.0f - kBeta2) * g[q] * g[q];
-          splats->sh[q] -= rate * correction * a.m[q] / (std::sqrt(a.v[q]) + kEps);
-        }
-      });
-    }
+    // SH: the DC coefficients (the first 3 of each splat's) at their step, the rest at theirs.
+    adam.sh.Step(splats->sh.data(), gradients.sh.data(), splats->sh.size(), static_cast<float>(options.lr_sh_dc), step,
+                 splats->ShCount() * 3, 3, static_cast<float>(options.lr_sh_rest));
     // Density control.
     if (step >= options.densify_from && step <= densify_until && step % options.densify_every == 0) {
       std::vector<float> mean(splats->size(), 0.0f);
       for (size_t i = 0; i < splats->size(); ++i) mean[i] = screen_count[i] > 0 ? screen_sum[i] / screen_count[i] : 0.0f;
       std::vector<int> origin;
       const DensityCounts counts =
-          ControlDensity(mean, result.extent, options, static_cast<uint64_t>(options.seed) * 7919 + step, splats, &origin);
+          ControlDensity(mean, result.extent, options, splats, &origin);
       result.splits += counts.splits;
       result.clones += counts.clones;
       result.pruned += counts.pruned;

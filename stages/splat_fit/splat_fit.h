@@ -100,12 +100,12 @@ void RaiseShDegree(int degree, GaussianSplats* splats);
 
 // The density control pass on its own (tested apart): grows the splats whose mean gradient
 // `mean_screen_gradient` (per splat) exceeds the threshold, prunes, and keeps the count within the
-// cap. Returns {splits, clones, pruned}; `kept` receives, per splat after the pass, the index of the
-// splat it came from (or -1 for a new one).
+// cap. Returns {splits, clones, pruned}; `origin` receives, per splat after the pass, the index of
+// the splat it came from (or -1 for a new one).
 struct DensityCounts {
   size_t splits = 0, clones = 0, pruned = 0;
 };
 DensityCounts ControlDensity(const std::vector<float>& mean_screen_gradient, double extent, const SplatFitOptions& options,
-                             uint64_t seed, GaussianSplats* splats, std::vector<int>* origin);
+                             GaussianSplats* splats, std::vector<int>* origin);
 
 }  // namespace ibmr

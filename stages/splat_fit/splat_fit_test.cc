@@ -160,7 +160,7 @@ TEST(SplatFit, DensityControlKeepsItsInvariants) {
   options.dense_fraction = 0.03;  // radii ~0.15 of an extent 3: these split
   std::vector<int> origin;
   GaussianSplats grown = splats;
-  const DensityCounts counts = ControlDensity(gradient, 3.0, options, 1, &grown, &origin);
+  const DensityCounts counts = ControlDensity(gradient, 3.0, options, &grown, &origin);
   EXPECT_LE(grown.size(), 50u);
   EXPECT_EQ(counts.pruned, 1u);
   EXPECT_GT(counts.splits, 0u);
@@ -175,7 +175,7 @@ TEST(SplatFit, DensityControlKeepsItsInvariants) {
   GaussianSplats split = one;
   std::vector<float> grow = {1.0f};
   options.dense_fraction = 0.01;
-  ControlDensity(grow, 3.0, options, 2, &split, &origin);
+  ControlDensity(grow, 3.0, options, &split, &origin);
   ASSERT_EQ(split.size(), 2u);
   const SplatCamera camera = LookingAt(Eigen::Vector3f(0, 3, 0));
   const auto image = [&](const GaussianSplats& s) {
