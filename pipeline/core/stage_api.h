@@ -57,6 +57,14 @@ struct StageContext {
   double view_memory_mb = 0;
   double memory_limit_mb = 0;
 
+  // Outputs of the stages the run's plan skipped (Stage::Serves: the capture's kind is not one
+  // their model serves), absolute paths, each with the one-line reason. A stage that reads one
+  // finds it absent, or left by an earlier run, and must not use it (render drops the model).
+  std::map<std::string, std::string> skipped_outputs;
+  // The reason when `path` (workspace-relative or absolute) is, or lies inside, a skipped output;
+  // nullptr otherwise.
+  const std::string* SkippedBy(const std::string& path) const;
+
   bool IsHeldOut(const std::string& image_name) const { return heldout_images.count(image_name) > 0; }
   // Reads the workspace's model (SparseDir). For kTrainingOnly stages the held-out images are removed (and their
   // observations from the tracks), which is how the runner keeps them out of reconstruction.
@@ -67,6 +75,15 @@ struct StageContext {
   // The same from the workspace's model, or empty when it is missing or unreadable: for declaring
   // per-view inputs before the stage runs (Run() then reports the problem).
   std::vector<std::string> TrainingImageNamesIfReadable() const;
+};
+
+// The capture kinds (pipeline/core/capture_shape.h: forward_facing, object, general) a stage's
+// model can serve, and why, for the run's plan: the runner skips a stage whose kinds leave out the
+// capture's (capture.json) unless the config's `plan.with` or `--with` names it. Empty kinds: every
+// capture.
+struct CaptureUse {
+  std::vector<std::string> kinds;
+  std::string why;  // "volumes of fronto-parallel planes sample forward-facing captures only"
 };
 
 class Stage {
@@ -91,6 +108,13 @@ class Stage {
     std::string sparse, images;
   };
   virtual ModelFolders WritesModel() const { return {}; }
+  // The captures the stage's model can serve (see CaptureUse). Default: every capture.
+  virtual CaptureUse Serves() const { return {}; }
+  // True when the stage cannot run without the outputs of a stage the plan skipped (carve without
+  // the silhouettes' masks): it is skipped with it, naming the reason. False (the default): it
+  // reads what it finds, as with any optional input (plane_sweep without a hull; render drops the
+  // models made by skipped stages, see StageContext::SkippedBy).
+  virtual bool SkippedWithItsInputs() const { return false; }
   // Does the work. Throws IoError / InputError with a message for the user on failure.
   virtual void Run(StageContext& context) const = 0;
   // True when shards of the stage's views may run as separate processes or cluster jobs (`--views`,

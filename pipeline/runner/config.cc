@@ -1,6 +1,8 @@
 // Loading and validating the YAML run configuration (see config.h).
 #include "pipeline/runner/config.h"
 
+#include "pipeline/core/capture_shape.h"
+
 #include <yaml-cpp/yaml.h>
 
 #include <algorithm>
@@ -218,6 +220,41 @@ StageConfig ParseStage(const YAML::Node& entry, const StageRegistry& registry, c
   }
   CheckStage(*stage, config.path, stage_config);
   return stage_config;
+}
+
+void ParsePlan(const YAML::Node& node, Config* config) {
+  const std::string& path = config->path;
+  if (!node.IsMap()) throw ConfigError(Where(path, LineOf(node), "plan", "expected a map (kind, with)"));
+  config->plan.line = LineOf(node);
+  const std::vector<std::string> valid = {"kind", "with"};
+  std::vector<std::string> stages = {"all"};
+  for (const StageConfig& s : config->stages) stages.push_back(s.name);
+  for (const auto& kv : node) {
+    const std::string key = kv.first.Scalar();
+    const int line = LineOf(kv.first);
+    if (key == "kind") {
+      const std::string kind = kv.second.IsScalar() ? kv.second.Scalar() : "";
+      if (kind != "auto" && !IsCaptureKind(kind)) {
+        throw ConfigError(Where(path, line, "plan.kind",
+                                "expected auto, forward_facing, object or general, got '" + kind + "'"));
+      }
+      config->plan.kind = kind;
+    } else if (key == "with") {
+      if (!kv.second.IsSequence()) {
+        throw ConfigError(Where(path, line, "plan.with", "expected a list of stage names, e.g. [volume], or [all]"));
+      }
+      for (const auto& item : kv.second) {
+        const std::string name = item.IsScalar() ? item.Scalar() : "";
+        if (std::find(stages.begin(), stages.end(), name) == stages.end()) {
+          throw ConfigError(Where(path, LineOf(item), "plan.with",
+                                  "'" + name + "' is not a stage of this config; " + Suggest(name, stages)));
+        }
+        config->plan.with.push_back(name);
+      }
+    } else {
+      throw ConfigError(Where(path, line, "plan." + key, "unknown key; " + Suggest(key, valid)));
+    }
+  }
 }
 
 void ParseHoldout(const YAML::Node& node, Config* config) {
@@ -609,7 +646,7 @@ Config LoadConfig(const std::string& path, const StageRegistry& registry) {
   }
   if (!root.IsMap()) throw ConfigError(Where(path, 1, "", "expected a map with keys workspace, inputs, holdout, stages"));
   ExpandAndCheckTree(root, masked, path, "", "");
-  RejectUnknownKeys(path, root, {"workspace", "inputs", "holdout", "stages", "sweep"}, "");
+  RejectUnknownKeys(path, root, {"workspace", "inputs", "holdout", "stages", "sweep", "plan"}, "");
   const std::string example = "e.g. 'workspace: ../workspaces/demo'";
   const YAML::Node workspace = root["workspace"];
   if (!workspace || workspace.IsNull()) {
@@ -656,7 +693,19 @@ Config LoadConfig(const std::string& path, const StageRegistry& registry) {
     }
     config.stages.push_back(std::move(stage));
   }
+  if (const YAML::Node plan = root["plan"]) ParsePlan(plan, &config);
   return config;
+}
+
+void ApplyWith(const std::vector<std::string>& names, Config* config) {
+  std::vector<std::string> stages = {"all"};
+  for (const StageConfig& s : config->stages) stages.push_back(s.name);
+  for (const std::string& name : names) {
+    if (std::find(stages.begin(), stages.end(), name) == stages.end()) {
+      throw ConfigError("--with " + name + ": not a stage of " + config->path + "; " + Suggest(name, stages));
+    }
+    config->plan.with.push_back(name);
+  }
 }
 
 void ApplyOverride(const std::string& assignment, const StageRegistry& registry, Config* config) {

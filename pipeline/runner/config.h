@@ -20,6 +20,7 @@
 //         levels: 7
 #pragma once
 
+#include <algorithm>
 #include <map>
 #include <set>
 #include <stdexcept>
@@ -99,6 +100,21 @@ struct SweepPlan {
   bool HasStability() const { return !methods.empty(); }
 };
 
+// The run's plan (the config's optional `plan:` block; `ibmr run --with` adds to `with`):
+//   plan:
+//     kind: auto       # or forward_facing, object, general: instead of the capture analysis
+//     with: [volume]   # stages run whatever the capture's kind (Stage::Serves); [all]: skip none
+struct RunPlan {
+  std::string kind = "auto";
+  std::vector<std::string> with;
+  int line = 0;  // of the plan: block (0: none)
+
+  bool Forces(const std::string& stage) const {
+    return std::find(with.begin(), with.end(), stage) != with.end() ||
+           std::find(with.begin(), with.end(), "all") != with.end();
+  }
+};
+
 struct Config {
   std::string path;       // the config file
   std::string dir;        // its folder (absolute)
@@ -107,6 +123,7 @@ struct Config {
   HoldoutPolicy holdout;
   std::vector<StageConfig> stages;
   SweepPlan sweep;  // empty unless the config has a sweep: block
+  RunPlan plan;
 
   const StageConfig* FindStage(const std::string& name) const;
 };
@@ -130,6 +147,9 @@ Params DefaultParams(const Stage& stage, const std::string& dir);
 // stages' own CheckParams. Throws ConfigError, also for a key given twice in one map, a key that
 // is not a plain name, and a workspace that is empty or the filesystem root.
 Config LoadConfig(const std::string& path, const StageRegistry& registry);
+// Adds `--with` names to config->plan.with. Throws ConfigError for a name that is not a stage of
+// the config (nor "all"), suggesting the nearest.
+void ApplyWith(const std::vector<std::string>& names, Config* config);
 // Applies "--set stage.key=value" (value parsed as YAML) and re-checks the stage. Throws ConfigError.
 void ApplyOverride(const std::string& assignment, const StageRegistry& registry, Config* config);
 

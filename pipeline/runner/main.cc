@@ -11,6 +11,9 @@
 #include <iostream>
 #include <sstream>
 
+#include "pipeline/core/capture_info.h"
+#include "pipeline/core/capture_shape.h"
+#include "pipeline/core/colmap_text_io.h"
 #include "pipeline/core/errors.h"
 #include "pipeline/core/process_memory.h"
 #include "pipeline/runner/builtin_stages.h"
@@ -74,6 +77,11 @@ int main(int argc, char** argv) {
   run->add_flag("--force", options.force, "Run the selected stages even when up to date");
   run->add_option("--set", overrides, "Override a parameter: stage.key=value (repeatable)")->allow_extra_args(false);
   run->add_flag("--dry-run", options.dry_run, "List what would run and why; change nothing");
+  std::vector<std::string> with_stages;
+  run->add_option("--with", with_stages,
+                  "Run these stages even where the capture's kind is one their model does not serve (capture.json; "
+                  "comma-separated, or all)")
+      ->delimiter(',');
   run->add_option("--jobs", options.jobs, "Worker threads (default: all cores)")->check(CLI::PositiveNumber);
   run->add_option("--memory-limit", options.memory_limit_mb,
                   "Memory of a per-view stage's views in flight together, MB (default: what is available when "
@@ -124,6 +132,15 @@ int main(int argc, char** argv) {
   status->add_option("config", config_path, "YAML config")->required()->check(CLI::ExistingFile);
   status->add_option("--workspace", workspace, "Workspace folder (overrides the config's)");
   status->add_option("--set", overrides, "Override a parameter: stage.key=value (repeatable)")->allow_extra_args(false);
+  status->add_option("--with", with_stages, "As for run: stages to run whatever the capture's kind")->delimiter(',');
+
+  std::string capture_path;
+  auto* capture = app.add_subcommand("capture", "Print the shape of a capture (forward_facing, object or general) and "
+                                                "the figures that decide it, from a workspace or a sparse model folder");
+  capture->add_option("path", capture_path, "Workspace (its latest model: dense/sparse, sfm/sparse or sparse) or a "
+                                            "folder with cameras.txt and images.txt")
+      ->required()
+      ->check(CLI::ExistingDirectory);
 
   auto* stages = app.add_subcommand("stages", "List every stage: inputs, outputs, parameters with defaults");
 
@@ -169,6 +186,19 @@ int main(int argc, char** argv) {
     }
   }
 
+  if (capture->parsed()) {
+    try {
+      const std::string model_dir = ibmr::FindModelFolder(capture_path);
+      const ibmr::SparseModel model = ibmr::ReadSparseModelText(model_dir);
+      const bool alpha = std::filesystem::is_directory(capture_path + "/" + ibmr::kAlphaFolder);
+      const ibmr::CaptureShape shape = ibmr::AnalyseCapture(model, alpha);
+      std::cout << model_dir << ": " << shape.Describe() << "\n" << shape.ToJson().dump(2) << "\n";
+      return 0;
+    } catch (const std::exception& e) {
+      spdlog::error("{}", e.what());
+      return 1;
+    }
+  }
   if (stages->parsed()) {
     std::cout << ibmr::DescribeStages(registry);
     return 0;
@@ -207,6 +237,7 @@ int main(int argc, char** argv) {
       }
     }
     for (const std::string& assignment : overrides) ibmr::ApplyOverride(assignment, registry, &config);
+    ibmr::ApplyWith(with_stages, &config);
   } catch (const ibmr::ConfigError& e) {
     std::cerr << "error: " << e.what() << "\n";
     return 2;
@@ -225,6 +256,7 @@ int main(int argc, char** argv) {
   std::vector<std::string> run_args = {std::filesystem::absolute(config_path).lexically_normal().string(),
                                        "--workspace", config.workspace};
   for (const std::string& assignment : overrides) run_args.insert(run_args.end(), {"--set", assignment});
+  for (const std::string& name : with_stages) run_args.insert(run_args.end(), {"--with", name});
   const std::string self = std::filesystem::read_symlink("/proc/self/exe").string();
   if (export_cmd->parsed()) {
     export_options.ibmr = self;
@@ -270,7 +302,7 @@ int main(int argc, char** argv) {
   try {
     if (status->parsed()) {
       for (const auto& s : runner.Status()) {
-        std::cout << (s.up_to_date ? "  ok     " : "  stale  ") << s.name << ": " << s.reason;
+        std::cout << (s.skipped ? "  skip   " : s.up_to_date ? "  ok     " : "  stale  ") << s.name << ": " << s.reason;
         // A per-view stage part done (shards, or a run that was killed): how far it got.
         const size_t views = s.up_to_date ? 0 : runner.ShardViews(s.name).size();
         const size_t left = views > 0 ? runner.UnfinishedViews(s.name).size() : 0;

@@ -22,6 +22,7 @@ nlohmann::json StageRecord::ToJson() const {
     json["views_in_flight"] = views_in_flight;
   }
   if (!reused_from.empty()) json["reused_from"] = reused_from;
+  if (!skipped_because.empty()) json["skipped_because"] = skipped_because;
   return json;
 }
 
@@ -48,6 +49,7 @@ StageRecord StageRecord::FromJson(const nlohmann::json& j) {
   r.view_memory_mb = j.value("view_memory_mb", 0.0);
   r.views_in_flight = j.value("views_in_flight", 0);
   r.reused_from = j.value("reused_from", "");
+  r.skipped_because = j.value("skipped_because", "");
   return r;
 }
 

@@ -15,7 +15,8 @@ namespace ibmr {
 struct StageRecord {
   std::string stage;
   std::string version;
-  std::string status;  // "running", "ok" or "failed"
+  std::string status;  // "running", "ok", "failed" or "skipped" (the run's plan: Stage::Serves)
+  std::string skipped_because;  // status "skipped": the one-line reason
   std::string key;     // cache key: hash of version, result parameters, holdout set, input hashes
   nlohmann::json params = nlohmann::json::object();
   nlohmann::json inputs = nlohmann::json::object();  // path -> content hash

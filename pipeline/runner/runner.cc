@@ -17,6 +17,7 @@
 #include "pipeline/core/capture_info.h"
 #include "pipeline/core/colmap_text_io.h"
 #include "pipeline/core/content_hash.h"
+#include "pipeline/core/json_file.h"
 #include "pipeline/core/per_view.h"
 #include "pipeline/runner/record.h"
 #include "pipeline/core/process_memory.h"
@@ -113,15 +114,100 @@ std::string Runner::LockPath(const std::string& stage) const {
   return Workspace(config_.workspace).RecordsDir() + "/" + stage + ".lock";
 }
 
-StageContext Runner::MakeContext(const Stage& stage, const StageConfig& stage_config) const {
-  StageContext context;
-  context.workspace = Workspace(config_.workspace);
+Workspace Runner::WorkspaceBefore(const StageConfig& stage_config) const {
+  Workspace workspace(config_.workspace);
   // The model and images of the last stage before this one that writes them.
   for (size_t i = 0; i < config_.stages.size() && &config_.stages[i] != &stage_config; ++i) {
     const Stage::ModelFolders folders = registry_.Find(config_.stages[i].name)->WritesModel();
-    context.workspace.SetModelFolders(folders.sparse.empty() ? context.workspace.SparseRelative() : folders.sparse,
-                                      folders.images.empty() ? context.workspace.ImagesRelative() : folders.images);
+    workspace.SetModelFolders(folders.sparse.empty() ? workspace.SparseRelative() : folders.sparse,
+                              folders.images.empty() ? workspace.ImagesRelative() : folders.images);
   }
+  return workspace;
+}
+
+std::optional<CaptureShape> Runner::CaptureOf(size_t index) const {
+  const Workspace workspace = WorkspaceBefore(config_.stages.at(index));
+  const std::string folder = Resolve(workspace, workspace.SparseRelative());
+  if (const auto found = shapes_.find(folder); found != shapes_.end()) return found->second;
+  std::optional<CaptureShape> shape;
+  if (fs::exists(folder + "/images.txt")) {
+    try {
+      const SparseModel model = ReadSparseModelText(folder);
+      if (!model.images.empty()) {
+        shape = AnalyseCapture(model, fs::is_directory(workspace.Path(kAlphaFolder)));
+        if (config_.plan.kind != "auto" && config_.plan.kind != shape->kind) {
+          shape->set_by = "plan.kind (the analysis: " + shape->kind + ")";
+          shape->kind = config_.plan.kind;
+        }
+        nlohmann::json json = shape->ToJson();
+        json["model"] = workspace.SparseRelative();
+        const std::string path = workspace.Path(kCaptureFile);
+        if (ReadJsonOr(path, nlohmann::json()) != json) WriteFileAtomic(path, DumpJson(json, 2) + "\n");
+        spdlog::info("capture: {} ({})", shape->Describe(), kCaptureFile);
+      }
+    } catch (const std::exception& e) {
+      spdlog::warn("cannot analyse the capture's shape from {}: {}; every stage runs", folder, e.what());
+      shape.reset();
+    }
+  }
+  shapes_[folder] = shape;
+  return shape;
+}
+
+std::string Runner::SkipReason(size_t index) const {
+  const StageConfig& stage_config = config_.stages.at(index);
+  const Stage& stage = *registry_.Find(stage_config.name);
+  if (config_.plan.Forces(stage.Name())) return "";
+  const CaptureUse use = stage.Serves();
+  if (!use.kinds.empty()) {
+    const std::optional<CaptureShape> shape = CaptureOf(index);
+    if (shape && !shape->kind.empty() && std::find(use.kinds.begin(), use.kinds.end(), shape->kind) == use.kinds.end()) {
+      return stage.Name() + ": skipped, the capture is " + shape->Describe() + "; " + use.why + "; --with " +
+             stage.Name() + " runs it";
+    }
+  }
+  if (stage.SkippedWithItsInputs() && !skipped_outputs_.empty()) {
+    StageContext context;
+    context.workspace = WorkspaceBefore(stage_config);
+    context.skipped_outputs = skipped_outputs_;
+    for (const std::string& input : stage.Inputs(MakeContext(stage, stage_config))) {
+      if (const std::string* reason = context.SkippedBy(input)) {
+        return stage.Name() + ": skipped, it needs '" + input + "', which a skipped stage makes (" + *reason + ")";
+      }
+    }
+  }
+  return "";
+}
+
+void Runner::Skip(size_t index, const StageContext& context, const std::string& key, const std::string& reason,
+                  bool write_record) const {
+  const Stage& stage = *registry_.Find(config_.stages.at(index).name);
+  const std::vector<std::string> outputs = stage.Outputs(context);
+  for (const std::string& output : outputs) skipped_outputs_[Resolve(context.workspace, output)] = reason;
+  if (!write_record) return;
+  const auto record = ReadRecord(RecordPath(stage.Name()));
+  if (record && record->status == "skipped" && record->key == key && record->skipped_because == reason) {
+    spdlog::info("[{}] {} (as before)", stage.Name(), reason);
+    return;
+  }
+  StageRecord skipped;
+  skipped.stage = stage.Name();
+  skipped.version = stage.Version();
+  skipped.status = "skipped";
+  skipped.skipped_because = reason;
+  skipped.key = key;
+  skipped.params = context.params.ResultJson(stage.Parameters());
+  skipped.heldout = context.heldout_images;
+  skipped.outputs = outputs;
+  skipped.started = NowIso();
+  WriteRecord(RecordPath(stage.Name()), skipped);
+  spdlog::info("[{}] {}", stage.Name(), reason);
+}
+
+StageContext Runner::MakeContext(const Stage& stage, const StageConfig& stage_config) const {
+  StageContext context;
+  context.workspace = WorkspaceBefore(stage_config);
+  context.skipped_outputs = skipped_outputs_;
   context.params = stage_config.params;
   context.config_dir = config_.dir;
   context.inputs = config_.inputs;
@@ -141,7 +227,9 @@ std::string Runner::CacheKey(const Stage& stage, const StageContext& context, nl
   *input_hashes = nlohmann::json::object();
   for (const std::string& input : stage.Inputs(context)) {
     const std::string path = Resolve(context.workspace, input);
-    (*input_hashes)[input] = HashPath(path, config_.workspace);  // a workspace in the photo folder
+    // What a skipped stage left from an earlier run is not read (StageContext::SkippedBy).
+    (*input_hashes)[input] = context.SkippedBy(input) != nullptr ? std::string("skipped")
+                                                                : HashPath(path, config_.workspace);  // a workspace in the photo folder
   }
   nlohmann::json key_source = {{"stage", stage.Name()},
                                {"version", stage.Version()},
@@ -246,11 +334,19 @@ std::string Runner::SharedOutputs() const {
 
 std::vector<StageStatus> Runner::Status() const {
   std::vector<StageStatus> statuses;
+  skipped_outputs_.clear();
+  shapes_.clear();
   for (size_t i = 0; i < config_.stages.size(); ++i) {
     const Stage* stage = registry_.Find(config_.stages[i].name);
     const StageContext context = MakeContext(*stage, config_.stages[i]);
     nlohmann::json inputs;
-    StageStatus status{stage->Name(), false, OwnStaleness(*stage, context, CacheKey(*stage, context, &inputs))};
+    const std::string key = CacheKey(*stage, context, &inputs);
+    if (const std::string skip = SkipReason(i); !skip.empty()) {
+      Skip(i, context, key, skip, false);
+      statuses.push_back({stage->Name(), true, skip.substr(skip.find(':') + 2), true});
+      continue;
+    }
+    StageStatus status{stage->Name(), false, OwnStaleness(*stage, context, key)};
     if (status.reason.empty()) {
       for (size_t j : Upstream(i)) {
         if (!statuses[j].up_to_date) status.reason = "upstream stage '" + statuses[j].name + "' is stale";
@@ -566,11 +662,24 @@ int Runner::Run(const RunOptions& options) {
 
   int ran = 0;
   std::vector<bool> stale_before(config_.stages.size(), false);
+  skipped_outputs_.clear();
+  shapes_.clear();
   for (int i = 0; i < static_cast<int>(config_.stages.size()); ++i) {
     const Stage& stage = *registry_.Find(config_.stages[i].name);
     StageContext context = MakeContext(stage, config_.stages[i]);
     nlohmann::json inputs;
     const std::string key = CacheKey(stage, context, &inputs);
+    const bool in_selection = i >= first && i <= last;
+    if (const std::string skip = SkipReason(i); !skip.empty()) {
+      if (in_selection && options.dry_run) spdlog::info("[{}] would be skipped: {}", stage.Name(), skip);
+      Skip(i, context, key, skip, in_selection && !options.dry_run);
+      continue;
+    }
+    if (options.dry_run && in_selection && !stage.Serves().kinds.empty() && !CaptureOf(i) &&
+        !config_.plan.Forces(stage.Name())) {
+      spdlog::info("[{}] serves {} captures only: whether it runs is known once the poses are (capture.json)",
+                   stage.Name(), fmt::join(stage.Serves().kinds, ", "));
+    }
     std::string reason = OwnStaleness(stage, context, key);
     if (reason.empty() && options.dry_run) {
       for (size_t j : Upstream(i)) {
@@ -609,6 +718,7 @@ int Runner::Run(const RunOptions& options) {
     spdlog::info("[{}] runs: {}", stage.Name(), reason);
     ++ran;
     if (!Execute(stage, context, key, inputs, options)) return 1;
+    if (!stage.WritesModel().sparse.empty()) shapes_.clear();  // a new model: analyse its capture again
   }
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   if (options.dry_run) {

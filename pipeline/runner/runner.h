@@ -4,9 +4,12 @@
 // inputs overlap its outputs) are stale too. Each run leaves records/<stage>.json.
 #pragma once
 
+#include <map>
+#include <optional>
 #include <string>
 #include <vector>
 
+#include "pipeline/core/capture_shape.h"
 #include "pipeline/core/stage_api.h"
 #include "pipeline/runner/config.h"
 
@@ -34,7 +37,8 @@ struct RunOptions {
 struct StageStatus {
   std::string name;
   bool up_to_date = false;
-  std::string reason;  // why stale, or "up to date"
+  std::string reason;  // why stale, or "up to date", or why the plan skips it
+  bool skipped = false;  // the plan skips it (Runner::SkipReason)
 };
 
 class Runner {
@@ -67,11 +71,23 @@ class Runner {
   std::string SharedOutputs() const;
   // What is up to date and what is stale, and why (no work done).
   std::vector<StageStatus> Status() const;
+  // The plan: why config stage `index` is skipped (its model cannot serve the capture's kind, or
+  // it needs a skipped stage's outputs), "" when it runs. Decided from the capture's shape as the
+  // model the stage reads shows it, and the stages skipped before it (in this run, or as Status
+  // walks the config).
+  std::string SkipReason(size_t index) const;
+  // The shape of the capture as the model of config stage `index` shows it, analysed once per
+  // model folder and run and written to capture.json when it changed; nullopt before that model
+  // exists. plan.kind, when not auto, replaces the kind.
+  std::optional<CaptureShape> CaptureOf(size_t index) const;
   // Runs the selected stale stages. Returns 0 on success, 1 when a stage failed, 2 on a usage error.
   int Run(const RunOptions& options);
 
  private:
   StageContext MakeContext(const Stage& stage, const StageConfig& stage_config) const;
+  // The workspace with the model and images folders the stage reads (those of the last stage
+  // before it that writes them, Stage::WritesModel).
+  Workspace WorkspaceBefore(const StageConfig& stage_config) const;
   std::string CacheKey(const Stage& stage, const StageContext& context, nlohmann::json* input_hashes) const;
   // Own staleness of one stage, ignoring upstream; "" when up to date.
   std::string OwnStaleness(const Stage& stage, const StageContext& context, const std::string& key) const;
@@ -94,8 +110,17 @@ class Runner {
   bool Reuse(const Stage& stage, const StageContext& context, const std::string& key,
              const std::vector<std::string>& from) const;
 
+  // Skips stage `index` for `reason`: adds its outputs to skipped_outputs_ and, with
+  // `write_record`, records it (status "skipped") unless its record already says so under `key`.
+  void Skip(size_t index, const StageContext& context, const std::string& key, const std::string& reason,
+            bool write_record) const;
+
   Config config_;
   const StageRegistry& registry_;
+  // Per model folder (absolute): the capture's shape, analysed once per run (nullopt: no model yet).
+  mutable std::map<std::string, std::optional<CaptureShape>> shapes_;
+  // Outputs (absolute) of the stages skipped so far, with the reason (StageContext::skipped_outputs).
+  mutable std::map<std::string, std::string> skipped_outputs_;
 };
 
 }  // namespace ibmr

@@ -35,6 +35,9 @@ std::string DescribeStages(const StageRegistry& registry) {
     out << "  views:   " << RoleText(stage->Role()) << "\n";
     out << "  inputs:  " << Join(stage->Inputs(context)) << "\n";
     out << "  outputs: " << Join(stage->Outputs(context)) << "\n";
+    const CaptureUse use = stage->Serves();
+    out << "  serves:  " << (use.kinds.empty() ? "every capture" : Join(use.kinds) + " captures (" + use.why + ")")
+        << (stage->SkippedWithItsInputs() ? "; skipped with a stage it reads from" : "") << "\n";
     out << "  parameters:\n";
     for (const ParamSpec& spec : stage->Parameters()) {
       out << "    " << spec.key << " (" << ParamTypeName(spec.type) << ", default " << spec.default_yaml << ")";

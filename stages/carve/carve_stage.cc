@@ -116,6 +116,7 @@ class CarveStage : public Stage {
   }
   std::string Version() const override { return "3"; }  // 3: mesh IoU in the record, timings out of levels.json
   HoldoutRole Role() const override { return HoldoutRole::kTrainingOnly; }
+  bool SkippedWithItsInputs() const override { return true; }  // no hull without the silhouettes' masks
 
   std::vector<ParamSpec> Parameters() const override {
     return {

@@ -40,6 +40,11 @@ class LayeredStereoStage : public Stage {
   }
   std::string Version() const override { return "3"; }  // 2: depth_maps/<image>.layered.bin; 3: planes fitted along the rays, away from depth edges
   HoldoutRole Role() const override { return HoldoutRole::kTrainingOnly; }
+  // Planes per reference view, drawn from the nearest references: a forward-facing capture's model
+  // (fountain-P11: 61 s for layers 1-4 dB below the surfel mesh).
+  CaptureUse Serves() const override {
+    return {{"forward_facing"}, "layers of planes per reference view serve forward-facing captures"};
+  }
   bool Shardable() const override { return true; }
   double ViewMemoryMb(const StageContext& context) const override {
     const double pixels = LargestTrainingImage(context).Pixels();

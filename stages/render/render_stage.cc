@@ -282,9 +282,22 @@ void RenderStage::Run(StageContext& context) const {
   for (const std::string& entry : context.params.StringList("proxies")) {
     models.push_back(MakeRenderModel(entry, context.workspace));
   }
+  // A model made by a stage the run's plan skipped is not drawn, even where an earlier run left
+  // its files: the capture is not one it serves.
+  std::vector<std::string> skipped_because(models.size());
+  for (size_t m = 0; m < models.size(); ++m) {
+    for (const std::string& input : models[m]->Inputs(context)) {
+      if (const std::string* reason = context.SkippedBy(input); reason != nullptr && skipped_because[m].empty()) {
+        skipped_because[m] = "its input " + input + " comes from a stage the plan skipped (" + *reason + ")";
+      }
+    }
+  }
   BackgroundTasks background_work;
   std::vector<std::shared_future<void>> prepared_ahead;
-  for (const std::unique_ptr<RenderModel>& model : models) prepared_ahead.push_back(background_work.Add(model->BackgroundWork()));
+  for (size_t m = 0; m < models.size(); ++m) {
+    prepared_ahead.push_back(background_work.Add(skipped_because[m].empty() ? models[m]->BackgroundWork()
+                                                                             : std::function<void()>()));
+  }
   for (size_t m = 0; m < models.size(); ++m) {
     // What the last model held goes back to the system before the next one loads (the full-size
     // castle: 1130 -> 577 MB held before the layers, after the splats' 20 M samples).
@@ -293,8 +306,14 @@ void RenderStage::Run(StageContext& context) const {
     prepared_ahead[m].get();  // rethrows what the model's background work threw
     const std::unique_ptr<RenderModel> model = std::move(models[m]);
     nlohmann::json facts = nlohmann::json::object();
-    if (const std::optional<std::string> reason = model->Prepare(scene, &facts)) {
-      spdlog::warn("[render] proxy {}: {}; skipped", model->Name(), *reason);
+    const std::optional<std::string> reason =
+        skipped_because[m].empty() ? model->Prepare(scene, &facts) : std::optional<std::string>(skipped_because[m]);
+    if (reason) {
+      if (skipped_because[m].empty()) {
+        spdlog::warn("[render] proxy {}: {}; skipped", model->Name(), *reason);
+      } else {  // the plan's decision, said once already by the runner
+        spdlog::info("[render] proxy {}: {}; skipped", model->Name(), *reason);
+      }
       models_json.push_back({{"name", model->Name()},
                              {"path", model->SourcePath(context.workspace)},
                              {"status", "skipped"},

@@ -70,6 +70,11 @@ class VolumeStage : public Stage {
   }
   std::string Version() const override { return "1"; }
   HoldoutRole Role() const override { return HoldoutRole::kTrainingOnly; }
+  // Issue 53's finding: fronto-parallel planes sample a wide capture too coarsely (fountain-P11:
+  // 14.8 dB against the surfel mesh's 19.0, after 303 s of fitting).
+  CaptureUse Serves() const override {
+    return {{"forward_facing"}, "volumes of fronto-parallel planes sample forward-facing captures only"};
+  }
 
   std::vector<ParamSpec> Parameters() const override {
     const VolumeOptions d;
