@@ -183,7 +183,9 @@ void Runner::Skip(size_t index, const StageContext& context, const std::string& 
                   bool write_record) const {
   const Stage& stage = *registry_.Find(config_.stages.at(index).name);
   const std::vector<std::string> outputs = stage.Outputs(context);
-  for (const std::string& output : outputs) skipped_outputs_[Resolve(context.workspace, output)] = reason;
+  // For the stages after it, the reason up to its figures: "volume: skipped, the capture is general".
+  const std::string short_reason = reason.substr(0, reason.find(" ("));
+  for (const std::string& output : outputs) skipped_outputs_[Resolve(context.workspace, output)] = short_reason;
   if (!write_record) return;
   const auto record = ReadRecord(RecordPath(stage.Name()));
   if (record && record->status == "skipped" && record->key == key && record->skipped_because == reason) {
@@ -670,6 +672,7 @@ int Runner::Run(const RunOptions& options) {
     nlohmann::json inputs;
     const std::string key = CacheKey(stage, context, &inputs);
     const bool in_selection = i >= first && i <= last;
+    CaptureOf(i);  // capture.json and the log's line as soon as poses exist, whatever runs
     if (const std::string skip = SkipReason(i); !skip.empty()) {
       if (in_selection && options.dry_run) spdlog::info("[{}] would be skipped: {}", stage.Name(), skip);
       Skip(i, context, key, skip, in_selection && !options.dry_run);
