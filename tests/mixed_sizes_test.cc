@@ -1,7 +1,8 @@
 // Photos of different sizes in one folder work: import gives each photo a camera of its own size,
 // and sfm, seeing two sizes, has COLMAP use one camera per photo (a single shared camera would make
 // COLMAP skip the photos of the other size). Real data: five Sceaux castle photos, every other one
-// downscaled by a further 2/3; skipped where COLMAP or the photos are absent.
+// downscaled by a further 2/3; skipped where COLMAP or the photos are absent. The capture's kind
+// from sfm's poses is checked here too, where COLMAP has already run.
 #include <gtest/gtest.h>
 #include <unistd.h>
 
@@ -11,6 +12,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "pipeline/core/colmap_text_io.h"
+#include "pipeline/core/json_file.h"
 #include "tests/run_command.h"
 
 namespace fs = std::filesystem;
@@ -38,6 +40,12 @@ TEST(MixedSizes, PhotosOfTwoSizesAreAllRegistered) {
   const auto run = ibmr_e2e::RunCommand(std::string(IBMR_BINARY) + " run '" + (root / "c.yaml").string() + "'");
   ASSERT_EQ(run.exit_code, 0) << run.output;
   EXPECT_NE(run.output.find("photos of 2 sizes"), std::string::npos) << run.output;
+  // The capture's shape from sfm's poses (issue 66): a walk along the castle's front, neither
+  // forward-facing (its baselines are long against the near depth) nor round an object.
+  const nlohmann::json capture = ibmr::ReadJsonOr((root / "ws/capture.json").string(), nullptr);
+  EXPECT_EQ(capture["kind"], "general") << capture.dump();
+  EXPECT_EQ(capture["model"], "sfm/sparse") << capture.dump();
+  EXPECT_NE(run.output.find("capture: general ("), std::string::npos) << run.output;
   const ibmr::SparseModel model = ibmr::ReadSparseModelText((root / "ws/sfm/sparse").string());
   EXPECT_EQ(model.images.size(), 5u) << run.output;
   for (const auto& [id, image] : model.images) {

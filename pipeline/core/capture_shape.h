@@ -17,7 +17,7 @@
 //                       the cameras stand (surround_deg: 360 minus the largest gap between their
 //                       azimuths about the axis of the ring they make)
 // Rules, in order (thresholds in CaptureShapeOptions):
-//   forward_facing  axis spread <= 35 deg and baseline over near <= 1 (or no points to say)
+//   forward_facing  axis spread <= 35 deg and baseline over near <= 0.5 (or no points to say)
 //   object          in_front >= 0.9, residual <= 0.35 and surround >= 150 deg
 //   general         otherwise
 #pragma once
@@ -34,7 +34,7 @@ inline constexpr const char* kCaptureFile = "capture.json";
 
 struct CaptureShapeOptions {
   double forward_max_spread_deg = 35;
-  double forward_max_baseline_over_near = 1.0;
+  double forward_max_baseline_over_near = 0.5;
   double object_min_in_front = 0.9;
   double object_max_residual = 0.35;
   double object_min_surround_deg = 150;

@@ -190,7 +190,9 @@ int main(int argc, char** argv) {
     try {
       const std::string model_dir = ibmr::FindModelFolder(capture_path);
       const ibmr::SparseModel model = ibmr::ReadSparseModelText(model_dir);
-      const bool alpha = std::filesystem::is_directory(capture_path + "/" + ibmr::kAlphaFolder);
+      std::error_code ec;
+      const std::string alpha_dir = capture_path + "/" + ibmr::kAlphaFolder;
+      const bool alpha = std::filesystem::is_directory(alpha_dir, ec) && !std::filesystem::is_empty(alpha_dir, ec);
       const ibmr::CaptureShape shape = ibmr::AnalyseCapture(model, alpha);
       std::cout << model_dir << ": " << shape.Describe() << "\n" << shape.ToJson().dump(2) << "\n";
       return 0;

@@ -125,8 +125,21 @@ Workspace Runner::WorkspaceBefore(const StageConfig& stage_config) const {
   return workspace;
 }
 
+Workspace Runner::WorkspaceAfter(size_t index) const {
+  Workspace workspace(config_.workspace);
+  for (size_t i = 0; i <= index && i < config_.stages.size(); ++i) {
+    const Stage::ModelFolders folders = registry_.Find(config_.stages[i].name)->WritesModel();
+    workspace.SetModelFolders(folders.sparse.empty() ? workspace.SparseRelative() : folders.sparse,
+                              folders.images.empty() ? workspace.ImagesRelative() : folders.images);
+  }
+  return workspace;
+}
+
 std::optional<CaptureShape> Runner::CaptureOf(size_t index) const {
-  const Workspace workspace = WorkspaceBefore(config_.stages.at(index));
+  return CaptureIn(WorkspaceBefore(config_.stages.at(index)));
+}
+
+std::optional<CaptureShape> Runner::CaptureIn(const Workspace& workspace) const {
   const std::string folder = Resolve(workspace, workspace.SparseRelative());
   if (const auto found = shapes_.find(folder); found != shapes_.end()) return found->second;
   std::optional<CaptureShape> shape;
@@ -134,7 +147,9 @@ std::optional<CaptureShape> Runner::CaptureOf(size_t index) const {
     try {
       const SparseModel model = ReadSparseModelText(folder);
       if (!model.images.empty()) {
-        shape = AnalyseCapture(model, fs::is_directory(workspace.Path(kAlphaFolder)));
+        std::error_code ec;  // import makes alpha/ for every capture; it holds files where photos had alpha
+        const bool alpha = fs::is_directory(workspace.Path(kAlphaFolder), ec) && !fs::is_empty(workspace.Path(kAlphaFolder), ec);
+        shape = AnalyseCapture(model, alpha);
         if (config_.plan.kind != "auto" && config_.plan.kind != shape->kind) {
           shape->set_by = "plan.kind (the analysis: " + shape->kind + ")";
           shape->kind = config_.plan.kind;
@@ -721,7 +736,10 @@ int Runner::Run(const RunOptions& options) {
     spdlog::info("[{}] runs: {}", stage.Name(), reason);
     ++ran;
     if (!Execute(stage, context, key, inputs, options)) return 1;
-    if (!stage.WritesModel().sparse.empty()) shapes_.clear();  // a new model: analyse its capture again
+    if (!stage.WritesModel().sparse.empty()) {  // a new model: its capture analysed again, now
+      shapes_.clear();
+      CaptureIn(WorkspaceAfter(i));
+    }
   }
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   if (options.dry_run) {

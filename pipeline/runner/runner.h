@@ -88,6 +88,10 @@ class Runner {
   // The workspace with the model and images folders the stage reads (those of the last stage
   // before it that writes them, Stage::WritesModel).
   Workspace WorkspaceBefore(const StageConfig& stage_config) const;
+  // The same after config stage `index` (its own model folders applied).
+  Workspace WorkspaceAfter(size_t index) const;
+  // CaptureOf for the model folder `workspace` reads.
+  std::optional<CaptureShape> CaptureIn(const Workspace& workspace) const;
   std::string CacheKey(const Stage& stage, const StageContext& context, nlohmann::json* input_hashes) const;
   // Own staleness of one stage, ignoring upstream; "" when up to date.
   std::string OwnStaleness(const Stage& stage, const StageContext& context, const std::string& key) const;
