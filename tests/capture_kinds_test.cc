@@ -9,6 +9,7 @@
 #include <filesystem>
 #include <fstream>
 
+#include "pipeline/core/image_io.h"
 #include "pipeline/core/json_file.h"
 #include "tests/run_command.h"
 
@@ -71,6 +72,27 @@ TEST_F(CaptureKinds, RealCapturesWithKnownCameras) {
   EXPECT_EQ(fountain["views"], 11);
   EXPECT_GT(fountain["axis_spread_deg"].get<double>(), 35);  // too wide for planes facing one way
   EXPECT_LT(fountain["convergence"]["surround_deg"].get<double>(), 150);  // converging, not round it
+}
+
+}  // namespace
+
+namespace {
+
+// A folder of photos has no poses: a config without sfm stops at the first stage that needs them,
+// saying that sfm gives them (tried as a new user would: it used to say "no images; run import").
+TEST_F(CaptureKinds, PhotosWithoutPosesNameTheMissingStep) {
+  fs::create_directories(dir_ / "photos");
+  for (int i = 0; i < 7; ++i) {  // each its own (import sets exact duplicates aside)
+    const cv::Mat photo(48, 64, CV_8UC3, cv::Scalar(40 + 20 * i, 80, 120));
+    ibmr::WriteImage((dir_ / "photos" / ("p" + std::to_string(i) + ".png")).string(), photo);
+  }
+  std::ofstream(dir_ / "c.yaml") << "workspace: ws\ninputs:\n  images: photos\nstages:\n"
+                                    "  - import: {format: folder}\n  - silhouettes: {}\n";
+  const auto run = ibmr_e2e::RunCommand(std::string(IBMR_BINARY) + " run " + (dir_ / "c.yaml").string());
+  EXPECT_EQ(run.exit_code, 1) << run.output;
+  EXPECT_NE(run.output.find("the 7 photos in images/ have no poses yet"), std::string::npos) << run.output;
+  EXPECT_NE(run.output.find("add an sfm stage after import"), std::string::npos) << run.output;
+  EXPECT_FALSE(fs::exists(dir_ / "ws/capture.json"));  // no poses, no shape
 }
 
 }  // namespace

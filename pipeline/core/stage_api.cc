@@ -6,6 +6,7 @@
 #include <stdexcept>
 
 #include "pipeline/core/colmap_text_io.h"
+#include "pipeline/core/errors.h"
 
 namespace ibmr {
 
@@ -46,6 +47,22 @@ void RemoveImages(const std::set<std::string>& names, SparseModel* model) {
 
 SparseModel StageContext::LoadModel() const {
   SparseModel model = ReadSparseModelText(workspace.SparseDir());
+  if (model.images.empty()) {
+    // Import of a folder of photos writes their cameras (intrinsics) and no poses: sfm gives them.
+    size_t photos = 0;
+    std::error_code ec;
+    for (auto it = std::filesystem::directory_iterator(workspace.ImagesDir(), ec);
+         !ec && it != std::filesystem::directory_iterator(); it.increment(ec)) {
+      photos += it->is_regular_file(ec) || it->is_symlink(ec);
+    }
+    if (photos > 0) {
+      throw InputError(workspace.SparseDir() + ": the " + std::to_string(photos) + " photos in " +
+                       workspace.ImagesRelative() + "/ have no poses yet (a folder of photos brings none); " +
+                       "add an sfm stage after import, which gives them poses (configs/photos.yaml does), or import "
+                       "a capture that brings its cameras (import.format llff, transforms, middlebury, strecha)");
+    }
+    throw InputError(workspace.SparseDir() + ": no posed images; run import (or synth) first");
+  }
   if (role == HoldoutRole::kTrainingOnly) RemoveImages(heldout_images, &model);
   return model;
 }
