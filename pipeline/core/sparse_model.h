@@ -4,6 +4,7 @@
 
 #include <cstdint>
 #include <map>
+#include <set>
 #include <string>
 #include <vector>
 
@@ -54,5 +55,9 @@ struct SparseModel {
   // Empty when consistent; otherwise names the first image whose camera is missing, etc.
   std::string Validate() const;
 };
+
+// Removes the images named in `names` and every observation of them from the points' tracks;
+// points left with fewer than two observations are dropped (they were triangulated with them).
+void RemoveImages(const std::set<std::string>& names, SparseModel* model);
 
 }  // namespace ibmr

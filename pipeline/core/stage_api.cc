@@ -10,40 +10,6 @@
 
 namespace ibmr {
 
-namespace {
-
-// Removes held-out images and every observation of them from the points' tracks; points left
-// with fewer than two observations are dropped (they were triangulated with held-out views).
-void RemoveImages(const std::set<std::string>& names, SparseModel* model) {
-  std::set<int> removed;
-  for (auto it = model->images.begin(); it != model->images.end();) {
-    if (names.count(it->second.name)) {
-      removed.insert(it->first);
-      it = model->images.erase(it);
-    } else {
-      ++it;
-    }
-  }
-  if (removed.empty()) return;
-  for (auto it = model->points.begin(); it != model->points.end();) {
-    auto& track = it->second.track;
-    track.erase(std::remove_if(track.begin(), track.end(),
-                               [&](const TrackElement& e) { return removed.count(e.image_id) > 0; }),
-                track.end());
-    if (track.size() < 2) {
-      for (auto& [id, image] : model->images) {
-        for (Point2D& p : image.points2D) {
-          if (p.point3D_id == it->first) p.point3D_id = -1;
-        }
-      }
-      it = model->points.erase(it);
-    } else {
-      ++it;
-    }
-  }
-}
-
-}  // namespace
 
 SparseModel StageContext::LoadModel() const {
   SparseModel model = ReadSparseModelText(workspace.SparseDir());

@@ -86,6 +86,14 @@ struct CaptureUse {
   std::string why;  // "volumes of fronto-parallel planes sample forward-facing captures only"
 };
 
+// A model a stage draws (render: one per entry of render.proxies) and the files it is drawn from
+// (workspace-relative), for the run's race (plan.race): the stages whose outputs only losing
+// models are drawn from are left out of the full-size run.
+struct DrawnModel {
+  std::string name;
+  std::vector<std::string> inputs;
+};
+
 class Stage {
  public:
   virtual ~Stage() = default;
@@ -115,6 +123,8 @@ class Stage {
   // reads what it finds, as with any optional input (plane_sweep without a hull; render drops the
   // models made by skipped stages, see StageContext::SkippedBy).
   virtual bool SkippedWithItsInputs() const { return false; }
+  // The models the stage draws and scores, each with its inputs (see DrawnModel). Default: none.
+  virtual std::vector<DrawnModel> DrawsModels(const StageContext&) const { return {}; }
   // Does the work. Throws IoError / InputError with a message for the user on failure.
   virtual void Run(StageContext& context) const = 0;
   // True when shards of the stage's views may run as separate processes or cluster jobs (`--views`,

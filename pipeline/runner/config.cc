@@ -222,11 +222,56 @@ StageConfig ParseStage(const YAML::Node& entry, const StageRegistry& registry, c
   return stage_config;
 }
 
+void ParseRace(const YAML::Node& node, const std::string& path, RacePlan* race) {
+  if (node.IsScalar() && (node.Scalar() == "off" || node.Scalar() == "false")) {
+    race->enabled = false;
+    return;
+  }
+  if (node.IsScalar() && (node.Scalar() == "on" || node.Scalar() == "true")) {
+    race->enabled = true;
+    return;
+  }
+  if (!node.IsMap()) {
+    throw ConfigError(Where(path, LineOf(node), "plan.race",
+                            "expected on, off or a map (scale, validation_every, margin_db, metric)"));
+  }
+  race->enabled = true;
+  const std::vector<std::string> valid = {"scale", "validation_every", "margin_db", "metric"};
+  for (const auto& kv : node) {
+    const std::string key = kv.first.Scalar();
+    const int line = LineOf(kv.first);
+    try {
+      if (key == "scale") {
+        race->scale = kv.second.as<double>();
+        if (!(race->scale > 0 && race->scale < 1)) {
+          throw ConfigError(Where(path, line, "plan.race.scale", "must be in (0, 1), got " + kv.second.Scalar()));
+        }
+      } else if (key == "validation_every") {
+        race->validation_every = kv.second.as<int>();
+        if (race->validation_every < 2) {
+          throw ConfigError(Where(path, line, "plan.race.validation_every", "must be >= 2, got " + kv.second.Scalar()));
+        }
+      } else if (key == "margin_db") {
+        race->margin_db = kv.second.as<double>();
+        if (!(race->margin_db >= 0)) {
+          throw ConfigError(Where(path, line, "plan.race.margin_db", "must be >= 0, got " + kv.second.Scalar()));
+        }
+      } else if (key == "metric") {
+        race->metric = kv.second.as<std::string>();
+      } else {
+        throw ConfigError(Where(path, line, "plan.race." + key, "unknown key; " + Suggest(key, valid)));
+      }
+    } catch (const YAML::Exception&) {
+      throw ConfigError(Where(path, LineOf(kv.second), "plan.race." + key, "expected a number"));
+    }
+  }
+}
+
 void ParsePlan(const YAML::Node& node, Config* config) {
   const std::string& path = config->path;
   if (!node.IsMap()) throw ConfigError(Where(path, LineOf(node), "plan", "expected a map (kind, with)"));
   config->plan.line = LineOf(node);
-  const std::vector<std::string> valid = {"kind", "with"};
+  const std::vector<std::string> valid = {"kind", "with", "race"};
   std::vector<std::string> stages = {"all"};
   for (const StageConfig& s : config->stages) stages.push_back(s.name);
   for (const auto& kv : node) {
@@ -251,6 +296,8 @@ void ParsePlan(const YAML::Node& node, Config* config) {
         }
         config->plan.with.push_back(name);
       }
+    } else if (key == "race") {
+      ParseRace(kv.second, path, &config->plan.race);
     } else {
       throw ConfigError(Where(path, line, "plan." + key, "unknown key; " + Suggest(key, valid)));
     }

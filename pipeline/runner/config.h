@@ -100,13 +100,28 @@ struct SweepPlan {
   bool HasStability() const { return !methods.empty(); }
 };
 
+// The race (successive halving, one round): after the last stage that writes the model, every
+// stage after it runs first on a reduced copy of the capture in WORKSPACE/race/ (the training
+// views only, scaled by `scale`, every `validation_every`-th of them held out and scored), and the
+// stages whose outputs only models more than `margin_db` below the race's best are drawn from are
+// left out of the full-size run (pipeline/runner/race.h).
+struct RacePlan {
+  bool enabled = false;
+  double scale = 0.25;
+  int validation_every = 4;
+  double margin_db = 1.0;
+  std::string metric = "photo_psnr";  // a held-out mean of scores/heldout.json
+};
+
 // The run's plan (the config's optional `plan:` block; `ibmr run --with` adds to `with`):
 //   plan:
 //     kind: auto       # or forward_facing, object, general: instead of the capture analysis
 //     with: [volume]   # stages run whatever the capture's kind (Stage::Serves); [all]: skip none
+//     race: {scale: 0.25, validation_every: 4, margin_db: 1, metric: photo_psnr}   # or race: off
 struct RunPlan {
   std::string kind = "auto";
   std::vector<std::string> with;
+  RacePlan race;
   int line = 0;  // of the plan: block (0: none)
 
   bool Forces(const std::string& stage) const {

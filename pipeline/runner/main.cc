@@ -18,6 +18,7 @@
 #include "pipeline/core/process_memory.h"
 #include "pipeline/runner/builtin_stages.h"
 #include "pipeline/runner/config.h"
+#include "pipeline/runner/folder_run.h"
 #include "pipeline/runner/runner.h"
 #include "pipeline/runner/slurm_executor.h"
 #include "pipeline/runner/snakemake_export.h"
@@ -69,7 +70,11 @@ int main(int argc, char** argv) {
   std::vector<std::string> overrides;
   ibmr::RunOptions options;
   auto* run = app.add_subcommand("run", "Run the stale stages of a config (a finished config does no work)");
-  run->add_option("config", config_path, "YAML config")->required()->check(CLI::ExistingFile);
+  run->add_option("config", config_path,
+                  "YAML config, or a capture folder (photos, an LLFF or Blender-layout capture): the matching shipped "
+                  "config runs in FOLDER.ibmr beside it and the report's path is printed")
+      ->required()
+      ->check(CLI::ExistingPath);
   run->add_option("--workspace", workspace, "Workspace folder (overrides the config's)");
   run->add_option("--only", options.only, "Run only this stage");
   run->add_option("--from", options.from, "Run from this stage on");
@@ -229,6 +234,18 @@ int main(int argc, char** argv) {
     }
   }
 
+  if (run->parsed() && std::filesystem::is_directory(config_path)) {  // ibmr run FOLDER
+    try {
+      const ibmr::FolderPlan plan = ibmr::PlanForFolder(config_path);
+      if (workspace.empty()) workspace = ibmr::DefaultWorkspaceFor(config_path);
+      workspace = std::filesystem::absolute(workspace).lexically_normal().string();
+      config_path = ibmr::PrepareFolderRun(config_path, workspace, plan);
+      write_report = true;
+    } catch (const std::exception& e) {
+      spdlog::error("{}", e.what());
+      return 2;
+    }
+  }
   ibmr::Config config;
   try {
     config = ibmr::LoadConfig(config_path, registry);

@@ -2,6 +2,8 @@
 // inlined Chart.js and the report's data as JSON; all drawing happens in the page's script.
 #include "pipeline/runner/report.h"
 
+#include "pipeline/core/capture_shape.h"
+
 #include <opencv2/imgcodecs.hpp>  // the flags; the codecs through image_codecs.h
 #include <opencv2/imgproc.hpp>
 
@@ -86,7 +88,8 @@ nlohmann::json StageCosts(const Workspace& workspace) {
                       {"cpu_seconds", r.cpu_seconds},
                       {"peak_memory_mb", r.peak_memory_mb},
                       {"reused", !r.reused_from.empty()},
-                      {"error", r.error}});
+                      {"error", r.error},
+                      {"skipped_because", r.skipped_because}});
   }
   return stages;
 }
@@ -148,8 +151,19 @@ function workspaceReport(R) {
   document.getElementById('title').textContent = 'ibmr report: ' + R.title;
   document.getElementById('subtitle').textContent = R.stages.length + ' stage records; held-out metric ' + R.metric;
   if (R.viewer) viewerReady = viewerSection(R.viewer, content);
+  if (R.capture) {  // capture.json: the capture's kind, and what the run's plan left out for it
+    const C = R.capture;
+    el('h2', {}, content, 'The capture and the plan');
+    el('p', {class: 'note'}, content, 'The capture is ' + C.kind.replace('_', '-') + ': ' + C.reason + '. Silhouettes ' +
+       (C.silhouettes ? 'come with the photos (alpha).' : 'do not come with the photos.') +
+       (C.depth_range ? ' Depth range ' + fmt(C.depth_range[0], 3) + ' to ' + fmt(C.depth_range[1], 3) + '.' : ''));
+    const skipped = R.stages.filter(s => s.status === 'skipped');
+    el('p', {class: 'note'}, content, skipped.length ? skipped.length + ' stage(s) not built for this capture:' :
+       'Every stage of the config serves this capture.');
+    if (skipped.length) table(content, ['stage', 'why'], skipped.map(s => [s.stage, s.skipped_because]));
+  }
   el('h2', {}, content, 'Stages: time and memory');
-  const stages = R.stages;
+  const stages = R.stages.filter(s => s.status !== 'skipped');
   table(content, ['stage', 'status', 'wall s', 'CPU s', 'peak MB', 'reused'],
         stages.map(s => [s.stage, s.status, fmt(s.wall_seconds), fmt(s.cpu_seconds), fmt(s.peak_memory_mb, 0), s.reused ? 'yes' : '']),
         i => stages[i].status === 'ok' ? '' : 'failed');
@@ -409,6 +423,10 @@ nlohmann::json GatherWorkspaceReport(const std::string& root, int image_width, n
     if (!uri.empty()) strips.push_back({{"folder", workspace.Relative(path.parent_path().string())}, {"src", uri}});
   }
   report["volume_strips"] = strips;
+  // The capture's kind and figures (the runner's plan, issue 66), once poses existed.
+  const std::string capture_path = workspace.Path(kCaptureFile);
+  const nlohmann::json capture = ReadReportJson(capture_path, nlohmann::json(), "run the config again (ibmr run)");
+  if (capture.is_object() && capture.contains("kind") && capture["kind"].is_string()) report["capture"] = capture;
   // multi_depth's per-view agreement and flags (issue 67), when it ran.
   const std::string agreement_path = workspace.ViewAgreementPath();
   const nlohmann::json agreement = ReadJsonOr(agreement_path, nlohmann::json());

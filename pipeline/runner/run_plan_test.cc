@@ -5,13 +5,17 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <atomic>
 #include <filesystem>
 #include <fstream>
+#include <opencv2/core.hpp>
 
 #include "pipeline/core/atomic_file.h"
 #include "pipeline/core/capture_rigs_for_test.h"
 #include "pipeline/core/capture_shape.h"
 #include "pipeline/core/colmap_text_io.h"
+#include "pipeline/core/errors.h"
+#include "pipeline/core/image_io.h"
 #include "pipeline/core/json_file.h"
 #include "pipeline/runner/config.h"
 #include "pipeline/runner/record.h"
@@ -212,6 +216,141 @@ TEST_F(RunPlanTest, PlanErrorsNameTheKey) {
   EXPECT_THROW(ApplyWith({"volume"}, &config), ConfigError);
   ApplyWith({"all"}, &config);
   EXPECT_TRUE(config.plan.Forces("planes"));
+}
+
+}  // namespace
+}  // namespace ibmr
+
+// The race: a rig of 20 views with photos (the held-out ones garbage: a race that decoded one
+// would fail), two models, one clearly better; the stage feeding only the worse one is left out
+// of the full-size run.
+namespace ibmr {
+namespace {
+
+std::atomic<int> good_runs{0}, bad_runs{0};
+
+class PhotoRig : public Stage {
+ public:
+  std::string Name() const override { return "photo_rig"; }
+  std::string Summary() const override { return "test: a forward grid with photos"; }
+  std::string Version() const override { return "1"; }
+  HoldoutRole Role() const override { return HoldoutRole::kAllViews; }
+  std::vector<ParamSpec> Parameters() const override { return {{"garbage", ParamType::kStringList, "[]", "photos written as garbage"}}; }
+  std::optional<ParamError> CheckParams(const Params&) const override { return std::nullopt; }
+  std::vector<std::string> Inputs(const StageContext&) const override { return {}; }
+  std::vector<std::string> Outputs(const StageContext&) const override { return {"sparse", "images"}; }
+  ModelFolders WritesModel() const override { return {"sparse", "images"}; }
+  void Run(StageContext& c) const override {
+    const SparseModel model = capture_rigs::ForwardGrid();
+    WriteSparseModelText(c.workspace.Path("sparse"), model);
+    fs::create_directories(c.workspace.Path("images"));
+    const std::vector<std::string> garbage = c.params.StringList("garbage");
+    for (const auto& [id, image] : model.images) {
+      const std::string path = c.workspace.Path("images/" + image.name);
+      if (std::find(garbage.begin(), garbage.end(), image.name) != garbage.end()) {
+        WriteFileAtomic(path, "not a photo: a held-out view the race must not read");
+      } else {
+        WriteImage(path, cv::Mat(48, 64, CV_8UC3, cv::Scalar(id * 10 % 255, 100, 50)));
+      }
+    }
+  }
+};
+
+template <const char* kName, std::atomic<int>* kRuns>
+class ModelStage : public Stage {
+ public:
+  std::string Name() const override { return kName; }
+  std::string Summary() const override { return "test: a model"; }
+  std::string Version() const override { return "1"; }
+  HoldoutRole Role() const override { return HoldoutRole::kTrainingOnly; }
+  std::vector<ParamSpec> Parameters() const override { return {}; }
+  std::optional<ParamError> CheckParams(const Params&) const override { return std::nullopt; }
+  std::vector<std::string> Inputs(const StageContext& c) const override { return {c.workspace.ImagesRelative()}; }
+  std::vector<std::string> Outputs(const StageContext&) const override { return {std::string(kName) + "/model.txt"}; }
+  void Run(StageContext& c) const override {
+    ++*kRuns;
+    // Reads every photo it may: the training views (LoadModel leaves the held-out ones out).
+    for (const std::string& name : c.TrainingImageNames(c.LoadModel())) {
+      if (ReadImageUnchanged(c.workspace.ImagesDir() + "/" + name).empty()) throw IoError(name + ": unreadable");
+    }
+    fs::create_directories(c.workspace.Path(kName));
+    WriteFileAtomic(c.workspace.Path(std::string(kName) + "/model.txt"), kName);
+  }
+};
+constexpr char kGood[] = "good";
+constexpr char kBad[] = "bad";
+
+// Draws and scores (render and score in one): good 30 dB, bad 20 dB, each where its model is.
+class DrawAndScore : public Stage {
+ public:
+  std::string Name() const override { return "draw_score"; }
+  std::string Summary() const override { return "test: scores the models"; }
+  std::string Version() const override { return "1"; }
+  HoldoutRole Role() const override { return HoldoutRole::kScoring; }
+  std::vector<ParamSpec> Parameters() const override { return {}; }
+  std::optional<ParamError> CheckParams(const Params&) const override { return std::nullopt; }
+  std::vector<std::string> Inputs(const StageContext&) const override { return {"good/model.txt", "bad/model.txt"}; }
+  std::vector<std::string> Outputs(const StageContext&) const override { return {"scores"}; }
+  std::vector<DrawnModel> DrawsModels(const StageContext&) const override {
+    return {{"good", {"good/model.txt"}}, {"bad", {"bad/model.txt"}}};
+  }
+  void Run(StageContext& c) const override {
+    nlohmann::json proxies = nlohmann::json::object();
+    for (const auto& [name, psnr] : std::vector<std::pair<std::string, double>>{{"good", 30}, {"bad", 20}}) {
+      if (fs::exists(c.workspace.Path(name + "/model.txt")) && c.SkippedBy(name + "/model.txt") == nullptr) {
+        proxies[name] = {{"mean", {{"photo_psnr", psnr}, {"views", c.heldout_images.size()}}}};
+      }
+    }
+    fs::create_directories(c.workspace.Path("scores"));
+    WriteFileAtomic(c.workspace.Path("scores/heldout.json"),
+                    nlohmann::json({{"proxies", proxies}, {"heldout", c.heldout_images}}).dump());
+  }
+};
+
+TEST_F(RunPlanTest, TheRaceLeavesOutWhatFeedsOnlyTheLoserAndNeverReadsAHeldOutPhoto) {
+  registry_.Add(std::make_unique<PhotoRig>());
+  registry_.Add(std::make_unique<ModelStage<kGood, &good_runs>>());
+  registry_.Add(std::make_unique<ModelStage<kBad, &bad_runs>>());
+  registry_.Add(std::make_unique<DrawAndScore>());
+  // Every 8th of the 20 sorted views held out: v101, v109, v117.
+  std::ofstream(dir_ / "c.yaml") << "workspace: ws\nholdout: {every: 8}\nplan:\n  race: {scale: 0.5, validation_every: 4}\n"
+                                    "stages:\n  - photo_rig: {garbage: [v101.png, v109.png, v117.png]}\n"
+                                    "  - good\n  - bad\n  - draw_score\n";
+  const int good_before = good_runs, bad_before = bad_runs;
+  ASSERT_EQ(Run(), 0);
+  EXPECT_EQ(good_runs - good_before, 2);  // in the race and at full size
+  EXPECT_EQ(bad_runs - bad_before, 1);    // in the race only
+  const nlohmann::json race = ReadJsonOr((dir_ / "ws/race.json").string(), nullptr);
+  EXPECT_EQ(race["best"], "good") << race.dump();
+  EXPECT_EQ(race["winners"], nlohmann::json::array({"good"})) << race.dump();
+  ASSERT_EQ(race["left_out"].size(), 1u) << race.dump();
+  EXPECT_EQ(race["left_out"][0]["stage"], "bad");
+  const StageRecord bad = Record("bad");
+  EXPECT_EQ(bad.status, "skipped");
+  EXPECT_NE(bad.skipped_because.find("the race left it out: the models drawn from it scored bad 20.00 dB at 0.5x size, "
+                                     "more than 1 dB below good's 30.00 dB"),
+            std::string::npos)
+      << bad.skipped_because;
+  const nlohmann::json scores = ReadJsonOr((dir_ / "ws/scores/heldout.json").string(), nullptr);
+  EXPECT_TRUE(scores["proxies"].contains("good"));
+  EXPECT_FALSE(scores["proxies"].contains("bad"));
+  // The race's capture: the 17 training views at half size, none of the held-out ones; it scored
+  // 4 of them (every 4th from the 2nd), none held out of the full run.
+  const SparseModel raced = ReadSparseModelText((dir_ / "ws/race/sparse").string());
+  EXPECT_EQ(raced.images.size(), 17u);
+  for (const auto& [id, image] : raced.images) {
+    EXPECT_NE(image.name, "v101.png");
+    EXPECT_EQ(raced.CameraOf(image).width, 32);
+  }
+  EXPECT_FALSE(fs::exists(dir_ / "ws/race/images/v109.png"));
+  EXPECT_EQ(ReadImageUnchanged((dir_ / "ws/race/images/v102.png").string()).cols, 32);
+  const nlohmann::json raced_scores = ReadJsonOr((dir_ / "ws/race/scores/heldout.json").string(), nullptr);
+  EXPECT_EQ(raced_scores["heldout"], nlohmann::json::array({"v104.png", "v108.png", "v113.png", "v118.png"}));
+  EXPECT_EQ(race["validation"], raced_scores["heldout"]);
+  // Again: the race is up to date, the decision stands, nothing runs.
+  ASSERT_EQ(Run(), 0);
+  EXPECT_EQ(good_runs - good_before, 2);
+  EXPECT_EQ(bad_runs - bad_before, 1);
 }
 
 }  // namespace

@@ -19,6 +19,7 @@
 #include "pipeline/core/content_hash.h"
 #include "pipeline/core/json_file.h"
 #include "pipeline/core/per_view.h"
+#include "pipeline/runner/race.h"
 #include "pipeline/runner/record.h"
 #include "pipeline/core/process_memory.h"
 #include "pipeline/runner/resource_usage.h"
@@ -173,6 +174,7 @@ std::string Runner::SkipReason(size_t index) const {
   const StageConfig& stage_config = config_.stages.at(index);
   const Stage& stage = *registry_.Find(stage_config.name);
   if (config_.plan.Forces(stage.Name())) return "";
+  if (const auto race = race_skips_.find(index); race != race_skips_.end()) return race->second;
   const CaptureUse use = stage.Serves();
   if (!use.kinds.empty()) {
     const std::optional<CaptureShape> shape = CaptureOf(index);
@@ -663,6 +665,91 @@ int Runner::RunShard(const RunOptions& options) {
   }
 }
 
+void Runner::RunRaceAfter(size_t model_stage, const RunOptions& options) {
+  const Workspace model = WorkspaceAfter(model_stage);
+  std::set<std::string> heldout;
+  if (config_.holdout.Active()) {
+    const std::vector<std::string> names = SortedImageNames(model);
+    heldout = config_.holdout.Select(names, config_.holdout.split.empty() ? ImageSplits() : ReadImageSplits(model));
+  }
+  const std::optional<CaptureShape> shape = CaptureIn(model);
+  const RaceOutcome outcome =
+      RunRace(config_, registry_, model_stage, model, heldout, shape ? shape->kind : "", options);
+  nlohmann::json race = {{"scale", config_.plan.race.scale},
+                         {"validation_every", config_.plan.race.validation_every},
+                         {"margin_db", config_.plan.race.margin_db},
+                         {"metric", config_.plan.race.metric},
+                         {"workspace", "race"},
+                         {"validation", outcome.validation},
+                         {"seconds", outcome.seconds}};
+  if (!outcome.ok) {
+    spdlog::warn("race: no verdict ({}); every stage runs", outcome.problem);
+    race["problem"] = outcome.problem;
+    WriteFileAtomic(Workspace(config_.workspace).Path("race.json"), DumpJson(race, 2) + "\n");
+    return;
+  }
+  race["models"] = outcome.scores;
+  race["best"] = outcome.best;
+  race["winners"] = outcome.winners;
+  // Which models each stage after the model stage feeds: the stages a drawn model's inputs come
+  // from, and the stages those read from, after the model stage.
+  std::map<size_t, std::set<std::string>> feeds;
+  for (size_t r = model_stage + 1; r < config_.stages.size(); ++r) {
+    const Stage& drawer = *registry_.Find(config_.stages[r].name);
+    const StageContext context = MakeContext(drawer, config_.stages[r]);
+    for (const DrawnModel& drawn : drawer.DrawsModels(context)) {
+      std::vector<size_t> queue;
+      for (size_t j = model_stage + 1; j < r; ++j) {
+        for (const std::string& output : DeclaredOutputs(j)) {
+          for (const std::string& input : drawn.inputs) {
+            if (Overlaps(Resolve(context.workspace, input), Resolve(context.workspace, output))) queue.push_back(j);
+          }
+        }
+      }
+      std::set<size_t> producers;
+      while (!queue.empty()) {
+        const size_t j = queue.back();
+        queue.pop_back();
+        if (!producers.insert(j).second) continue;
+        for (size_t k : Upstream(j)) {
+          if (k > model_stage) queue.push_back(k);
+        }
+      }
+      for (size_t j : producers) feeds[j].insert(drawn.name);
+    }
+  }
+  nlohmann::json left_out = nlohmann::json::array();
+  double saved = 0;
+  const double pixel_ratio = config_.plan.race.scale * config_.plan.race.scale;
+  for (const auto& [j, models] : feeds) {
+    bool needed = false;
+    std::string scored;
+    for (const std::string& name : models) {
+      const auto score = outcome.scores.find(name);
+      needed |= score == outcome.scores.end() || outcome.winners.count(name) > 0;  // unscored: kept
+      if (score != outcome.scores.end()) scored += fmt::format("{}{} {:.2f} dB", scored.empty() ? "" : ", ", name, score->second);
+    }
+    if (needed) continue;
+    const std::string& name = config_.stages[j].name;
+    race_skips_[j] = fmt::format("{}: skipped, the race left it out: the models drawn from it scored {} at {}x size, more "
+                                 "than {} dB below {}'s {:.2f} dB (race.json); --with {} runs it",
+                                 name, scored, config_.plan.race.scale, config_.plan.race.margin_db, outcome.best,
+                                 outcome.best_score, name);
+    const auto seconds = outcome.stage_seconds.find(name);
+    const double race_seconds = seconds == outcome.stage_seconds.end() ? 0 : seconds->second;
+    left_out.push_back({{"stage", name}, {"models", models}, {"race_seconds", race_seconds},
+                        {"estimated_full_seconds", race_seconds / pixel_ratio}});
+    saved += race_seconds / pixel_ratio;
+  }
+  race["left_out"] = left_out;
+  race["estimated_saving_seconds"] = saved;
+  spdlog::info("race: {} best with {:.2f} dB ({}), {} model(s) within {} dB; {} stage(s) left out, saving about {:.0f} s "
+               "at full size (estimated from the race's times); the race took {:.1f} s",
+               outcome.best, outcome.best_score, config_.plan.race.metric, outcome.winners.size(),
+               config_.plan.race.margin_db, left_out.size(), saved, outcome.seconds);
+  WriteFileAtomic(Workspace(config_.workspace).Path("race.json"), DumpJson(race, 2) + "\n");
+}
+
 int Runner::Run(const RunOptions& options) {
   if (!options.views.empty()) return RunShard(options);
   const auto start = std::chrono::steady_clock::now();
@@ -681,7 +768,21 @@ int Runner::Run(const RunOptions& options) {
   std::vector<bool> stale_before(config_.stages.size(), false);
   skipped_outputs_.clear();
   shapes_.clear();
+  race_skips_.clear();
+  // The race runs after the last stage that writes the model, in a whole run of the config.
+  int model_stage = -1;
+  for (size_t i = 0; i < config_.stages.size(); ++i) {
+    if (!registry_.Find(config_.stages[i].name)->WritesModel().sparse.empty()) model_stage = static_cast<int>(i);
+  }
+  const bool whole_run = options.only.empty() && options.from.empty() && options.to.empty();
+  if (config_.plan.race.enabled && !whole_run) {
+    spdlog::info("race: not run with --only, --from or --to (the stages left out by an earlier race stay out only "
+                 "in a whole run)");
+  }
+  const bool race_due = config_.plan.race.enabled && whole_run && !options.dry_run && model_stage >= 0 &&
+                        model_stage + 1 < static_cast<int>(config_.stages.size());
   for (int i = 0; i < static_cast<int>(config_.stages.size()); ++i) {
+    if (race_due && i == model_stage + 1) RunRaceAfter(static_cast<size_t>(model_stage), options);
     const Stage& stage = *registry_.Find(config_.stages[i].name);
     StageContext context = MakeContext(stage, config_.stages[i]);
     nlohmann::json inputs;

@@ -119,8 +119,15 @@ class Runner {
   void Skip(size_t index, const StageContext& context, const std::string& key, const std::string& reason,
             bool write_record) const;
 
+  // The race (plan.race, race.h) after config stage `model_stage`, the last that writes the model:
+  // runs it, fills race_skips_ and writes race.json. Logs and goes on without a verdict when the
+  // race cannot give one.
+  void RunRaceAfter(size_t model_stage, const RunOptions& options);
+
   Config config_;
   const StageRegistry& registry_;
+  // Config stages the race left out of this run, with the reason (SkipReason).
+  std::map<size_t, std::string> race_skips_;
   // Per model folder (absolute): the capture's shape, analysed once per run (nullopt: no model yet).
   mutable std::map<std::string, std::optional<CaptureShape>> shapes_;
   // Outputs (absolute) of the stages skipped so far, with the reason (StageContext::skipped_outputs).

@@ -117,6 +117,11 @@ class RenderStage : public Stage {
     return inputs;
   }
   std::vector<std::string> Outputs(const StageContext&) const override { return {"renders"}; }
+  std::vector<DrawnModel> DrawsModels(const StageContext& context) const override {
+    std::vector<DrawnModel> drawn;
+    for (const auto& model : Models(context)) drawn.push_back({model->Name(), model->Inputs(context)});
+    return drawn;
+  }
 
   void Run(StageContext& context) const override;
 
@@ -317,7 +322,8 @@ void RenderStage::Run(StageContext& context) const {
       models_json.push_back({{"name", model->Name()},
                              {"path", model->SourcePath(context.workspace)},
                              {"status", "skipped"},
-                             {"reason", *reason}});
+                             {"reason", *reason},
+                             {"left_out_by_plan", !skipped_because[m].empty()}});
       continue;
     }
     context.metrics["prepare_seconds_" + model->Name()] = SecondsSince(start);

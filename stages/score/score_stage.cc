@@ -233,7 +233,11 @@ class ScoreStage : public Stage {
       const nlohmann::json& proxy = proxies[p];
       const std::string name = proxy.value("name", "");
       if (proxy.value("status", "") != "rendered") {
-        spdlog::warn("[score] proxy {} was not rendered ({}); no scores for it", name, proxy.value("reason", "?"));
+        if (proxy.value("left_out_by_plan", false)) {  // the run's plan, said by the runner already
+          spdlog::info("[score] proxy {} was not rendered ({}); no scores for it", name, proxy.value("reason", "?"));
+        } else {
+          spdlog::warn("[score] proxy {} was not rendered ({}); no scores for it", name, proxy.value("reason", "?"));
+        }
         out["proxies"][name] = {{"status", "skipped"}, {"reason", proxy.value("reason", "not rendered")}};
         continue;
       }

@@ -82,6 +82,9 @@ class SplatFitStage : public Stage {
         {"sh_degree", ParamType::kInt, std::to_string(d.sh_degree), "Final SH degree of the view-dependent colour, [0, 3]"},
         {"sh_every", ParamType::kInt, std::to_string(d.sh_every), "Steps per SH degree added, >= 1"},
         {"coarse_fraction", ParamType::kDouble, num(d.coarse_fraction), "Fraction of the steps at half resolution, [0, 1]"},
+        {"max_image_size", ParamType::kInt, "0",
+         "Fit against the photos scaled to at most this many pixels on their longer side (the splats are drawn at any "
+         "size later); 0: as the views are, else >= 16"},
         {"lr_position", ParamType::kDouble, num(d.lr_position), "Position step, times the scene extent (decays to lr_position_final)"},
         {"lr_position_final", ParamType::kDouble, num(d.lr_position_final), "Final position step, times the scene extent"},
         {"lr_rotation", ParamType::kDouble, num(d.lr_rotation), "Rotation (quaternion) step"},
@@ -104,6 +107,9 @@ class SplatFitStage : public Stage {
   std::optional<ParamError> CheckParams(const Params& params) const override {
     std::string error;
     if (!ToOptions(params).Check(&error)) return ParamError::FromCheck(error);
+    if (params.Int("max_image_size") != 0 && params.Int("max_image_size") < 16) {
+      return ParamError{"max_image_size", "must be 0 (the views' size) or >= 16, got " + std::to_string(params.Int("max_image_size"))};
+    }
     if (params.Int("max_initial") < 1 || params.Int("max_initial") > 10000000) {
       return ParamError{"max_initial", "must be in [1, 10000000], got " + std::to_string(params.Int("max_initial"))};
     }
@@ -161,8 +167,14 @@ class SplatFitStage : public Stage {
       view.name = names[i];
       cv::Mat rgb;
       cv::cvtColor(photo, rgb, cv::COLOR_BGR2RGB);
+      const int max_size = context.params.Int("max_image_size");
+      Camera fitted = camera;
+      if (max_size > 0 && std::max(camera.width, camera.height) > max_size) {
+        fitted = camera.Scaled(static_cast<double>(max_size) / std::max(camera.width, camera.height));
+        cv::resize(rgb, rgb, cv::Size(fitted.width, fitted.height), 0, 0, cv::INTER_AREA);
+      }
       rgb.convertTo(view.image, CV_32FC3, 1.0 / 255.0);
-      view.camera = ToSplatCamera(camera, image.cam_from_world);
+      view.camera = ToSplatCamera(fitted, image.cam_from_world);
       context.progress->Advance(1, names[i]);
     }
     context.progress->End();

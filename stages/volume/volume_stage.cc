@@ -103,7 +103,11 @@ class VolumeStage : public Stage {
         {"robust_epsilon", ParamType::kDouble, Number(d.robust_epsilon), "e of the robust error sqrt(r^2 + e^2) - e, colour units, > 0"},
         {"smoothness", ParamType::kDouble, Number(d.smoothness), "Weight of colour and opacity smoothness, >= 0"},
         {"opacity_prior", ParamType::kDouble, Number(d.opacity_prior), "Weight of the prior a (1 - a) pushing opacities to 0 or 1, >= 0"},
-        {"max_memory_mb", ParamType::kDouble, Number(d.max_memory_mb), "Refuse a volume whose fitting needs more, MB"},
+        {"max_memory_mb", ParamType::kDouble, Number(d.max_memory_mb),
+         "Memory the fitting of one volume may take, MB (see fit_memory)"},
+        {"fit_memory", ParamType::kBool, "true",
+         "Lower the resolution (then the widening) of a volume that would need more than max_memory_mb until it "
+         "fits, and say what it chose; false: refuse it"},
     };
   }
 
@@ -191,18 +195,42 @@ class VolumeStage : public Stage {
       std::string source;
       double near = 0, far = 0;
       DepthRange(context, model, provisional.cam_from_world, &near, &far, &source);
-      const VirtualCamera virtual_camera = ChooseVirtualCamera(fitted, fitted_reference, near, far, options);
-      const double needed_mb = VolumeFitBytes(virtual_camera, fitted, options) / 1048576.0;
+      VirtualCamera virtual_camera = ChooseVirtualCamera(fitted, fitted_reference, near, far, options);
+      double needed_mb = VolumeFitBytes(virtual_camera, fitted, options) / 1048576.0;
       spdlog::info("[volume] {}: {} planes of {}x{} between depth {:.4g} and {:.4g} ({}); fitting needs about {:.0f} MB",
                    folder, options.num_planes, virtual_camera.camera.width, virtual_camera.camera.height, near, far,
                    source, needed_mb);
-      if (needed_mb > options.max_memory_mb) {
+      VolumeOptions sized = options;  // the resolution and widening this volume fits the budget with
+      if (needed_mb > options.max_memory_mb && context.params.Bool("fit_memory")) {
+        const int width = virtual_camera.camera.width, height = virtual_camera.camera.height;
+        // The planes' pixels dominate the estimate: shrink the side by the square root of the excess
+        // (5% under it), widening first down to 1 (the frusta's margins cost least), then the
+        // resolution; again while the estimate (which has fixed parts) is still over.
+        for (int attempt = 0; attempt < 8 && needed_mb > sized.max_memory_mb; ++attempt) {
+          double shrink = std::sqrt(sized.max_memory_mb / needed_mb) * 0.95;
+          if (sized.max_widen > 1) {
+            const double widen = std::max(1.0, sized.max_widen * shrink);
+            shrink /= widen / sized.max_widen;
+            sized.max_widen = widen;
+          }
+          sized.resolution *= shrink;
+          virtual_camera = ChooseVirtualCamera(fitted, fitted_reference, near, far, sized);
+          needed_mb = VolumeFitBytes(virtual_camera, fitted, sized) / 1048576.0;
+        }
+        spdlog::info("[volume] {}: {} planes of {}x{} would need more than volume.max_memory_mb ({}); fitted at "
+                     "resolution {:.3g} (of {}), widening at most {:.3g} (of {}): {}x{}, about {:.0f} MB",
+                     folder, options.num_planes, width, height, Number(options.max_memory_mb), sized.resolution,
+                     Number(options.resolution), sized.max_widen, Number(options.max_widen),
+                     virtual_camera.camera.width, virtual_camera.camera.height, needed_mb);
+      }
+      if (needed_mb > sized.max_memory_mb) {
         throw InputError("volume: " + std::to_string(options.num_planes) + " planes of " +
                          std::to_string(virtual_camera.camera.width) + "x" + std::to_string(virtual_camera.camera.height) +
                          " need about " + std::to_string(static_cast<int>(needed_mb)) + " MB to fit, more than volume.max_memory_mb (" +
-                         Number(options.max_memory_mb) + "); lower volume.num_planes or volume.resolution, or raise volume.max_memory_mb");
+                         Number(options.max_memory_mb) + "); lower volume.num_planes or volume.resolution, or raise volume.max_memory_mb" +
+                         (context.params.Bool("fit_memory") ? "" : ", or set volume.fit_memory: true"));
       }
-      const VolumeResult result = FitPlaneVolume(fitted, virtual_camera, options, context.progress);
+      const VolumeResult result = FitPlaneVolume(fitted, virtual_camera, sized, context.progress);
       nlohmann::json fitted_names = nlohmann::json::array();
       for (const VolumeView& view : fitted) fitted_names.push_back(view.name);
       WritePlaneVolume(context.workspace.Path("volume/" + folder), result.volume);
@@ -221,6 +249,8 @@ class VolumeStage : public Stage {
                          {"far", far},
                          {"depth_source", source},
                          {"memory_estimate_mb", needed_mb},
+                         {"resolution", sized.resolution},
+                         {"max_widen", sized.max_widen},
                          {"init_seconds", result.init_seconds},
                          {"fit_seconds", result.fit_seconds},
                          {"initial_data", result.initial_data},
