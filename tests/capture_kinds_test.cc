@@ -96,3 +96,26 @@ TEST_F(CaptureKinds, PhotosWithoutPosesNameTheMissingStep) {
 }
 
 }  // namespace
+
+namespace {
+
+// The one command a newcomer needs: `ibmr run FOLDER` on a folder of photos picks the photo chain,
+// would write it beside the folder, and (here, as a dry run) says what it would run.
+TEST_F(CaptureKinds, RunOnAFolderOfPhotos) {
+  fs::create_directories(dir_ / "garden");
+  for (int i = 0; i < 3; ++i) {
+    ibmr::WriteImage((dir_ / "garden" / ("p" + std::to_string(i) + ".jpg")).string(),
+                     cv::Mat(48, 64, CV_8UC3, cv::Scalar(40 + 20 * i, 80, 120)));
+  }
+  const auto run = ibmr_e2e::RunCommand(std::string(IBMR_BINARY) + " run " + (dir_ / "garden").string() + " --dry-run");
+  EXPECT_EQ(run.exit_code, 0) << run.output;
+  EXPECT_NE(run.output.find("a folder of 3 photos without poses; would run configs/photos.yaml in " +
+                            (dir_ / "garden.ibmr").string()),
+            std::string::npos)
+      << run.output;
+  EXPECT_FALSE(fs::exists(dir_ / "garden.ibmr"));  // a dry run leaves nothing behind
+  EXPECT_NE(run.output.find("[sfm] would run"), std::string::npos) << run.output;
+  EXPECT_NE(run.output.find("[volume] serves forward_facing captures only"), std::string::npos) << run.output;
+}
+
+}  // namespace

@@ -257,7 +257,14 @@ void ParseRace(const YAML::Node& node, const std::string& path, RacePlan* race) 
           throw ConfigError(Where(path, line, "plan.race.margin_db", "must be >= 0, got " + kv.second.Scalar()));
         }
       } else if (key == "metric") {
-        race->metric = kv.second.as<std::string>();
+        // PSNRs of scores/heldout.json: higher is better and margin_db is in their unit.
+        const std::vector<std::string> metrics = {"photo_psnr", "filled_photo_psnr", "psnr", "filled_psnr", "mask_psnr"};
+        race->metric = kv.second.IsScalar() ? kv.second.Scalar() : "";
+        if (std::find(metrics.begin(), metrics.end(), race->metric) == metrics.end()) {
+          throw ConfigError(Where(path, LineOf(kv.second), "plan.race.metric",
+                                  "expected a held-out PSNR: photo_psnr, filled_photo_psnr, psnr, filled_psnr or mask_psnr; " +
+                                      Suggest(race->metric, metrics)));
+        }
       } else {
         throw ConfigError(Where(path, line, "plan.race." + key, "unknown key; " + Suggest(key, valid)));
       }

@@ -14,6 +14,8 @@
 //     split: test      # or: every image of the capture's test split (import's splits.json, NeRF's
 //                      # Blender layout); `every`/`offset` then pick the views scored among them,
 //                      # the others kept out of every stage but import
+//   plan:              # optional: see RunPlan (what the capture's kind leaves out, the race)
+//     with: [volume]
 //   stages:
 //     - synth: {scene: object_ring, views: 24}
 //     - carve:

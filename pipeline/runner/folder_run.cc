@@ -3,6 +3,7 @@
 
 #include <spdlog/spdlog.h>
 #include <stdlib.h>
+#include <unistd.h>
 #include <yaml-cpp/yaml.h>
 
 #include <algorithm>
@@ -46,18 +47,17 @@ bool HasParFile(const fs::path& folder) {
   return false;
 }
 
-// photos.yaml for a capture that brings its cameras: import reads them (format auto), no sfm and
-// no undistort; import keeps the photos within the 1600 px the photo chain's dense stages use.
+// photos.yaml for a capture that brings its cameras: import reads them (format auto), no sfm;
+// undistort makes pinhole views of its model as after sfm.
 std::string PosedConfig(const std::string& description) {
   YAML::Node root = YAML::Load(kConfig_photos);
   YAML::Node stages(YAML::NodeType::Sequence);
   for (const YAML::Node& entry : root["stages"]) {
     const std::string name = entry.IsMap() ? entry.begin()->first.Scalar() : entry.Scalar();
-    if (name == "sfm" || name == "undistort") continue;
+    if (name == "sfm") continue;
     if (name == "import") {
       YAML::Node import;
       import["import"]["format"] = "auto";
-      import["import"]["max_image_size"] = 1600;
       stages.push_back(import);
       continue;
     }
@@ -66,7 +66,7 @@ std::string PosedConfig(const std::string& description) {
   root["stages"] = stages;
   YAML::Emitter out;
   out << root;
-  return "# configs/photos.yaml without sfm and undistort, for " + description +
+  return "# configs/photos.yaml without sfm, for " + description +
          ": import reads the cameras (format auto).\n" + std::string(out.c_str()) + "\n";
 }
 
@@ -103,14 +103,19 @@ std::string DefaultWorkspaceFor(const std::string& folder) {
   return path.string() + ".ibmr";
 }
 
-std::string PrepareFolderRun(const std::string& folder, const std::string& workspace, const FolderPlan& plan) {
-  fs::create_directories(workspace);
-  const std::string config = (fs::path(workspace) / "config.yaml").string();
-  if (fs::exists(config)) {
+std::string PrepareFolderRun(const std::string& folder, const std::string& workspace, const FolderPlan& plan,
+                             bool dry_run) {
+  std::string config = (fs::path(workspace) / "config.yaml").string();
+  if (dry_run && !fs::exists(config)) {  // a dry run leaves no workspace behind
+    config = (fs::temp_directory_path() / ("ibmr_folder_config_" + std::to_string(::getpid()) + ".yaml")).string();
+    WriteFileAtomic(config, plan.config_text);
+    spdlog::info("{}: {}; would run configs/{} in {}", folder, plan.description, plan.config_name, workspace);
+  } else if (fs::exists(config)) {
     spdlog::info("{}: {}; running the workspace's config.yaml (written by an earlier run; edit it or delete it for "
                  "the shipped {})",
                  folder, plan.description, plan.config_name);
   } else {
+    fs::create_directories(workspace);
     WriteFileAtomic(config, "# Written by `ibmr run " + folder + "` from configs/" + plan.config_name +
                                 " for " + plan.description + ".\n# Edit it and run again: `ibmr run " +
                                 folder + "` runs it.\n" + plan.config_text);

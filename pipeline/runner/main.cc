@@ -239,7 +239,7 @@ int main(int argc, char** argv) {
       const ibmr::FolderPlan plan = ibmr::PlanForFolder(config_path);
       if (workspace.empty()) workspace = ibmr::DefaultWorkspaceFor(config_path);
       workspace = std::filesystem::absolute(workspace).lexically_normal().string();
-      config_path = ibmr::PrepareFolderRun(config_path, workspace, plan);
+      config_path = ibmr::PrepareFolderRun(config_path, workspace, plan, options.dry_run);
       write_report = true;
     } catch (const std::exception& e) {
       spdlog::error("{}", e.what());

@@ -21,10 +21,13 @@ namespace fs = std::filesystem;
 namespace ibmr {
 namespace {
 
-// `from` resized to `size` into `to` unless `to` is newer than `from`.
+// `from` resized to `size` into `to` unless `to` is newer than `from` and of that size already.
 void ScaleImage(const std::string& from, const std::string& to, cv::Size size) {
   std::error_code ec;
-  if (fs::exists(to, ec) && fs::last_write_time(to, ec) >= fs::last_write_time(from, ec)) return;
+  if (fs::exists(to, ec) && fs::last_write_time(to, ec) >= fs::last_write_time(from, ec)) {
+    const cv::Mat kept = ReadImageUnchanged(to);
+    if (kept.cols == size.width && kept.rows == size.height) return;
+  }
   const cv::Mat image = ReadImageUnchanged(from);
   if (image.empty()) throw IoError(from + ": cannot read the photo for the race");
   cv::Mat scaled;
@@ -69,6 +72,21 @@ void PrepareRaceCapture(const Workspace& model, const std::set<std::string>& hel
       ScaleImage(alpha, race.Path(std::string(kAlphaFolder) + "/" + image.name + ".png"), size);
     }
   }
+  // Photos of an earlier race whose views are not in this one (the holdout changed) go.
+  std::set<std::string> kept;
+  for (const auto& [id, image] : sparse.images) {
+    kept.insert(race.Path("images/" + image.name));
+    kept.insert(race.Path(std::string(kAlphaFolder) + "/" + image.name + ".png"));
+  }
+  for (const std::string folder : {std::string("images"), std::string(kAlphaFolder)}) {
+    std::error_code ec;
+    std::vector<fs::path> stale;
+    for (auto it = fs::recursive_directory_iterator(race.Path(folder), ec); !ec && it != fs::recursive_directory_iterator();
+         it.increment(ec)) {
+      if (it->is_regular_file() && !kept.count(it->path().lexically_normal().string())) stale.push_back(it->path());
+    }
+    for (const fs::path& path : stale) fs::remove(path, ec);
+  }
   fs::create_directories(race.Path("sparse"));
   WriteSparseModelText(race.Path("sparse"), sparse);
   // What else the model folder holds (LLFF's depth_bounds.json), and the capture's own files.
@@ -96,7 +114,9 @@ RaceOutcome RunRace(const Config& config, const StageRegistry& registry, size_t 
     }
     outcome.validation = ValidationViews(training, plan.validation_every);
     if (outcome.validation.empty() || training.size() - outcome.validation.size() < 2) {
-      outcome.problem = std::to_string(training.size()) + " training views leave none to validate on";
+      outcome.problem = std::to_string(training.size()) + " training views are too few to hold " +
+                        std::to_string(std::max<size_t>(1, outcome.validation.size())) +
+                        " out for validation and reconstruct from the rest";
       return outcome;
     }
     spdlog::info("race: the stages after {} on the {} training views scaled by {} in {}, {} of them held out and "

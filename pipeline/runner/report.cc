@@ -162,6 +162,23 @@ function workspaceReport(R) {
        'Every stage of the config serves this capture.');
     if (skipped.length) table(content, ['stage', 'why'], skipped.map(s => [s.stage, s.skipped_because]));
   }
+  if (R.race) {  // race.json: the models built first on a reduced copy, and what the full run left out
+    const Q = R.race;
+    el('h2', {}, content, 'The race: models tried small first');
+    if (Q.problem) {
+      el('p', {class: 'note'}, content, 'The race gave no verdict (' + Q.problem + '); every stage ran.');
+    } else {
+      el('p', {class: 'note'}, content, 'Every stage after the model was built at ' + Q.scale + 'x size on the training views, ' +
+         Q.validation.length + ' of them held out and scored (' + Q.metric + '), in ' + fmt(Q.seconds, 1) + ' s. Best: ' + Q.best +
+         '; kept: the models within ' + Q.margin_db + ' dB of it. ' + (Q.left_out.length ? Q.left_out.length +
+         ' stage(s) left out of the full-size run, about ' + fmt(Q.estimated_saving_seconds, 0) + ' s saved (estimated from the race\'s times).' :
+         'Nothing left out: the race cost more than it saved here.'));
+      const names = Object.keys(Q.models).sort((a, b) => Q.models[b] - Q.models[a]);
+      table(content, ['model', Q.metric + ' (race)', 'kept'], names.map(n => [n, fmt(Q.models[n]), Q.winners.includes(n) ? 'yes' : '']));
+      if (Q.left_out.length) table(content, ['stage left out', 'its models', 'race s', 'full size s (estimate)'],
+          Q.left_out.map(l => [l.stage, l.models.join(', '), fmt(l.race_seconds, 1), fmt(l.estimated_full_seconds, 0)]));
+    }
+  }
   el('h2', {}, content, 'Stages: time and memory');
   const stages = R.stages.filter(s => s.status !== 'skipped');
   table(content, ['stage', 'status', 'wall s', 'CPU s', 'peak MB', 'reused'],
@@ -427,6 +444,15 @@ nlohmann::json GatherWorkspaceReport(const std::string& root, int image_width, n
   const std::string capture_path = workspace.Path(kCaptureFile);
   const nlohmann::json capture = ReadReportJson(capture_path, nlohmann::json(), "run the config again (ibmr run)");
   if (capture.is_object() && capture.contains("kind") && capture["kind"].is_string()) report["capture"] = capture;
+  const std::string race_path = workspace.Path("race.json");
+  const nlohmann::json race = ReadReportJson(race_path, nlohmann::json(), "run the config again (ibmr run)");
+  if (race.is_object() && race.contains("validation")) {
+    nlohmann::json page = race;
+    for (const char* key : {"models", "winners", "left_out"}) {
+      if (!page.contains(key)) page[key] = key == std::string("models") ? nlohmann::json::object() : nlohmann::json::array();
+    }
+    report["race"] = page;
+  }
   // multi_depth's per-view agreement and flags (issue 67), when it ran.
   const std::string agreement_path = workspace.ViewAgreementPath();
   const nlohmann::json agreement = ReadJsonOr(agreement_path, nlohmann::json());

@@ -154,9 +154,11 @@ TEST_F(RunPlanTest, AnObjectSkipsTheForwardFacingModelAndWhatNeedsIt) {
   EXPECT_EQ(Record("draw").inputs["planes"], "skipped");
 
   // Again: nothing runs, the decisions stand; status says so.
-  const auto draw_started = Record("draw").started;
+  fs::remove(dir_ / "ws/drawn.txt");
+  const nlohmann::json draw_inputs = Record("draw").inputs;
   ASSERT_EQ(Run(), 0);
-  EXPECT_EQ(Record("draw").started, draw_started);
+  EXPECT_EQ(Record("draw").inputs, draw_inputs);
+  EXPECT_EQ(Read("drawn.txt"), "rig");  // run again only for its missing output, with the same inputs
   const std::vector<StageStatus> status =
       Runner(LoadConfig((dir_ / "c.yaml").string(), registry_), registry_).Status();
   ASSERT_EQ(status.size(), 4u);
@@ -347,10 +349,23 @@ TEST_F(RunPlanTest, TheRaceLeavesOutWhatFeedsOnlyTheLoserAndNeverReadsAHeldOutPh
   const nlohmann::json raced_scores = ReadJsonOr((dir_ / "ws/race/scores/heldout.json").string(), nullptr);
   EXPECT_EQ(raced_scores["heldout"], nlohmann::json::array({"v104.png", "v108.png", "v113.png", "v118.png"}));
   EXPECT_EQ(race["validation"], raced_scores["heldout"]);
-  // Again: the race is up to date, the decision stands, nothing runs.
+  // Again: the race is up to date, the decision stands, nothing runs; status says why.
   ASSERT_EQ(Run(), 0);
   EXPECT_EQ(good_runs - good_before, 2);
   EXPECT_EQ(bad_runs - bad_before, 1);
+  const std::vector<StageStatus> status = Runner(LoadConfig((dir_ / "c.yaml").string(), registry_), registry_).Status();
+  ASSERT_EQ(status.size(), 4u);
+  EXPECT_TRUE(status[2].skipped);
+  EXPECT_EQ(status[2].reason.rfind("skipped, the race left it out", 0), 0u) << status[2].reason;
+  EXPECT_EQ(status[3].reason, "up to date");
+  // --with runs it; the next whole run leaves it out again.
+  ASSERT_EQ(Run({"bad"}), 0);
+  EXPECT_EQ(bad_runs - bad_before, 2);
+  EXPECT_TRUE(ReadJsonOr((dir_ / "ws/scores/heldout.json").string(), nullptr)["proxies"].contains("bad"));
+  ASSERT_EQ(Run(), 0);
+  EXPECT_EQ(Record("bad").status, "skipped");
+  EXPECT_EQ(bad_runs - bad_before, 2);
+  EXPECT_FALSE(ReadJsonOr((dir_ / "ws/scores/heldout.json").string(), nullptr)["proxies"].contains("bad"));
 }
 
 }  // namespace

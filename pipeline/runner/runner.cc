@@ -158,7 +158,8 @@ std::optional<CaptureShape> Runner::CaptureIn(const Workspace& workspace) const 
         nlohmann::json json = shape->ToJson();
         json["model"] = workspace.SparseRelative();
         const std::string path = workspace.Path(kCaptureFile);
-        if (ReadJsonOr(path, nlohmann::json()) != json) WriteFileAtomic(path, DumpJson(json, 2) + "\n");
+        // Looking (status, --dry-run) writes nothing.
+        if (write_capture_ && ReadJsonOr(path, nlohmann::json()) != json) WriteFileAtomic(path, DumpJson(json, 2) + "\n");
         spdlog::info("capture: {} ({})", shape->Describe(), kCaptureFile);
       }
     } catch (const std::exception& e) {
@@ -281,6 +282,10 @@ std::string Runner::OwnStaleness(const Stage& stage, const StageContext& context
     if (!holder.empty()) return "running now in another process (" + holder + ")";
     return "interrupted while running (will resume)";
   }
+  if (record->status == "skipped") {
+    return "the plan skipped it last time (" + record->skipped_because.substr(0, record->skipped_because.find(" (")) +
+           "); now it runs";
+  }
   if (record->status != "ok") return "last run failed: " + record->error;
   if (record->key == key) return MissingOutput(stage, context);
   if (record->version != stage.Version()) return "code version changed (" + record->version + " -> " + stage.Version() + ")";
@@ -355,6 +360,8 @@ std::vector<StageStatus> Runner::Status() const {
   std::vector<StageStatus> statuses;
   skipped_outputs_.clear();
   shapes_.clear();
+  write_capture_ = false;
+  LoadRaceSkips();
   for (size_t i = 0; i < config_.stages.size(); ++i) {
     const Stage* stage = registry_.Find(config_.stages[i].name);
     const StageContext context = MakeContext(*stage, config_.stages[i]);
@@ -583,6 +590,7 @@ double Runner::ViewMemoryMb(const std::string& stage_name) const {
 std::vector<std::string> Runner::UnfinishedViews(const std::string& stage_name) const {
   const StageConfig* stage_config = config_.FindStage(stage_name);
   if (stage_config == nullptr) return {};
+  PlanUpTo(static_cast<size_t>(stage_config - config_.stages.data()));  // the key a run would compute
   const Stage& stage = *registry_.Find(stage_name);
   const StageContext context = MakeContext(stage, *stage_config);
   nlohmann::json inputs;
@@ -594,7 +602,21 @@ std::vector<std::string> Runner::UnfinishedViews(const std::string& stage_name) 
   return unfinished;
 }
 
+void Runner::PlanUpTo(size_t index) const {
+  skipped_outputs_.clear();
+  shapes_.clear();
+  LoadRaceSkips();
+  for (size_t j = 0; j < index && j < config_.stages.size(); ++j) {
+    if (const std::string skip = SkipReason(j); !skip.empty()) {
+      const Stage& stage = *registry_.Find(config_.stages[j].name);
+      Skip(j, MakeContext(stage, config_.stages[j]), "", skip, false);
+    }
+  }
+}
+
 std::string Runner::Staleness(size_t index) const {
+  PlanUpTo(index);
+  if (!SkipReason(index).empty()) return "";  // the plan skips it: nothing to run
   const Stage& stage = *registry_.Find(config_.stages.at(index).name);
   const StageContext context = MakeContext(stage, config_.stages[index]);
   nlohmann::json inputs;
@@ -611,6 +633,12 @@ int Runner::RunShard(const RunOptions& options) {
   if (!stage.Shardable()) {
     spdlog::error("[{}] has no per-view shards; run it without --views ({})", stage.Name(), ShardableStagesText());
     return 2;
+  }
+  const size_t index = static_cast<size_t>(stage_config - config_.stages.data());
+  PlanUpTo(index);  // the stages the plan skips before it, as a whole run sees them
+  if (const std::string skip = SkipReason(index); !skip.empty()) {
+    spdlog::info("[{}] {}: the shard has nothing to do", stage.Name(), skip);
+    return 0;
   }
   std::unique_ptr<tbb::global_control> threads;
   if (options.jobs > 0) {
@@ -682,7 +710,7 @@ void Runner::RunRaceAfter(size_t model_stage, const RunOptions& options) {
                          {"workspace", "race"},
                          {"validation", outcome.validation},
                          {"seconds", outcome.seconds}};
-  if (!outcome.ok) {
+  if (!outcome.ok) {  // race.json without left_out: every stage runs
     spdlog::warn("race: no verdict ({}); every stage runs", outcome.problem);
     race["problem"] = outcome.problem;
     WriteFileAtomic(Workspace(config_.workspace).Path("race.json"), DumpJson(race, 2) + "\n");
@@ -731,14 +759,14 @@ void Runner::RunRaceAfter(size_t model_stage, const RunOptions& options) {
     }
     if (needed) continue;
     const std::string& name = config_.stages[j].name;
-    race_skips_[j] = fmt::format("{}: skipped, the race left it out: the models drawn from it scored {} at {}x size, more "
+    const std::string reason = fmt::format("{}: skipped, the race left it out: the models drawn from it scored {} at {}x size, more "
                                  "than {} dB below {}'s {:.2f} dB (race.json); --with {} runs it",
                                  name, scored, config_.plan.race.scale, config_.plan.race.margin_db, outcome.best,
                                  outcome.best_score, name);
     const auto seconds = outcome.stage_seconds.find(name);
     const double race_seconds = seconds == outcome.stage_seconds.end() ? 0 : seconds->second;
     left_out.push_back({{"stage", name}, {"models", models}, {"race_seconds", race_seconds},
-                        {"estimated_full_seconds", race_seconds / pixel_ratio}});
+                        {"estimated_full_seconds", race_seconds / pixel_ratio}, {"reason", reason}});
     saved += race_seconds / pixel_ratio;
   }
   race["left_out"] = left_out;
@@ -748,6 +776,19 @@ void Runner::RunRaceAfter(size_t model_stage, const RunOptions& options) {
                outcome.best, outcome.best_score, config_.plan.race.metric, outcome.winners.size(),
                config_.plan.race.margin_db, left_out.size(), saved, outcome.seconds);
   WriteFileAtomic(Workspace(config_.workspace).Path("race.json"), DumpJson(race, 2) + "\n");
+}
+
+void Runner::LoadRaceSkips() const {
+  race_skips_.clear();
+  if (!config_.plan.race.enabled) return;
+  const nlohmann::json race = ReadJsonOr(Workspace(config_.workspace).Path("race.json"), nlohmann::json());
+  if (!race.is_object() || !race.contains("left_out") || !race["left_out"].is_array()) return;
+  for (const nlohmann::json& entry : race["left_out"]) {
+    if (!entry.is_object() || !entry.contains("stage") || !entry.contains("reason")) continue;
+    for (size_t i = 0; i < config_.stages.size(); ++i) {
+      if (config_.stages[i].name == entry["stage"]) race_skips_[i] = entry["reason"].get<std::string>();
+    }
+  }
 }
 
 int Runner::Run(const RunOptions& options) {
@@ -768,7 +809,7 @@ int Runner::Run(const RunOptions& options) {
   std::vector<bool> stale_before(config_.stages.size(), false);
   skipped_outputs_.clear();
   shapes_.clear();
-  race_skips_.clear();
+  write_capture_ = !options.dry_run;
   // The race runs after the last stage that writes the model, in a whole run of the config.
   int model_stage = -1;
   for (size_t i = 0; i < config_.stages.size(); ++i) {
@@ -776,13 +817,16 @@ int Runner::Run(const RunOptions& options) {
   }
   const bool whole_run = options.only.empty() && options.from.empty() && options.to.empty();
   if (config_.plan.race.enabled && !whole_run) {
-    spdlog::info("race: not run with --only, --from or --to (the stages left out by an earlier race stay out only "
-                 "in a whole run)");
+    spdlog::info("race: not run with --only, --from or --to; an earlier race's verdict (race.json) holds");
   }
   const bool race_due = config_.plan.race.enabled && whole_run && !options.dry_run && model_stage >= 0 &&
                         model_stage + 1 < static_cast<int>(config_.stages.size());
+  LoadRaceSkips();  // an earlier race's verdict, for the stages before this run's race (or without one)
   for (int i = 0; i < static_cast<int>(config_.stages.size()); ++i) {
-    if (race_due && i == model_stage + 1) RunRaceAfter(static_cast<size_t>(model_stage), options);
+    if (race_due && i == model_stage + 1) {
+      RunRaceAfter(static_cast<size_t>(model_stage), options);
+      LoadRaceSkips();
+    }
     const Stage& stage = *registry_.Find(config_.stages[i].name);
     StageContext context = MakeContext(stage, config_.stages[i]);
     nlohmann::json inputs;

@@ -123,11 +123,18 @@ class Runner {
   // runs it, fills race_skips_ and writes race.json. Logs and goes on without a verdict when the
   // race cannot give one.
   void RunRaceAfter(size_t model_stage, const RunOptions& options);
+  // race_skips_ from race.json's verdict (none without plan.race or a race.json).
+  void LoadRaceSkips() const;
+  // The plan's state (skipped_outputs_, race_skips_) as a whole run has it when it reaches config
+  // stage `index`, decided from what is on disk; writes nothing.
+  void PlanUpTo(size_t index) const;
 
   Config config_;
   const StageRegistry& registry_;
   // Config stages the race left out of this run, with the reason (SkipReason).
-  std::map<size_t, std::string> race_skips_;
+  mutable std::map<size_t, std::string> race_skips_;
+  // CaptureIn writes capture.json (a run that is not a dry run); status and dry runs only look.
+  mutable bool write_capture_ = false;
   // Per model folder (absolute): the capture's shape, analysed once per run (nullopt: no model yet).
   mutable std::map<std::string, std::optional<CaptureShape>> shapes_;
   // Outputs (absolute) of the stages skipped so far, with the reason (StageContext::skipped_outputs).

@@ -132,7 +132,7 @@ nlohmann::json CollectVariant(const Config& config, const StageRegistry& registr
     entry["reused"] = !record->reused_from.empty();
     entry["metrics"] = record->metrics;
     if (!record->error.empty()) entry["error"] = record->error;
-    if (record->status != "ok") status = "failed";
+    if (record->status != "ok" && record->status != "skipped") status = "failed";  // skipped: the run's plan
     wall += record->wall_seconds;
     cpu += record->cpu_seconds;
     peak = std::max(peak, record->peak_memory_mb);

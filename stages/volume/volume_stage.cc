@@ -106,7 +106,7 @@ class VolumeStage : public Stage {
         {"max_memory_mb", ParamType::kDouble, Number(d.max_memory_mb),
          "Memory the fitting of one volume may take, MB (see fit_memory)"},
         {"fit_memory", ParamType::kBool, "true",
-         "Lower the resolution (then the widening) of a volume that would need more than max_memory_mb until it "
+         "Lower the widening (then the resolution) of a volume that would need more than max_memory_mb until it "
          "fits, and say what it chose; false: refuse it"},
     };
   }
@@ -204,18 +204,23 @@ class VolumeStage : public Stage {
       if (needed_mb > options.max_memory_mb && context.params.Bool("fit_memory")) {
         const int width = virtual_camera.camera.width, height = virtual_camera.camera.height;
         // The planes' pixels dominate the estimate: shrink the side by the square root of the excess
-        // (5% under it), widening first down to 1 (the frusta's margins cost least), then the
-        // resolution; again while the estimate (which has fixed parts) is still over.
-        for (int attempt = 0; attempt < 8 && needed_mb > sized.max_memory_mb; ++attempt) {
-          double shrink = std::sqrt(sized.max_memory_mb / needed_mb) * 0.95;
+        // (5% under it), the widening first down to 1 (the frusta's margins cost least), then the
+        // resolution; again while the estimate (which has fixed parts: the views) is still over. A
+        // cap on the widening above what the frusta need changes nothing: the resolution then
+        // shrinks too.
+        for (int attempt = 0; attempt < 12 && needed_mb > sized.max_memory_mb; ++attempt) {
+          const double shrink = std::sqrt(sized.max_memory_mb / needed_mb) * 0.95;
+          const double before_mb = needed_mb;
           if (sized.max_widen > 1) {
-            const double widen = std::max(1.0, sized.max_widen * shrink);
-            shrink /= widen / sized.max_widen;
-            sized.max_widen = widen;
+            sized.max_widen = std::max(1.0, sized.max_widen * shrink);
+            virtual_camera = ChooseVirtualCamera(fitted, fitted_reference, near, far, sized);
+            needed_mb = VolumeFitBytes(virtual_camera, fitted, sized) / 1048576.0;
           }
-          sized.resolution *= shrink;
-          virtual_camera = ChooseVirtualCamera(fitted, fitted_reference, near, far, sized);
-          needed_mb = VolumeFitBytes(virtual_camera, fitted, sized) / 1048576.0;
+          if (needed_mb > 0.99 * before_mb) {  // the widening did not bind: lower the resolution
+            sized.resolution *= shrink;
+            virtual_camera = ChooseVirtualCamera(fitted, fitted_reference, near, far, sized);
+            needed_mb = VolumeFitBytes(virtual_camera, fitted, sized) / 1048576.0;
+          }
         }
         spdlog::info("[volume] {}: {} planes of {}x{} would need more than volume.max_memory_mb ({}); fitted at "
                      "resolution {:.3g} (of {}), widening at most {:.3g} (of {}): {}x{}, about {:.0f} MB",
