@@ -154,13 +154,13 @@ function workspaceReport(R) {
   if (R.capture) {  // capture.json: the capture's kind, and what the run's plan left out for it
     const C = R.capture;
     el('h2', {}, content, 'The capture and the plan');
-    el('p', {class: 'note'}, content, 'The capture is ' + C.kind.replace('_', '-') + ': ' + C.reason + '. Silhouettes ' +
+    el('p', {class: 'note'}, content, 'The capture is ' + C.reason + '. Silhouettes ' +
        (C.silhouettes ? 'come with the photos (alpha).' : 'do not come with the photos.') +
        (C.depth_range ? ' Depth range ' + fmt(C.depth_range[0], 3) + ' to ' + fmt(C.depth_range[1], 3) + '.' : ''));
     const skipped = R.stages.filter(s => s.status === 'skipped');
     el('p', {class: 'note'}, content, skipped.length ? skipped.length + ' stage(s) not built for this capture:' :
        'Every stage of the config serves this capture.');
-    if (skipped.length) table(content, ['stage', 'why'], skipped.map(s => [s.stage, s.skipped_because]));
+    if (skipped.length) table(content, ['stage', 'why'], skipped.map(s => [s.stage, s.skipped_because.replace(s.stage + ': skipped, ', '')]));
   }
   if (R.race) {  // race.json: the models built first on a reduced copy, and what the full run left out
     const Q = R.race;

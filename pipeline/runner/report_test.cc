@@ -84,6 +84,35 @@ TEST(Report, FlaggedViewsFromViewAgreementJson) {
   EXPECT_NE(error.find("multi_depth"), std::string::npos) << error;
 }
 
+// The capture's kind, the stages the plan skipped with their reasons, and the race's verdict
+// (issue 66) reach the page's data.
+TEST(Report, CaptureKindSkippedStagesAndRace) {
+  const fs::path ws = ibmr_testing::ScratchDir("ibmr_report_plan");
+  WriteFileAtomic((ws / "records/volume.json").string(),
+                  R"({"stage": "volume", "status": "skipped", "skipped_because": "volume: skipped, the capture is general"})");
+  WriteFileAtomic((ws / "records/surfels.json").string(), R"({"stage": "surfels", "status": "ok", "wall_seconds": 1})");
+  nlohmann::json report = GatherWorkspaceReport(ws.string(), 64);
+  EXPECT_FALSE(report.contains("capture"));  // no poses yet: no section
+  EXPECT_FALSE(report.contains("race"));
+  WriteFileAtomic((ws / "capture.json").string(), R"j({"kind": "general", "reason": "general (11 views)", "views": 11})j");
+  WriteFileAtomic((ws / "race.json").string(),
+                  R"({"scale": 0.25, "validation": ["b.png"], "best": "surfels", "models": {"surfels": 20.5},
+                      "winners": ["surfels"], "seconds": 3})");
+  report = GatherWorkspaceReport(ws.string(), 64);
+  EXPECT_EQ(report["capture"]["kind"], "general");
+  EXPECT_EQ(report["race"]["best"], "surfels");
+  EXPECT_TRUE(report["race"]["left_out"].is_array());  // filled in where the race left nothing out
+  bool found = false;
+  for (const nlohmann::json& stage : report["stages"]) {
+    if (stage["stage"] == "volume") {
+      found = true;
+      EXPECT_EQ(stage["status"], "skipped");
+      EXPECT_EQ(stage["skipped_because"], "volume: skipped, the capture is general");
+    }
+  }
+  EXPECT_TRUE(found) << report["stages"].dump();
+}
+
 TEST(Report, MalformedSweepJsonNamesTheFile) {
   const fs::path folder = ibmr_testing::ScratchDir("ibmr_report_sweep");
   const std::string path = (folder / "sweep.json").string();
