@@ -64,6 +64,9 @@ struct StageContext {
   // The reason when `path` (workspace-relative or absolute) is, or lies inside, a skipped output;
   // nullptr otherwise.
   const std::string* SkippedBy(const std::string& path) const;
+  // Models (DrawnModel names) the run's race found more than its margin below the best, with the
+  // reason: a stage that draws models leaves them out (render draws the background model anyway).
+  std::map<std::string, std::string> left_out_models;
 
   bool IsHeldOut(const std::string& image_name) const { return heldout_images.count(image_name) > 0; }
   // Reads the workspace's model (SparseDir). For kTrainingOnly stages the held-out images are removed (and their

@@ -7,6 +7,7 @@
 
 #include <atomic>
 #include <filesystem>
+#include <tuple>
 #include <fstream>
 #include <opencv2/core.hpp>
 
@@ -294,12 +295,15 @@ class DrawAndScore : public Stage {
   std::vector<std::string> Inputs(const StageContext&) const override { return {"good/model.txt", "bad/model.txt"}; }
   std::vector<std::string> Outputs(const StageContext&) const override { return {"scores"}; }
   std::vector<DrawnModel> DrawsModels(const StageContext&) const override {
-    return {{"good", {"good/model.txt"}}, {"bad", {"bad/model.txt"}}};
+    return {{"good", {"good/model.txt"}}, {"good_lite", {"good/model.txt"}}, {"bad", {"bad/model.txt"}}};
   }
   void Run(StageContext& c) const override {
     nlohmann::json proxies = nlohmann::json::object();
-    for (const auto& [name, psnr] : std::vector<std::pair<std::string, double>>{{"good", 30}, {"bad", 20}}) {
-      if (fs::exists(c.workspace.Path(name + "/model.txt")) && c.SkippedBy(name + "/model.txt") == nullptr) {
+    const std::vector<std::tuple<std::string, std::string, double>> models = {
+        {"good", "good", 30}, {"good_lite", "good", 25}, {"bad", "bad", 20}};
+    for (const auto& [name, folder, psnr] : models) {
+      if (c.left_out_models.count(name)) continue;  // lost the race
+      if (fs::exists(c.workspace.Path(folder + "/model.txt")) && c.SkippedBy(folder + "/model.txt") == nullptr) {
         proxies[name] = {{"mean", {{"photo_psnr", psnr}, {"views", c.heldout_images.size()}}}};
       }
     }
@@ -336,6 +340,9 @@ TEST_F(RunPlanTest, TheRaceLeavesOutWhatFeedsOnlyTheLoserAndNeverReadsAHeldOutPh
   const nlohmann::json scores = ReadJsonOr((dir_ / "ws/scores/heldout.json").string(), nullptr);
   EXPECT_TRUE(scores["proxies"].contains("good"));
   EXPECT_FALSE(scores["proxies"].contains("bad"));
+  // good_lite lost too (25 dB): its stage is kept for good, but it is not drawn at full size.
+  EXPECT_FALSE(scores["proxies"].contains("good_lite"));
+  EXPECT_DOUBLE_EQ(race["models"]["good_lite"].get<double>(), 25);
   // The race's capture: the 17 training views at half size, none of the held-out ones; it scored
   // 4 of them (every 4th from the 2nd), none held out of the full run.
   const SparseModel raced = ReadSparseModelText((dir_ / "ws/race/sparse").string());

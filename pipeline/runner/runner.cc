@@ -240,6 +240,7 @@ StageContext Runner::MakeContext(const Stage& stage, const StageConfig& stage_co
     context.heldout_images = config_.holdout.Select(names, splits);
     if (context.role == HoldoutRole::kScoring) context.scored_heldout = config_.holdout.Scored(names, splits);
   }
+  if (!race_losers_.empty() && !stage.DrawsModels(context).empty()) context.left_out_models = race_losers_;
   return context;
 }
 
@@ -258,6 +259,7 @@ std::string Runner::CacheKey(const Stage& stage, const StageContext& context, nl
                                {"inputs", *input_hashes}};
   // Only where a subset is scored, so that every other stage's key stays as it was.
   if (!context.scored_heldout.empty()) key_source["scored"] = context.scored_heldout;
+  if (!context.left_out_models.empty()) key_source["left_out_models"] = context.left_out_models;
   // Equal to a plain dump() for UTF-8 names, so that cache keys stay as they were.
   return HashBytes(DumpJson(key_source));
 }
@@ -780,11 +782,32 @@ void Runner::RunRaceAfter(size_t model_stage, const RunOptions& options) {
 
 void Runner::LoadRaceSkips() const {
   race_skips_.clear();
+  race_losers_.clear();
   if (!config_.plan.race.enabled) return;
   const nlohmann::json race = ReadJsonOr(Workspace(config_.workspace).Path("race.json"), nlohmann::json());
+  if (race.is_object() && race.contains("models") && race["models"].is_object() && race.contains("winners") &&
+      race.contains("best") && race["best"].is_string()) {
+    const nlohmann::json& models = race["models"];
+    const std::string best = race["best"];
+    for (auto it = models.begin(); it != models.end(); ++it) {
+      if (!it.value().is_number() || !models.contains(best)) continue;
+      bool winner = false;
+      for (const nlohmann::json& w : race["winners"]) winner |= w == it.key();
+      if (!winner) {
+        race_losers_[it.key()] = fmt::format("the race left it out: {:.2f} dB at {}x size, more than {} dB below {}'s {:.2f} dB (race.json)",
+                                             it.value().get<double>(), race.value("scale", 0.0), race.value("margin_db", 0.0),
+                                             best, models[best].get<double>());
+      }
+    }
+  }
   if (!race.is_object() || !race.contains("left_out") || !race["left_out"].is_array()) return;
+  const auto& with = config_.plan.with;
+  if (std::find(with.begin(), with.end(), "all") != with.end()) race_losers_.clear();  // --with all: every model
   for (const nlohmann::json& entry : race["left_out"]) {
     if (!entry.is_object() || !entry.contains("stage") || !entry.contains("reason")) continue;
+    if (config_.plan.Forces(entry["stage"].get<std::string>()) && entry.contains("models")) {
+      for (const nlohmann::json& model : entry["models"]) race_losers_.erase(model.get<std::string>());  // --with STAGE draws its models
+    }
     for (size_t i = 0; i < config_.stages.size(); ++i) {
       if (config_.stages[i].name == entry["stage"]) race_skips_[i] = entry["reason"].get<std::string>();
     }

@@ -133,6 +133,8 @@ class Runner {
   const StageRegistry& registry_;
   // Config stages the race left out of this run, with the reason (SkipReason).
   mutable std::map<size_t, std::string> race_skips_;
+  // Models the race found below its margin, with the reason (StageContext::left_out_models).
+  mutable std::map<std::string, std::string> race_losers_;
   // CaptureIn writes capture.json (a run that is not a dry run); status and dry runs only look.
   mutable bool write_capture_ = false;
   // Per model folder (absolute): the capture's shape, analysed once per run (nullopt: no model yet).

@@ -291,6 +291,12 @@ void RenderStage::Run(StageContext& context) const {
   // its files: the capture is not one it serves.
   std::vector<std::string> skipped_because(models.size());
   for (size_t m = 0; m < models.size(); ++m) {
+    // A model that lost the run's race is not drawn at full size (the background model still is:
+    // the other models' holes take its colours).
+    if (const auto lost = context.left_out_models.find(models[m]->Name());
+        lost != context.left_out_models.end() && !models[m]->IsBackground()) {
+      skipped_because[m] = lost->second;
+    }
     for (const std::string& input : models[m]->Inputs(context)) {
       if (const std::string* reason = context.SkippedBy(input); reason != nullptr && skipped_because[m].empty()) {
         skipped_because[m] = "its input " + input + " comes from a stage the plan skipped (" + *reason + ")";
