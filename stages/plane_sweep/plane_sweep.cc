@@ -13,6 +13,7 @@
 #include <stdexcept>
 #include <opencv2/imgproc.hpp>
 
+#include "pipeline/core/noise_estimate.h"
 #include "pipeline/core/plane_homography.h"
 #include "stages/plane_sweep/sweep_engine.h"
 
@@ -128,6 +129,7 @@ bool PlaneSweepOptions::Check(std::string* error) const {
   if (!(peak_ratio_scale >= 0 && peak_ratio_scale <= 100))
     return Fail(error, "peak_ratio_scale", "must be in [0, 100] (0: off)", peak_ratio_scale);
   if (!(texture_scale >= 0)) return Fail(error, "texture_scale", "must be >= 0", texture_scale);
+  if (!(noise_snr >= 0 && noise_snr <= 100)) return Fail(error, "noise_snr", "must be in [0, 100]", noise_snr);
   if (!(confidence_threshold >= 0 && confidence_threshold <= 1))
     return Fail(error, "confidence_threshold", "must be in [0, 1]", confidence_threshold);
   if (min_depth != -1 && !(min_depth > 0)) return Fail(error, "min_depth", "must be > 0 or -1", min_depth);
@@ -275,6 +277,7 @@ PlaneSweepResult PlaneSweep(const SweepView& reference, const std::vector<SweepV
       if (last < 0 || first > np - 1) ranges.first[i] = 1, ranges.last[i] = 0;  // outside the swept range
     }
   }
+  const double noise_sigma = options.noise_snr > 0 ? EstimateNoiseSigma(reference.gray) : 0.0;
   // Texture factor: where the reference has no contrast over the census window, no cost curve
   // can be trusted (untextured surfaces, black backgrounds), however it looks.
   cv::Mat texture(h, w, CV_32F, cv::Scalar(1.f));
@@ -285,12 +288,17 @@ PlaneSweepResult PlaneSweep(const SweepView& reference, const std::vector<SweepV
     cv::boxFilter(f, mean, CV_32F, window, cv::Point(-1, -1), true, cv::BORDER_REFLECT);
     cv::boxFilter(f.mul(f), mean_sq, CV_32F, window, cv::Point(-1, -1), true, cv::BORDER_REFLECT);
     const float scale = static_cast<float>(options.texture_scale);
+    const float noise = static_cast<float>(noise_sigma);
+    const float noise_variance = noise * noise;
+    const float noise_scale = static_cast<float>(options.noise_snr) * noise;
     for (int y = 0; y < h; ++y) {
       const float *mean_row = mean.ptr<float>(y), *mean_sq_row = mean_sq.ptr<float>(y);
       float* texture_row = texture.ptr<float>(y);
       for (int x = 0; x < w; ++x) {
         const float variance = std::max(0.f, mean_sq_row[x] - mean_row[x] * mean_row[x]);
-        texture_row[x] = std::min(1.f, std::sqrt(variance) / scale);
+        float factor = std::min(1.f, std::sqrt(variance) / scale);
+        if (noise_scale > 0) factor = std::min(factor, std::sqrt(std::max(0.f, variance - noise_variance)) / noise_scale);
+        texture_row[x] = factor;
       }
     }
   }
@@ -342,6 +350,7 @@ PlaneSweepResult PlaneSweep(const SweepView& reference, const std::vector<SweepV
   }
   // Bands of rows of the part (one: all of it), each matched with context rows around it.
   PlaneSweepResult result;
+  result.noise_sigma = noise_sigma;
   result.bands = region.empty() ? 0 : SweepBands(region.width, region.height, options, static_cast<int64_t>(w) * h);
   // A part's census codes are the whole view's (a window cut at the part's edge would differ).
   std::shared_ptr<const std::vector<uint64_t>> census = reference.census;

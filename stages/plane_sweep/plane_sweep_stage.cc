@@ -133,6 +133,9 @@ class PlaneSweepStage : public Stage {
          "Peak-ratio factor of the confidence = scale * (1 - winner cost / next local minimum), clipped, [0, 100]; 0: off"},
         {"texture_scale", ParamType::kDouble, s(d.texture_scale),
          "Grey std. dev. over the census window giving full confidence; 0: no texture factor"},
+        {"noise_snr", ParamType::kDouble, s(d.noise_snr),
+         "Texture factor at most the window's signal deviation over noise_snr times the photo's estimated noise "
+         "deviation, [0, 100]; 0: the noise is not estimated"},
         {"confidence_threshold", ParamType::kDouble, s(d.confidence_threshold),
          "Depth dropped (0) where the confidence without its peak-ratio factor < this, [0, 1]"},
         {"min_depth", ParamType::kDouble, "-1", "Fallback near depth, scene units; -1: none"},
@@ -303,7 +306,7 @@ class PlaneSweepStage : public Stage {
       return nlohmann::json{{"near", near}, {"far", far}, {"bounds_from", source}, {"neighbors", neighbour_names},
                             {"valid_fraction", result.valid_fraction}, {"evaluations", result.evaluations},
                             {"full_evaluations", result.full_evaluations}, {"cost_volume_mb", result.volume_bytes / 1048576.0},
-                            {"bands", result.bands}};
+                            {"bands", result.bands}, {"noise_sigma", result.noise_sigma}};
     });
     // Totals over every view (resumed and sharded ones too), in name order.
     int64_t evaluations = 0, full_evaluations = 0;
@@ -322,6 +325,7 @@ class PlaneSweepStage : public Stage {
       sources[name] = piece.at("neighbors").get<std::vector<std::string>>();
       per_view[name] = {{"near", piece["near"]}, {"far", piece["far"]}, {"bounds_from", piece["bounds_from"]},
                         {"neighbors", piece["neighbors"]}, {"valid_fraction", piece["valid_fraction"]}};
+      if (piece.value("noise_sigma", 0.0) > 0) per_view[name]["noise_sigma"] = piece["noise_sigma"];
     }
     WriteFileAtomic(context.workspace.Path(kPatchMatchConfig), FormatPatchMatchConfig(sources));
     const double peak_rss = PeakRssMb();
@@ -383,6 +387,7 @@ class PlaneSweepStage : public Stage {
     o.peak_ratio_scale = p.Double("peak_ratio_scale");
     o.confidence_threshold = p.Double("confidence_threshold");
     o.texture_scale = p.Double("texture_scale");
+    o.noise_snr = p.Double("noise_snr");
     o.min_depth = p.Double("min_depth");
     o.max_depth = p.Double("max_depth");
     o.depth_margin = p.Double("depth_margin");
