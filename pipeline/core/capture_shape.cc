@@ -99,7 +99,8 @@ CaptureShape AnalyseCapture(const SparseModel& model, bool has_alpha, const Capt
   std::vector<double> depths;
   const size_t stride = std::max<size_t>(1, model.points.size() / 50000);
   size_t index = 0;
-  for (const auto& [id, point] : model.points) {
+  for (const auto& entry : model.points) {  // not a structured binding: a lambda captures `point`
+    const Point3D& point = entry.second;
     if (index++ % stride != 0) continue;
     auto add = [&](const Image& image) {
       const double z = (image.cam_from_world * point.xyz).z();
