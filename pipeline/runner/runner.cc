@@ -844,6 +844,10 @@ int Runner::Run(const RunOptions& options) {
   }
   const bool race_due = config_.plan.race.enabled && whole_run && !options.dry_run && model_stage >= 0 &&
                         model_stage + 1 < static_cast<int>(config_.stages.size());
+  if (config_.plan.race.enabled && whole_run && options.dry_run && model_stage >= 0) {
+    spdlog::info("race: would run after {} at {}x size (WORKSPACE/race); the stages it leaves out are known then",
+                 config_.stages[model_stage].name, config_.plan.race.scale);
+  }
   LoadRaceSkips();  // an earlier race's verdict, for the stages before this run's race (or without one)
   for (int i = 0; i < static_cast<int>(config_.stages.size()); ++i) {
     if (race_due && i == model_stage + 1) {
