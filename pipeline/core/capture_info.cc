@@ -112,4 +112,10 @@ bool ParseBackgroundColor(const std::string& text, cv::Vec3b* bgr, std::string* 
   return true;
 }
 
+bool CaptureHasAlpha(const Workspace& workspace) {
+  std::error_code ec;
+  const std::string folder = workspace.Path(kAlphaFolder);
+  return std::filesystem::is_directory(folder, ec) && !std::filesystem::is_empty(folder, ec);
+}
+
 }  // namespace ibmr

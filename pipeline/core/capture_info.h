@@ -25,6 +25,10 @@ inline constexpr const char* kBackgroundFile = "background.json";
 // silhouettes mode alpha (mask: alpha > 0.5).
 inline constexpr const char* kAlphaFolder = "alpha";
 
+// True when the capture brought alpha: alpha/ holds a file (import makes the folder for every
+// capture; it fills it where photos had alpha).
+bool CaptureHasAlpha(const Workspace& workspace);
+
 using ImageSplits = std::map<std::string, std::string>;  // image name -> split name
 
 // Empty when the workspace has no splits.json; IoError naming the file when it is not a map of

@@ -54,16 +54,9 @@ std::vector<std::string> StageContext::TrainingImageNamesIfReadable() const {
 
 const std::string* StageContext::SkippedBy(const std::string& path) const {
   if (skipped_outputs.empty()) return nullptr;
-  std::filesystem::path p(path);
-  if (p.is_relative()) p = std::filesystem::path(workspace.root()) / p;
-  std::string resolved = p.lexically_normal().string();
-  while (resolved.size() > 1 && resolved.back() == '/') resolved.pop_back();
-  auto inside = [](const std::string& child, const std::string& parent) {
-    return child == parent || (child.size() > parent.size() && child.compare(0, parent.size(), parent) == 0 &&
-                                child[parent.size()] == '/');
-  };
+  const std::string resolved = workspace.Resolve(path);
   for (const auto& [output, reason] : skipped_outputs) {
-    if (inside(resolved, output)) return &reason;
+    if (PathWithin(resolved, output)) return &reason;
   }
   return nullptr;
 }

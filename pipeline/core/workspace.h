@@ -18,6 +18,7 @@
 //   records/<stage>.json          one record per stage run; logs/ the run logs
 #pragma once
 
+#include <filesystem>
 #include <string>
 
 namespace ibmr {
@@ -32,6 +33,15 @@ class Workspace {
   std::string Path(const std::string& relative) const { return root_ + "/" + relative; }
   // `path` relative to the root when it lies inside the workspace, else unchanged: what output
   // files record, so that a workspace's outputs do not depend on where it sits.
+  // A declared input or output (workspace-relative, or absolute) as an absolute, normalised path
+  // without a trailing slash: how the runner compares what stages read and write.
+  std::string Resolve(const std::string& path) const {
+    std::filesystem::path p(path);
+    if (p.is_relative()) p = std::filesystem::path(root_) / p;
+    std::string s = p.lexically_normal().string();
+    while (s.size() > 1 && s.back() == '/') s.pop_back();
+    return s;
+  }
   std::string Relative(const std::string& path) const {
     const std::string prefix = root_ + "/";
     return path.compare(0, prefix.size(), prefix) == 0 ? path.substr(prefix.size()) : path;
@@ -80,5 +90,11 @@ class Workspace {
   std::string root_;
   std::string sparse_ = "sparse", images_ = "images";
 };
+
+// True when `child` is `parent` or lies inside it (both as Workspace::Resolve gives them).
+inline bool PathWithin(const std::string& child, const std::string& parent) {
+  return child == parent ||
+         (child.size() > parent.size() && child.compare(0, parent.size(), parent) == 0 && child[parent.size()] == '/');
+}
 
 }  // namespace ibmr

@@ -195,10 +195,7 @@ int main(int argc, char** argv) {
     try {
       const std::string model_dir = ibmr::FindModelFolder(capture_path);
       const ibmr::SparseModel model = ibmr::ReadSparseModelText(model_dir);
-      std::error_code ec;
-      const std::string alpha_dir = capture_path + "/" + ibmr::kAlphaFolder;
-      const bool alpha = std::filesystem::is_directory(alpha_dir, ec) && !std::filesystem::is_empty(alpha_dir, ec);
-      const ibmr::CaptureShape shape = ibmr::AnalyseCapture(model, alpha);
+      const ibmr::CaptureShape shape = ibmr::AnalyseCapture(model, ibmr::CaptureHasAlpha(ibmr::Workspace(capture_path)));
       std::cout << model_dir << ": " << shape.Describe() << "\n" << shape.ToJson().dump(2) << "\n";
       return 0;
     } catch (const std::exception& e) {

@@ -21,13 +21,11 @@ namespace fs = std::filesystem;
 namespace ibmr {
 namespace {
 
-// `from` resized to `size` into `to` unless `to` is newer than `from` and of that size already.
-void ScaleImage(const std::string& from, const std::string& to, cv::Size size) {
+// `from` resized to `size` into `to`, unless `to` is newer than `from` and `kept_size` (its size
+// in the race's model before) is `size` already.
+void ScaleImage(const std::string& from, const std::string& to, cv::Size size, cv::Size kept_size) {
   std::error_code ec;
-  if (fs::exists(to, ec) && fs::last_write_time(to, ec) >= fs::last_write_time(from, ec)) {
-    const cv::Mat kept = ReadImageUnchanged(to);
-    if (kept.cols == size.width && kept.rows == size.height) return;
-  }
+  if (kept_size == size && fs::exists(to, ec) && fs::last_write_time(to, ec) >= fs::last_write_time(from, ec)) return;
   const cv::Mat image = ReadImageUnchanged(from);
   if (image.empty()) throw IoError(from + ": cannot read the photo for the race");
   cv::Mat scaled;
@@ -60,16 +58,30 @@ void PrepareRaceCapture(const Workspace& model, const std::set<std::string>& hel
     camera = scaled;
   }
   const Workspace race(race_workspace);
-  const bool has_alpha = fs::is_directory(model.Path(kAlphaFolder));
+  const bool has_alpha = CaptureHasAlpha(model);
+  // The photos' sizes in an earlier race (none: every photo is written).
+  std::map<std::string, cv::Size> kept_sizes;
+  if (fs::exists(race.Path("sparse/images.txt"))) {
+    try {
+      const SparseModel kept = ReadSparseModelText(race.Path("sparse"));
+      for (const auto& [id, image] : kept.images) {
+        const Camera& camera = kept.CameraOf(image);
+        kept_sizes[image.name] = cv::Size(camera.width, camera.height);
+      }
+    } catch (const std::exception&) {  // unreadable: written anew
+    }
+  }
   for (auto& [id, image] : sparse.images) {
     const auto [fx, fy] = factors.at(image.camera_id);
     for (Point2D& point : image.points2D) point.xy = Eigen::Vector2d(point.xy.x() * fx, point.xy.y() * fy);
     const Camera& camera = sparse.cameras.at(image.camera_id);
     const cv::Size size(camera.width, camera.height);
-    ScaleImage(model.ImagesDir() + "/" + image.name, race.Path("images/" + image.name), size);
+    const auto kept = kept_sizes.find(image.name);
+    const cv::Size kept_size = kept == kept_sizes.end() ? cv::Size() : kept->second;
+    ScaleImage(model.ImagesDir() + "/" + image.name, race.Path("images/" + image.name), size, kept_size);
     const std::string alpha = model.Path(std::string(kAlphaFolder) + "/" + image.name + ".png");
     if (has_alpha && fs::exists(alpha)) {
-      ScaleImage(alpha, race.Path(std::string(kAlphaFolder) + "/" + image.name + ".png"), size);
+      ScaleImage(alpha, race.Path(std::string(kAlphaFolder) + "/" + image.name + ".png"), size, kept_size);
     }
   }
   // Photos of an earlier race whose views are not in this one (the holdout changed) go.

@@ -40,22 +40,10 @@ std::string NowIso() {
 }
 
 // Absolute, normalised form of a declared input/output (workspace-relative unless absolute).
-std::string Resolve(const Workspace& workspace, const std::string& path) {
-  fs::path p(path);
-  if (p.is_relative()) p = fs::path(workspace.root()) / p;
-  std::string s = p.lexically_normal().string();
-  while (s.size() > 1 && s.back() == '/') s.pop_back();
-  return s;
-}
+std::string Resolve(const Workspace& workspace, const std::string& path) { return workspace.Resolve(path); }
 
 // True when one path is the other or lies inside it.
-bool Overlaps(const std::string& a, const std::string& b) {
-  auto inside = [](const std::string& child, const std::string& parent) {
-    return child == parent || (child.size() > parent.size() && child.compare(0, parent.size(), parent) == 0 &&
-                                child[parent.size()] == '/');
-  };
-  return inside(a, b) || inside(b, a);
-}
+bool Overlaps(const std::string& a, const std::string& b) { return PathWithin(a, b) || PathWithin(b, a); }
 
 std::vector<std::string> SortedImageNames(const Workspace& workspace) {
   std::vector<std::string> names;
@@ -116,19 +104,15 @@ std::string Runner::LockPath(const std::string& stage) const {
 }
 
 Workspace Runner::WorkspaceBefore(const StageConfig& stage_config) const {
-  Workspace workspace(config_.workspace);
-  // The model and images of the last stage before this one that writes them.
-  for (size_t i = 0; i < config_.stages.size() && &config_.stages[i] != &stage_config; ++i) {
-    const Stage::ModelFolders folders = registry_.Find(config_.stages[i].name)->WritesModel();
-    workspace.SetModelFolders(folders.sparse.empty() ? workspace.SparseRelative() : folders.sparse,
-                              folders.images.empty() ? workspace.ImagesRelative() : folders.images);
-  }
-  return workspace;
+  return ModelWorkspace(static_cast<size_t>(&stage_config - config_.stages.data()));
 }
 
-Workspace Runner::WorkspaceAfter(size_t index) const {
+Workspace Runner::WorkspaceAfter(size_t index) const { return ModelWorkspace(index + 1); }
+
+Workspace Runner::ModelWorkspace(size_t stages) const {
   Workspace workspace(config_.workspace);
-  for (size_t i = 0; i <= index && i < config_.stages.size(); ++i) {
+  // The model and images of the last of the first `stages` stages that writes them.
+  for (size_t i = 0; i < stages && i < config_.stages.size(); ++i) {
     const Stage::ModelFolders folders = registry_.Find(config_.stages[i].name)->WritesModel();
     workspace.SetModelFolders(folders.sparse.empty() ? workspace.SparseRelative() : folders.sparse,
                               folders.images.empty() ? workspace.ImagesRelative() : folders.images);
@@ -148,9 +132,7 @@ std::optional<CaptureShape> Runner::CaptureIn(const Workspace& workspace) const 
     try {
       const SparseModel model = ReadSparseModelText(folder);
       if (!model.images.empty()) {
-        std::error_code ec;  // import makes alpha/ for every capture; it holds files where photos had alpha
-        const bool alpha = fs::is_directory(workspace.Path(kAlphaFolder), ec) && !fs::is_empty(workspace.Path(kAlphaFolder), ec);
-        shape = AnalyseCapture(model, alpha);
+        shape = AnalyseCapture(model, CaptureHasAlpha(workspace));
         if (config_.plan.kind != "auto" && config_.plan.kind != shape->kind) {
           shape->set_by = "plan.kind (the analysis: " + shape->kind + ")";
           shape->kind = config_.plan.kind;
@@ -185,10 +167,8 @@ std::string Runner::SkipReason(size_t index) const {
     }
   }
   if (stage.SkippedWithItsInputs() && !skipped_outputs_.empty()) {
-    StageContext context;
-    context.workspace = WorkspaceBefore(stage_config);
-    context.skipped_outputs = skipped_outputs_;
-    for (const std::string& input : stage.Inputs(MakeContext(stage, stage_config))) {
+    const StageContext context = MakeContext(stage, stage_config);  // carries skipped_outputs_
+    for (const std::string& input : stage.Inputs(context)) {
       if (const std::string* reason = context.SkippedBy(input)) {
         return stage.Name() + ": skipped, it needs '" + input + "', which a skipped stage makes (" + *reason + ")";
       }

@@ -90,6 +90,8 @@ class Runner {
   Workspace WorkspaceBefore(const StageConfig& stage_config) const;
   // The same after config stage `index` (its own model folders applied).
   Workspace WorkspaceAfter(size_t index) const;
+  // The workspace with the model folders of the first `stages` config stages applied.
+  Workspace ModelWorkspace(size_t stages) const;
   // CaptureOf for the model folder `workspace` reads.
   std::optional<CaptureShape> CaptureIn(const Workspace& workspace) const;
   std::string CacheKey(const Stage& stage, const StageContext& context, nlohmann::json* input_hashes) const;
