@@ -247,6 +247,13 @@ PlaneSweepResult PlaneSweep(const SweepView& reference, const std::vector<SweepV
     sweep::Neighbour n;
     n.gray = view.gray;
     n.census = view.census;
+    if (options.cost == MatchCost::kCensus &&
+        sweep::IsHalfTurned(reference.cam_from_world.R(), view.cam_from_world.R())) {  // sweep_engine.h
+      const int bits = (2 * options.census_radius_x + 1) * (2 * options.census_radius_y + 1) - 1;
+      n.census = std::make_shared<const std::vector<uint64_t>>(sweep::ReverseCensusBits(
+          view.census ? *view.census : sweep::CensusTransform(view.gray, options.census_radius_x, options.census_radius_y),
+          bits));
+    }
     n.homographies = PlaneHomographies(reference.camera, reference.cam_from_world, view.camera, view.cam_from_world,
                                        inverse_depths);
     engine_neighbours.push_back(std::move(n));

@@ -84,8 +84,9 @@ class PlaneSweepStage : public Stage {
   // 4: pixels too untextured to keep a depth are not matched; 5: the census cost interpolated along
   // the epipolar lines (census_sampling: epipolar); 6: the confidence's peak-ratio factor
   // (peak_ratio_scale); 7: confidence_threshold compares the confidence without the peak ratio (an
-  // ambiguous match keeps its depth at its lowered confidence)
-  std::string Version() const override { return "7"; }
+  // ambiguous match keeps its depth at its lowered confidence); 8: a neighbour held upside down
+  // against the reference has its census bits reversed (sweep_engine.h, ReverseCensusBits)
+  std::string Version() const override { return "8"; }
   HoldoutRole Role() const override { return HoldoutRole::kTrainingOnly; }
   bool Shardable() const override { return true; }
   double ViewMemoryMb(const StageContext& context) const override {

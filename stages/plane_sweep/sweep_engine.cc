@@ -7,6 +7,9 @@
 #include <cstring>
 #include <ctime>
 #include <mutex>
+#include <stdexcept>
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
 
 #include "stages/plane_sweep/sweep_kernels.h"
 
@@ -137,6 +140,30 @@ std::vector<uint64_t> CensusTransform(const cv::Mat& gray, int radius_x, int rad
 }
 
 #undef IBMR_SWEEP_DISPATCH
+
+bool IsHalfTurned(const Eigen::Matrix3d& reference_rotation, const Eigen::Matrix3d& neighbour_rotation) {
+  const Eigen::Matrix3d relative = neighbour_rotation * reference_rotation.transpose();
+  return relative(0, 0) + relative(1, 1) < 0;
+}
+
+std::vector<uint64_t> ReverseCensusBits(const std::vector<uint64_t>& codes, int bits) {
+  if (bits < 1 || bits > 64) throw std::invalid_argument("ReverseCensusBits: bits must be in [1, 64]");
+  std::vector<uint64_t> reversed(codes.size());
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, codes.size(), 1 << 14), [&](const tbb::blocked_range<size_t>& r) {
+    for (size_t i = r.begin(); i < r.end(); ++i) {
+      uint64_t c = codes[i];
+      // Swap halves, then quarters, ... down to single bits: the whole word reversed.
+      c = (c >> 32) | (c << 32);
+      c = ((c >> 16) & 0x0000FFFF0000FFFFull) | ((c & 0x0000FFFF0000FFFFull) << 16);
+      c = ((c >> 8) & 0x00FF00FF00FF00FFull) | ((c & 0x00FF00FF00FF00FFull) << 8);
+      c = ((c >> 4) & 0x0F0F0F0F0F0F0F0Full) | ((c & 0x0F0F0F0F0F0F0F0Full) << 4);
+      c = ((c >> 2) & 0x3333333333333333ull) | ((c & 0x3333333333333333ull) << 2);
+      c = ((c >> 1) & 0x5555555555555555ull) | ((c & 0x5555555555555555ull) << 1);
+      reversed[i] = c >> (64 - bits);
+    }
+  });
+  return reversed;
+}
 
 BufferLease::BufferLease() {
   std::lock_guard<std::mutex> lock(PoolMutex());

@@ -100,6 +100,25 @@ struct Neighbour {
   std::shared_ptr<const std::vector<uint64_t>> census;
 };
 
+// A neighbour held upside down against the reference (rolled more than 90 degrees about its axis,
+// as templeRing's templeR0040 is against the views beside it): a census code lists its window's
+// comparisons in the image's own raster order, so in a half-turned image the comparison with
+// offset (dx, dy) sits where the reference keeps (-dx, -dy). Its codes are compared with their
+// bits reversed (the window is symmetric about its centre, so the reversed order is the
+// reference's). Uncorrected, the Hamming distances at the true plane are those of unrelated codes
+// and the view's depth fails (templeR0040: confirmed fraction 0.15 against a median of 0.87).
+// A quarter turn (portrait among landscape photos) has no such fix with a 9x7 window.
+//
+// Whether a neighbour at `neighbour_rotation` (cam_from_world) is held upside down against a
+// reference at `reference_rotation`: its image x and y axes turned more than 90 degrees from the
+// reference's about the viewing direction (the trace of the relative rotation's image-plane block
+// is negative).
+bool IsHalfTurned(const Eigen::Matrix3d& reference_rotation, const Eigen::Matrix3d& neighbour_rotation);
+
+// `codes` (CensusTransform with `bits` comparisons each) as a half-turned image's codes read in
+// the upright image's order: each code's low `bits` bits reversed.
+std::vector<uint64_t> ReverseCensusBits(const std::vector<uint64_t>& codes, int bits);
+
 // Per-pixel plane ranges (row-major, one entry per reference pixel): the pixel's surface lies on
 // planes first..last (inclusive), as a hull bounds it; first > last: no surface (the pixel is not
 // matched). Planes outside a pixel's range take the mean of its in-range costs, neutral for the
