@@ -3,6 +3,7 @@
 #include "pipeline/core/view_agreement.h"
 
 #include <algorithm>
+#include <limits>
 #include <cmath>
 #include <cstdio>
 
@@ -135,6 +136,26 @@ nlohmann::json ViewAgreementJson(const ViewFlagResult& result, const std::string
           {"scored", result.scored},
           {"views", std::move(views)},
           {"flagged", result.flagged}};
+}
+
+ViewFlagScore ScoreViewFlags(const ViewFlagResult& result, const std::map<std::string, double>& displacement_px,
+                             double wrong_px) {
+  ViewFlagScore score;
+  for (const ViewAgreement& view : result.views) {
+    const auto it = displacement_px.find(view.name);
+    if (it == displacement_px.end()) continue;  // a view the truth does not know is not scored
+    const bool wrong = it->second >= wrong_px;
+    const bool called = view.flagged || result.capture_poor;
+    ++score.views;
+    score.wrong += wrong;
+    score.called_out += called;
+    score.true_calls += called && wrong;
+    score.false_calls += called && !wrong;
+  }
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  score.precision = score.called_out > 0 ? static_cast<double>(score.true_calls) / score.called_out : nan;
+  score.recall = score.wrong > 0 ? static_cast<double>(score.true_calls) / score.wrong : nan;
+  return score;
 }
 
 std::vector<std::string> ReadFlaggedViews(const std::string& path) {

@@ -27,6 +27,7 @@
 #pragma once
 
 #include <nlohmann/json.hpp>
+#include <map>
 #include <string>
 #include <vector>
 
@@ -42,8 +43,8 @@ struct ViewFlagOptions {
   // Measured on six clean captures (templeRing, the synthetic ring with seeds 1-5): their MADs
   // give s = 0.04-0.076, and the lowest view that works sits at most 0.135 below the median (a
   // 2x margin); a view turned by 0.5 degrees or more falls 0.4-0.6 below it. (templeR0040, whose
-  // plane-sweep depth fails against neighbours turned 180 degrees in the image plane, sits 0.72
-  // below and is flagged: rightly, its depth map disagrees.) With 0.05 the
+  // neighbours are all turned 180 degrees in the image plane, sat 0.72 below and was flagged
+  // until plane_sweep read half-turned neighbours' census codes in its order: now 0.21.) With 0.05 the
   // views whose depth a 5-degree error damages second-hand (through the hull it carves wrongly,
   // 0.19-0.28 below) were flagged too.
   double min_scale = 0.08;
@@ -103,6 +104,21 @@ std::string CaptureAgreementMessage(const ViewFlagResult& result, const std::str
 // The file's content (layout above).
 nlohmann::json ViewAgreementJson(const ViewFlagResult& result, const std::string& figure_description, bool higher_is_better,
                                  const ViewFlagOptions& options);
+
+// How the flags match views known to be wrong (synthetic captures, whose true cameras are known;
+// the stability matrix's pose-error cells). A view is wrong when its written camera puts its
+// points `wrong_px` pixels or more away from where the photo shows them on average
+// (synth's ground_truth/pose_error.json). A view is called out when it is flagged, or when the
+// capture as a whole is (capture_poor: the run's warning then names every view, the answer when
+// every camera is off alike). precision = wrong views called out / views called out, recall =
+// wrong views called out / wrong views; NaN where the denominator is 0 (nothing called out, no
+// wrong view). Pure.
+struct ViewFlagScore {
+  int wrong = 0, called_out = 0, true_calls = 0, false_calls = 0, views = 0;
+  double precision = 0, recall = 0;
+};
+ViewFlagScore ScoreViewFlags(const ViewFlagResult& result, const std::map<std::string, double>& displacement_px,
+                             double wrong_px);
 
 // The flagged view names of a file in that layout; empty when it is absent or unreadable (the
 // report shows flags where a run wrote them, and nothing otherwise).

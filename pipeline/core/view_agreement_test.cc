@@ -4,6 +4,9 @@
 #include "pipeline/core/view_agreement.h"
 
 #include <gtest/gtest.h>
+
+#include <cmath>
+#include <map>
 #include <unistd.h>
 
 #include <filesystem>
@@ -108,6 +111,48 @@ TEST(FlagViews, NoFlagOnACleanOrAnEquallyNoisyCapture) {
   ViewFlagOptions no_floor;
   no_floor.min_scale = 0;
   EXPECT_EQ(FlagViews(Views({0.80, 0.81, 0.80, 0.79, 0.80, 0.70, 0.81, 0.80}), true, no_floor).flagged.size(), 1u);
+}
+
+// Precision and recall against known pose errors: one wrong view flagged, one missed; a clean
+// capture calls nothing out (both undefined, no false call); a capture-wide warning calls out
+// every view, so every camera off alike gives recall 1.
+TEST(ScoreViewFlags, AgainstKnownPoseErrors) {
+  // v5 (0.1) stands out and is wrong; v2 is wrong too but agrees (0.79); v6 is not in the truth.
+  const ViewFlagResult r = FlagViews(Views({0.80, 0.81, 0.79, 0.80, 0.82, 0.10, 0.80}), true, ViewFlagOptions());
+  ASSERT_EQ(r.flagged, std::vector<std::string>{"v5.png"});
+  const std::map<std::string, double> px = {{"v0.png", 0.1}, {"v1.png", 0.2}, {"v2.png", 3.0},
+                                            {"v3.png", 0.0}, {"v4.png", 0.3}, {"v5.png", 6.0}};
+  const ViewFlagScore s = ScoreViewFlags(r, px, 1.0);
+  EXPECT_EQ(s.views, 6);
+  EXPECT_EQ(s.wrong, 2);
+  EXPECT_EQ(s.called_out, 1);
+  EXPECT_EQ(s.true_calls, 1);
+  EXPECT_EQ(s.false_calls, 0);
+  EXPECT_DOUBLE_EQ(s.precision, 1.0);
+  EXPECT_DOUBLE_EQ(s.recall, 0.5);
+  // The same flag where v5's camera is right: a false call.
+  std::map<std::string, double> right = px;
+  right["v5.png"] = 0.5;
+  right["v2.png"] = 0.5;
+  const ViewFlagScore wrongly = ScoreViewFlags(r, right, 1.0);
+  EXPECT_EQ(wrongly.false_calls, 1);
+  EXPECT_DOUBLE_EQ(wrongly.precision, 0.0);
+  EXPECT_TRUE(std::isnan(wrongly.recall));
+  // Clean: nothing called out, nothing wrong.
+  const ViewFlagResult clean = FlagViews(Views({0.80, 0.81, 0.79, 0.80, 0.82, 0.78}), true, ViewFlagOptions());
+  const ViewFlagScore none = ScoreViewFlags(clean, {{"v0.png", 0.2}, {"v1.png", 0.1}}, 1.0);
+  EXPECT_EQ(none.called_out, 0);
+  EXPECT_TRUE(std::isnan(none.precision));
+  EXPECT_TRUE(std::isnan(none.recall));
+  // Every camera off alike: no single flag, but the capture-wide warning names them all.
+  const ViewFlagResult noisy = FlagViews(Views({0.20, 0.35, 0.28, 0.41, 0.15, 0.30}), true, ViewFlagOptions());
+  ASSERT_TRUE(noisy.flagged.empty());
+  ASSERT_TRUE(noisy.capture_poor);
+  const ViewFlagScore all = ScoreViewFlags(noisy, {{"v0.png", 2}, {"v1.png", 3}, {"v2.png", 1.5}, {"v3.png", 4},
+                                                   {"v4.png", 2}, {"v5.png", 0.5}}, 1.0);
+  EXPECT_EQ(all.called_out, 6);
+  EXPECT_DOUBLE_EQ(all.recall, 1.0);
+  EXPECT_DOUBLE_EQ(all.precision, 5.0 / 6.0);
 }
 
 TEST(FlagViews, ViewsWithoutAFigureAndTooFewViews) {

@@ -80,6 +80,9 @@ class Workspace {
     return Path("ground_truth/depth/" + image_name + ".bin");
   }
   std::string GroundTruthMeshPath() const { return Path("ground_truth/mesh.ply"); }
+  // Per view, how far the written camera is off the one that rendered the photo (synthetic
+  // scenes): {"views": {"<name>": {"displacement_px": d}, ...}}.
+  std::string GroundTruthPoseErrorPath() const { return Path("ground_truth/pose_error.json"); }
   std::string GroundTruthMaskPath(const std::string& image_name) const {
     return Path("ground_truth/masks/" + image_name + ".png");
   }

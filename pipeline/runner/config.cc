@@ -637,7 +637,7 @@ static void ParseSweep(const YAML::Node& node, Config* config) {
   const YAML::Node stability = node["stability"];
   if (!stability) return;
   if (!stability.IsMap()) throw ConfigError(Where(path, LineOf(stability), "sweep.stability", "expected a map (degradation, strength, methods)"));
-  RejectUnknownKeys(path, stability, {"degradation", "strength", "methods"}, "sweep.stability.");
+  RejectUnknownKeys(path, stability, {"degradation", "strength", "methods", "detectors"}, "sweep.stability.");
   const auto keys = [&](const char* key) {
     const YAML::Node list = stability[key];
     const std::string where = std::string("sweep.stability.") + key;
@@ -678,6 +678,23 @@ static void ParseSweep(const YAML::Node& node, Config* config) {
       method.higher_is_better = b == "true";
     }
     config->sweep.methods.push_back(method);
+  }
+  if (const YAML::Node detectors = stability["detectors"]) {
+    const std::string where = "sweep.stability.detectors";
+    if (!detectors.IsSequence()) throw ConfigError(Where(path, LineOf(detectors), where, "expected a list of {name, precision, recall, false_calls}"));
+    for (const auto& d : detectors) {
+      if (!d.IsMap()) throw ConfigError(Where(path, LineOf(d), where, "expected {name, precision, recall, false_calls}"));
+      RejectUnknownKeys(path, d, {"name", "precision", "recall", "false_calls"}, where + ".");
+      for (const char* required : {"name", "precision", "recall"}) {
+        if (!d[required]) throw ConfigError(Where(path, LineOf(d), where + "." + required, "missing: give a value"));
+      }
+      StabilityDetector detector;
+      detector.name = text(d["name"], where + ".name");
+      detector.precision = text(d["precision"], where + ".precision");
+      detector.recall = text(d["recall"], where + ".recall");
+      if (d["false_calls"]) detector.false_calls = text(d["false_calls"], where + ".false_calls");
+      config->sweep.detectors.push_back(detector);
+    }
   }
 }
 

@@ -78,6 +78,7 @@ struct StageConfig {
 //            confidence: multi_depth.geometric_confidence_error_spearman,
 //            sparsification: multi_depth.geometric_sparsification_auc_ratio}
 //         - {name: surfel mesh held out, metric: models.surfels.photo_psnr, higher_is_better: true}
+//       detectors:                     # optional: what calls failures out (StabilityDetector)
 // A metric is "stage.key" (a number in records/<stage>.json's metrics) or "models.NAME.key" (a
 // held-out mean of scores/heldout.json).
 struct StabilityMethod {
@@ -90,6 +91,15 @@ struct StabilityMethod {
   std::string sparsification;
 };
 
+// A detector in the stability matrix: something that calls out failures (multi_depth's per-view
+// flag against the views whose poses are known to be wrong), judged per cell by its precision and
+// recall as a stage records them (metrics; null where undefined) and its false calls.
+//         - {name: view flag, precision: multi_depth.view_flag_precision, recall: multi_depth.view_flag_recall,
+//            false_calls: multi_depth.view_flag_false_calls}
+struct StabilityDetector {
+  std::string name, precision, recall, false_calls;  // false_calls optional
+};
+
 struct SweepPlan {
   std::vector<std::string> vary;      // "stage.key=v1,v2,..."
   std::vector<std::string> variants;  // "stage.key=v stage.key=v"
@@ -98,6 +108,7 @@ struct SweepPlan {
   // degradation key a variant sets to something other than "none" names its cell.
   std::vector<std::string> degradation_keys, strength_keys;
   std::vector<StabilityMethod> methods;
+  std::vector<StabilityDetector> detectors;  // optional (stability: detectors)
 
   bool HasStability() const { return !methods.empty(); }
 };

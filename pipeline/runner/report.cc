@@ -309,6 +309,14 @@ function sweepReport(R) {
     table(content, ['degradation', 'method', 'breaks at strength', 'confidence-error rho there', 'sparsification AUC / optimal there'],
           R.stability_breaks.map(b => [b.degradation, b.method, b.breaks_at === null ? 'holds' : fmt(b.breaks_at), fmt(b.confidence_rho_at_break),
                                        fmt(b.sparsification_auc_ratio_at_break)]));
+    for (const d of (R.stability_detectors || [])) {
+      const rows = d.cells.filter(c => c.precision !== null || c.recall !== null || c.false_calls !== null);
+      if (!rows.length) continue;
+      el('h3', {}, content, d.name + ': precision (of the views it called out, how many were wrong) and recall (of the wrong views, how many it called out), per cell');
+      table(content, ['degradation', 'strength', 'precision', 'recall', 'false calls'],
+            rows.map(c => [c.degradation, fmt(c.strength), fmt(c.precision, 2), fmt(c.recall, 2), fmt(c.false_calls, 0)]),
+            i => rows[i].false_calls > 0 ? 'failed' : '');
+    }
     el('h3', {}, content, 'Every cell: value, relative quality, confidence-error rank correlation (negative: confidence falls where error rises), sparsification AUC over the optimal');
     table(content, ['degradation', 'strength', 'method', 'value', 'relative', 'rho', 'AUC / optimal'],
           R.stability_cells.map(c => [c.degradation, fmt(c.strength), c.method, fmt(c.value, 4), fmt(c.relative, 3), fmt(c.confidence_rho, 3),
@@ -398,12 +406,14 @@ nlohmann::json SweepReport(const std::string& folder, const nlohmann::json& swee
                            {"stability", nlohmann::json::array()},
                            {"stability_breaks", nlohmann::json::array()},
                            {"stability_cells", nlohmann::json::array()},
-                           {"stability_sparsification", nlohmann::json::array()}};
+                           {"stability_sparsification", nlohmann::json::array()},
+                           {"stability_detectors", nlohmann::json::array()}};
   if (sweep.contains("stability") && sweep["stability"].is_object()) {
     report["stability"] = sweep["stability"].value("curves", nlohmann::json::array());
     report["stability_breaks"] = sweep["stability"].value("breaks", nlohmann::json::array());
     report["stability_cells"] = sweep["stability"].value("cells", nlohmann::json::array());
     report["stability_sparsification"] = sweep["stability"].value("sparsification_curves", nlohmann::json::array());
+    report["stability_detectors"] = sweep["stability"].value("detectors", nlohmann::json::array());
   }
   // The page needs only the costs and scores, not every stage's metrics.
   for (auto& variant : report["variants"]) {

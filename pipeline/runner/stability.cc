@@ -143,6 +143,24 @@ nlohmann::json StabilityMatrix(const nlohmann::json& variants, const SweepPlan& 
     out["curves"].push_back(curve);
     if (!auc_curve["series"].empty()) out["sparsification_curves"].push_back(auc_curve);
   }
+  // Detectors: precision, recall and false calls in every cell, the clean scene first.
+  out["detectors"] = nlohmann::json::array();
+  for (const StabilityDetector& d : plan.detectors) {
+    nlohmann::json cells = nlohmann::json::array();
+    const auto add = [&](const std::string& degradation, double strength, const nlohmann::json* variant) {
+      cells.push_back({{"degradation", degradation}, {"strength", strength},
+                       {"precision", Number(VariantMetricOrNaN(variant, d.precision))},
+                       {"recall", Number(VariantMetricOrNaN(variant, d.recall))},
+                       {"false_calls", Number(VariantMetricOrNaN(variant, d.false_calls))}});
+    };
+    if (clean_variant != nullptr) add("none", 0, clean_variant);
+    for (const auto& [degradation, by_strength] : grid) {
+      for (const auto& [strength, variant] : by_strength) {
+        if (strength > 0) add(degradation, strength, variant);
+      }
+    }
+    out["detectors"].push_back({{"name", d.name}, {"cells", cells}});
+  }
   return out;
 }
 

@@ -25,7 +25,9 @@ inline constexpr double kBrokenBelow = 0.8;
 //                confidence_rho_at_break, sparsification_auc_ratio_at_break}],
 //    "duplicate_cells": variants beyond the first per cell,
 //    "curves": [{title, axis, value, strengths, series: [{label, values}]}],   (for the report)
-//    "sparsification_curves": the same per degradation, the methods' AUC ratios (clean at strength 0)}
+//    "sparsification_curves": the same per degradation, the methods' AUC ratios (clean at strength 0),
+//    "detectors": [{name, cells: [{degradation, strength, precision, recall, false_calls}]}]
+//                 (the clean scene first as degradation "none", strength 0; null where unmeasured)}
 // relative = value / clean (higher is better) or clean / value (lower is better): 1 is as good as
 // the clean scene. The clean value comes from a variant whose degradation is "none" or whose
 // strength is 0. In a variant that failed, a method without its metric has quality 0 (failed).

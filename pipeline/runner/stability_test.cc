@@ -136,6 +136,36 @@ TEST(Stability, AZeroScoreIsBrokenAndAnUnmeasurableMethodIsUnknown) {
   EXPECT_EQ(m["breaks"][2]["breaks_at"], "unknown");
 }
 
+// A detector's precision, recall and false calls per cell, the clean scene first; null where the
+// stage recorded null (nothing called out) or nothing.
+TEST(Stability, DetectorsArePrecisionAndRecallPerCell) {
+  nlohmann::json variants = nlohmann::json::array();
+  variants.push_back(Variant("none", "", 0.9, -0.5, 30));
+  variants.push_back(Variant("pose_outliers", "0.5", 0.8, -0.4, 28));
+  variants.push_back(Variant("pose_outliers", "1", 0.7, -0.4, 26));
+  auto& clean = variants[0]["stages"][0]["metrics"];
+  clean["precision"] = nullptr, clean["recall"] = nullptr, clean["false"] = 0;
+  auto& half = variants[1]["stages"][0]["metrics"];
+  half["precision"] = 1.0, half["recall"] = 0.75, half["false"] = 0;
+  auto& full = variants[2]["stages"][0]["metrics"];
+  full["precision"] = 0.8, full["recall"] = 1.0, full["false"] = 1;
+  SweepPlan plan = Plan();
+  plan.detectors = {{"view flag", "multi_depth.precision", "multi_depth.recall", "multi_depth.false"}};
+  const nlohmann::json m = StabilityMatrix(variants, plan);
+  ASSERT_EQ(m["detectors"].size(), 1u);
+  EXPECT_EQ(m["detectors"][0]["name"], "view flag");
+  const nlohmann::json& cells = m["detectors"][0]["cells"];
+  ASSERT_EQ(cells.size(), 3u);
+  EXPECT_EQ(cells[0]["degradation"], "none");
+  EXPECT_TRUE(cells[0]["precision"].is_null());
+  EXPECT_DOUBLE_EQ(cells[0]["false_calls"].get<double>(), 0);
+  EXPECT_DOUBLE_EQ(cells[1]["strength"].get<double>(), 0.5);
+  EXPECT_DOUBLE_EQ(cells[1]["recall"].get<double>(), 0.75);
+  EXPECT_DOUBLE_EQ(cells[2]["precision"].get<double>(), 0.8);
+  EXPECT_DOUBLE_EQ(cells[2]["false_calls"].get<double>(), 1);
+  EXPECT_TRUE(StabilityMatrix(variants, Plan())["detectors"].empty());
+}
+
 TEST(Stability, TheConfigSweepBlockParsesAndNamesBadKeys) {
   const auto dir = ibmr_testing::ScratchDir("ibmr_stability_config");
   StageRegistry registry;
@@ -145,8 +175,12 @@ TEST(Stability, TheConfigSweepBlockParsesAndNamesBadKeys) {
                                    "sweep:\n  vary:\n    produce.value: [1, 2]\n  variants: [\"consume.suffix=z\"]\n"
                                    "  stability:\n    degradation: consume.suffix\n    strength: produce.value\n"
                                    "    methods:\n      - {name: m, metric: produce.bytes, higher_is_better: true,\n"
-                                   "         confidence: produce.rho, sparsification: produce.auc}\n";
+                                   "         confidence: produce.rho, sparsification: produce.auc}\n"
+                                   "    detectors:\n      - {name: flag, precision: produce.p, recall: produce.r}\n";
   const Config config = LoadConfig((dir / "c.yaml").string(), registry);
+  ASSERT_EQ(config.sweep.detectors.size(), 1u);
+  EXPECT_EQ(config.sweep.detectors[0].recall, "produce.r");
+  EXPECT_TRUE(config.sweep.detectors[0].false_calls.empty());
   EXPECT_EQ(config.sweep.vary, std::vector<std::string>{"produce.value=1,2"});
   EXPECT_EQ(config.sweep.variants, std::vector<std::string>{"consume.suffix=z"});
   ASSERT_EQ(config.sweep.methods.size(), 1u);
@@ -171,6 +205,17 @@ TEST(Stability, TheConfigSweepBlockParsesAndNamesBadKeys) {
   } catch (const ConfigError& e) {
     EXPECT_NE(std::string(e.what()).find("higher_is_beter"), std::string::npos) << e.what();
     EXPECT_NE(std::string(e.what()).find("did you mean 'higher_is_better'"), std::string::npos) << e.what();
+  }
+  // A detector without its recall is refused, naming the key.
+  std::ofstream(dir / "detector.yaml") << "workspace: ws\nstages:\n  - produce\nsweep:\n  stability:\n"
+                                          "    degradation: produce.value\n    strength: produce.value\n"
+                                          "    methods:\n      - {name: m, metric: produce.bytes}\n"
+                                          "    detectors:\n      - {name: flag, precision: produce.p}\n";
+  try {
+    LoadConfig((dir / "detector.yaml").string(), registry);
+    ADD_FAILURE() << "accepted";
+  } catch (const ConfigError& e) {
+    EXPECT_NE(std::string(e.what()).find("sweep.stability.detectors.recall"), std::string::npos) << e.what();
   }
 }
 

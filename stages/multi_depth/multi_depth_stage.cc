@@ -10,13 +10,16 @@
 // with true depth that are within 1% of it, before and after.
 #include <spdlog/spdlog.h>
 
+#include <cmath>
 #include <filesystem>
+#include <map>
 #include <memory>
 
 #include "pipeline/core/atomic_file.h"
 #include "pipeline/core/colmap_array_io.h"
 #include "pipeline/core/colmap_stereo_config.h"
 #include "pipeline/core/errors.h"
+#include "pipeline/core/json_file.h"
 #include "pipeline/core/per_view.h"
 #include "pipeline/core/rank_correlation.h"
 #include "pipeline/core/sparsification.h"
@@ -38,6 +41,9 @@ const std::string kRerunPlaneSweep = "re-run plane_sweep with --only plane_sweep
 // A neighbour's confirmed fraction counts towards the key's figure when it sees at least this many
 // of the key's samples (fewer: a sliver of overlap, too noisy to judge by).
 constexpr size_t kMinSeenForAgreement = 200;
+// A synthetic view is wrongly posed (ScoreViewFlags) when its written camera moves its points this
+// many pixels or more on average: at the stability ring's 320x240, a pose the photo visibly contradicts.
+constexpr double kWrongPosePx = 1.0;
 const char* const kAgreementFigure =
     "confirmed fraction: the median over a view's neighbours of the fraction of its depth samples that a "
     "neighbour sees and finds within depth_tolerance of its own depth";
@@ -149,6 +155,7 @@ class MultiDepthStage : public Stage {
       inputs.push_back(Workspace::ConfidenceMapRelative(name, "photometric"));
     }
     inputs.push_back("ground_truth/depth");  // metrics only; "missing" on real data
+    inputs.push_back("ground_truth/pose_error.json");
     return inputs;
   }
 
@@ -343,6 +350,25 @@ class MultiDepthStage : public Stage {
     m["views_flagged"] = result.flagged;
     m["views_flagged_count"] = result.flagged.size();
     m["capture_agreement_poor"] = result.capture_poor;
+    // Synthetic captures know each written camera's error (synth: ground_truth/pose_error.json):
+    // how well the flags name the wrong views (the stability matrix's pose-error cells).
+    const std::string truth_path = context.workspace.GroundTruthPoseErrorPath();
+    if (std::filesystem::exists(truth_path)) {
+      const nlohmann::json truth = ReadStageJson(truth_path, "synth", "multi_depth");
+      std::map<std::string, double> displacement;
+      try {
+        for (const auto& [name, view] : truth.at("views").items()) displacement[name] = view.at("displacement_px").get<double>();
+      } catch (const nlohmann::json::exception& e) {
+        throw IoError(truth_path + ": expected {\"views\": {NAME: {\"displacement_px\": N}}} (" + e.what() + "); re-run synth");
+      }
+      const ViewFlagScore score = ScoreViewFlags(result, displacement, kWrongPosePx);
+      auto number_or_null = [](double v) { return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(); };
+      m["view_flag_precision"] = number_or_null(score.precision);
+      m["view_flag_recall"] = number_or_null(score.recall);
+      m["view_flag_false_calls"] = score.false_calls;
+      m["views_wrong_pose"] = score.wrong;
+      m["views_called_out"] = score.called_out;
+    }
     const std::string message = "[multi_depth] " + ViewFlagMessage(result, "confirmed fraction", flag_options);
     if (result.flagged.empty() && result.scored >= static_cast<size_t>(flag_options.min_views)) {
       spdlog::info("{}", message);

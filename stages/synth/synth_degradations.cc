@@ -21,6 +21,7 @@ constexpr std::pair<SynthDegradation, const char*> kNames[] = {
     {SynthDegradation::kCameraNoise, "camera_noise"},
     {SynthDegradation::kImageNoise, "image_noise"},
     {SynthDegradation::kExposure, "exposure"},
+    {SynthDegradation::kPoseOutliers, "pose_outliers"},
 };
 
 // A smooth value in [0, 1] varying over about 1 / frequency scene units (sum of sines).
@@ -93,6 +94,25 @@ double Degradation::Gain(int index) const {
 double Degradation::NoiseSigma() const { return Active(SynthDegradation::kImageNoise) ? 24.0 * strength : 0.0; }
 
 void Degradation::PerturbCameras(SparseModel* model) const {
+  if (Active(SynthDegradation::kPoseOutliers)) {
+    std::mt19937_64 rng(synth_internal::Mix64(seed ^ 0x9051E0u));
+    std::normal_distribution<double> normal(0.0, 1.0);
+    double scale = 0;  // the ring's radius, as for camera_noise
+    Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
+    for (const auto& [id, image] : model->images) centroid += image.Center() / model->images.size();
+    for (const auto& [id, image] : model->images) scale += (image.Center() - centroid).norm() / model->images.size();
+    const std::vector<int> ids = model->ImageIdsByName();
+    for (size_t i = 3; i < ids.size(); i += 12) {
+      Image& image = model->images.at(ids[i]);
+      const Eigen::Vector3d axis = Eigen::Vector3d(normal(rng), normal(rng), normal(rng)).normalized();
+      const Eigen::Vector3d along = Eigen::Vector3d(normal(rng), normal(rng), normal(rng)).normalized();
+      const Eigen::Matrix3d turn = Eigen::AngleAxisd(strength * 5.0 * M_PI / 180.0, axis).toRotationMatrix();
+      const Eigen::Vector3d center = image.Center() + strength * 0.02 * scale * along;
+      const Eigen::Matrix3d rotation = turn * image.cam_from_world.R();
+      image.cam_from_world = Rigid3d(rotation, -rotation * center);
+    }
+    return;
+  }
   if (!Active(SynthDegradation::kCameraNoise)) return;
   std::mt19937_64 rng(synth_internal::Mix64(seed ^ 0xCA3E7A5ull));
   std::normal_distribution<double> normal(0.0, 1.0);
@@ -113,6 +133,31 @@ void Degradation::PerturbCameras(SparseModel* model) const {
     camera.params.at(0) *= gain;  // PINHOLE fx, fy
     camera.params.at(1) *= gain;
   }
+}
+
+std::map<std::string, double> PoseDisplacementsPx(const SparseModel& truth, const SparseModel& written) {
+  std::map<std::string, double> displacement;
+  for (const auto& [id, image] : written.images) {
+    const Image* true_image = truth.FindImage(image.name);
+    double sum = 0;
+    int count = 0;
+    if (true_image != nullptr) {
+      const Camera& true_camera = truth.CameraOf(*true_image);
+      const Camera& camera = written.CameraOf(image);
+      for (const Point2D& observation : true_image->points2D) {
+        if (observation.point3D_id < 0) continue;
+        const auto point = truth.points.find(observation.point3D_id);
+        if (point == truth.points.end()) continue;
+        const Eigen::Vector3d in_true = true_image->cam_from_world * point->second.xyz;
+        const Eigen::Vector3d in_written = image.cam_from_world * point->second.xyz;
+        if (in_true.z() <= 0 || in_written.z() <= 0) continue;
+        sum += (true_camera.ImgFromCam(in_true) - camera.ImgFromCam(in_written)).norm();
+        ++count;
+      }
+    }
+    displacement[image.name] = count > 0 ? sum / count : 0.0;
+  }
+  return displacement;
 }
 
 }  // namespace ibmr

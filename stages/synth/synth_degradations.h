@@ -9,6 +9,13 @@
 //   few_views     the ring keeps 1 - 0.75 * strength of its views (at least 4)
 //   camera_noise  the written cameras (sparse/) are off the ones that rendered the images: rotation
 //                 up to 1 degree, position up to 1% of the ring radius, focal up to 2% (sigmas)
+//   pose_outliers the written cameras of one view in twelve (indices 3, 15, ...: none of the views
+//                 an every-8th holdout takes) are turned by 5 degrees and moved by 2% of the ring
+//                 radius, times the strength, about and along random directions: single views
+//                 whose poses are wrong, which the per-view flag (view_agreement.h) should name.
+//                 (One in six, 4 of the ring's 20 training views, defeats the flag from 2.5 degrees
+//                 on: their silhouettes carve the hull wrongly, every view's depth suffers, and the
+//                 spread of the good views hides the bad ones.)
 //   image_noise   Gaussian noise up to sigma 24 levels, added to `noise`
 //   exposure      each view's gain up to +-50% (uniform per view), as an auto-exposing camera
 //
@@ -18,13 +25,14 @@
 
 #include <Eigen/Core>
 #include <cstdint>
+#include <map>
 #include <string>
 
 #include "pipeline/core/sparse_model.h"
 
 namespace ibmr {
 
-enum class SynthDegradation { kNone, kTextureless, kSpecular, kRepetitive, kFewViews, kCameraNoise, kImageNoise, kExposure };
+enum class SynthDegradation { kNone, kTextureless, kSpecular, kRepetitive, kFewViews, kCameraNoise, kImageNoise, kExposure, kPoseOutliers };
 
 // "none", "textureless", ... -> the enum; false for an unknown name.
 bool SynthDegradationFromName(const std::string& name, SynthDegradation* degradation);
@@ -47,8 +55,14 @@ struct Degradation {
   // Image gain of view `index`, and the added noise sigma (8-bit levels).
   double Gain(int index) const;
   double NoiseSigma() const;
-  // Moves the cameras of `model` (camera_noise; deterministic).
+  // Moves the cameras of `model` (camera_noise, pose_outliers; deterministic).
   void PerturbCameras(SparseModel* model) const;
 };
+
+// Per view of `written` (by name), how far its camera is off the one that rendered the photo as
+// the photo sees it: the mean distance in pixels between the view's observed sparse points
+// projected by the `truth` camera and by the written one (rotation, position and focal errors
+// together). Views without observations in front of both cameras get 0.
+std::map<std::string, double> PoseDisplacementsPx(const SparseModel& truth, const SparseModel& written);
 
 }  // namespace ibmr

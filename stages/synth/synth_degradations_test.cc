@@ -6,6 +6,8 @@
 
 #include <gtest/gtest.h>
 
+#include <map>
+
 #include <cmath>
 #include <opencv2/imgproc.hpp>
 
@@ -129,6 +131,32 @@ TEST(SynthDegradations, FewViewsAndCameraNoise) {
   EXPECT_GT(shift, 0.02);
   EXPECT_LT(shift, 0.13);
   EXPECT_NE(model.cameras.begin()->second.params[0], truth.cameras.begin()->second.params[0]);
+}
+
+// pose_outliers turns and moves the written cameras of views 3, 15, ... only, by 5 degrees times
+// the strength; PoseDisplacementsPx sees exactly those views move, by more than a pixel.
+TEST(SynthDegradations, PoseOutliersMoveOneViewInTwelve) {
+  SynthOptions options = Small(SynthDegradation::kPoseOutliers, 0.5);
+  options.views = 24;
+  const SynthScene scene = BuildSynthScene(options);
+  SparseModel model = BuildSynthSparseModel(scene, options, nullptr);
+  const SparseModel truth = model;
+  scene.degradation.PerturbCameras(&model);
+  const std::map<std::string, double> px = PoseDisplacementsPx(truth, model);
+  const std::vector<int> ids = model.ImageIdsByName();
+  ASSERT_EQ(ids.size(), 24u);
+  for (size_t i = 0; i < ids.size(); ++i) {
+    const Image& image = model.images.at(ids[i]), &t = truth.images.at(ids[i]);
+    const double degrees = t.cam_from_world.rotation.angularDistance(image.cam_from_world.rotation) * 180 / M_PI;
+    if (i % 12 == 3) {
+      EXPECT_NEAR(degrees, 2.5, 1e-6) << image.name;
+      EXPECT_GT(px.at(image.name), 1.0) << image.name;
+    } else {
+      EXPECT_EQ(degrees, 0) << image.name;
+      EXPECT_EQ(px.at(image.name), 0) << image.name;
+    }
+  }
+  EXPECT_EQ(model.cameras.begin()->second.params[0], truth.cameras.begin()->second.params[0]);
 }
 
 }  // namespace

@@ -1,6 +1,6 @@
 // The synth stage adapter: maps YAML keys to SynthOptions, builds the scene, renders every view in
 // parallel (resumable) and writes the workspace: images/, ground_truth/masks/, sparse/ (true cameras and
-// sparse points) and ground_truth/ (depth/<image>.bin, mesh.ply, scene.json). Test-data
+// sparse points) and ground_truth/ (depth/<image>.bin, mesh.ply, scene.json, pose_error.json). Test-data
 // generation; follows no seed-paper section.
 #include <spdlog/spdlog.h>
 
@@ -102,7 +102,8 @@ class SynthStage : public Stage {
   std::string Summary() const override {
     return "renders synthetic scenes (object ring, room) with true cameras, depth, masks and mesh";
   }
-  std::string Version() const override { return "1"; }
+  // 2: ground_truth/pose_error.json (how far each written camera is off); pose_outliers
+  std::string Version() const override { return "2"; }
   HoldoutRole Role() const override { return HoldoutRole::kAllViews; }
 
   std::vector<ParamSpec> Parameters() const override {
@@ -130,8 +131,8 @@ class SynthStage : public Stage {
         {"texture_frequency", ParamType::kDouble, "3",
          "cycles per scene unit of the coarsest texture octave, in (0, 64]", {}},
         {"degradation", ParamType::kString, "none",
-         "for the stability matrix: none, textureless, specular, repetitive, few_views, camera_noise, image_noise or "
-         "exposure (stages/synth/synth_degradations.h)",
+         "for the stability matrix: none, textureless, specular, repetitive, few_views, camera_noise, image_noise, "
+         "exposure or pose_outliers (stages/synth/synth_degradations.h)",
          {}},
         {"strength", ParamType::kDouble, "0", "of the degradation: 0 clean, 1 a hard case, in [0, 1]", {}},
     };
@@ -187,8 +188,12 @@ class SynthStage : public Stage {
 
     start = std::chrono::steady_clock::now();
     SparseModel model = BuildSynthSparseModel(scene, options, context.progress);
-    scene.degradation.PerturbCameras(&model);  // camera_noise: the images keep the true cameras
+    const SparseModel true_model = model;
+    scene.degradation.PerturbCameras(&model);  // camera_noise, pose_outliers: the images keep the true cameras
     WriteSparseModelText(workspace.SparseDir(), model);
+    nlohmann::json pose_error = {{"views", nlohmann::json::object()}};
+    for (const auto& [name, px] : PoseDisplacementsPx(true_model, model)) pose_error["views"][name] = {{"displacement_px", px}};
+    WriteFileAtomic(workspace.GroundTruthPoseErrorPath(), pose_error.dump(1) + "\n");
     const double sparse_seconds = SecondsSince(start);
     size_t observations = 0;
     for (const auto& [id, point] : model.points) observations += point.track.size();
