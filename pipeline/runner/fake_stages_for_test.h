@@ -3,6 +3,8 @@
 // per view of eight in ForEachView, each view said to need 100 MB, and counts the views in flight.
 #pragma once
 
+#include <spdlog/spdlog.h>
+
 #include <atomic>
 #include <filesystem>
 #include <fstream>
@@ -33,7 +35,8 @@ class Produce : public Stage {
             {"source", ParamType::kPath, "source.txt", "external input"},
             {"threads", ParamType::kInt, "1", "resource knob", {}, false},
             {"fail", ParamType::kBool, "false", "throw halfway"},
-            {"scale", ParamType::kDouble, "1", "any finite number"}};
+            {"scale", ParamType::kDouble, "1", "any finite number"},
+            {"warn", ParamType::kBool, "false", "log two warnings"}};
   }
   std::optional<ParamError> CheckParams(const Params& params) const override {
     if (params.Int("value") < 0) return ParamError{"value", "must be >= 0, got " + std::to_string(params.Int("value"))};
@@ -44,6 +47,10 @@ class Produce : public Stage {
   void Run(StageContext& c) const override {
     ++produce_runs;
     if (c.params.Bool("fail")) throw std::runtime_error("produce: asked to fail");
+    if (c.params.Bool("warn")) {
+      spdlog::warn("[produce] the source is thin");
+      spdlog::warn("[produce] the source is thin again");
+    }
     WriteFileAtomic(c.workspace.Path("a.txt"), ReadFile(c.params.String("source")) + std::to_string(c.params.Int("value")));
     c.metrics["bytes"] = 1;
   }
@@ -56,13 +63,15 @@ class Consume : public Stage {
   std::string Version() const override { return "1"; }
   HoldoutRole Role() const override { return HoldoutRole::kTrainingOnly; }
   std::vector<ParamSpec> Parameters() const override {
-    return {{"suffix", ParamType::kString, "x", "appended"}, {"output", ParamType::kString, "b.txt", "file written"}};
+    return {{"suffix", ParamType::kString, "x", "appended"}, {"output", ParamType::kString, "b.txt", "file written"},
+            {"fail", ParamType::kBool, "false", "throw"}};
   }
   std::optional<ParamError> CheckParams(const Params&) const override { return std::nullopt; }
   std::vector<std::string> Inputs(const StageContext&) const override { return {"a.txt"}; }
   std::vector<std::string> Outputs(const StageContext& c) const override { return {c.params.String("output")}; }
   void Run(StageContext& c) const override {
     ++consume_runs;
+    if (c.params.Bool("fail")) throw std::runtime_error("consume: a.txt is too thin");
     WriteFileAtomic(c.workspace.Path(c.params.String("output")), ReadFile(c.workspace.Path("a.txt")) + c.params.String("suffix"));
   }
 };

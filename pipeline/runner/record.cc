@@ -23,6 +23,10 @@ nlohmann::json StageRecord::ToJson() const {
   }
   if (!reused_from.empty()) json["reused_from"] = reused_from;
   if (!skipped_because.empty()) json["skipped_because"] = skipped_because;
+  if (warning_count > 0) {
+    json["warnings"] = warnings;
+    json["warning_count"] = warning_count;
+  }
   return json;
 }
 
@@ -48,6 +52,8 @@ StageRecord StageRecord::FromJson(const nlohmann::json& j) {
   r.memory_budget_mb = j.value("memory_budget_mb", 0.0);
   r.view_memory_mb = j.value("view_memory_mb", 0.0);
   r.views_in_flight = j.value("views_in_flight", 0);
+  r.warnings = j.value("warnings", std::vector<std::string>());
+  r.warning_count = j.value("warning_count", size_t{0});
   r.reused_from = j.value("reused_from", "");
   r.skipped_because = j.value("skipped_because", "");
   return r;

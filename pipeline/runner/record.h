@@ -7,6 +7,7 @@
 #include <nlohmann/json.hpp>
 #include <optional>
 #include <string>
+#include <vector>
 
 #include "pipeline/core/json_file.h"  // ReadJsonOr
 
@@ -42,6 +43,10 @@ struct StageRecord {
   int views_in_flight = 0;
   size_t views_resumed = 0;  // per-view work found done by an interrupted run or by shards (how it ran,
                              // not what it made: the metrics count every view either way)
+  // The warnings the stage logged while it ran (the first 20) and how many (stage_warnings.h):
+  // a later stage's failure quotes them as the likely cause.
+  std::vector<std::string> warnings;
+  size_t warning_count = 0;
   std::string reused_from;  // another workspace whose outputs of the same key were linked in (ibmr sweep);
                             // the costs above are those of the run that computed them
 

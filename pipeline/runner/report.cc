@@ -318,9 +318,10 @@ function sweepReport(R) {
             i => rows[i].false_calls > 0 ? 'failed' : '');
     }
     el('h3', {}, content, 'Every cell: value, relative quality, confidence-error rank correlation (negative: confidence falls where error rises), sparsification AUC over the optimal');
-    table(content, ['degradation', 'strength', 'method', 'value', 'relative', 'rho', 'AUC / optimal'],
+    table(content, ['degradation', 'strength', 'method', 'value', 'relative', 'rho', 'AUC / optimal', 'why it produced nothing'],
           R.stability_cells.map(c => [c.degradation, fmt(c.strength), c.method, fmt(c.value, 4), fmt(c.relative, 3), fmt(c.confidence_rho, 3),
-                                      fmt(c.sparsification_auc_ratio, 3)]));
+                                      fmt(c.sparsification_auc_ratio, 3), c.why || '']),
+          i => R.stability_cells[i].failed ? 'failed' : '');
   }
 }
 

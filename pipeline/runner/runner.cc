@@ -21,6 +21,7 @@
 #include "pipeline/core/per_view.h"
 #include "pipeline/runner/race.h"
 #include "pipeline/runner/record.h"
+#include "pipeline/runner/stage_warnings.h"
 #include "pipeline/core/process_memory.h"
 #include "pipeline/runner/resource_usage.h"
 #include "pipeline/runner/stage_lock.h"
@@ -430,15 +431,20 @@ bool Runner::Execute(const Stage& stage, StageContext& context, const std::strin
   const double child_peak_before = ChildPeakMemoryMb();
   const double cpu_start = CpuSeconds();
   const auto wall_start = std::chrono::steady_clock::now();
-  try {
-    stage.Run(context);
-    record.status = "ok";
-  } catch (const ShardFinished&) {
-    record.status = "failed";
-    record.error = "internal: a whole-stage run ended as a shard";
-  } catch (const std::exception& e) {
-    record.status = "failed";
-    record.error = e.what();
+  {
+    const StageWarnings warnings;
+    try {
+      stage.Run(context);
+      record.status = "ok";
+    } catch (const ShardFinished&) {
+      record.status = "failed";
+      record.error = "internal: a whole-stage run ended as a shard";
+    } catch (const std::exception& e) {
+      record.status = "failed";
+      record.error = e.what();
+    }
+    record.warnings = warnings.Messages();
+    record.warning_count = warnings.Count();
   }
   // Give the heap the stage freed back to the system, so that the next stage's peak carries
   // less of it (Sceaux at 1600 px: score 577 -> 366 MB after render). Not all of it: the
@@ -461,6 +467,16 @@ bool Runner::Execute(const Stage& stage, StageContext& context, const std::strin
                      : std::string());
     return true;
   }
+  // What the stages before it warned of (their records, cached or just run): the likely cause of
+  // a failure on an empty input is upstream.
+  std::vector<std::tuple<std::string, std::vector<std::string>, size_t>> upstream;
+  for (const StageConfig& earlier : config_.stages) {
+    if (earlier.name == stage.Name()) break;
+    if (const std::optional<StageRecord> r = ReadRecord(RecordPath(earlier.name)); r && r->status == "ok") {
+      upstream.emplace_back(earlier.name, r->warnings, r->warning_count);
+    }
+  }
+  if (const std::string cause = UpstreamWarnings(upstream); !cause.empty()) record.error += " (earlier warnings: " + cause + ")";
   WriteRecord(RecordPath(stage.Name()), record);
   spdlog::error("[{}] failed: {}", stage.Name(), record.error);
   spdlog::error("[{}] outputs of earlier runs are kept; fix the problem and run again", stage.Name());

@@ -254,6 +254,27 @@ TEST_F(RunnerTest, FailureKeepsPreviousOutputsAndRecordsError) {
   EXPECT_EQ(Run(), std::make_pair(1, 0));  // identical a.txt again: consume stays up to date
 }
 
+// A stage's warnings go into its record; a later stage's failure quotes them (the likely cause
+// upstream), from the record even when the warning stage was cached.
+TEST_F(RunnerTest, AFailureQuotesTheWarningsOfTheStagesBeforeIt) {
+  Run({"produce.warn=true"});
+  const auto produced = ReadRecord((dir_ / "ws" / "records" / "produce.json").string());
+  ASSERT_TRUE(produced.has_value());
+  EXPECT_EQ(produced->warning_count, 2u);
+  ASSERT_EQ(produced->warnings.size(), 2u);
+  EXPECT_EQ(produced->warnings[0], "[produce] the source is thin");
+  EXPECT_EQ(Run({"produce.warn=true", "consume.fail=true"}), std::make_pair(0, 1));
+  const auto consumed = ReadRecord((dir_ / "ws" / "records" / "consume.json").string());
+  ASSERT_TRUE(consumed.has_value());
+  EXPECT_EQ(consumed->status, "failed");
+  EXPECT_EQ(consumed->error, "consume: a.txt is too thin (earlier warnings: [produce] the source is thin (2 warnings))");
+  // A stage that warned of nothing adds nothing.
+  Run({"consume.fail=true"});
+  const auto quiet = ReadRecord((dir_ / "ws" / "records" / "consume.json").string());
+  EXPECT_EQ(quiet->error, "consume: a.txt is too thin");
+  EXPECT_TRUE(ReadRecord((dir_ / "ws" / "records" / "produce.json").string())->warnings.empty());
+}
+
 TEST_F(RunnerTest, RecordHoldsInputsParamsAndCosts) {
   Run();
   const auto record = ReadRecord((dir_ / "ws" / "records" / "produce.json").string());

@@ -15,6 +15,15 @@ constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 
 nlohmann::json Number(double v) { return std::isfinite(v) ? nlohmann::json(v) : nlohmann::json(nullptr); }
 
+// Why a failed variant produced nothing: the first failed stage's error (which quotes the
+// warnings of the stages before it: runner.cc), else the variant's own.
+std::string FailureOf(const nlohmann::json& variant) {
+  for (const auto& stage : variant.value("stages", nlohmann::json::array())) {
+    if (stage.value("status", "") == "failed") return "[" + stage.value("stage", "") + "] " + stage.value("error", "");
+  }
+  return variant.value("error", "failed");
+}
+
 // `path`'s metric of `variant`, NaN when either is absent (an optional metric of a method).
 double VariantMetricOrNaN(const nlohmann::json* variant, const std::string& path) {
   return variant == nullptr || path.empty() ? kNaN : VariantMetric(*variant, path);
@@ -122,6 +131,7 @@ nlohmann::json StabilityMatrix(const nlohmann::json& variants, const SweepPlan& 
         out["cells"].push_back({{"degradation", degradation}, {"strength", strength}, {"method", m.name},
                                 {"value", Number(value)}, {"relative", Number(rel)}, {"confidence_rho", Number(rho)},
                                 {"sparsification_auc_ratio", Number(auc)}, {"failed", failed}});
+        if (failed) out["cells"].back()["why"] = FailureOf(*variant);
         values.push_back(Number(rel));
         auc_values.push_back(Number(auc));
         if (!std::isfinite(rel)) unknown = true;

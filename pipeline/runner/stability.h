@@ -20,7 +20,8 @@ inline constexpr double kBrokenBelow = 0.8;
 
 // From the sweep's collected variants (each with "params" holding the varied values as strings):
 //   {"clean": {method: value}, "cells": [{degradation, strength, method, value, relative, confidence_rho,
-//                                         sparsification_auc_ratio}],
+//                                         sparsification_auc_ratio, failed, why (failed: the first
+//                                         failed stage's error, with its upstream warnings)}],
 //    "breaks": [{degradation, method, breaks_at (strength, null: holds, "unknown": not measurable),
 //                confidence_rho_at_break, sparsification_auc_ratio_at_break}],
 //    "duplicate_cells": variants beyond the first per cell,

@@ -86,8 +86,11 @@ TEST(Stability, AFailedVariantBreaksTheMethodsThatProducedNothing) {
   nlohmann::json failed = Variant("few_views", "1", 0.5, -0.1, 0);
   failed["status"] = "failed";
   failed["models"] = nlohmann::json::object();  // render never ran
+  failed["stages"].push_back({{"stage", "surfels"}, {"status", "failed"}, {"error", "fused.ply holds no point (earlier warnings: ...)"}});
   variants.push_back(failed);
   const nlohmann::json m = StabilityMatrix(variants, Plan());
+  EXPECT_FALSE(m["cells"][0].contains("why"));
+  EXPECT_EQ(m["cells"][1]["why"], "[surfels] fused.ply holds no point (earlier warnings: ...)");
   ASSERT_EQ(m["cells"].size(), 2u);
   EXPECT_NEAR(m["cells"][0]["relative"].get<double>(), 0.5 / 0.9, 1e-12);  // its stage ran
   EXPECT_EQ(m["cells"][0]["failed"], false);

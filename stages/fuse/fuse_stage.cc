@@ -136,6 +136,12 @@ class FuseStage : public Stage {
     m["samples_per_point"] = stats.kept_points ? double(stats.samples) / stats.points : 0.0;
     spdlog::info("[fuse] {} views, {} samples -> {} points ({} seen in >= {} views)", names.size(), stats.samples, stats.points,
                  stats.kept_points, options.min_views);
+    if (stats.kept_points == 0) {
+      spdlog::warn("[fuse] no point is left: {}", stats.samples == 0
+                   ? fmt::format("the {} views' {} depth maps hold no sample (the stereo stages' warnings say why)", names.size(), kind)
+                   : fmt::format("{} samples made {} points, none seen in fuse.min_views = {} views (lower it, or add views)",
+                                 stats.samples, stats.points, options.min_views));
+    }
     if (fs::exists(workspace.GroundTruthMeshPath())) Evaluate(context, model, names, cloud);
     if (fs::is_directory(workspace.MasksDir())) CheckSilhouettes(context, model, names, cloud);
   }

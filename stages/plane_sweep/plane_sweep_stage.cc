@@ -255,8 +255,18 @@ class PlaneSweepStage : public Stage {
       const std::string source = DepthBounds(hull_bounds, capture_bounds, model, image, key, context.params, options, &near, &far);
       const std::vector<int> chosen = SelectNeighbors(model, ids, index, 0.5 * (near + far), options);
       if (chosen.empty()) {
-        spdlog::warn("[plane_sweep] {}: no neighbour view within {}..{} degrees; no depth map", name,
-                     options.min_angle_deg, options.max_angle_deg);
+        // The nearest other view, by the angle its centre and this one's subtend at the scene
+        // point this view looks at: what the user would have to allow, or add views near.
+        const Eigen::Vector3d at = image.Center() + image.ViewingDirection() * 0.5 * (near + far);
+        double nearest = 180;
+        for (size_t j = 0; j < ids.size(); ++j) {
+          if (static_cast<int>(j) == index) continue;
+          const Eigen::Vector3d u = (image.Center() - at).normalized(), v = (model.images.at(ids[j]).Center() - at).normalized();
+          nearest = std::min(nearest, std::acos(std::clamp(u.dot(v), -1.0, 1.0)) * 180.0 / M_PI);
+        }
+        spdlog::warn("[plane_sweep] {}: no neighbour view within {}..{} degrees (the nearest is {:.1f} degrees away: "
+                     "plane_sweep.min_angle_deg / max_angle_deg, or add photos between); no depth map",
+                     name, options.min_angle_deg, options.max_angle_deg, nearest);
       }
       PlaneSweepResult result;
       if (chosen.empty()) {
@@ -332,6 +342,14 @@ class PlaneSweepStage : public Stage {
     const double peak_rss = PeakRssMb();
     sweep::ReleaseBufferPool();
     const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    size_t without_neighbours = 0;
+    for (const auto& [name, piece] : summary.pieces) without_neighbours += piece.at("neighbors").empty();
+    context.metrics["views_without_neighbours"] = without_neighbours;
+    if (without_neighbours == names.size() && !names.empty()) {
+      spdlog::warn("[plane_sweep] none of the {} views has a neighbour within {}..{} degrees: no depth map at all, "
+                   "so nothing downstream (multi_depth, fuse, surfels) has points to work from",
+                   names.size(), options.min_angle_deg, options.max_angle_deg);
+    }
     context.metrics["views"] = names.size();
     context.metrics["wall_seconds"] = seconds;
     context.metrics["evaluations"] = evaluations;
