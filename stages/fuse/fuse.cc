@@ -2,11 +2,14 @@
 #include "stages/fuse/fuse.h"
 
 #include "pipeline/core/depth_normals.h"
+#include "pipeline/core/point_index.h"
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 
 #include <Eigen/Cholesky>
+#include <Eigen/Eigenvalues>
+#include <Eigen/Geometry>
 #include <algorithm>
 #include <cmath>
 
@@ -78,7 +81,47 @@ bool FuseOptions::Check(std::string* error) const {
   if (!(max_normal_angle_deg > 0 && max_normal_angle_deg <= 180)) return fail("max_normal_angle_deg: must be in (0, 180], got " + std::to_string(max_normal_angle_deg));
   if (!(min_confidence >= 0 && min_confidence <= 1)) return fail("min_confidence: must be in [0, 1], got " + std::to_string(min_confidence));
   if (min_views < 1 || min_views > 1000) return fail("min_views: must be in [1, 1000], got " + std::to_string(min_views));
+  if (surface_neighbours != 0 && (surface_neighbours < 4 || surface_neighbours > 256)) {
+    return fail("surface_neighbours: must be 0 (off) or in [4, 256], got " + std::to_string(surface_neighbours));
+  }
+  if (!(surface_residual_scale > 0 && std::isfinite(surface_residual_scale))) {
+    return fail("surface_residual_scale: must be > 0, got " + std::to_string(surface_residual_scale));
+  }
   return true;
+}
+
+std::vector<float> SurfaceFactors(const std::vector<Eigen::Vector3f>& positions, int neighbours, double scale) {
+  std::vector<float> factors(positions.size(), 1.f);
+  if (neighbours < 4 || positions.size() < static_cast<size_t>(neighbours) + 1) return factors;
+  const PointIndex index(positions);
+  std::vector<double> residual(positions.size());
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, positions.size(), 256), [&](const tbb::blocked_range<size_t>& range) {
+    std::vector<std::pair<uint32_t, float>> nearest;  // reused within the block
+    for (size_t i = range.begin(); i < range.end(); ++i) {
+      index.Nearest(positions[i], neighbours, &nearest);
+      Eigen::Vector3d centre = Eigen::Vector3d::Zero();
+      for (const auto& [j, d2] : nearest) centre += positions[j].cast<double>();
+      centre /= static_cast<double>(nearest.size());
+      Eigen::Matrix3d scatter = Eigen::Matrix3d::Zero();
+      for (const auto& [j, d2] : nearest) {
+        const Eigen::Vector3d q = positions[j].cast<double>() - centre;
+        scatter += q * q.transpose();
+      }
+      const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> solver(scatter);  // ascending: column 0 the normal
+      residual[i] = std::abs(solver.eigenvectors().col(0).dot(positions[i].cast<double>() - centre));
+    }
+  });
+  std::vector<double> sorted = residual;
+  std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
+  Eigen::AlignedBox3f box;
+  for (const Eigen::Vector3f& p : positions) box.extend(p);
+  const double floor = 1e-9 * std::max(1e-30, static_cast<double>(box.diagonal().norm()));
+  const double sigma = scale * std::max(floor, sorted[sorted.size() / 2]);
+  for (size_t i = 0; i < positions.size(); ++i) {
+    const double t = residual[i] / sigma;
+    factors[i] = static_cast<float>(std::exp(-0.5 * t * t));
+  }
+  return factors;
 }
 
 PointFuser::PointFuser(const FuseOptions& options) : state_(std::make_unique<State>()) { state_->options = options; }

@@ -29,8 +29,9 @@ class FuseStage : public Stage {
   std::string Summary() const override {
     return "Uncertainty-weighted merge of depth samples into points with normals, colour, confidence (dense/fused.ply)";
   }
-  // 4: the points' confidence times their samples' agreement (agreement_weighting); min_confidence 0.02
-  std::string Version() const override { return "4"; }  // 2: normals from depth in float (core); 3: no accuracy without points; confidence-error rank correlation
+  // 4: the points' confidence times their samples' agreement (agreement_weighting); min_confidence 0.02;
+  // 5: times the surface factor (surface_neighbours)
+  std::string Version() const override { return "5"; }  // 2: normals from depth in float (core); 3: no accuracy without points; confidence-error rank correlation
   HoldoutRole Role() const override { return HoldoutRole::kTrainingOnly; }
 
   std::vector<ParamSpec> Parameters() const override {
@@ -48,6 +49,10 @@ class FuseStage : public Stage {
         {"agreement_weighting", ParamType::kBool, d.agreement_weighting ? "true" : "false",
          "Point confidence times the samples' agreement (chi-square about the merged position per view beyond 1 lowers it)"},
         {"min_views", ParamType::kInt, std::to_string(d.min_views), "Views that must have contributed to a point, [1, 1000]"},
+        {"surface_neighbours", ParamType::kInt, std::to_string(d.surface_neighbours),
+         "Point confidence times how close it lies to the plane through this many nearest points (0: off, [4, 256])"},
+        {"surface_residual_scale", ParamType::kDouble, DefaultNumberText(d.surface_residual_scale),
+         "That plane distance at which the factor is exp(-1/2), in medians of the cloud's distances, > 0"},
         {"eval_threshold", ParamType::kDouble, "-1", "Completeness distance, scene units; -1: 1% of the true mesh's bounding-box diagonal"},
         {"eval_samples", ParamType::kInt, "200000", "Surface samples for completeness, [1000, 10000000]"},
     };
@@ -124,6 +129,8 @@ class FuseStage : public Stage {
     context.progress->End();
     FuseStats stats;
     PointCloud cloud = fuser.Finish(&stats);
+    const std::vector<float> surface = SurfaceFactors(cloud.positions, options.surface_neighbours, options.surface_residual_scale);
+    for (size_t i = 0; i < cloud.size(); ++i) cloud.confidence[i] *= surface[i];
     cloud.comments.push_back("ibmr fuse " + Version() + " from " + kind + " depth maps of " + std::to_string(names.size()) + " views");
     WritePointCloudPly(workspace.Path("dense/fused.ply"), cloud);
 
@@ -230,6 +237,8 @@ class FuseStage : public Stage {
     options.min_confidence = params.Double("min_confidence");
     options.agreement_weighting = params.Bool("agreement_weighting");
     options.min_views = static_cast<int>(params.Int("min_views"));
+    options.surface_neighbours = static_cast<int>(params.Int("surface_neighbours"));
+    options.surface_residual_scale = params.Double("surface_residual_scale");
     return options;
   }
 };

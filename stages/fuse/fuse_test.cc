@@ -18,6 +18,7 @@
 #include "pipeline/core/errors.h"
 #include "pipeline/core/image_io.h"
 #include "pipeline/core/ply_io.h"
+#include "pipeline/core/rank_correlation.h"
 #include "pipeline/core/stage_api.h"
 
 namespace fs = std::filesystem;
@@ -99,6 +100,47 @@ TEST(FuseOptions, RejectsInvalidRanges) {
   expect(o, "min_confidence");
   o = FuseOptions(), o.min_views = 0;
   expect(o, "min_views");
+  o = FuseOptions(), o.surface_neighbours = 3;
+  expect(o, "surface_neighbours");
+  o = FuseOptions(), o.surface_residual_scale = 0;
+  expect(o, "surface_residual_scale");
+  o = FuseOptions(), o.surface_neighbours = 0;  // off
+  std::string error;
+  EXPECT_TRUE(o.Check(&error)) << error;
+}
+
+// The surface factor ranks a noisy plane's points by their true distance to it (rank correlation
+// below -0.5, where the stereo confidence of such noise ranks nothing), puts points lifted off
+// it far below the rest, and is 1 on an exact plane and when off or too few points.
+TEST(SurfaceFactors, FallWithTheDistanceToTheLocalSurface) {
+  std::mt19937 rng(5);
+  std::normal_distribution<float> noise(0.f, 0.002f);
+  std::vector<Eigen::Vector3f> points, exact;
+  std::vector<float> distance;
+  for (int y = 0; y < 60; ++y) {
+    for (int x = 0; x < 60; ++x) {
+      const float z = noise(rng);
+      points.emplace_back(0.01f * x, 0.01f * y, z);
+      exact.emplace_back(0.01f * x, 0.01f * y, 0.f);
+      distance.push_back(std::abs(z));
+    }
+  }
+  for (int i = 0; i < 20; ++i) {  // lifted 2 cm: clearly off the surface
+    points[i * 97].z() = 0.02f;
+    distance[i * 97] = 0.02f;
+  }
+  const std::vector<float> f = SurfaceFactors(points, 32, 2.0);
+  ASSERT_EQ(f.size(), points.size());
+  std::vector<double> fd(f.begin(), f.end()), dd(distance.begin(), distance.end());
+  EXPECT_LT(SpearmanCorrelation(fd, dd), -0.5);
+  std::vector<float> sorted = f;
+  std::sort(sorted.begin(), sorted.end());
+  for (int i = 0; i < 20; ++i) EXPECT_LT(f[i * 97], 0.01f) << i;
+  EXPECT_GT(sorted[sorted.size() / 2], 0.8f);
+  for (float v : SurfaceFactors(exact, 32, 2.0)) ASSERT_NEAR(v, 1.f, 1e-6);
+  for (float v : SurfaceFactors(points, 0, 2.0)) ASSERT_EQ(v, 1.f);
+  const std::vector<Eigen::Vector3f> few(points.begin(), points.begin() + 10);
+  for (float v : SurfaceFactors(few, 32, 2.0)) ASSERT_EQ(v, 1.f);
 }
 
 TEST(MeshDistance, MatchesBruteForceOnASphere) {

@@ -7,7 +7,7 @@
 #include <cmath>
 
 #include "stages/surfels/particle_cloud.h"
-#include "stages/surfels/point_index.h"
+#include "pipeline/core/point_index.h"
 #include "stages/surfels/surfels.h"
 
 namespace ibmr {

@@ -4,7 +4,7 @@
 #include <vector>
 
 #include "pipeline/core/mesh.h"
-#include "stages/surfels/point_index.h"
+#include "pipeline/core/point_index.h"
 #include "stages/surfels/surfels.h"
 
 namespace ibmr {

@@ -17,7 +17,7 @@
 #include "pipeline/core/errors.h"
 #include "stages/surfels/particle_cloud.h"
 #include "stages/surfels/particle_pruning.h"
-#include "stages/surfels/point_index.h"
+#include "pipeline/core/point_index.h"
 
 namespace ibmr {
 

@@ -1,5 +1,5 @@
 // nanoflann k-d tree over Eigen points (see point_index.h).
-#include "stages/surfels/point_index.h"
+#include "pipeline/core/point_index.h"
 
 #include <nanoflann.hpp>
 
