@@ -10,6 +10,8 @@
 #include <algorithm>
 #include <cmath>
 #include <opencv2/imgproc.hpp>
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
 
 namespace ibmr {
 
@@ -111,6 +113,11 @@ bool MultiDepthOptions::Check(std::string* error) const {
   if (!(geometric_sigma >= 0 && geometric_sigma <= 0.5)) return fail("geometric_sigma: must be in [0, 0.5] (0: off), got " + std::to_string(geometric_sigma));
   if (!(view_agreement_reference >= 0 && view_agreement_reference <= 1))
     return fail("view_agreement_reference: must be in [0, 1] (0: off), got " + std::to_string(view_agreement_reference));
+  if (surface_window < 0 || surface_window > 15) return fail("surface_window: must be in [0, 15] (0: off), got " + std::to_string(surface_window));
+  if (!(surface_residual_scale > 0 && std::isfinite(surface_residual_scale))) {
+    return fail("surface_residual_scale: must be > 0, got " + std::to_string(surface_residual_scale));
+  }
+  if (!(surface_floor >= 0 && surface_floor <= 1)) return fail("surface_floor: must be in [0, 1], got " + std::to_string(surface_floor));
   if (!(min_baseline_ratio >= 0 && min_baseline_ratio < 1)) return fail("min_baseline_ratio: must be in [0, 1), got " + std::to_string(min_baseline_ratio));
   return true;
 }
@@ -281,8 +288,11 @@ void ScaleConfidence(float factor, FloatMap* confidence) {
 
 }  // namespace
 
-MultiDepthResult MakeDepthConsistent(const DepthView& key, const std::vector<const DepthView*>& neighbors,
-                                     const MultiDepthOptions& options) {
+namespace {
+
+// MakeDepthConsistent before the surface factor.
+MultiDepthResult ConsistentDepth(const DepthView& key, const std::vector<const DepthView*>& neighbors,
+                                 const MultiDepthOptions& options) {
   const int w = key.depth.width, h = key.depth.height;
   MultiDepthResult result;
   result.depth = DepthMap(w, h, 1, 0.f);
@@ -415,6 +425,69 @@ MultiDepthResult MakeDepthConsistent(const DepthView& key, const std::vector<con
     if (filled_normals.At(x, y, 2) == 0.f) continue;  // no normal from the depth: keep facing the camera
     for (int c = 0; c < 3; ++c) result.normals.At(x, y, c) = filled_normals.At(x, y, c);
   }
+  return result;
+}
+
+}  // namespace
+
+void ApplySurfaceFactor(const DepthMap& depth, int radius, double scale, double floor, FloatMap* confidence) {
+  if (radius <= 0 || confidence->Empty()) return;
+  const int w = depth.width, h = depth.height;
+  // Per pixel, the least-squares plane a + b dx + c dy through the inverse depths of the window's
+  // pixels with a depth (inverse depth is affine in the image over any scene plane), and the
+  // pixel's relative distance to it.
+  std::vector<float> residual(static_cast<size_t>(w) * h, -1.f);
+  tbb::parallel_for(tbb::blocked_range<int>(0, h, 8), [&](const tbb::blocked_range<int>& rows) {
+    for (int y = rows.begin(); y < rows.end(); ++y) {
+      for (int x = 0; x < w; ++x) {
+        const float z = depth.At(x, y);
+        if (!(z > 0)) continue;
+        Eigen::Matrix3d normal_matrix = Eigen::Matrix3d::Zero();
+        Eigen::Vector3d rhs = Eigen::Vector3d::Zero();
+        int n = 0;
+        for (int dy = -radius; dy <= radius; ++dy) {
+          const int v = y + dy;
+          if (v < 0 || v >= h) continue;
+          for (int dx = -radius; dx <= radius; ++dx) {
+            const int u = x + dx;
+            if (u < 0 || u >= w) continue;
+            const float zz = depth.At(u, v);
+            if (!(zz > 0)) continue;
+            const Eigen::Vector3d a(1, dx, dy);
+            normal_matrix += a * a.transpose();
+            rhs += a / zz;
+            ++n;
+          }
+        }
+        if (n < 6) continue;  // too few to judge: the factor stays 1
+        const Eigen::Vector3d plane = normal_matrix.ldlt().solve(rhs);
+        residual[static_cast<size_t>(y) * w + x] = static_cast<float>(std::abs(1.0 / z - plane(0)) * z);
+      }
+    }
+  });
+  std::vector<float> judged;
+  for (float r : residual) {
+    if (r >= 0) judged.push_back(r);
+  }
+  if (judged.empty()) return;
+  std::nth_element(judged.begin(), judged.begin() + judged.size() / 2, judged.end());
+  // At least 1e-4 (relative depth): a map as smooth as float rounding has no scatter to rank.
+  const double sigma = scale * std::max(1e-4, static_cast<double>(judged[judged.size() / 2]));
+  for (int y = 0; y < h; ++y) {
+    for (int x = 0; x < w; ++x) {
+      const float r = residual[static_cast<size_t>(y) * w + x];
+      if (r < 0) continue;
+      const double t = r / sigma;
+      confidence->At(x, y) *= static_cast<float>(floor + (1 - floor) * std::exp(-0.5 * t * t));
+    }
+  }
+}
+
+MultiDepthResult MakeDepthConsistent(const DepthView& key, const std::vector<const DepthView*>& neighbors,
+                                     const MultiDepthOptions& options) {
+  MultiDepthResult result = ConsistentDepth(key, neighbors, options);
+  ApplySurfaceFactor(result.depth, options.surface_window, options.surface_residual_scale, options.surface_floor,
+                     &result.confidence);
   return result;
 }
 

@@ -92,8 +92,8 @@ class MultiDepthStage : public Stage {
     return "Depth maps made consistent across views: visibility, depth compatibility, rejection (.geometric.bin)";
   }
   // 3: confidence-error rank correlation; 4: the confidence's geometric factor (geometric_sigma);
-  // 5: per-view agreement and flag (view_agreement.json)
-  std::string Version() const override { return "5"; }
+  // 5: per-view agreement and flag (view_agreement.json); 6: the confidence's surface factor (surface_window)
+  std::string Version() const override { return "6"; }
   HoldoutRole Role() const override { return HoldoutRole::kTrainingOnly; }
   bool Shardable() const override { return true; }
   double ViewMemoryMb(const StageContext& context) const override {
@@ -126,6 +126,11 @@ class MultiDepthStage : public Stage {
         {"min_baseline_ratio", ParamType::kDouble, "0.05", "Neighbour baseline >= ratio * the key's median baseline, in [0, 1)"},
         {"view_agreement_reference", ParamType::kDouble, "0.8",
          "A view's confidence is scaled by min(1, its samples' mean geometric consistency / this), [0, 1]; 0: off"},
+        {"surface_window", ParamType::kInt, "3",
+         "Confidence times how close a pixel's depth lies to the plane through the depths of the (2n+1)^2 around it, [0, 15]; 0: off"},
+        {"surface_residual_scale", ParamType::kDouble, "2",
+         "That plane distance at which the factor is exp(-1/2), in medians of the view's distances, > 0"},
+        {"surface_floor", ParamType::kDouble, "0.5", "The surface factor's least value, [0, 1]"},
         {"geometric_sigma", ParamType::kDouble, "0.003",
          "Relative depth disagreement of a neighbour at which its factor of the confidence is exp(-1/2), [0, 0.5]; 0: off"},
         {"view_flag_z", ParamType::kDouble, "3.5",
@@ -413,6 +418,9 @@ class MultiDepthStage : public Stage {
     options.min_baseline_ratio = params.Double("min_baseline_ratio");
     options.geometric_sigma = params.Double("geometric_sigma");
     options.view_agreement_reference = params.Double("view_agreement_reference");
+    options.surface_window = static_cast<int>(params.Int("surface_window"));
+    options.surface_residual_scale = params.Double("surface_residual_scale");
+    options.surface_floor = params.Double("surface_floor");
     options.fill_from_neighbors = params.Bool("fill_from_neighbors");
     return options;
   }

@@ -218,6 +218,7 @@ TEST(MultiDepth, GeometricConsistencyFallsWithAKnownPoseError) {
   options.fill_from_neighbors = false;
   options.refine_depth = false;
   options.view_agreement_reference = 0;  // the per-sample factor alone
+  options.surface_window = 0;
   // No error: the geometric factor is 1, and so the confidence (confidence maps absent: 1).
   EXPECT_GT(MedianConfidence(PairWithPoseError(0.0, options)), 0.99f);
   // One sigma of disagreement at z ~ 4 (0.012 / 4 = 0.003): factor exp(-1/2) ~ 0.61, confidence
@@ -248,6 +249,7 @@ TEST(MultiDepth, GeometricConsistencyOffKeepsThePhotometricConfidence) {
   options.fill_from_neighbors = false;
   options.geometric_sigma = 0;
   options.view_agreement_reference = 0;
+  options.surface_window = 0;
   const MultiDepthResult off = MakeDepthConsistent(key, {&neighbour}, options);
   ASSERT_GT(off.stats.kept, 500u);
   EXPECT_NEAR(MedianConfidence(off), 0.36f, 1e-4f);
@@ -262,6 +264,7 @@ TEST(MultiDepth, GeometricConsistencyOffKeepsThePhotometricConfidence) {
 
 TEST(MultiDepth, ViewAgreementScalesAViewWhoseCameraIsOff) {
   MultiDepthOptions options;
+  options.surface_window = 0;  // the view factor alone
   options.min_consistent_views = 1;
   options.fill_from_neighbors = false;
   options.refine_depth = false;
@@ -414,6 +417,31 @@ TEST(MultiDepth, NoisyMapsBecomeConsistentWithinOnePercent) {
   EXPECT_GT(after.FractionOfEstimated(), 0.97);
   EXPECT_GT(outliers, 1000u);
   EXPECT_LT(kept_outliers, outliers / 25) << kept_outliers << " of " << outliers << " outliers kept";
+}
+
+// The surface factor: 1 on a slanted plane, down towards the floor at pixels lifted off it, never
+// below the floor, ranking noisy depths by their distance to the plane; radius 0 leaves it alone.
+TEST(MultiDepth, SurfaceFactorFallsOffTheLocalPlane) {
+  const int w = 40, h = 30;
+  DepthMap depth(w, h, 1, 0.f);
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x) depth.At(x, y) = 1.f / (0.5f + 0.004f * x + 0.002f * y);  // a plane: 1/z affine
+  FloatMap confidence(w, h, 1, 1.f);
+  ApplySurfaceFactor(depth, 3, 2.0, 0.5, &confidence);
+  for (float c : confidence.data) ASSERT_NEAR(c, 1.f, 1e-4);
+  depth.At(20, 15) *= 1.05f;  // 5% off
+  depth.At(10, 10) *= 1.01f;  // 1% off
+  std::mt19937 rng(3);
+  std::normal_distribution<float> noise(0.f, 0.001f);
+  for (float& z : depth.data) z *= 1.f + noise(rng);
+  FloatMap noisy(w, h, 1, 1.f);
+  ApplySurfaceFactor(depth, 3, 2.0, 0.5, &noisy);
+  for (float c : noisy.data) ASSERT_GE(c, 0.5f - 1e-6f);
+  EXPECT_LT(noisy.At(20, 15), 0.51f);
+  EXPECT_LT(noisy.At(10, 10), noisy.At(30, 25));
+  FloatMap off(w, h, 1, 0.7f);
+  ApplySurfaceFactor(depth, 0, 2.0, 0.5, &off);
+  for (float c : off.data) ASSERT_EQ(c, 0.7f);
 }
 
 TEST(MultiDepth, RefinementReducesNoise) {
