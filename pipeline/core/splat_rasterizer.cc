@@ -7,56 +7,28 @@
 #include <Eigen/LU>
 #include <algorithm>
 #include <array>
+#include <atomic>
 #include <cmath>
+#include <cstdlib>
+#include <cstring>
+
+#include "pipeline/core/splat_tiles.h"
 
 namespace ibmr {
 
 struct SplatBackwardScratch {
-  tbb::enumerable_thread_specific<std::vector<float>> buffers;
+  tbb::enumerable_thread_specific<std::vector<splat_tiles::ScreenGradientSums>> buffers;
 };
 
 namespace {
 
-constexpr float kMaxAlpha = 0.99f;
-constexpr float kMinTransmittance = 1e-4f;
-constexpr int kTilePixels = kSplatTile * kSplatTile;
-// Per-splat quantities the backward pass accumulates over a view's pixels: d/dM^-1 (9), d/d the
-// projected centre (2), d/d colour (3), d/d opacity (1).
-constexpr int kScreenGrads = 15;
+constexpr int kScreenGrads = splat_tiles::kScreenGradients;
 
 float Sigmoid(float x) { return 1.0f / (1.0f + std::exp(-x)); }
 
 // Squared radius (in sigmas) beyond which exp(-r^2 / 2) < min_alpha: no opacity makes it drawn.
 float Cutoff(const SplatRasterOptions& options) {
   return options.min_alpha > 0 ? 2.0f * std::log(1.0f / options.min_alpha) : 1e30f;
-}
-
-// The falloff at pixel centre (x, y) of splat `i`: the object-space value g (with u, v and the
-// homogeneous w), the screen-space floor gl, and which one is used.
-struct Falloff {
-  float g = 0, gl = 0, u = 0, v = 0, w2 = 0;
-  bool object = false;  // g is the larger (and non-zero)
-  float G() const { return object ? g : gl; }
-};
-
-// `cutoff`: the squared radius (in sigmas) beyond which the falloff is below the smallest alpha drawn.
-inline Falloff Evaluate(const Eigen::Matrix3f& a, const Eigen::Vector2f& centre, float inv_two_sigma2, float cutoff,
-                        float x, float y) {
-  Falloff f;
-  const float w0 = a(0, 0) * x + a(0, 1) * y + a(0, 2);
-  const float w1 = a(1, 0) * x + a(1, 1) * y + a(1, 2);
-  f.w2 = a(2, 0) * x + a(2, 1) * y + a(2, 2);
-  if (f.w2 > 0) {
-    f.u = w0 / f.w2;
-    f.v = w1 / f.w2;
-    const float r2 = f.u * f.u + f.v * f.v;
-    if (r2 < cutoff) f.g = std::exp(-0.5f * r2);
-  }
-  const float dx = x - centre.x(), dy = y - centre.y();
-  const float d2 = (dx * dx + dy * dy) * inv_two_sigma2;
-  if (d2 < 0.5f * cutoff) f.gl = std::exp(-d2);
-  f.object = f.g > 0 && f.g >= f.gl;
-  return f;
 }
 
 }  // namespace
@@ -92,6 +64,7 @@ void RenderSplats(const GaussianSplats& splats, const SplatCamera& camera, const
   frame->opacity.resize(n);
   frame->view_depth.resize(n);
   frame->box.resize(n);
+  frame->tile_record.resize(n);
   Eigen::Matrix3f k = Eigen::Matrix3f::Identity();
   k(0, 0) = camera.fx;
   k(1, 1) = camera.fy;
@@ -158,6 +131,15 @@ void RenderSplats(const GaussianSplats& splats, const SplatCamera& camera, const
         for (int c = 0; c < 3; ++c) colour[c] += basis[j] * sh[j * 3 + c];
       }
       frame->colour[i] = colour;
+      SplatTileRecord& record = frame->tile_record[i];
+      const Eigen::Matrix3f& inverse = frame->inverse[i];
+      for (int r = 0; r < 3; ++r) {
+        for (int c = 0; c < 3; ++c) record.inverse[r * 3 + c] = inverse(r, c);
+      }
+      record.centre_x = centre.x(), record.centre_y = centre.y();
+      record.opacity = frame->opacity[i];
+      for (int c = 0; c < 3; ++c) record.colour[c] = std::max(colour[c], 0.0f);
+      record.view_depth = mu.z();
       frame->visible[i] = 1;
     }
   });
@@ -185,78 +167,29 @@ void RenderSplats(const GaussianSplats& splats, const SplatCamera& camera, const
       }
     }
   }
+  // Sorted by (depth, index): the depth's bits, flipped to order as the floats do, above the index
+  // in one 64-bit key: the order a stable sort by depth of the index-ordered lists gives, without
+  // looking the depth up at every comparison.
   const std::vector<float>& depth_of = frame->view_depth;
   tbb::parallel_for(0, tiles, [&](int t) {
-    std::stable_sort(frame->tile_splats.begin() + frame->tile_start[t], frame->tile_splats.begin() + frame->tile_start[t + 1],
-                     [&](uint32_t a, uint32_t b) { return depth_of[a] < depth_of[b]; });
+    thread_local std::vector<uint64_t> keys;
+    const auto begin = frame->tile_splats.begin() + frame->tile_start[t], end = frame->tile_splats.begin() + frame->tile_start[t + 1];
+    keys.clear();
+    for (auto it = begin; it != end; ++it) {
+      uint32_t depth_bits;
+      std::memcpy(&depth_bits, &depth_of[*it], sizeof depth_bits);
+      depth_bits ^= (depth_bits >> 31) != 0 ? 0xffffffffu : 0x80000000u;
+      keys.push_back(static_cast<uint64_t>(depth_bits) << 32 | *it);
+    }
+    std::sort(keys.begin(), keys.end());
+    for (size_t k = 0; k < keys.size(); ++k) begin[k] = static_cast<uint32_t>(keys[k]);
   });
 
   frame->image.create(camera.height, camera.width, CV_32FC3);
   frame->transmittance.create(camera.height, camera.width, CV_32FC1);
   frame->depth.create(camera.height, camera.width, CV_32FC1);
   frame->last.assign(static_cast<size_t>(camera.width) * camera.height, 0);
-  const float inv_two_sigma2 = 1.0f / (2.0f * options.lowpass_sigma * options.lowpass_sigma);
-  tbb::parallel_for(0, tiles, [&](int t) {
-    const int tx = t % frame->tiles_x, ty = t / frame->tiles_x;
-    const int px0 = tx * kSplatTile, py0 = ty * kSplatTile;
-    const int w = std::min(kSplatTile, camera.width - px0), hgt = std::min(kSplatTile, camera.height - py0);
-    float transmit[kTilePixels], colour[kTilePixels][3], depth[kTilePixels];
-    uint32_t walked[kTilePixels];
-    bool done[kTilePixels];
-    int remaining = 0;
-    for (int p = 0; p < kTilePixels; ++p) {
-      const bool inside = (p % kSplatTile) < w && (p / kSplatTile) < hgt;
-      transmit[p] = 1.0f;
-      colour[p][0] = colour[p][1] = colour[p][2] = 0.0f;
-      depth[p] = 0.0f;
-      walked[p] = 0;
-      done[p] = !inside;
-      remaining += inside;
-    }
-    const uint32_t start = frame->tile_start[t], end = frame->tile_start[t + 1];
-    for (uint32_t j = start; j < end && remaining > 0; ++j) {
-      const uint32_t i = frame->tile_splats[j];
-      const Eigen::Matrix3f& a = frame->inverse[i];
-      const Eigen::Vector2f& c = frame->centre[i];
-      const float op = frame->opacity[i];
-      const Eigen::Vector3f col = frame->colour[i].cwiseMax(0.0f);
-      const Eigen::Vector4i& box = frame->box[i];
-      const int bx0 = std::max(box[0] - px0, 0), bx1 = std::min(box[2] - px0, w - 1);
-      const int by0 = std::max(box[1] - py0, 0), by1 = std::min(box[3] - py0, hgt - 1);
-      for (int ly = by0; ly <= by1; ++ly) {
-        for (int lx = bx0; lx <= bx1; ++lx) {
-          const int p = ly * kSplatTile + lx;
-          if (done[p]) continue;
-          const float x = px0 + lx + 0.5f, y = py0 + ly + 0.5f;
-          const Falloff f = Evaluate(a, c, inv_two_sigma2, cutoff, x, y);
-          const float alpha = std::min(kMaxAlpha, op * f.G());
-          if (alpha < options.min_alpha || alpha <= 0.0f) continue;
-          const float next = transmit[p] * (1.0f - alpha);
-          if (next < kMinTransmittance) {
-            done[p] = true;
-            --remaining;
-            continue;
-          }
-          const float weight = alpha * transmit[p];
-          colour[p][0] += col[0] * weight;
-          colour[p][1] += col[1] * weight;
-          colour[p][2] += col[2] * weight;
-          if (depth[p] == 0.0f && alpha >= 0.5f) depth[p] = f.object ? 1.0f / f.w2 : frame->view_depth[i];
-          transmit[p] = next;
-          walked[p] = j - start + 1;
-        }
-      }
-    }
-    for (int p = 0; p < kTilePixels; ++p) {
-      const int x = px0 + p % kSplatTile, y = py0 + p / kSplatTile;
-      if (p % kSplatTile >= w || p / kSplatTile >= hgt) continue;
-      cv::Vec3f& out = frame->image.at<cv::Vec3f>(y, x);
-      for (int ch = 0; ch < 3; ++ch) out[ch] = colour[p][ch] + transmit[p] * options.background[ch];
-      frame->transmittance.at<float>(y, x) = transmit[p];
-      frame->depth.at<float>(y, x) = depth[p];
-      frame->last[static_cast<size_t>(y) * camera.width + x] = walked[p];
-    }
-  });
+  tbb::parallel_for(0, tiles, [&](int t) { splat_tiles::ForwardTile(*frame, t); });
 }
 
 void SplatGradients::Reset(const GaussianSplats& splats) {
@@ -274,84 +207,14 @@ void BackwardSplats(const GaussianSplats& splats, const SplatCamera& camera, con
   const size_t n = splats.size();
   const SplatRasterOptions& options = frame.options;
   const int tiles = frame.tiles_x * frame.tiles_y;
-  const float inv_two_sigma2 = 1.0f / (2.0f * options.lowpass_sigma * options.lowpass_sigma);
-  const float inv_sigma2 = 2.0f * inv_two_sigma2;
-  const float cutoff = Cutoff(options);
   if (!gradients->scratch) gradients->scratch = std::make_shared<SplatBackwardScratch>();
   auto& buffers = gradients->scratch->buffers;
-  for (std::vector<float>& buffer : buffers) buffer.resize(n * kScreenGrads, 0.0f);  // new splats: zero
+  for (auto& buffer : buffers) buffer.resize(n, splat_tiles::ScreenGradientSums{});  // new splats: zero
 
   tbb::parallel_for(0, tiles, [&](int t) {
-    std::vector<float>& acc = buffers.local();
-    acc.resize(n * kScreenGrads, 0.0f);
-    const int tx = t % frame.tiles_x, ty = t / frame.tiles_x;
-    const int px0 = tx * kSplatTile, py0 = ty * kSplatTile;
-    const int w = std::min(kSplatTile, frame.width - px0), hgt = std::min(kSplatTile, frame.height - py0);
-    float transmit[kTilePixels], behind[kTilePixels][3], d_colour[kTilePixels][3];
-    uint32_t walked[kTilePixels];
-    uint32_t most = 0;
-    for (int p = 0; p < kTilePixels; ++p) {
-      const int x = px0 + p % kSplatTile, y = py0 + p / kSplatTile;
-      const bool inside = (p % kSplatTile) < w && (p / kSplatTile) < hgt;
-      walked[p] = inside ? frame.last[static_cast<size_t>(y) * frame.width + x] : 0;
-      most = std::max(most, walked[p]);
-      transmit[p] = inside ? frame.transmittance.at<float>(y, x) : 1.0f;
-      for (int c = 0; c < 3; ++c) {
-        behind[p][c] = options.background[c];
-        d_colour[p][c] = inside ? d_image.at<cv::Vec3f>(y, x)[c] : 0.0f;
-      }
-    }
-    const uint32_t start = frame.tile_start[t];
-    for (uint32_t jj = most; jj-- > 0;) {
-      const uint32_t i = frame.tile_splats[start + jj];
-      const Eigen::Matrix3f& a = frame.inverse[i];
-      const Eigen::Vector2f& c = frame.centre[i];
-      const float op = frame.opacity[i];
-      const Eigen::Vector3f col = frame.colour[i].cwiseMax(0.0f);
-      float g[kScreenGrads] = {};
-      bool touched = false;
-      const Eigen::Vector4i& box = frame.box[i];
-      const int bx0 = std::max(box[0] - px0, 0), bx1 = std::min(box[2] - px0, w - 1);
-      const int by0 = std::max(box[1] - py0, 0), by1 = std::min(box[3] - py0, hgt - 1);
-      for (int ly = by0; ly <= by1; ++ly) {
-       for (int lx = bx0; lx <= bx1; ++lx) {
-        const int p = ly * kSplatTile + lx;
-        if (jj >= walked[p]) continue;
-        const float x = px0 + lx + 0.5f, y = py0 + ly + 0.5f;
-        const Falloff f = Evaluate(a, c, inv_two_sigma2, cutoff, x, y);
-        const float raw = op * f.G();
-        const float alpha = std::min(kMaxAlpha, raw);
-        if (alpha < options.min_alpha || alpha <= 0.0f) continue;
-        touched = true;
-        transmit[p] /= (1.0f - alpha);
-        const float weight = alpha * transmit[p];
-        float d_alpha = 0;
-        for (int ch = 0; ch < 3; ++ch) {
-          g[11 + ch] += weight * d_colour[p][ch];
-          d_alpha += (col[ch] - behind[p][ch]) * d_colour[p][ch];
-          behind[p][ch] = col[ch] * alpha + behind[p][ch] * (1.0f - alpha);
-        }
-        d_alpha *= transmit[p];
-        if (raw >= kMaxAlpha) continue;  // clamped: no gradient to the opacity or the footprint
-        g[14] += d_alpha * f.G();
-        const float d_g = d_alpha * op;
-        if (f.object) {
-          const float du = -f.u * f.g * d_g, dv = -f.v * f.g * d_g;
-          const float dw0 = du / f.w2, dw1 = dv / f.w2, dw2 = -(du * f.u + dv * f.v) / f.w2;
-          g[0] += dw0 * x, g[1] += dw0 * y, g[2] += dw0;
-          g[3] += dw1 * x, g[4] += dw1 * y, g[5] += dw1;
-          g[6] += dw2 * x, g[7] += dw2 * y, g[8] += dw2;
-        } else {
-          const float scale = d_g * f.gl * inv_sigma2;
-          g[9] += scale * (x - c.x());
-          g[10] += scale * (y - c.y());
-        }
-       }
-      }
-      if (!touched) continue;
-      float* out = acc.data() + static_cast<size_t>(i) * kScreenGrads;
-      for (int q = 0; q < kScreenGrads; ++q) out[q] += g[q];
-    }
+    auto& sums = buffers.local();
+    sums.resize(n, splat_tiles::ScreenGradientSums{});
+    splat_tiles::BackwardTile(frame, d_image, t, sums.data());
   });
 
   // The per-splat screen quantities carried to the parameters.
@@ -368,11 +231,11 @@ void BackwardSplats(const GaussianSplats& splats, const SplatCamera& camera, con
     for (size_t i = range.begin(); i != range.end(); ++i) {
       if (!frame.visible[i]) continue;
       float g[kScreenGrads] = {};
-      for (std::vector<float>& buffer : buffers) {
-        if (buffer.size() < (i + 1) * kScreenGrads) continue;
+      for (auto& buffer : buffers) {
+        if (buffer.size() <= i) continue;
         for (int q = 0; q < kScreenGrads; ++q) {
-          g[q] += buffer[i * kScreenGrads + q];
-          buffer[i * kScreenGrads + q] = 0.0f;  // zero for the next call
+          g[q] += buffer[i].value[q];
+          buffer[i].value[q] = 0.0f;  // zero for the next call
         }
       }
       bool any = false;
@@ -431,4 +294,91 @@ void BackwardSplats(const GaussianSplats& splats, const SplatCamera& camera, con
   });
 }
 
+namespace splat_tiles {
+namespace {
+
+// IBMR_ISA=portable (or avx2) in the environment starts the process on that build where the CPU
+// runs it (the variable plane_sweep's kernels read too).
+std::atomic<Isa>& Active() {
+  static std::atomic<Isa> active{[] {
+    const char* forced = std::getenv("IBMR_ISA");
+    if (forced != nullptr) {
+      for (Isa isa : {Isa::kPortable, Isa::kAvx2, Isa::kAvx512}) {
+        if (std::strcmp(forced, IsaName(isa)) == 0 && IsaSupported(isa)) return isa;
+      }
+    }
+    for (Isa isa : {Isa::kAvx512, Isa::kAvx2}) {
+      if (IsaSupported(isa)) return isa;
+    }
+    return Isa::kPortable;
+  }()};
+  return active;
+}
+
+}  // namespace
+
+bool IsaSupported(Isa isa) {
+  switch (isa) {
+    case Isa::kPortable:
+      return true;
+#if IBMR_SPLAT_HAVE_AVX
+    case Isa::kAvx2: {
+      // Every feature the build's `#pragma GCC target` enables (splat_tiles.cc).
+      static const bool avx2 = __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
+      return avx2;
+    }
+    case Isa::kAvx512: {
+      static const bool avx512 = IsaSupported(Isa::kAvx2) && __builtin_cpu_supports("avx512f") &&
+                                 __builtin_cpu_supports("avx512dq") && __builtin_cpu_supports("avx512bw") &&
+                                 __builtin_cpu_supports("avx512vl");
+      return avx512;
+    }
+#endif
+    default:
+      return false;
+  }
+}
+
+Isa ActiveIsa() { return Active().load(); }
+
+bool SetIsa(Isa isa) {
+  if (!IsaSupported(isa)) return false;
+  Active().store(isa);
+  return true;
+}
+
+const char* IsaName(Isa isa) {
+  switch (isa) {
+    case Isa::kAvx2:
+      return "avx2";
+    case Isa::kAvx512:
+      return "avx512";
+    default:
+      return "portable";
+  }
+}
+
+#if IBMR_SPLAT_HAVE_AVX
+#define IBMR_SPLAT_DISPATCH(call) \
+  switch (ActiveIsa()) {          \
+    case Isa::kAvx512:            \
+      return avx512::call;        \
+    case Isa::kAvx2:              \
+      return avx2::call;          \
+    default:                      \
+      return portable::call;      \
+  }
+#else
+#define IBMR_SPLAT_DISPATCH(call) return portable::call
+#endif
+
+void ForwardTile(SplatFrame& frame, int tile) { IBMR_SPLAT_DISPATCH(ForwardTile(frame, tile)); }
+
+void BackwardTile(const SplatFrame& frame, const cv::Mat& d_image, int tile, ScreenGradientSums* sums) {
+  IBMR_SPLAT_DISPATCH(BackwardTile(frame, d_image, tile, sums));
+}
+
+#undef IBMR_SPLAT_DISPATCH
+
+}  // namespace splat_tiles
 }  // namespace ibmr

@@ -25,7 +25,14 @@
 // order against the footprint's). Splats whose centre lies behind `near`, or whose disc reaches
 // behind the camera, are not drawn in that view.
 //
-// TBB over tiles; per tile, fixed arrays of 256 pixels, no allocation per pixel.
+// Falloffs below exp(-87) (1.6e-38, where floats turn denormal) count as 0.
+//
+// TBB over tiles; per tile, fixed arrays of 256 pixels, no allocation per pixel. SIMD over pixels
+// (splat_tiles.h): each tile's state is structure-of-arrays (transmittance, colour sums, depth,
+// splats walked, a live flag per pixel), and one splat at a time is applied to a whole 16-pixel
+// row of it in a vectorised loop (M^-1's rows broadcast, a polynomial exp, selects for the alpha
+// threshold, the box and the saturated pixels), compiled for the baseline, AVX2 and AVX-512 and
+// picked at run time; the result is the per-pixel definition's up to float rounding.
 #pragma once
 
 #include <Eigen/Core>
@@ -64,6 +71,16 @@ struct SplatRasterOptions {
   int sh_degree = -1;                 // SH degree used (<= the splats'); -1: the splats' own
 };
 
+// Per drawn splat, what the tile loops read (copies of SplatFrame's per-splat values), in one
+// cache line: a tile's splats are far apart in memory, and each one read costs a miss.
+struct alignas(64) SplatTileRecord {
+  float inverse[9];  // M^-1, row-major
+  float centre_x, centre_y, opacity;
+  float colour[3];   // clamped at 0
+  float view_depth;
+};
+static_assert(sizeof(SplatTileRecord) == 64, "one cache line");
+
 // What a forward pass keeps for the backward pass (and gives the caller).
 struct SplatFrame {
   int width = 0, height = 0, tiles_x = 0, tiles_y = 0;
@@ -82,6 +99,7 @@ struct SplatFrame {
   std::vector<float> opacity;            // sigmoid of the logit
   std::vector<float> view_depth;         // centre's depth
   std::vector<Eigen::Vector4i> box;      // pixels the footprint reaches: x0, y0, x1, y1 (inclusive)
+  std::vector<SplatTileRecord> tile_record;
   SplatRasterOptions options;
   size_t drawn = 0;  // splats drawn (visible)
 };

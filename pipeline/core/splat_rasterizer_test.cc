@@ -1,19 +1,24 @@
 // The splat rasterizer: analytic gradients of every parameter kind against central differences on
 // a few overlapping discs (one seen nearly edge-on, where the screen-space floor decides, and
-// discs at the silhouette over the background); the front-to-back order in every tile; splats
-// behind the camera ignored; the PLY layout round trip and a file laid out as a 3D Gaussian
-// splatting trainer writes it.
+// discs at the silhouette over the background); the vectorised tile loops against a per-pixel
+// definition, and every instruction set's build against the others; the vectorised exp within its
+// bound; the front-to-back order in every tile; splats behind the camera ignored; the PLY layout
+// round trip and a file laid out as a 3D Gaussian splatting trainer writes it.
 #include "pipeline/core/splat_rasterizer.h"
 
 #include <Eigen/Geometry>
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <algorithm>
+#include <cmath>
 #include <filesystem>
+#include <limits>
 #include <random>
 
 #include "pipeline/core/atomic_file.h"
 #include "pipeline/core/errors.h"
+#include "pipeline/core/splat_tiles.h"
 
 namespace fs = std::filesystem;
 
@@ -158,6 +163,172 @@ TEST(SplatGradients, AtASilhouetteOverTheBackground) {
     GaussianSplats copy = splats;
     ExpectDerivative(problem, copy, &copy.log_scale[0][a], 1e-3f, g.log_scale[0][a], "silhouette scale " + std::to_string(a));
   }
+}
+
+// Every instruction set this build has tile loops for and this CPU runs.
+std::vector<splat_tiles::Isa> RunnableIsas() {
+  std::vector<splat_tiles::Isa> isas;
+  for (splat_tiles::Isa isa : {splat_tiles::Isa::kPortable, splat_tiles::Isa::kAvx2, splat_tiles::Isa::kAvx512}) {
+    if (splat_tiles::IsaSupported(isa)) isas.push_back(isa);
+  }
+  return isas;
+}
+
+TEST(SplatExp, StaysWithinItsBound) {
+  // Against double exp over the range the falloff uses with min_alpha 1/255 ([-5.6, 0]), over
+  // [-20, 0] and down to -87, where it stops.
+  double worst = 0;
+  float worst_at = 0;
+  for (const float lowest : {-5.6f, -20.0f, -87.0f}) {
+    const int samples = 1000000;
+    for (int k = 0; k <= samples; ++k) {
+      const float x = lowest * static_cast<float>(k) / samples;
+      const double truth = std::exp(static_cast<double>(x));
+      const double error = std::abs(splat_tiles::ExpNonPositive(x) - truth) / truth;
+      if (error > worst) worst = error, worst_at = x;
+    }
+  }
+  EXPECT_LE(worst, splat_tiles::kExpMaxRelativeError) << "at " << worst_at;
+  EXPECT_EQ(splat_tiles::ExpNonPositive(0.0f), 1.0f);
+  EXPECT_GT(splat_tiles::ExpNonPositive(-87.0f), 0.0f);
+  EXPECT_EQ(splat_tiles::ExpNonPositive(-87.01f), 0.0f) << "below -87: 0";
+  EXPECT_EQ(splat_tiles::ExpNonPositive(-std::numeric_limits<float>::infinity()), 0.0f);
+}
+
+// What a pixel shows, drawn one pixel at a time with std::exp from the per-splat quantities
+// RenderSplats computed (the rasterizer's definition in splat_rasterizer.h, as the scalar loop
+// before the vectorised one wrote it, falloffs below exp(-87) taken as 0 as the header says).
+struct PixelByPixel {
+  cv::Mat image, transmittance, depth;
+  std::vector<int> last_splat;  // per pixel: the last splat composited (-1: none)
+  int ended = 0;                 // pixels whose walk a splat ended (no more light would pass)
+};
+
+PixelByPixel DrawPixelByPixel(const SplatFrame& frame) {
+  const SplatRasterOptions& options = frame.options;
+  const float cutoff = options.min_alpha > 0 ? 2.0f * std::log(1.0f / options.min_alpha) : 1e30f;
+  const float inv_two_sigma2 = 1.0f / (2.0f * options.lowpass_sigma * options.lowpass_sigma);
+  PixelByPixel out;
+  out.image.create(frame.height, frame.width, CV_32FC3);
+  out.transmittance.create(frame.height, frame.width, CV_32FC1);
+  out.depth.create(frame.height, frame.width, CV_32FC1);
+  out.last_splat.assign(static_cast<size_t>(frame.width) * frame.height, -1);
+  for (int row = 0; row < frame.height; ++row) {
+    for (int column = 0; column < frame.width; ++column) {
+      // The splats whose footprint box holds the pixel, front to back (ties in index order).
+      std::vector<int> splats;
+      for (size_t i = 0; i < frame.visible.size(); ++i) {
+        const Eigen::Vector4i& b = frame.box[i];
+        if (frame.visible[i] && column >= b[0] && column <= b[2] && row >= b[1] && row <= b[3]) splats.push_back(static_cast<int>(i));
+      }
+      std::stable_sort(splats.begin(), splats.end(), [&](int a, int b) { return frame.view_depth[a] < frame.view_depth[b]; });
+      const float x = column + 0.5f, y = row + 0.5f;
+      float transmit = 1.0f, depth = 0.0f;
+      Eigen::Vector3f colour = Eigen::Vector3f::Zero();
+      for (const int i : splats) {
+        const Eigen::Matrix3f& a = frame.inverse[i];
+        const float w0 = a(0, 0) * x + a(0, 1) * y + a(0, 2);
+        const float w1 = a(1, 0) * x + a(1, 1) * y + a(1, 2);
+        const float w2 = a(2, 0) * x + a(2, 1) * y + a(2, 2);
+        float g = 0, gl = 0;
+        if (w2 > 0) {
+          const float u = w0 / w2, v = w1 / w2;
+          const float r2 = u * u + v * v;
+          if (r2 < cutoff && 0.5f * r2 <= 87.0f) g = std::exp(-0.5f * r2);
+        }
+        const float dx = x - frame.centre[i].x(), dy = y - frame.centre[i].y();
+        const float d2 = (dx * dx + dy * dy) * inv_two_sigma2;
+        if (d2 < 0.5f * cutoff && d2 <= 87.0f) gl = std::exp(-d2);
+        const bool object = g > 0 && g >= gl;
+        const float alpha = std::min(0.99f, frame.opacity[i] * (object ? g : gl));
+        if (alpha < options.min_alpha || alpha <= 0.0f) continue;
+        const float next = transmit * (1.0f - alpha);
+        if (next < 1e-4f) {
+          ++out.ended;
+          break;
+        }
+        colour += frame.colour[i].cwiseMax(0.0f) * (alpha * transmit);
+        if (depth == 0.0f && alpha >= 0.5f) depth = object ? 1.0f / w2 : frame.view_depth[i];
+        transmit = next;
+        out.last_splat[static_cast<size_t>(row) * frame.width + column] = i;
+      }
+      for (int c = 0; c < 3; ++c) out.image.at<cv::Vec3f>(row, column)[c] = colour[c] + transmit * options.background[c];
+      out.transmittance.at<float>(row, column) = transmit;
+      out.depth.at<float>(row, column) = depth;
+    }
+  }
+  return out;
+}
+
+// The discs of TestSplats, eight nearly opaque ones in front of them whose middle no light passes
+// (saturated pixels: the tile loops stop there), and one across the picture's right edge.
+GaussianSplats OverlappingSaturatedAndCutSplats() {
+  GaussianSplats splats = TestSplats(1);
+  for (int k = 0; k < 8; ++k) {
+    splats.Add({0.02f * k - 0.08f, 0.01f * k, 2.0f + 0.05f * k}, RotationWithNormal(Eigen::Vector3f(0.05f * k, 0.1f, -1.0f).normalized()),
+               {std::log(0.25f), std::log(0.2f)}, 0.99f, {0.9f - 0.1f * k, 0.2f + 0.1f * k, 0.5f});
+  }
+  splats.Add({0.95f, 0.2f, 2.5f}, RotationWithNormal({0.2f, 0.0f, -1.0f}), {std::log(0.2f), std::log(0.25f)}, 0.8f, {0.1f, 0.9f, 0.3f});
+  return splats;
+}
+
+TEST(SplatRaster, TheTileLoopsDrawWhatAPixelByPixelDefinitionDraws) {
+  const GaussianSplats splats = OverlappingSaturatedAndCutSplats();
+  SplatRasterOptions drawn;  // the defaults: min_alpha 1/255, 3 sigmas
+  drawn.background = Eigen::Vector3f(0.2f, 0.7f, 0.4f);
+  SplatRasterOptions smooth = Problem().options;  // the gradient tests': no alpha threshold, 6 sigmas
+  const splat_tiles::Isa was = splat_tiles::ActiveIsa();
+  for (const splat_tiles::Isa isa : RunnableIsas()) {
+    ASSERT_TRUE(splat_tiles::SetIsa(isa));
+    for (const SplatRasterOptions& options : {drawn, smooth}) {
+      const std::string what = std::string(splat_tiles::IsaName(isa)) + (options.min_alpha > 0 ? ", min_alpha" : ", smooth");
+      SplatFrame frame;
+      RenderSplats(splats, TestCamera(), options, &frame);
+      const PixelByPixel reference = DrawPixelByPixel(frame);
+      int silhouette = 0;
+      for (int row = 0; row < frame.height; ++row) {
+        for (int column = 0; column < frame.width; ++column) {
+          const size_t p = static_cast<size_t>(row) * frame.width + column;
+          for (int c = 0; c < 3; ++c) {
+            ASSERT_NEAR(frame.image.at<cv::Vec3f>(row, column)[c], reference.image.at<cv::Vec3f>(row, column)[c], 1e-5f)
+                << what << " at " << column << ", " << row;
+          }
+          ASSERT_NEAR(frame.transmittance.at<float>(row, column), reference.transmittance.at<float>(row, column), 1e-5f) << what;
+          ASSERT_NEAR(frame.depth.at<float>(row, column), reference.depth.at<float>(row, column), 1e-5f) << what;
+          // `last` counts into the pixel's tile list: it names the same splat as the reference's last.
+          const int tile = (row / kSplatTile) * frame.tiles_x + column / kSplatTile;
+          const int last = frame.last[p] == 0 ? -1 : static_cast<int>(frame.tile_splats[frame.tile_start[tile] + frame.last[p] - 1]);
+          ASSERT_EQ(last, reference.last_splat[p]) << what << " at " << column << ", " << row;
+          silhouette += column == frame.width - 1 && reference.transmittance.at<float>(row, column) < 0.9f;
+        }
+      }
+      EXPECT_GT(reference.ended, 20) << what << ": the scene has pixels no more light passes";
+      EXPECT_GT(silhouette, 2) << what << ": a disc crosses the picture's edge";
+    }
+  }
+  splat_tiles::SetIsa(was);
+}
+
+TEST(SplatGradients, EveryInstructionSetGivesTheSameGradients) {
+  // The AVX builds contract to FMA and add per lane in another order: the same to float rounding.
+  Problem problem;
+  const GaussianSplats splats = OverlappingSaturatedAndCutSplats();
+  const splat_tiles::Isa was = splat_tiles::ActiveIsa();
+  ASSERT_TRUE(splat_tiles::SetIsa(splat_tiles::Isa::kPortable));
+  const SplatGradients portable = problem.Gradients(splats);
+  for (const splat_tiles::Isa isa : RunnableIsas()) {
+    ASSERT_TRUE(splat_tiles::SetIsa(isa));
+    const SplatGradients g = problem.Gradients(splats);
+    for (size_t i = 0; i < splats.size(); ++i) {
+      const std::string what = std::string(splat_tiles::IsaName(isa)) + " splat " + std::to_string(i);
+      EXPECT_LE((g.position[i] - portable.position[i]).norm(), 1e-4f * portable.position[i].norm() + 1e-5f) << what;
+      EXPECT_LE((g.rotation[i] - portable.rotation[i]).norm(), 1e-4f * portable.rotation[i].norm() + 1e-5f) << what;
+      EXPECT_LE((g.log_scale[i] - portable.log_scale[i]).norm(), 1e-4f * portable.log_scale[i].norm() + 1e-5f) << what;
+      EXPECT_NEAR(g.opacity_logit[i], portable.opacity_logit[i], 1e-4f * std::abs(portable.opacity_logit[i]) + 1e-5f) << what;
+    }
+    for (size_t k = 0; k < g.sh.size(); ++k) EXPECT_NEAR(g.sh[k], portable.sh[k], 1e-4f * std::abs(portable.sh[k]) + 1e-5f);
+  }
+  splat_tiles::SetIsa(was);
 }
 
 TEST(SplatRaster, TilesAreFrontToBackAndSplatsBehindTheCameraAreIgnored) {
