@@ -300,18 +300,7 @@ namespace {
 // IBMR_ISA=portable (or avx2) in the environment starts the process on that build where the CPU
 // runs it (the variable plane_sweep's kernels read too).
 std::atomic<Isa>& Active() {
-  static std::atomic<Isa> active{[] {
-    const char* forced = std::getenv("IBMR_ISA");
-    if (forced != nullptr) {
-      for (Isa isa : {Isa::kPortable, Isa::kAvx2, Isa::kAvx512}) {
-        if (std::strcmp(forced, IsaName(isa)) == 0 && IsaSupported(isa)) return isa;
-      }
-    }
-    for (Isa isa : {Isa::kAvx512, Isa::kAvx2}) {
-      if (IsaSupported(isa)) return isa;
-    }
-    return Isa::kPortable;
-  }()};
+  static std::atomic<Isa> active{InitialIsa(IsaSupported)};
   return active;
 }
 
@@ -345,17 +334,6 @@ bool SetIsa(Isa isa) {
   if (!IsaSupported(isa)) return false;
   Active().store(isa);
   return true;
-}
-
-const char* IsaName(Isa isa) {
-  switch (isa) {
-    case Isa::kAvx2:
-      return "avx2";
-    case Isa::kAvx512:
-      return "avx512";
-    default:
-      return "portable";
-  }
 }
 
 #if IBMR_SPLAT_HAVE_AVX

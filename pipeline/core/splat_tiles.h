@@ -13,6 +13,8 @@
 #include <cstring>
 #include <opencv2/core.hpp>
 
+#include "pipeline/core/cpu_isa.h"
+
 namespace ibmr {
 
 struct SplatFrame;
@@ -51,14 +53,14 @@ inline float ExpNonPositive(float x) {
   return underflows ? 0.0f : e_r * two_n;
 }
 
-enum class Isa { kPortable, kAvx2, kAvx512 };
+using ::ibmr::Isa;  // pipeline/core/cpu_isa.h
+using ::ibmr::IsaName;
 
 // The instruction sets this build has tile loops for and this CPU runs; IBMR_ISA=portable (or
 // avx2) in the environment starts on that one where the CPU runs it (to compare them).
 bool IsaSupported(Isa isa);
 Isa ActiveIsa();
 bool SetIsa(Isa isa);  // false (and unchanged) where unsupported
-const char* IsaName(Isa isa);
 
 // Per-splat gradient sums the backward pass accumulates: d/d M^-1 row-major (9), d/d the projected
 // centre (2), d/d colour (3), d/d opacity (1); one cache line a splat (the tiles add to them in

@@ -28,17 +28,9 @@ std::vector<std::unique_ptr<Buffers>>& Pool() {
 }
 
 // IBMR_ISA=portable (or avx2) in the environment starts the process on that build where the CPU
-// runs it (to compare the builds as whole processes).
+// runs it (to compare the builds as whole processes; cpu_isa.h).
 std::atomic<Isa>& Active() {
-  static std::atomic<Isa> active{[] {
-    const char* forced = std::getenv("IBMR_ISA");
-    if (forced != nullptr) {
-      for (Isa isa : {Isa::kPortable, Isa::kAvx2, Isa::kAvx512}) {
-        if (std::strcmp(forced, IsaName(isa)) == 0 && IsaSupported(isa)) return isa;
-      }
-    }
-    return BestIsa();
-  }()};
+  static std::atomic<Isa> active{InitialIsa(IsaSupported)};
   return active;
 }
 
@@ -81,17 +73,6 @@ bool SetIsa(Isa isa) {
   if (!IsaSupported(isa)) return false;
   Active().store(isa);
   return true;
-}
-
-const char* IsaName(Isa isa) {
-  switch (isa) {
-    case Isa::kAvx2:
-      return "avx2";
-    case Isa::kAvx512:
-      return "avx512";
-    default:
-      return "portable";
-  }
 }
 
 #if IBMR_SWEEP_HAVE_AVX512

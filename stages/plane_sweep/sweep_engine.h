@@ -20,6 +20,7 @@
 #include <opencv2/core.hpp>
 #include <vector>
 
+#include "pipeline/core/cpu_isa.h"
 #include "pipeline/core/large_buffer.h"
 #include "stages/plane_sweep/cost_curve_confidence.h"
 
@@ -239,12 +240,12 @@ void ReleaseBufferPool();
 // (gathers and VPOPCNTQ for the census cost, 32 x 16-bit lanes). The best one the CPU runs is
 // chosen at start-up (IBMR_ISA=portable or avx2 in the environment forces that one, where the
 // CPU runs it); all give bit-identical volumes, winners and depth maps.
-enum class Isa { kPortable, kAvx2, kAvx512 };
+using ::ibmr::Isa;      // pipeline/core/cpu_isa.h
+using ::ibmr::IsaName;
 bool IsaSupported(Isa isa);  // the CPU runs it and this build has it
 Isa BestIsa();     // the fastest build this CPU runs
 Isa ActiveIsa();   // the build in use
 bool SetIsa(Isa isa);  // false (and no change) when the CPU cannot run `isa`
-const char* IsaName(Isa isa);
 
 // Census codes of a grey image (bit set where the neighbour is darker than the centre).
 std::vector<uint64_t> CensusTransform(const cv::Mat& gray, int radius_x, int radius_y);  // row-major
