@@ -2,6 +2,7 @@
 // page and turned into typed arrays; the cameras as frustum directions; the volume's planes.
 #include "pipeline/runner/report_viewer.h"
 
+#include "pipeline/core/gaussian_splats.h"
 #include "pipeline/core/plane_volume.h"
 
 #include <tiny_gltf.h>
@@ -360,6 +361,38 @@ nlohmann::json PointsEntry(const std::string& path, const ViewerOptions& options
   return entry;
 }
 
+// splat_fit/splats.ply: each splat's centre as a point in its view-independent colour (0.5 + C0
+// times the DC coefficients, clamped to [0, 1]); the splats nearly transparent (opacity < 0.1:
+// their share of a pixel is small) left out, then an even subsample of at most max_points.
+nlohmann::json SplatsEntry(const std::string& path, const ViewerOptions& options, ArraySink* sink) {
+  const GaussianSplats splats = ReadGaussianSplatsPly(path);
+  if (splats.size() == 0) throw IoError(path + ": no splats");
+  std::vector<size_t> visible;
+  for (size_t i = 0; i < splats.size(); ++i) {
+    const float opacity = 1.f / (1.f + std::exp(-splats.opacity_logit[i]));
+    if (opacity >= 0.1f && splats.position[i].allFinite()) visible.push_back(i);
+  }
+  if (visible.empty()) throw IoError(path + ": every splat is transparent (opacity below 0.1) or not finite");
+  std::vector<Eigen::Vector3f> positions;
+  std::vector<Color3u8> colors;
+  for (size_t k : EvenSubsample(visible.size(), static_cast<size_t>(options.max_points))) {
+    const size_t i = visible[k];
+    positions.push_back(splats.position[i]);
+    const float* sh = splats.Sh(i);  // [k][channel]: the DC terms first
+    Color3u8 color;
+    for (int c = 0; c < 3; ++c) color[c] = static_cast<uint8_t>(std::lround(255.f * std::clamp(0.5f + kShC0 * sh[c], 0.f, 1.f)));
+    colors.push_back(color);
+  }
+  nlohmann::json entry = {{"kind", "points"},
+                          {"unit", "splats of opacity 0.1 or more (of " + std::to_string(splats.size()) + ")"},
+                          {"elements", visible.size()},
+                          {"shown", positions.size()},
+                          {"decimated", positions.size() < visible.size()},
+                          {"bounds", RobustBounds(positions)}};
+  entry["parts"] = {{{"position", sink->Add(Flat(positions))}, {"color", sink->Add(Flat(colors))}}};
+  return entry;
+}
+
 // The direction the viewer orbits around: the cameras' mean image up (-y) where they agree (the
 // mean at least 0.9 long: within about 25 degrees), else, when their centres lie near a plane (a
 // ring whose cameras are rolled, as Middlebury's templeRing: its image ups turn with the ring), the plane's
@@ -517,6 +550,10 @@ ViewerData GatherViewer(const std::string& root, const nlohmann::json& scores, c
     // The order of preference: textured mesh, surfel mesh, fused points, hull.
     const auto hull = std::find_if(models.begin(), models.end(), [](const nlohmann::json& m) { return m["name"] == "hull"; });
     models.insert(hull, points);
+  }
+  if (fs::exists(workspace.Path("splat_fit/splats.ply"))) {
+    models.push_back(ModelEntry("fitted splats", "splat_fit/splats.ply", rerun("splat_fit"),
+                                [&] { return SplatsEntry(workspace.Path("splat_fit/splats.ply"), options, &sink); }));
   }
   if (fs::is_directory(workspace.Path("volume"))) {
     std::vector<fs::path> folders;

@@ -3,6 +3,8 @@
 // folder in the documented shape becomes a stack of quads at the right place.
 #include "pipeline/runner/report_viewer.h"
 
+#include "pipeline/core/gaussian_splats.h"
+
 #include "pipeline/core/plane_volume.h"
 
 #include <gtest/gtest.h>
@@ -16,6 +18,7 @@
 #include "pipeline/core/errors.h"
 #include "pipeline/core/ply_io.h"
 #include "pipeline/core/textured_mesh.h"
+#include "pipeline/runner/report_encoding.h"
 #include "tests/scratch_dir.h"
 
 namespace fs = std::filesystem;
@@ -127,6 +130,40 @@ TEST(ReportViewer, ModelsInTheirOrderDecimatedToTheBudget) {
   EXPECT_EQ(arrays.at(hull["parts"][0]["index"]).size(), 64u);     // 4 faces x 3 x 4 bytes
   EXPECT_NE(ViewerArraysHtml(data).find("<script type=\"application/octet-stream\" id=\"" + hull["parts"][0]["position"].get<std::string>()),
             std::string::npos);
+}
+
+// The fitted splats are points at their centres in their DC colour; nearly transparent ones are
+// left out and the rest subsampled to the budget.
+TEST(ReportViewer, FittedSplatsArePointsInTheirColour) {
+  const fs::path ws = ibmr_testing::ScratchDir("ibmr_viewer_splats");
+  GaussianSplats splats;
+  for (int i = 0; i < 300; ++i) {
+    splats.Add(Eigen::Vector3f(0.01f * i, 0.f, 1.f), Eigen::Vector4f(1, 0, 0, 0), Eigen::Vector2f(-4, -4),
+               i < 100 ? 0.05f : 0.8f, Eigen::Vector3f(1.f, 0.5f, 0.f));
+  }
+  WriteGaussianSplatsPly((ws / "splat_fit/splats.ply").string(), splats);
+  ViewerOptions options;
+  options.max_points = 50;
+  const ViewerData data = GatherViewer(ws.string(), nlohmann::json::object(), "photo_psnr", options);
+  const nlohmann::json* model = Model(data, "fitted splats");
+  ASSERT_NE(model, nullptr);
+  ASSERT_FALSE(model->contains("error")) << (*model)["error"];
+  EXPECT_EQ((*model)["elements"], 200);  // the opaque ones
+  EXPECT_NE((*model)["unit"].get<std::string>().find("of 300"), std::string::npos);
+  EXPECT_EQ((*model)["shown"], 50);
+  std::map<std::string, std::string> arrays(data.arrays.begin(), data.arrays.end());
+  // Every shown splat is orange (255, 127.5 rounded either way, 0).
+  const std::string colors = arrays.at((*model)["parts"][0]["color"]);
+  bool orange = false;
+  for (uint8_t green : {127, 128}) {
+    std::vector<uint8_t> expected;
+    for (int i = 0; i < 50; ++i) expected.insert(expected.end(), {255, green, 0});
+    orange |= colors == Base64(expected.data(), expected.size());
+  }
+  EXPECT_TRUE(orange);
+  // The first shown centre is the first opaque splat's (the transparent first hundred are not shown).
+  const Eigen::Vector3f first = splats.position[100];
+  EXPECT_EQ(arrays.at((*model)["parts"][0]["position"]).substr(0, 16), Base64(first.data(), 12));
 }
 
 TEST(ReportViewer, UnreadableModelsCarryTheReason) {
