@@ -1,6 +1,8 @@
 // The splat fit: Adam on the re-synthesis error with density control (see splat_fit.h).
 #include "stages/splat_fit/splat_fit.h"
 
+#include "stages/splat_fit/photometric_loss.h"
+
 #include <Eigen/Geometry>
 #include <tbb/parallel_for.h>
 #include <tbb/parallel_reduce.h>
@@ -22,6 +24,7 @@ bool SplatFitOptions::Check(std::string* error) const {
   };
   if (iterations < 1) return fail("iterations: must be >= 1");
   if (sh_degree < 0 || sh_degree > 3) return fail("sh_degree: must be in [0, 3]");
+  if (!(dssim_weight >= 0 && dssim_weight <= 1)) return fail("dssim_weight: must be in [0, 1]");
   if (sh_every < 1) return fail("sh_every: must be >= 1");
   if (!(coarse_fraction >= 0 && coarse_fraction <= 1)) return fail("coarse_fraction: must be in [0, 1]");
   for (const auto& [key, value] : std::vector<std::pair<const char*, double>>{{"lr_position", lr_position},
@@ -258,37 +261,10 @@ SplatFitResult FitSplats(const std::vector<SplatFitView>& views, const Eigen::Ve
     result.forward_seconds += std::chrono::duration<double>(Clock::now() - start).count();
     result.megapixel_steps += view.image.total() / 1e6;
     result.mean_splats += static_cast<double>(splats->size()) / options.iterations;
-    // L1: d loss / d pixel = sign(render - photo) / (3 pixels).
-    d_image.create(view.image.size(), CV_32FC3);
-    const float scale = 1.0f / (3.0f * view.image.total());
-    struct Sums {
-      double l1 = 0, se = 0;
-    };
-    const Sums sums = tbb::parallel_reduce(
-        tbb::blocked_range<int>(0, view.image.rows), Sums(),
-        [&](const tbb::blocked_range<int>& rows, Sums s) {
-          for (int y = rows.begin(); y != rows.end(); ++y) {
-            const cv::Vec3f* r = frame.image.ptr<cv::Vec3f>(y);
-            const cv::Vec3f* p = view.image.ptr<cv::Vec3f>(y);
-            cv::Vec3f* d = d_image.ptr<cv::Vec3f>(y);
-            for (int x = 0; x < view.image.cols; ++x) {
-              for (int c = 0; c < 3; ++c) {
-                const float e = r[x][c] - p[x][c];
-                d[x][c] = e > 0 ? scale : e < 0 ? -scale : 0.0f;
-                s.l1 += std::abs(e);
-                s.se += e * e;
-              }
-            }
-          }
-          return s;
-        },
-        [](Sums a, const Sums& b) {
-          a.l1 += b.l1;
-          a.se += b.se;
-          return a;
-        });
-    window_l1 += sums.l1 * scale;
-    window_se += sums.se * scale;
+    // (1 - lambda) L1 + lambda D-SSIM and its gradient (photometric_loss.h).
+    const PhotometricLoss loss = PhotometricLossAndGradient(frame.image, view.image, options.dssim_weight, &d_image);
+    window_l1 += loss.l1;
+    window_se += loss.se;
     ++window;
     start = Clock::now();
     gradients.Reset(*splats);

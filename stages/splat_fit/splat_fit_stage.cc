@@ -101,6 +101,8 @@ class SplatFitStage : public Stage {
         {"max_scale_fraction", ParamType::kDouble, num(d.max_scale_fraction), "Splats wider than this fraction of the extent are removed, (0, 10]"},
         {"max_splats", ParamType::kInt, std::to_string(d.max_splats), "Cap on the splat count, >= 1"},
         {"seed", ParamType::kInt, std::to_string(d.seed), "View order and the subset of initial particles, >= 0"},
+        {"dssim_weight", ParamType::kDouble, num(d.dssim_weight),
+         "Weight of the structural term: (1 - w) L1 + w (1 - SSIM), 3DGS's 0.2; [0, 1]"},
     };
   }
 
@@ -244,6 +246,7 @@ class SplatFitStage : public Stage {
     o.max_scale_fraction = params.Double("max_scale_fraction");
     o.max_splats = static_cast<int>(std::clamp<int64_t>(params.Int("max_splats"), -1, 1 << 30));
     o.seed = params.Int("seed");
+    o.dssim_weight = params.Double("dssim_weight");
     return o;
   }
 

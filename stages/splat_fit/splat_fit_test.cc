@@ -3,6 +3,7 @@
 // lowers the objective; density control keeps the count within its cap, leaves no NaN, and a split
 // changes the image little against removing the splat; bad options and inputs are refused.
 #include "stages/splat_fit/splat_fit.h"
+#include "stages/splat_fit/photometric_loss.h"
 
 #include <Eigen/Geometry>
 #include <gtest/gtest.h>
@@ -306,6 +307,44 @@ TEST(SplatFitStage, RefusesWhatItCannotFitNamingTheKey) {
     EXPECT_EQ(written.sh_degree, 3);
     EXPECT_TRUE(std::filesystem::exists(ws.root / "splat_fit/curve.json"));
   }
+}
+
+// The loss's gradient with respect to the render against central differences, with the
+// structural term on (the L1 part's kinks avoided: no pixel within the step of its photo's value).
+TEST(PhotometricLoss, GradientMatchesCentralDifferences) {
+  cv::Mat render(9, 12, CV_32FC3), photo(9, 12, CV_32FC3);
+  cv::RNG rng(4);
+  rng.fill(render, cv::RNG::UNIFORM, 0.1, 0.9);
+  rng.fill(photo, cv::RNG::UNIFORM, 0.1, 0.9);
+  cv::Mat gradient, scratch;
+  const PhotometricLoss at = PhotometricLossAndGradient(render, photo, 0.2, &gradient);
+  EXPECT_GT(at.ssim, -1.0);
+  EXPECT_LT(at.ssim, 1.0);
+  EXPECT_NEAR(at.loss, 0.8 * at.l1 + 0.2 * (1 - at.ssim), 1e-12);
+  const float h = 1e-3f;
+  double worst = 0, largest = 0;
+  for (int y = 0; y < render.rows; ++y) {
+    for (int x = 0; x < render.cols; ++x) {
+      for (int c = 0; c < 3; ++c) {
+        float& v = render.at<cv::Vec3f>(y, x)[c];
+        if (std::abs(v - photo.at<cv::Vec3f>(y, x)[c]) < 2 * h) continue;
+        const float keep = v;
+        v = keep + h;
+        const double up = PhotometricLossAndGradient(render, photo, 0.2, &scratch).loss;
+        v = keep - h;
+        const double down = PhotometricLossAndGradient(render, photo, 0.2, &scratch).loss;
+        v = keep;
+        const double numeric = (up - down) / (2 * h);
+        worst = std::max(worst, std::abs(numeric - gradient.at<cv::Vec3f>(y, x)[c]));
+        largest = std::max(largest, std::abs(numeric));
+      }
+    }
+  }
+  EXPECT_LT(worst, 0.02 * largest) << "largest " << largest;
+  // Weight 0: the L1 gradient alone, SSIM not computed.
+  const PhotometricLoss l1 = PhotometricLossAndGradient(render, photo, 0.0, &gradient);
+  EXPECT_EQ(l1.ssim, 1.0);
+  EXPECT_NEAR(std::abs(gradient.at<cv::Vec3f>(0, 0)[0]), 1.0 / (3.0 * render.total()), 1e-9);
 }
 
 }  // namespace
