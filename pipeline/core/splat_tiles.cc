@@ -134,7 +134,7 @@ inline void EvaluateRow(const SplatInTile& s, const ViewConstants& view, const f
     const float r2 = u * u + v * v;
     // Not evaluated behind the plane's horizon (w2 <= 0; u, v may be inf or NaN there: NaN fails
     // the comparison) nor past the cut-off. (Bitwise & on the comparisons, not &&: no branch.)
-    const float disc_exponent = (w2 > 0.0f) & (r2 < view.cutoff) ? 0.5f * r2 : kNotEvaluated;
+    const float disc_exponent = ((w2 > 0.0f) & (r2 < view.cutoff)) ? 0.5f * r2 : kNotEvaluated;
     const float dx = x - s.cx;
     const float d2 = (dx * dx + dy2) * view.inv_two_sigma2;
     const float floor_exponent = d2 < view.half_cutoff ? d2 : kNotEvaluated;
@@ -239,7 +239,7 @@ void ForwardTile(SplatFrame& frame, int tile) {
         // conditional stores, which the baseline instruction set cannot vectorise.
         const float hit_depth = falloff.object[l] != 0 ? falloff.inv_w2[l] : s.view_depth;
         const float depth_before = row_depth[l];
-        row_depth[l] = depth_before + (applied & (depth_before == 0.0f) & (raw >= 0.5f) ? hit_depth : 0.0f);
+        row_depth[l] = depth_before + ((applied & (depth_before == 0.0f) & (raw >= 0.5f)) ? hit_depth : 0.0f);
         row_transmit[l] = t * (applied ? 1.0f - alpha : 1.0f);
         row_walked[l] = std::max(row_walked[l], applied ? index : 0);
         row_live_lanes[l] = std::min(row_live_lanes[l], ends ? 0 : 1);
