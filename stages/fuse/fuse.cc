@@ -3,6 +3,7 @@
 
 #include "pipeline/core/depth_normals.h"
 #include "pipeline/core/point_index.h"
+#include "pipeline/core/residual_falloff.h"
 
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
@@ -91,8 +92,7 @@ bool FuseOptions::Check(std::string* error) const {
 }
 
 std::vector<float> SurfaceFactors(const std::vector<Eigen::Vector3f>& positions, int neighbours, double scale) {
-  std::vector<float> factors(positions.size(), 1.f);
-  if (neighbours < 4 || positions.size() < static_cast<size_t>(neighbours) + 1) return factors;
+  if (neighbours < 4 || positions.size() < static_cast<size_t>(neighbours) + 1) return std::vector<float>(positions.size(), 1.f);
   const PointIndex index(positions);
   std::vector<double> residual(positions.size());
   tbb::parallel_for(tbb::blocked_range<size_t>(0, positions.size(), 256), [&](const tbb::blocked_range<size_t>& range) {
@@ -111,17 +111,10 @@ std::vector<float> SurfaceFactors(const std::vector<Eigen::Vector3f>& positions,
       residual[i] = std::abs(solver.eigenvectors().col(0).dot(positions[i].cast<double>() - centre));
     }
   });
-  std::vector<double> sorted = residual;
-  std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
   Eigen::AlignedBox3f box;
   for (const Eigen::Vector3f& p : positions) box.extend(p);
   const double floor = 1e-9 * std::max(1e-30, static_cast<double>(box.diagonal().norm()));
-  const double sigma = scale * std::max(floor, sorted[sorted.size() / 2]);
-  for (size_t i = 0; i < positions.size(); ++i) {
-    const double t = residual[i] / sigma;
-    factors[i] = static_cast<float>(std::exp(-0.5 * t * t));
-  }
-  return factors;
+  return ResidualFalloff(residual, scale, floor, 0.0);
 }
 
 PointFuser::PointFuser(const FuseOptions& options) : state_(std::make_unique<State>()) { state_->options = options; }

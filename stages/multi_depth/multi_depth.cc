@@ -4,6 +4,7 @@
 
 #include "pipeline/core/depth_normals.h"
 #include "pipeline/core/median.h"
+#include "pipeline/core/residual_falloff.h"
 #include "stages/multi_depth/geometric_consistency.h"
 
 #include <Eigen/Geometry>
@@ -436,7 +437,7 @@ void ApplySurfaceFactor(const DepthMap& depth, int radius, double scale, double 
   // Per pixel, the least-squares plane a + b dx + c dy through the inverse depths of the window's
   // pixels with a depth (inverse depth is affine in the image over any scene plane), and the
   // pixel's relative distance to it.
-  std::vector<float> residual(static_cast<size_t>(w) * h, -1.f);
+  std::vector<double> residual(static_cast<size_t>(w) * h, -1.0);
   tbb::parallel_for(tbb::blocked_range<int>(0, h, 8), [&](const tbb::blocked_range<int>& rows) {
     for (int y = rows.begin(); y < rows.end(); ++y) {
       for (int x = 0; x < w; ++x) {
@@ -461,26 +462,14 @@ void ApplySurfaceFactor(const DepthMap& depth, int radius, double scale, double 
         }
         if (n < 6) continue;  // too few to judge: the factor stays 1
         const Eigen::Vector3d plane = normal_matrix.ldlt().solve(rhs);
+        // (kept in float, as measured: the factor's figures in multi_depth.h)
         residual[static_cast<size_t>(y) * w + x] = static_cast<float>(std::abs(1.0 / z - plane(0)) * z);
       }
     }
   });
-  std::vector<float> judged;
-  for (float r : residual) {
-    if (r >= 0) judged.push_back(r);
-  }
-  if (judged.empty()) return;
-  std::nth_element(judged.begin(), judged.begin() + judged.size() / 2, judged.end());
   // At least 1e-4 (relative depth): a map as smooth as float rounding has no scatter to rank.
-  const double sigma = scale * std::max(1e-4, static_cast<double>(judged[judged.size() / 2]));
-  for (int y = 0; y < h; ++y) {
-    for (int x = 0; x < w; ++x) {
-      const float r = residual[static_cast<size_t>(y) * w + x];
-      if (r < 0) continue;
-      const double t = r / sigma;
-      confidence->At(x, y) *= static_cast<float>(floor + (1 - floor) * std::exp(-0.5 * t * t));
-    }
-  }
+  const std::vector<float> factors = ResidualFalloff(residual, scale, 1e-4, floor);
+  for (size_t i = 0; i < factors.size(); ++i) confidence->data[i] *= factors[i];
 }
 
 MultiDepthResult MakeDepthConsistent(const DepthView& key, const std::vector<const DepthView*>& neighbors,
