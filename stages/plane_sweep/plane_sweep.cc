@@ -137,6 +137,7 @@ bool PlaneSweepOptions::Check(std::string* error) const {
     return Fail(error, "max_depth", "must be > min_depth (or -1)", max_depth);
   if (max_view_memory_mb < 0) return Fail(error, "max_view_memory_mb", "must be >= 0 (0: unlimited)", max_view_memory_mb);
   if (!(depth_margin >= 0 && depth_margin <= 2)) return Fail(error, "depth_margin", "must be in [0, 2]", depth_margin);
+  if (!(near_quantile >= 0 && near_quantile <= 0.5)) return Fail(error, "near_quantile", "must be in [0, 0.5]", near_quantile);
   if (!(min_angle_deg >= 0 && min_angle_deg < max_angle_deg))
     return Fail(error, "min_angle_deg", "must be in [0, max_angle_deg)", min_angle_deg);
   if (!(max_angle_deg <= 180)) return Fail(error, "max_angle_deg", "must be <= 180", max_angle_deg);
@@ -506,7 +507,8 @@ std::vector<int> SelectNeighbors(const SparseModel& model, const std::vector<int
   return order;
 }
 
-bool DepthBoundsFromPoints(const SparseModel& model, const Image& image, double margin, double* near, double* far) {
+bool DepthBoundsFromPoints(const SparseModel& model, const Image& image, double margin, double near_quantile, double* near,
+                           double* far) {
   const Camera& camera = model.CameraOf(image);
   std::vector<double> observed, projected;
   for (const auto& [id, point] : model.points) {
@@ -521,7 +523,8 @@ bool DepthBoundsFromPoints(const SparseModel& model, const Image& image, double 
   std::vector<double>& z = observed.size() >= 8 ? observed : projected;
   if (z.size() < 8) return false;
   std::sort(z.begin(), z.end());
-  const double lo = z[static_cast<size_t>(0.02 * (z.size() - 1))], hi = z[static_cast<size_t>(0.98 * (z.size() - 1))];
+  const double lo = z[static_cast<size_t>(near_quantile * (z.size() - 1))];
+  const double hi = z[static_cast<size_t>(0.98 * (z.size() - 1))];
   *near = lo * (1.0 - std::min(0.9, margin));
   *far = hi * (1.0 + margin);
   return true;

@@ -149,6 +149,9 @@ class PlaneSweepStage : public Stage {
         {"max_view_memory_mb", ParamType::kInt, s(d.max_view_memory_mb),
          "Memory of one view's sweep, MB; larger images are swept in bands of rows (0: unlimited)"},
         {"depth_margin", ParamType::kDouble, s(d.depth_margin), "Relative margin around sparse-point, box or per-pixel hull depths"},
+        {"near_quantile", ParamType::kDouble, s(d.near_quantile),
+         "Quantile of a view's sparse-point depths that sets its near bound, [0, 0.5]; "
+         "forward-facing captures: 0.001 (LLFF's), so that thin occluders near the cameras are swept"},
         {"hull_ranges", ParamType::kBool, "true",
          "With hull/hull.ply: each pixel the hull covers sweeps only the planes from the hull's nearest surface "
          "(- depth_margin) to the view's far bound; pixels outside the hull sweep every plane"},
@@ -410,6 +413,7 @@ class PlaneSweepStage : public Stage {
     o.min_depth = p.Double("min_depth");
     o.max_depth = p.Double("max_depth");
     o.depth_margin = p.Double("depth_margin");
+    o.near_quantile = p.Double("near_quantile");
     if (p.Has("max_view_memory_mb")) o.max_view_memory_mb = static_cast<int>(p.Int("max_view_memory_mb"));
     o.min_angle_deg = p.Double("min_angle_deg");
     o.max_angle_deg = p.Double("max_angle_deg");
@@ -468,7 +472,7 @@ class PlaneSweepStage : public Stage {
       *far = b["far"].get<double>() * (1 + o.depth_margin);
       return "capture_bounds";
     }
-    if (DepthBoundsFromPoints(model, image, o.depth_margin, near, far)) return "sparse_points";
+    if (DepthBoundsFromPoints(model, image, o.depth_margin, o.near_quantile, near, far)) return "sparse_points";
     const std::vector<double> box = params.DoubleList("bounding_box");
     if (box.size() == 6) {
       double lo = 1e300, hi = -1e300;

@@ -95,6 +95,39 @@ TEST(PlaneSweepOptions, InvalidRangesNameTheKey) {
   o.min_depth = 2;
   o.max_depth = 1;
   EXPECT_EQ(key_of(o), "max_depth");
+  o = PlaneSweepOptions();
+  o.near_quantile = 0.6;
+  EXPECT_EQ(key_of(o), "near_quantile");
+}
+
+// A view whose sparse points are 2 on a thin pole 1 unit away and 800 on surfaces 4-10 units away
+// (synth's forward-facing scene in small): the default 2% quantile puts the near bound behind the
+// pole (it would be swept by no plane); LLFF's 0.1 percentile keeps it in front.
+TEST(DepthBoundsFromPoints, TheNearQuantileDecidesWhetherAThinNearOccluderIsSwept) {
+  SparseModel model;
+  Camera camera = Camera::Pinhole(100, 100, 80, 80, 50, 50);
+  camera.camera_id = 1;
+  model.cameras[1] = camera;
+  Image image;
+  image.image_id = 1;
+  image.camera_id = 1;
+  image.name = "view.png";
+  model.images[1] = image;  // identity pose: depth is z
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<double> uniform(0, 1);
+  for (int i = 0; i < 802; ++i) {
+    Point3D point;
+    const double z = i < 2 ? 1.0 : 4.0 + 6.0 * uniform(rng);
+    point.xyz = Eigen::Vector3d((uniform(rng) - 0.5) * z, (uniform(rng) - 0.5) * z, z);
+    point.track.push_back({1, i});
+    model.points[i + 1] = point;
+  }
+  double near = 0, far = 0;
+  ASSERT_TRUE(DepthBoundsFromPoints(model, model.images[1], 0.1, 0.02, &near, &far));
+  EXPECT_GT(near, 3.5);
+  EXPECT_NEAR(far, 1.1 * 9.88, 0.3);  // the 98% quantile of 4 + 6 U(0, 1), widened by 10%
+  ASSERT_TRUE(DepthBoundsFromPoints(model, model.images[1], 0.1, 0.001, &near, &far));
+  EXPECT_NEAR(near, 0.9, 1e-9);
 }
 
 // Bad arguments from the C++ API are errors, not reads outside a volume of no disparities.
