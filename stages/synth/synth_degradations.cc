@@ -22,6 +22,7 @@ constexpr std::pair<SynthDegradation, const char*> kNames[] = {
     {SynthDegradation::kImageNoise, "image_noise"},
     {SynthDegradation::kExposure, "exposure"},
     {SynthDegradation::kPoseOutliers, "pose_outliers"},
+    {SynthDegradation::kHandHeld, "hand_held"},
 };
 
 // A smooth value in [0, 1] varying over about 1 / frequency scene units (sum of sines).
@@ -80,18 +81,33 @@ Eigen::Vector3d Degradation::Variation(const Eigen::Vector3d& clean, const Eigen
 
 double Degradation::Highlight(const Eigen::Vector3d& normal, const Eigen::Vector3d& light,
                               const Eigen::Vector3d& to_eye) const {
-  if (!Active(SynthDegradation::kSpecular)) return 0.0;
+  const double scale = Active(SynthDegradation::kSpecular) ? 1.0 : Active(SynthDegradation::kHandHeld) ? 0.5 : 0.0;
+  if (scale == 0.0) return 0.0;
   const Eigen::Vector3d reflected = 2.0 * normal.dot(light) * normal - light;
-  return strength * std::pow(std::max(0.0, reflected.dot(to_eye.normalized())), 20.0);
+  return scale * strength * std::pow(std::max(0.0, reflected.dot(to_eye.normalized())), 20.0);
 }
 
 double Degradation::Gain(int index) const {
-  if (!Active(SynthDegradation::kExposure)) return 1.0;
+  const double range = Active(SynthDegradation::kExposure) ? 0.5 : Active(SynthDegradation::kHandHeld) ? 0.15 : 0.0;
+  if (range == 0.0) return 1.0;
   const double u = static_cast<double>(synth_internal::Mix64(seed ^ (0xE4B05ull + static_cast<uint64_t>(index))) >> 11) * 0x1.0p-53;
-  return 1.0 + 0.5 * strength * (2.0 * u - 1.0);
+  return 1.0 + range * strength * (2.0 * u - 1.0);
 }
 
-double Degradation::NoiseSigma() const { return Active(SynthDegradation::kImageNoise) ? 24.0 * strength : 0.0; }
+double Degradation::NoiseSigma() const {
+  if (Active(SynthDegradation::kImageNoise)) return 24.0 * strength;
+  if (Active(SynthDegradation::kHandHeld)) return 3.0 * strength;
+  return 0.0;
+}
+
+Eigen::Matrix3d Degradation::AxisTurn(int index) const {
+  if (!Active(SynthDegradation::kHandHeld)) return Eigen::Matrix3d::Identity();
+  std::mt19937_64 rng(synth_internal::Mix64(seed ^ (0xA715ull + static_cast<uint64_t>(index))));
+  std::normal_distribution<double> normal(0.0, 1.0);
+  const Eigen::Vector3d axis = Eigen::Vector3d(normal(rng), normal(rng), normal(rng)).normalized();
+  const double angle = strength * 3.0 * M_PI / 180.0 * synth_internal::Uniform01(&rng);
+  return Eigen::AngleAxisd(angle, axis).toRotationMatrix();
+}
 
 void Degradation::PerturbCameras(SparseModel* model) const {
   if (Active(SynthDegradation::kPoseOutliers)) {
@@ -113,14 +129,17 @@ void Degradation::PerturbCameras(SparseModel* model) const {
     }
     return;
   }
-  if (!Active(SynthDegradation::kCameraNoise)) return;
+  const bool hand_held = Active(SynthDegradation::kHandHeld);
+  if (!Active(SynthDegradation::kCameraNoise) && !hand_held) return;
+  // hand_held: a tenth of camera_noise's pose error at the same strength, the focal left exact.
+  const double amount = hand_held ? 0.1 * strength : strength;
   std::mt19937_64 rng(synth_internal::Mix64(seed ^ 0xCA3E7A5ull));
   std::normal_distribution<double> normal(0.0, 1.0);
   double scale = 0;  // the ring's radius: mean camera distance from the cameras' centroid
   Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
   for (const auto& [id, image] : model->images) centroid += image.Center() / model->images.size();
   for (const auto& [id, image] : model->images) scale += (image.Center() - centroid).norm() / model->images.size();
-  const double rotation_sigma = strength * 1.0 * M_PI / 180.0, position_sigma = strength * 0.01 * scale;
+  const double rotation_sigma = amount * 1.0 * M_PI / 180.0, position_sigma = amount * 0.01 * scale;
   for (auto& [id, image] : model->images) {
     const Eigen::Vector3d axis(normal(rng), normal(rng), normal(rng));
     const Eigen::Matrix3d turn = Eigen::AngleAxisd(rotation_sigma * axis.norm(), axis.normalized()).toRotationMatrix();
@@ -128,6 +147,7 @@ void Degradation::PerturbCameras(SparseModel* model) const {
     const Eigen::Matrix3d rotation = turn * image.cam_from_world.R();
     image.cam_from_world = Rigid3d(rotation, -rotation * center);
   }
+  if (hand_held) return;
   for (auto& [id, camera] : model->cameras) {
     const double gain = 1.0 + strength * 0.02 * normal(rng);
     camera.params.at(0) *= gain;  // PINHOLE fx, fy

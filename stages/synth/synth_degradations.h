@@ -18,6 +18,14 @@
 //                 spread of the good views hides the bad ones.)
 //   image_noise   Gaussian noise up to sigma 24 levels, added to `noise`
 //   exposure      each view's gain up to +-50% (uniform per view), as an auto-exposing camera
+//   hand_held     a hand-held capture's ills together, for the forward-facing scene (whose figures
+//                 on the clean scene, parallel axes and exact poses, do not carry over to real
+//                 photos): each true camera's axis turned by up to 3 degrees (AxisTurn), the
+//                 written cameras off by 0.1 degree and 0.1% of the grid's spread (sigmas, about
+//                 1.5 px at 1008 wide), gains within +-15%, a highlight up to half the diffuse
+//                 light, sensor noise of sigma 3 levels, and (synth_scenes.cc) a plant of thin
+//                 blades, 2 cm wide tapering to 5 mm, in front of the near object; all times the
+//                 strength.
 //
 // The truth (ground_truth/: mesh, depth, masks) stays the clean scene's; the true mesh's vertex
 // colours carry the albedo changes (textureless, repetitive) but no highlight.
@@ -32,7 +40,7 @@
 
 namespace ibmr {
 
-enum class SynthDegradation { kNone, kTextureless, kSpecular, kRepetitive, kFewViews, kCameraNoise, kImageNoise, kExposure, kPoseOutliers };
+enum class SynthDegradation { kNone, kTextureless, kSpecular, kRepetitive, kFewViews, kCameraNoise, kImageNoise, kExposure, kPoseOutliers, kHandHeld };
 
 // "none", "textureless", ... -> the enum; false for an unknown name.
 bool SynthDegradationFromName(const std::string& name, SynthDegradation* degradation);
@@ -55,7 +63,10 @@ struct Degradation {
   // Image gain of view `index`, and the added noise sigma (8-bit levels).
   double Gain(int index) const;
   double NoiseSigma() const;
-  // Moves the cameras of `model` (camera_noise, pose_outliers; deterministic).
+  // The turn of view `index`'s true camera (hand_held; identity otherwise), applied on the camera's
+  // side: cam_from_world's rotation becomes AxisTurn * R.
+  Eigen::Matrix3d AxisTurn(int index) const;
+  // Moves the cameras of `model` (camera_noise, pose_outliers, hand_held; deterministic).
   void PerturbCameras(SparseModel* model) const;
 };
 

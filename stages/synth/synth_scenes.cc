@@ -285,9 +285,52 @@ void BuildRoomGeometry(const SynthOptions& options, SynthScene* scene) {
   }
 }
 
+// A thin straight blade from `base` to `tip`: a closed box `width` wide at the base tapering to a
+// quarter of it at the tip, `thickness` thick, its flat side facing along `facing` (made
+// perpendicular to the blade).
+void AppendBlade(const Eigen::Vector3d& base, const Eigen::Vector3d& tip, const Eigen::Vector3d& facing, double width,
+                 double thickness, int part, SynthScene* scene) {
+  const Eigen::Vector3d along = (tip - base).normalized();
+  const Eigen::Vector3d normal = (facing - facing.dot(along) * along).normalized();
+  const Eigen::Vector3d side = along.cross(normal);
+  std::vector<Eigen::Vector3d> positions;
+  for (int end = 0; end < 2; ++end) {
+    const Eigen::Vector3d centre = end == 0 ? base : tip;
+    const double half_width = 0.5 * width * (end == 0 ? 1.0 : 0.25);
+    for (const double s : {-1.0, 1.0}) {
+      for (const double t : {-1.0, 1.0}) positions.push_back(centre + s * half_width * side + t * 0.5 * thickness * normal);
+    }
+  }
+  const Eigen::Vector3d middle = 0.5 * (base + tip);
+  const int quads[6][4] = {{0, 1, 3, 2}, {4, 5, 7, 6}, {0, 1, 5, 4}, {2, 3, 7, 6}, {0, 2, 6, 4}, {1, 3, 7, 5}};
+  std::vector<Eigen::Vector3i> faces;
+  for (const auto& q : quads) {
+    const Eigen::Vector3d outward = 0.25 * (positions[q[0]] + positions[q[1]] + positions[q[2]] + positions[q[3]]) - middle;
+    faces.push_back(Oriented({q[0], q[1], q[2]}, positions, outward));
+    faces.push_back(Oriented({q[0], q[2], q[3]}, positions, outward));
+  }
+  AppendPart(positions, faces, std::vector<int>(faces.size(), part), scene);
+}
+
 void BuildForwardFacingGeometry(const SynthOptions& options, SynthScene* scene) {
   std::mt19937_64 rng(Mix64(static_cast<uint64_t>(options.seed) ^ 0x500Dull));
   AppendRoomContents(options, &rng, scene);
+  if (scene->degradation.Active(SynthDegradation::kHandHeld)) {
+    // Fine structure (hand_held): a plant of 14 blades fanning up from the floor in front of the
+    // near object, 2 cm wide at the base (6-7 px at 1008 wide and 2.6 m away), 5 mm at the tip.
+    std::mt19937_64 plant_rng(Mix64(static_cast<uint64_t>(options.seed) ^ 0xF80Dull));
+    const int plant = AddPart("fronds", true, false, {0.6, 1.0, 0.5}, scene);
+    const Eigen::Vector3d root(0.1, 2.6, 0.0);
+    for (int i = 0; i < 14; ++i) {
+      const double lean = (static_cast<double>(i) / 13.0 - 0.5) * 100.0 * kPi / 180.0 + UniformIn(-0.08, 0.08, &plant_rng);
+      const double depth_lean = UniformIn(-0.35, 0.35, &plant_rng);
+      const double length = UniformIn(0.9, 1.4, &plant_rng);
+      const Eigen::Vector3d direction = Eigen::Vector3d(std::sin(lean), depth_lean, std::cos(lean)).normalized();
+      const Eigen::Vector3d facing(UniformIn(-1, 1, &plant_rng), -1.0, UniformIn(-0.5, 0.5, &plant_rng));
+      AppendBlade(root + Eigen::Vector3d(UniformIn(-0.05, 0.05, &plant_rng), UniformIn(-0.05, 0.05, &plant_rng), 0.0),
+                  root + length * direction, facing, 0.02, 0.004, plant, scene);
+    }
+  }
   // Thin occluders near the cameras: two poles and a rail, 3-6 cm thick, in front of everything.
   const int poles = AddPart("thin_occluders", true, false, {0.95, 0.95, 0.6}, scene);
   const std::array<int, 6> all = {poles, poles, poles, poles, poles, poles};
@@ -305,7 +348,9 @@ void BuildForwardFacingGeometry(const SynthOptions& options, SynthScene* scene) 
     const double x = columns > 1 ? options.baseline * (static_cast<double>(c) / (columns - 1) - 0.5) : 0.0;
     const double z = rows > 1 ? 0.75 * options.baseline * (0.5 - static_cast<double>(r) / (rows - 1)) : 0.0;
     const Eigen::Vector3d eye = centre + Eigen::Vector3d(x, 0, z);
-    AddView(i, options.views, LookAt(eye, eye + forward, Eigen::Vector3d::UnitZ()), scene);
+    const Rigid3d parallel = LookAt(eye, eye + forward, Eigen::Vector3d::UnitZ());
+    const Eigen::Matrix3d rotation = scene->degradation.AxisTurn(i) * parallel.R();  // hand_held: axes not parallel
+    AddView(i, options.views, Rigid3d(rotation, -rotation * eye), scene);
   }
 }
 

@@ -132,7 +132,8 @@ class SynthStage : public Stage {
          "cycles per scene unit of the coarsest texture octave, in (0, 64]", {}},
         {"degradation", ParamType::kString, "none",
          "for the stability matrix: none, textureless, specular, repetitive, few_views, camera_noise, image_noise, "
-         "exposure or pose_outliers (stages/synth/synth_degradations.h)",
+         "exposure, pose_outliers, or hand_held (forward_facing made hard: turned axes, pose noise, gains, "
+         "highlights, sensor noise, fronds; stages/synth/synth_degradations.h)",
          {}},
         {"strength", ParamType::kDouble, "0", "of the degradation: 0 clean, 1 a hard case, in [0, 1]", {}},
     };
@@ -189,7 +190,7 @@ class SynthStage : public Stage {
     start = std::chrono::steady_clock::now();
     SparseModel model = BuildSynthSparseModel(scene, options, context.progress);
     const SparseModel true_model = model;
-    scene.degradation.PerturbCameras(&model);  // camera_noise, pose_outliers: the images keep the true cameras
+    scene.degradation.PerturbCameras(&model);  // camera_noise, pose_outliers, hand_held: the images keep the true cameras
     WriteSparseModelText(workspace.SparseDir(), model);
     nlohmann::json pose_error = {{"views", nlohmann::json::object()}};
     for (const auto& [name, px] : PoseDisplacementsPx(true_model, model)) pose_error["views"][name] = {{"displacement_px", px}};
