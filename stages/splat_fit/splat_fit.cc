@@ -25,6 +25,7 @@ bool SplatFitOptions::Check(std::string* error) const {
   if (iterations < 1) return fail("iterations: must be >= 1");
   if (sh_degree < 0 || sh_degree > 3) return fail("sh_degree: must be in [0, 3]");
   if (!(dssim_weight >= 0 && dssim_weight <= 1)) return fail("dssim_weight: must be in [0, 1]");
+  if (!(lr_gain >= 0 && lr_gain < 1)) return fail("lr_gain: must be in [0, 1)");
   if (sh_every < 1) return fail("sh_every: must be >= 1");
   if (!(coarse_fraction >= 0 && coarse_fraction <= 1)) return fail("coarse_fraction: must be in [0, 1]");
   for (const auto& [key, value] : std::vector<std::pair<const char*, double>>{{"lr_position", lr_position},
@@ -237,7 +238,13 @@ SplatFitResult FitSplats(const std::vector<SplatFitView>& views, const Eigen::Ve
   std::vector<size_t> order;
   SplatFrame frame;
   SplatGradients gradients;
-  cv::Mat d_image;
+  cv::Mat d_image, gained;
+  // Per-view log gains (options.view_gains) and their Adam state: 3 floats a view.
+  // Each view's Adam counts its own steps (a view's gain moves only when it is drawn).
+  std::vector<float> log_gain(options.view_gains ? views.size() * 3 : 0, 0.0f), d_log_gain(3, 0.0f);
+  std::vector<Adam> gain_adam(options.view_gains ? views.size() : 0);
+  std::vector<int> gain_steps(gain_adam.size(), 0);
+  for (Adam& a : gain_adam) a.Resize(3);
   double window_l1 = 0, window_se = 0;
   int window = 0;
   int advanced = 0;  // steps reported to `progress`
@@ -261,8 +268,22 @@ SplatFitResult FitSplats(const std::vector<SplatFitView>& views, const Eigen::Ve
     result.forward_seconds += std::chrono::duration<double>(Clock::now() - start).count();
     result.megapixel_steps += view.image.total() / 1e6;
     result.mean_splats += static_cast<double>(splats->size()) / options.iterations;
-    // (1 - lambda) L1 + lambda D-SSIM and its gradient (photometric_loss.h).
-    const PhotometricLoss loss = PhotometricLossAndGradient(frame.image, view.image, options.dssim_weight, &d_image);
+    // (1 - lambda) L1 + lambda D-SSIM and its gradient (photometric_loss.h), of the drawn image
+    // times the view's gains where they are fitted: d loss / d drawn = gain * d loss / d gained,
+    // d loss / d log gain = sum over the pixels of d loss / d gained * gained.
+    const cv::Mat* drawn = &frame.image;
+    Eigen::Vector3f gain = Eigen::Vector3f::Ones();
+    if (options.view_gains) {
+      for (int c = 0; c < 3; ++c) gain[c] = std::exp(log_gain[index * 3 + c]);
+      cv::multiply(frame.image, cv::Scalar(gain[0], gain[1], gain[2]), gained);
+      drawn = &gained;
+    }
+    const PhotometricLoss loss = PhotometricLossAndGradient(*drawn, view.image, options.dssim_weight, &d_image);
+    if (options.view_gains) {
+      const cv::Scalar d_gain = cv::sum(d_image.mul(gained));
+      for (int c = 0; c < 3; ++c) d_log_gain[c] = static_cast<float>(d_gain[c]);
+      cv::multiply(d_image, cv::Scalar(gain[0], gain[1], gain[2]), d_image);
+    }
     window_l1 += loss.l1;
     window_se += loss.se;
     ++window;
@@ -287,6 +308,15 @@ SplatFitResult FitSplats(const std::vector<SplatFitView>& views, const Eigen::Ve
     // SH: the DC coefficients (the first 3 of each splat's) at their step, the rest at theirs.
     adam.sh.Step(splats->sh.data(), gradients.sh.data(), splats->sh.size(), static_cast<float>(options.lr_sh_dc), step,
                  splats->ShCount() * 3, 3, static_cast<float>(options.lr_sh_rest));
+    if (options.view_gains) {
+      gain_adam[index].Step(&log_gain[index * 3], d_log_gain.data(), 3, static_cast<float>(options.lr_gain), ++gain_steps[index]);
+      // Gains and colours trade against each other: the views' mean log gain is held at 0.
+      for (int c = 0; c < 3; ++c) {
+        float mean = 0;
+        for (size_t v = 0; v < views.size(); ++v) mean += log_gain[v * 3 + c] / views.size();
+        for (size_t v = 0; v < views.size(); ++v) log_gain[v * 3 + c] -= mean;
+      }
+    }
     // Density control.
     if (step >= options.densify_from && step <= densify_until && step % options.densify_every == 0) {
       std::vector<float> mean(splats->size(), 0.0f);
@@ -320,6 +350,9 @@ SplatFitResult FitSplats(const std::vector<SplatFitView>& views, const Eigen::Ve
     }
   }
   progress->End();
+  for (size_t v = 0; v < log_gain.size() / 3; ++v) {
+    result.view_gains.emplace_back(std::exp(log_gain[v * 3]), std::exp(log_gain[v * 3 + 1]), std::exp(log_gain[v * 3 + 2]));
+  }
   if (const std::string problem = splats->Validate(); !problem.empty()) {
     throw std::runtime_error("the splat fit diverged: " + problem + "; lower the step sizes (splat_fit.lr_*)");
   }

@@ -103,6 +103,10 @@ class SplatFitStage : public Stage {
         {"seed", ParamType::kInt, std::to_string(d.seed), "View order and the subset of initial particles, >= 0"},
         {"dssim_weight", ParamType::kDouble, num(d.dssim_weight),
          "Weight of the structural term: (1 - w) L1 + w (1 - SSIM), 3DGS's 0.2; [0, 1]"},
+        {"view_gains", ParamType::kBool, d.view_gains ? "true" : "false",
+         "Fit a per-channel gain per training view beside the splats (photos whose exposure differs); held-out views are "
+         "drawn at the views' mean gain"},
+        {"lr_gain", ParamType::kDouble, num(d.lr_gain), "Log-gain step (view_gains), [0, 1)"},
     };
   }
 
@@ -211,6 +215,17 @@ class SplatFitStage : public Stage {
       m["final_training_l1"] = result.curve.back().l1;
       m["final_training_psnr"] = result.curve.back().psnr;
     }
+    if (!result.view_gains.empty()) {
+      nlohmann::json gains = nlohmann::json::object();
+      double spread = 0;
+      for (size_t i = 0; i < views.size(); ++i) {
+        const Eigen::Vector3f& g = result.view_gains[i];
+        gains[views[i].name] = {g[0], g[1], g[2]};
+        spread = std::max(spread, static_cast<double>((g.array().log().abs()).maxCoeff()));
+      }
+      m["view_gains"] = gains;  // RGB, per training view
+      spdlog::info("[splat_fit] view gains fitted: the largest differs from the mean by {:.1f}%", 100 * (std::exp(spread) - 1));
+    }
     const double per = result.megapixel_steps * std::max(1e-9, result.mean_splats / 1e5);
     m["forward_seconds"] = result.forward_seconds;
     m["backward_seconds"] = result.backward_seconds;
@@ -247,6 +262,8 @@ class SplatFitStage : public Stage {
     o.max_splats = static_cast<int>(std::clamp<int64_t>(params.Int("max_splats"), -1, 1 << 30));
     o.seed = params.Int("seed");
     o.dssim_weight = params.Double("dssim_weight");
+    o.view_gains = params.Bool("view_gains");
+    o.lr_gain = params.Double("lr_gain");
     return o;
   }
 

@@ -21,13 +21,14 @@
 //   hand_held     a hand-held capture's ills together, for the forward-facing scene (whose figures
 //                 on the clean scene, parallel axes and exact poses, do not carry over to real
 //                 photos): each true camera's axis turned by up to 3 degrees (AxisTurn), the
-//                 written cameras off by 0.1 degree and 0.1% of the grid's spread (sigmas, about
-//                 1.5 px at 1008 wide), gains within +-15%, a highlight up to half the diffuse
-//                 light, sensor noise of sigma 3 levels, and (synth_scenes.cc) a plant of thin
-//                 blades, 2 cm wide tapering to 5 mm, in front of the near object; all times the
-//                 strength.
+//                 written cameras off by 0.02 degree and 0.02% of the grid's spread (sigmas, about
+//                 0.5 px at 1008 wide; a tenth of a degree, 2.4 px there, held every model near
+//                 23 dB), gains within +-15%, a highlight up to half the diffuse light, sensor
+//                 noise of sigma 3 levels, and (synth_scenes.cc) a plant of thin blades, 2 cm wide
+//                 tapering to 5 mm, in front of the near object; all times the strength.
 //
-// The truth (ground_truth/: mesh, depth, masks) stays the clean scene's; the true mesh's vertex
+// The truth (ground_truth/: mesh, depth, masks) stays the clean scene's (hand_held: its fronds and
+// turned cameras included); the true mesh's vertex
 // colours carry the albedo changes (textureless, repetitive) but no highlight.
 #pragma once
 
