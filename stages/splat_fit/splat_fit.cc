@@ -14,6 +14,7 @@
 #include <opencv2/imgproc.hpp>
 #include <random>
 #include <stdexcept>
+#include <unordered_map>
 
 namespace ibmr {
 
@@ -66,6 +67,69 @@ double SceneExtent(const std::vector<SplatFitView>& views, const GaussianSplats&
     reach = distances[k];
   }
   return std::max({floor, 1.1 * radius, 1.1 * reach});
+}
+
+size_t AddBackdrop(const std::vector<SplatFitView>& views, int pixel_step, double distance_factor, float opacity,
+                   GaussianSplats* splats) {
+  if (pixel_step < 1) throw std::invalid_argument("backdrop pixel step must be >= 1");
+  if (!(distance_factor > 1)) throw std::invalid_argument("backdrop distance factor must be > 1");
+  if (splats->size() == 0 || views.empty()) throw std::invalid_argument("no splat or view to place a backdrop behind");
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+  for (const SplatFitView& view : views) mean += view.camera.Centre().cast<double>() / views.size();
+  std::vector<double> distances;
+  for (const Eigen::Vector3f& p : splats->position) distances.push_back((p.cast<double>() - mean).norm());
+  const size_t k = distances.size() * 99 / 100;
+  std::nth_element(distances.begin(), distances.begin() + k, distances.end());
+  const double radius = distance_factor * distances[k];
+  // Discs already placed, hashed by cells of the spacing (the spacing differs little across views:
+  // the same sphere, similar focal lengths).
+  std::unordered_map<int64_t, std::vector<Eigen::Vector3f>> placed;
+  const auto key = [](const Eigen::Vector3i& c) {
+    return (static_cast<int64_t>(c.x() & 0x1FFFFF) << 42) | (static_cast<int64_t>(c.y() & 0x1FFFFF) << 21) | (c.z() & 0x1FFFFF);
+  };
+  size_t added = 0;
+  for (const SplatFitView& view : views) {
+    const SplatCamera& camera = view.camera;
+    const Eigen::Vector3d centre = camera.Centre().cast<double>();
+    const Eigen::Matrix3d world_from_cam = camera.rotation.transpose().cast<double>();
+    const int columns = (camera.width + pixel_step - 1) / pixel_step, rows = (camera.height + pixel_step - 1) / pixel_step;
+    for (int r = 0; r < rows; ++r) {
+      for (int c = 0; c < columns; ++c) {
+        const int x0 = c * pixel_step, y0 = r * pixel_step;
+        const int x1 = std::min(camera.width, x0 + pixel_step), y1 = std::min(camera.height, y0 + pixel_step);
+        const Eigen::Vector3d ray = (world_from_cam * Eigen::Vector3d((0.5 * (x0 + x1) - camera.cx) / camera.fx,
+                                                                      (0.5 * (y0 + y1) - camera.cy) / camera.fy, 1.0))
+                                        .normalized();
+        // |centre + t ray - mean| = radius, the far root (the cameras are inside the sphere).
+        const Eigen::Vector3d o = centre - mean;
+        const double b = o.dot(ray), disc = b * b - (o.squaredNorm() - radius * radius);
+        if (disc < 0) continue;
+        const double t = -b + std::sqrt(disc);
+        if (!(t > 0)) continue;
+        const Eigen::Vector3f point = (centre + t * ray).cast<float>();
+        const float spacing = static_cast<float>(pixel_step * t / camera.fx);
+        const Eigen::Vector3i cell = (point / spacing).array().floor().cast<int>();
+        bool near = false;
+        for (int dz = -1; dz <= 1 && !near; ++dz) {
+          for (int dy = -1; dy <= 1 && !near; ++dy) {
+            for (int dx = -1; dx <= 1 && !near; ++dx) {
+              const auto found = placed.find(key(cell + Eigen::Vector3i(dx, dy, dz)));
+              if (found == placed.end()) continue;
+              for (const Eigen::Vector3f& q : found->second) near |= (q - point).norm() < 0.5f * spacing;
+            }
+          }
+        }
+        if (near) continue;
+        placed[key(cell)].push_back(point);
+        const cv::Scalar colour = cv::mean(view.image(cv::Rect(x0, y0, x1 - x0, y1 - y0)));
+        const Eigen::Vector3f inward = (mean.cast<float>() - point).normalized();
+        splats->Add(point, RotationWithNormal(inward), Eigen::Vector2f::Constant(std::log(0.6f * spacing)), opacity,
+                    Eigen::Vector3f(colour[0], colour[1], colour[2]));
+        ++added;
+      }
+    }
+  }
+  return added;
 }
 
 void RaiseShDegree(int degree, GaussianSplats* splats) {

@@ -111,6 +111,19 @@ double SceneExtent(const std::vector<SplatFitView>& views, const GaussianSplats&
 SplatFitResult FitSplats(const std::vector<SplatFitView>& views, const Eigen::Vector3f& background,
                          const SplatFitOptions& options, GaussianSplats* splats, ProgressReporter* progress);
 
+// The backdrop of a forward-facing capture: what lies beyond the scene's points (a sky, far hills)
+// holds no stereo point, so no splat would ever be drawn there (the issue's "background for
+// forward-facing captures from the far points"). Discs on a sphere about the cameras' mean centre,
+// of radius `distance_factor` times the 99th percentile of the splats' distances from it: one per
+// `pixel_step` x `pixel_step` block of each view whose centre ray meets the sphere, left out where
+// an earlier view's disc lies within half a spacing, facing the centre, in the block's mean colour,
+// with a standard deviation of 0.6 spacings (neighbours overlap) and `opacity`. Behind every
+// point, they are hidden wherever the scene stands in front; the fit makes them opaque where the
+// photos show something beyond it. Returns how many were added. Throws std::invalid_argument for
+// pixel_step < 1, distance_factor <= 1 or no splats.
+size_t AddBackdrop(const std::vector<SplatFitView>& views, int pixel_step, double distance_factor, float opacity,
+                   GaussianSplats* splats);
+
 // Raises the splats' SH degree to `degree` (new coefficients zero).
 void RaiseShDegree(int degree, GaussianSplats* splats);
 

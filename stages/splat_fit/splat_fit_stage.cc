@@ -1,8 +1,9 @@
 // Adapter of the splat_fit stage (seed 000 §3 lines 5597-5604 and §5 lines 4454-4586, seed 004
 // §5.4; see splat_fit.h): reads the training views (undistorted pinhole cameras and their photos),
 // the initial particles (surfels/surfels.ply, else dense/fused.ply with radii from their nearest
-// neighbours) and the capture's background colour (background.json; black without one), fits the
-// splats and writes
+// neighbours) and the capture's background colour (background.json; black without one), adds a
+// backdrop behind the points where the capture is forward-facing (AddBackdrop), fits the splats and
+// writes
 //   splat_fit/splats.ply    the fitted splats in the layout Gaussian-splatting viewers read
 //                           (pipeline/core/gaussian_splats.h)
 //   splat_fit/curve.json    the fitting curve: training L1 and PSNR every 50 steps, splat count
@@ -18,6 +19,7 @@
 
 #include "pipeline/core/atomic_file.h"
 #include "pipeline/core/capture_info.h"
+#include "pipeline/core/capture_shape.h"
 #include "pipeline/core/errors.h"
 #include "pipeline/core/image_io.h"
 #include "pipeline/core/ply_io.h"
@@ -33,6 +35,7 @@ namespace {
 constexpr char kSurfels[] = "surfels/surfels.ply";
 constexpr char kFused[] = "dense/fused.ply";
 const std::vector<std::string> kInitNames = {"auto", "surfels", "fused"};
+const std::vector<std::string> kBackdropNames = {"auto", "on", "off"};
 
 // Radii for points without one: the mean distance to their 3 nearest neighbours (nanoflann).
 struct CloudAdaptor {
@@ -68,7 +71,7 @@ class SplatFitStage : public Stage {
   std::string Summary() const override {
     return "Oriented elliptical splats fitted to the training photos by gradient descent (splat_fit/splats.ply)";
   }
-  std::string Version() const override { return "1"; }
+  std::string Version() const override { return "2"; }
   HoldoutRole Role() const override { return HoldoutRole::kTrainingOnly; }
 
   std::vector<ParamSpec> Parameters() const override {
@@ -76,6 +79,11 @@ class SplatFitStage : public Stage {
     const auto num = DefaultNumberText;
     return {
         {"init", ParamType::kString, "auto", "Initial particles: surfels (surfels/surfels.ply), fused (dense/fused.ply) or auto (surfels where they exist)", kInitNames},
+        {"backdrop", ParamType::kString, "auto",
+         "Discs on a sphere behind the scene's points for what lies beyond them (a sky): on, off, or auto (on for "
+         "forward-facing captures, capture.json's kind)", kBackdropNames},
+        {"backdrop_step", ParamType::kInt, "16", "Backdrop: one disc per this many pixels square of each view, [1, 1024]"},
+        {"backdrop_distance", ParamType::kDouble, "2", "Backdrop: sphere radius over the 99th percentile of the points' distances, (1, 100]"},
         {"max_initial", ParamType::kInt, "300000", "Initial particles kept (a random subset beyond it), [1, 1e7]"},
         {"initial_opacity", ParamType::kDouble, "0.3", "Opacity of the initial splats, (0, 1)"},
         {"iterations", ParamType::kInt, std::to_string(d.iterations), "Optimisation steps, one training view each, >= 1"},
@@ -121,6 +129,12 @@ class SplatFitStage : public Stage {
     }
     if (!(params.Double("initial_opacity") > 0 && params.Double("initial_opacity") < 1)) {
       return ParamError{"initial_opacity", "must be in (0, 1)"};
+    }
+    if (params.Int("backdrop_step") < 1 || params.Int("backdrop_step") > 1024) {
+      return ParamError{"backdrop_step", "must be in [1, 1024], got " + std::to_string(params.Int("backdrop_step"))};
+    }
+    if (!(params.Double("backdrop_distance") > 1 && params.Double("backdrop_distance") <= 100)) {
+      return ParamError{"backdrop_distance", "must be in (1, 100]"};
     }
     return std::nullopt;
   }
@@ -185,6 +199,22 @@ class SplatFitStage : public Stage {
     }
     context.progress->End();
 
+    const std::string& backdrop = context.params.String("backdrop");
+    bool with_backdrop = backdrop == "on";
+    if (backdrop == "auto") with_backdrop = AnalyseCapture(model, CaptureHasAlpha(workspace)).kind == "forward_facing";
+    if (with_backdrop) {
+      const size_t before = splats.size();
+      const size_t added = AddBackdrop(views, static_cast<int>(context.params.Int("backdrop_step")),
+                                       context.params.Double("backdrop_distance"),
+                                       static_cast<float>(context.params.Double("initial_opacity")), &splats);
+      context.metrics["backdrop_splats"] = added;
+      spdlog::info("[splat_fit] backdrop: {} discs behind the {} initial splats (splat_fit.backdrop: {})", added, before, backdrop);
+      if (static_cast<int64_t>(splats.size()) > context.params.Int("max_splats")) {
+        throw InputError("splat_fit.max_splats: " + std::to_string(context.params.Int("max_splats")) + " is below the " +
+                         std::to_string(splats.size()) + " initial splats with the backdrop; raise it, or lower "
+                         "splat_fit.max_initial, or raise splat_fit.backdrop_step");
+      }
+    }
     spdlog::info("[splat_fit] {} initial splats, {} training views, {} steps (background {:.2f} {:.2f} {:.2f})",
                  splats.size(), views.size(), options.iterations, background[0], background[1], background[2]);
     SplatFitResult result;

@@ -176,6 +176,56 @@ TEST(SplatFit, ViewGainsRecoverEachPhotosExposure) {
   EXPECT_GT(psnr[1], psnr[0] + 3) << "held out without gains " << psnr[0] << " dB, with " << psnr[1] << " dB";
 }
 
+// The backdrop: every disc on the sphere (radius 2 x the 99th percentile of the points' distances
+// from the cameras' centre), facing it, each block of every view covered by a disc within one
+// spacing of its centre ray, in the block's colour for the first view, fewer discs than blocks
+// where views overlap; bad arguments refused.
+TEST(SplatFit, TheBackdropCoversEveryViewBehindThePoints) {
+  const GaussianSplats truth = KnownDiscs();  // within 0.72 of the origin
+  std::vector<SplatFitView> views = Views(truth, {Eigen::Vector3f(0, -3, 0.2f), Eigen::Vector3f(0.3f, -3, 0.2f)}, Eigen::Vector3f(0.2f, 0.4f, 0.9f));
+  GaussianSplats splats = truth;
+  const size_t before = splats.size();
+  const int step = 8;
+  const size_t added = AddBackdrop(views, step, 2.0, 0.3f, &splats);
+  ASSERT_EQ(splats.size(), before + added);
+  const int blocks = (64 / step) * (64 / step);
+  EXPECT_GT(added, static_cast<size_t>(blocks));      // the second view adds what the first does not see
+  EXPECT_LT(added, static_cast<size_t>(2 * blocks));  // and leaves out what it does
+  const Eigen::Vector3f mean = 0.5f * (views[0].camera.Centre() + views[1].camera.Centre());
+  std::vector<double> distances;
+  for (size_t i = 0; i < before; ++i) distances.push_back((truth.position[i] - mean).norm());
+  std::sort(distances.begin(), distances.end());
+  const double radius = 2.0 * distances[distances.size() * 99 / 100];
+  for (size_t i = before; i < splats.size(); ++i) {
+    EXPECT_NEAR((splats.position[i] - mean).norm(), radius, 1e-3 * radius);
+    const Eigen::Vector3f normal = RotationMatrix(splats.rotation[i]).col(2);
+    EXPECT_GT(normal.dot((mean - splats.position[i]).normalized()), 0.999f);
+  }
+  for (const SplatFitView& view : views) {
+    const Eigen::Matrix3f world_from_cam = view.camera.rotation.transpose();
+    for (int y = step / 2; y < 64; y += step) {
+      for (int x = step / 2; x < 64; x += step) {
+        const Eigen::Vector3f ray = (world_from_cam * Eigen::Vector3f((x - view.camera.cx) / view.camera.fx,
+                                                                       (y - view.camera.cy) / view.camera.fy, 1)).normalized();
+        float nearest = 1e9f;
+        for (size_t i = before; i < splats.size(); ++i) {
+          const Eigen::Vector3f to = splats.position[i] - view.camera.Centre();
+          nearest = std::min(nearest, (to - to.dot(ray) * ray).norm());
+        }
+        const float spacing = static_cast<float>(step * radius / view.camera.fx);
+        EXPECT_LT(nearest, 1.5f * spacing) << x << "," << y;
+      }
+    }
+  }
+  // The first view's first block (its top left): the block's mean colour.
+  const cv::Scalar block = cv::mean(views[0].image(cv::Rect(0, 0, step, step)));
+  for (int c = 0; c < 3; ++c) EXPECT_NEAR(splats.Sh(before)[c] * 0.2820948f + 0.5f, block[c], 1e-4);
+  EXPECT_THROW(AddBackdrop(views, 0, 2.0, 0.3f, &splats), std::invalid_argument);
+  EXPECT_THROW(AddBackdrop(views, 8, 1.0, 0.3f, &splats), std::invalid_argument);
+  GaussianSplats none;
+  EXPECT_THROW(AddBackdrop(views, 8, 2.0, 0.3f, &none), std::invalid_argument);
+}
+
 TEST(SplatFit, ASmallStepAgainstTheGradientLowersTheObjective) {
   const Eigen::Vector3f background(0, 0, 0);
   const GaussianSplats truth = KnownDiscs();

@@ -189,6 +189,24 @@ SynthScene BuildSynthScene(const SynthOptions& requested) {
   } else {
     synth_internal::BuildForwardFacingGeometry(options, &scene);
     scene.background = Eigen::Vector3d::Zero();  // never seen: the room is closed
+    if (scene.degradation.Active(SynthDegradation::kHandHeld)) {
+      // An outdoor capture's sky (hand_held): the back wall is gone and a pale blue lies beyond,
+      // where stereo finds no point and no depth.
+      int back = -1;
+      for (size_t p = 0; p < scene.parts.size(); ++p) {
+        if (scene.parts[p].name == "wall_back") back = static_cast<int>(p);
+      }
+      std::vector<Eigen::Vector3i> faces;
+      std::vector<int> parts;
+      for (size_t f = 0; f < scene.mesh.faces.size(); ++f) {
+        if (scene.face_part[f] == back) continue;
+        faces.push_back(scene.mesh.faces[f]);
+        parts.push_back(scene.face_part[f]);
+      }
+      scene.mesh.faces = std::move(faces);
+      scene.face_part = std::move(parts);
+      scene.background = Eigen::Vector3d(0.55, 0.7, 0.9);
+    }
   }
   scene.light_direction = Eigen::Vector3d(0.35, -0.55, 0.76).normalized();
   scene.texture_seed = Mix64(static_cast<uint64_t>(options.seed) ^ 0x7E47E4ull);

@@ -25,7 +25,9 @@
 //                 0.5 px at 1008 wide; a tenth of a degree, 2.4 px there, held every model near
 //                 23 dB), gains within +-15%, a highlight up to half the diffuse light, sensor
 //                 noise of sigma 3 levels, and (synth_scenes.cc) a plant of thin blades, 2 cm wide
-//                 tapering to 5 mm, in front of the near object; all times the strength.
+//                 tapering to 5 mm, in front of the near object; all times the strength. And the
+//                 room's back wall gives way to a pale blue sky (synth.cc), where stereo finds
+//                 nothing, as beyond an outdoor capture's far bound.
 //
 // The truth (ground_truth/: mesh, depth, masks) stays the clean scene's (hand_held: its fronds and
 // turned cameras included); the true mesh's vertex

@@ -192,6 +192,8 @@ TEST(SynthDegradations, HandHeldTurnsTheAxesAddsFrondsAndDisturbsThePoses) {
   ASSERT_GE(frond_part, 0);
   EXPECT_EQ(std::count(scene.face_part.begin(), scene.face_part.end(), frond_part), 14 * 12);
   for (const SynthPart& part : clean.parts) EXPECT_NE(part.name, "fronds");
+  // The back wall gives way to the sky: pixels without depth, in the sky's colour.
+  EXPECT_GT(scene.background.minCoeff(), 0.5);
   // The blades are seen: the views differ from the clean scene's where they stand, in front.
   const SynthView view = RenderSynthView(scene, 5, options);
   const SynthView clean_view = RenderSynthView(clean, 5, clean_options);
@@ -200,6 +202,11 @@ TEST(SynthDegradations, HandHeldTurnsTheAxesAddsFrondsAndDisturbsThePoses) {
     for (int x = 0; x < options.width; ++x) nearer += view.depth.At(x, y) < clean_view.depth.At(x, y) - 0.05f;
   }
   EXPECT_GT(nearer, 0.005 * options.width * options.height);
+  int sky = 0;
+  for (int y = 0; y < options.height; ++y) {
+    for (int x = 0; x < options.width; ++x) sky += !IsValidDepth(view.depth.At(x, y)) && IsValidDepth(clean_view.depth.At(x, y));
+  }
+  EXPECT_GT(sky, 0.05 * options.width * options.height);
 
   SparseModel model = BuildSynthSparseModel(scene, options, nullptr);
   const SparseModel truth = model;

@@ -103,7 +103,7 @@ class SynthStage : public Stage {
     return "renders synthetic scenes (object ring, room) with true cameras, depth, masks and mesh";
   }
   // 2: ground_truth/pose_error.json (how far each written camera is off); pose_outliers
-  std::string Version() const override { return "3"; }
+  std::string Version() const override { return "4"; }
   HoldoutRole Role() const override { return HoldoutRole::kAllViews; }
 
   std::vector<ParamSpec> Parameters() const override {
