@@ -27,6 +27,7 @@ bool SplatFitOptions::Check(std::string* error) const {
   if (sh_degree < 0 || sh_degree > 3) return fail("sh_degree: must be in [0, 3]");
   if (!(dssim_weight >= 0 && dssim_weight <= 1)) return fail("dssim_weight: must be in [0, 1]");
   if (!(lr_gain >= 0 && lr_gain < 1)) return fail("lr_gain: must be in [0, 1)");
+  if (!(lr_background >= 0 && lr_background < 1)) return fail("lr_background: must be in [0, 1)");
   if (sh_every < 1) return fail("sh_every: must be >= 1");
   if (!(coarse_fraction >= 0 && coarse_fraction <= 1)) return fail("coarse_fraction: must be in [0, 1]");
   for (const auto& [key, value] : std::vector<std::pair<const char*, double>>{{"lr_position", lr_position},
@@ -309,6 +310,11 @@ SplatFitResult FitSplats(const std::vector<SplatFitView>& views, const Eigen::Ve
   std::vector<Adam> gain_adam(options.view_gains ? views.size() : 0);
   std::vector<int> gain_steps(gain_adam.size(), 0);
   for (Adam& a : gain_adam) a.Resize(3);
+  // The background drawn over, fitted (options.fit_background) with its own Adam.
+  Eigen::Vector3f fitted_background = background;
+  Eigen::Vector3f d_background = Eigen::Vector3f::Zero();
+  Adam background_adam;
+  background_adam.Resize(3);
   double window_l1 = 0, window_se = 0;
   int window = 0;
   int advanced = 0;  // steps reported to `progress`
@@ -325,7 +331,7 @@ SplatFitResult FitSplats(const std::vector<SplatFitView>& views, const Eigen::Ve
     order.pop_back();
     const SplatFitView& view = step <= coarse_steps ? half[index] : views[index];
     SplatRasterOptions raster;
-    raster.background = background;
+    raster.background = fitted_background;
     raster.sh_degree = std::min(options.sh_degree, (step - 1) / options.sh_every);
     auto start = Clock::now();
     RenderSplats(*splats, view.camera, raster, &frame);
@@ -347,6 +353,13 @@ SplatFitResult FitSplats(const std::vector<SplatFitView>& views, const Eigen::Ve
       const cv::Scalar d_gain = cv::sum(d_image.mul(gained));
       for (int c = 0; c < 3; ++c) d_log_gain[c] = static_cast<float>(d_gain[c]);
       cv::multiply(d_image, cv::Scalar(gain[0], gain[1], gain[2]), d_image);
+    }
+    if (options.fit_background) {
+      // image = splats + transmittance * background: d loss / d background = sum of d_image * T.
+      cv::Mat transmittance3;
+      cv::merge(std::vector<cv::Mat>(3, frame.transmittance), transmittance3);
+      const cv::Scalar sum = cv::sum(d_image.mul(transmittance3));
+      for (int c = 0; c < 3; ++c) d_background[c] = static_cast<float>(sum[c]);
     }
     window_l1 += loss.l1;
     window_se += loss.se;
@@ -372,6 +385,10 @@ SplatFitResult FitSplats(const std::vector<SplatFitView>& views, const Eigen::Ve
     // SH: the DC coefficients (the first 3 of each splat's) at their step, the rest at theirs.
     adam.sh.Step(splats->sh.data(), gradients.sh.data(), splats->sh.size(), static_cast<float>(options.lr_sh_dc), step,
                  splats->ShCount() * 3, 3, static_cast<float>(options.lr_sh_rest));
+    if (options.fit_background) {
+      background_adam.Step(fitted_background.data(), d_background.data(), 3, static_cast<float>(options.lr_background), step);
+      fitted_background = fitted_background.cwiseMax(0.0f).cwiseMin(1.0f);
+    }
     if (options.view_gains) {
       gain_adam[index].Step(&log_gain[index * 3], d_log_gain.data(), 3, static_cast<float>(options.lr_gain), ++gain_steps[index]);
       // Gains and colours trade against each other: the views' mean log gain is held at 0.
@@ -414,6 +431,7 @@ SplatFitResult FitSplats(const std::vector<SplatFitView>& views, const Eigen::Ve
     }
   }
   progress->End();
+  result.background = fitted_background;
   for (size_t v = 0; v < log_gain.size() / 3; ++v) {
     result.view_gains.emplace_back(std::exp(log_gain[v * 3]), std::exp(log_gain[v * 3 + 1]), std::exp(log_gain[v * 3 + 2]));
   }

@@ -71,6 +71,12 @@ struct SplatFitOptions {
   // -> 30.77 with the score's own gain per view; off by default for that.
   bool view_gains = false;
   double lr_gain = 5e-3;
+  // Fit the background colour the splats are drawn over (Adam, step lr_background), from the one
+  // given: for captures whose background colour is not known. Drawn over a wrong colour (black
+  // against the synthetic ring's dark grey, 10 levels), the fit spreads faint splats over the
+  // whole field of view to make up the difference, and they veil the object in every new view.
+  bool fit_background = false;
+  double lr_background = 1e-2;
 
   bool Check(std::string* error) const;  // error starts with the YAML key
 };
@@ -97,6 +103,7 @@ struct SplatFitResult {
   size_t splits = 0, clones = 0, pruned = 0;
   double extent = 0;           // the scene extent the steps were scaled by
   std::vector<Eigen::Vector3f> view_gains;  // per view (options.view_gains; else empty): RGB gains
+  Eigen::Vector3f background = Eigen::Vector3f::Zero();  // the one drawn over at the end (fitted or given)
 };
 
 // The scene extent the steps and sizes are scaled by: 3DGS's 1.1 times the largest distance of a

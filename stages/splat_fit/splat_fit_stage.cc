@@ -2,8 +2,8 @@
 // §5.4; see splat_fit.h): reads the training views (undistorted pinhole cameras and their photos),
 // the initial particles (surfels/surfels.ply, else dense/fused.ply with radii from their nearest
 // neighbours) and the capture's background colour (background.json; black without one), adds a
-// backdrop behind the points where the capture is forward-facing (AddBackdrop), fits the splats and
-// writes
+// backdrop behind the points where the capture is forward-facing (AddBackdrop), fits the splats (and
+// the background colour where the capture does not give it) and writes
 //   splat_fit/splats.ply    the fitted splats in the layout Gaussian-splatting viewers read
 //                           (pipeline/core/gaussian_splats.h)
 //   splat_fit/curve.json    the fitting curve: training L1 and PSNR every 50 steps, splat count
@@ -36,6 +36,25 @@ constexpr char kSurfels[] = "surfels/surfels.ply";
 constexpr char kFused[] = "dense/fused.ply";
 const std::vector<std::string> kInitNames = {"auto", "surfels", "fused"};
 const std::vector<std::string> kBackdropNames = {"auto", "on", "off"};
+const std::vector<std::string> kBackgroundNames = {"auto", "capture", "fit"};
+
+// The mean colour (RGB) of the training photos' outermost pixel rows and columns: where a capture's
+// background shows, if anywhere; the fitted background's start.
+Eigen::Vector3f BorderMean(const std::vector<SplatFitView>& views) {
+  Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+  double count = 0;
+  for (const SplatFitView& view : views) {
+    const cv::Mat& image = view.image;
+    for (const cv::Rect& edge : {cv::Rect(0, 0, image.cols, 1), cv::Rect(0, image.rows - 1, image.cols, 1),
+                                 cv::Rect(0, 0, 1, image.rows), cv::Rect(image.cols - 1, 0, 1, image.rows)}) {
+      const cv::Scalar s = cv::sum(image(edge));
+      sum += Eigen::Vector3d(s[0], s[1], s[2]);
+      count += edge.area();
+    }
+  }
+  if (count == 0) return Eigen::Vector3f::Zero();
+  return (sum / count).cast<float>();
+}
 
 // Radii for points without one: the mean distance to their 3 nearest neighbours (nanoflann).
 struct CloudAdaptor {
@@ -71,7 +90,7 @@ class SplatFitStage : public Stage {
   std::string Summary() const override {
     return "Oriented elliptical splats fitted to the training photos by gradient descent (splat_fit/splats.ply)";
   }
-  std::string Version() const override { return "2"; }
+  std::string Version() const override { return "3"; }
   HoldoutRole Role() const override { return HoldoutRole::kTrainingOnly; }
 
   std::vector<ParamSpec> Parameters() const override {
@@ -79,6 +98,10 @@ class SplatFitStage : public Stage {
     const auto num = DefaultNumberText;
     return {
         {"init", ParamType::kString, "auto", "Initial particles: surfels (surfels/surfels.ply), fused (dense/fused.ply) or auto (surfels where they exist)", kInitNames},
+        {"background", ParamType::kString, "auto",
+         "Colour the splats are drawn over: capture (background.json's, else black), fit (fitted with the splats from "
+         "that, or from the photos' border where unknown), auto (capture where background.json gives one, else fit)",
+         kBackgroundNames},
         {"backdrop", ParamType::kString, "auto",
          "Discs on a sphere behind the scene's points for what lies beyond them (a sky): on, off, or auto (on for "
          "forward-facing captures, capture.json's kind)", kBackdropNames},
@@ -215,11 +238,16 @@ class SplatFitStage : public Stage {
                          "splat_fit.max_initial, or raise splat_fit.backdrop_step");
       }
     }
-    spdlog::info("[splat_fit] {} initial splats, {} training views, {} steps (background {:.2f} {:.2f} {:.2f})",
-                 splats.size(), views.size(), options.iterations, background[0], background[1], background[2]);
+    SplatFitOptions fit_options = options;
+    const std::string& background_mode = context.params.String("background");
+    fit_options.fit_background = background_mode == "fit" || (background_mode == "auto" && !capture_background);
+    if (fit_options.fit_background && !capture_background) background = BorderMean(views);
+    spdlog::info("[splat_fit] {} initial splats, {} training views, {} steps (background {:.2f} {:.2f} {:.2f}{})",
+                 splats.size(), views.size(), options.iterations, background[0], background[1], background[2],
+                 fit_options.fit_background ? ", fitted from there" : "");
     SplatFitResult result;
     try {
-      result = FitSplats(views, background, options, &splats, context.progress);
+      result = FitSplats(views, background, fit_options, &splats, context.progress);
     } catch (const std::invalid_argument& e) {
       throw InputError(std::string("splat_fit: ") + e.what());
     } catch (const std::runtime_error& e) {
@@ -245,6 +273,8 @@ class SplatFitStage : public Stage {
       m["final_training_l1"] = result.curve.back().l1;
       m["final_training_psnr"] = result.curve.back().psnr;
     }
+    m["background_rgb"] = {result.background[0], result.background[1], result.background[2]};
+    m["background_fitted"] = fit_options.fit_background;
     if (!result.view_gains.empty()) {
       nlohmann::json gains = nlohmann::json::object();
       double spread = 0;
