@@ -79,6 +79,16 @@ std::vector<Eigen::Vector3f> Ring(int count, float elevation, float offset) {
   return eyes;
 }
 
+// 600 steps, view-independent colour, no density control (a known count): the fits that compare
+// one option on and off.
+SplatFitOptions ShortFixedFit() {
+  SplatFitOptions options;
+  options.iterations = 600;
+  options.sh_degree = 0;
+  options.densify_from = 100000;
+  return options;
+}
+
 TEST(SplatFit, KnownDiscsAreRecoveredFromTheirRenders) {
   const Eigen::Vector3f background(1, 1, 1);
   const GaussianSplats truth = KnownDiscs();
@@ -143,10 +153,7 @@ TEST(SplatFit, ViewGainsRecoverEachPhotosExposure) {
     const Eigen::Vector3f g = mean_log.array().exp();
     cv::multiply(view.image, cv::Scalar(g[0], g[1], g[2]), view.image);
   }
-  SplatFitOptions options;
-  options.iterations = 600;
-  options.sh_degree = 0;
-  options.densify_from = 100000;
+  SplatFitOptions options = ShortFixedFit();
   options.lr_gain = 0.01;
   double psnr[2];
   for (const bool gains : {false, true}) {
@@ -234,10 +241,7 @@ TEST(SplatFit, AFittedBackgroundFindsTheCapturesColour) {
   const GaussianSplats truth = KnownDiscs();
   const std::vector<SplatFitView> training = Views(truth, Ring(12, 0.3f, 0.0f), grey);
   const std::vector<SplatFitView> heldout = Views(truth, Ring(5, 0.1f, 0.25f), grey);
-  SplatFitOptions options;
-  options.iterations = 600;
-  options.sh_degree = 0;
-  options.densify_from = 100000;
+  SplatFitOptions options = ShortFixedFit();
   double psnr[2];
   for (const bool fit : {false, true}) {
     options.fit_background = fit;
