@@ -90,7 +90,7 @@ class SplatFitStage : public Stage {
   std::string Summary() const override {
     return "Oriented elliptical splats fitted to the training photos by gradient descent (splat_fit/splats.ply)";
   }
-  std::string Version() const override { return "3"; }
+  std::string Version() const override { return "4"; }
   HoldoutRole Role() const override { return HoldoutRole::kTrainingOnly; }
 
   std::vector<ParamSpec> Parameters() const override {
@@ -100,7 +100,8 @@ class SplatFitStage : public Stage {
         {"init", ParamType::kString, "auto", "Initial particles: surfels (surfels/surfels.ply), fused (dense/fused.ply) or auto (surfels where they exist)", kInitNames},
         {"background", ParamType::kString, "auto",
          "Colour the splats are drawn over: capture (background.json's, else black), fit (fitted with the splats from "
-         "that, or from the photos' border where unknown), auto (capture where background.json gives one, else fit)",
+         "that, or from the photos' border where unknown), auto (capture where background.json gives one or a backdrop "
+         "is added, else fit)",
          kBackgroundNames},
         {"backdrop", ParamType::kString, "auto",
          "Discs on a sphere behind the scene's points for what lies beyond them (a sky): on, off, or auto (on for "
@@ -240,7 +241,12 @@ class SplatFitStage : public Stage {
     }
     SplatFitOptions fit_options = options;
     const std::string& background_mode = context.params.String("background");
-    fit_options.fit_background = background_mode == "fit" || (background_mode == "auto" && !capture_background);
+    // auto fits the colour only where neither the capture gives it nor a backdrop stands behind the
+    // points: the render model draws the splats alone, so a colour fitted in place of the backdrop
+    // (a sky) would be missing from every render (hard synthetic forward scene at a quarter of the
+    // size: 26.07 dB with the backdrop alone, 22.74 with the colour fitted as well).
+    fit_options.fit_background =
+        background_mode == "fit" || (background_mode == "auto" && !capture_background && !with_backdrop);
     if (fit_options.fit_background && !capture_background) background = BorderMean(views);
     spdlog::info("[splat_fit] {} initial splats, {} training views, {} steps (background {:.2f} {:.2f} {:.2f}{})",
                  splats.size(), views.size(), options.iterations, background[0], background[1], background[2],
