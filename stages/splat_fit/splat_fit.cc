@@ -51,22 +51,34 @@ bool SplatFitOptions::Check(std::string* error) const {
   return true;
 }
 
-double SceneExtent(const std::vector<SplatFitView>& views, const GaussianSplats& splats, double floor) {
+namespace {
+
+// The mean of the views' camera centres (the origin without views).
+Eigen::Vector3d CameraCentroid(const std::vector<SplatFitView>& views) {
   Eigen::Vector3d mean = Eigen::Vector3d::Zero();
   for (const SplatFitView& view : views) mean += view.camera.Centre().cast<double>();
-  mean /= std::max<size_t>(1, views.size());
+  return mean / static_cast<double>(std::max<size_t>(1, views.size()));
+}
+
+// The `percent` percentile of the splats' distances from `centre` (0 without splats).
+double DistancePercentile(const GaussianSplats& splats, const Eigen::Vector3d& centre, size_t percent) {
+  std::vector<double> distances;
+  for (const Eigen::Vector3f& p : splats.position) distances.push_back((p.cast<double>() - centre).norm());
+  if (distances.empty()) return 0;
+  const size_t k = distances.size() * percent / 100;
+  std::nth_element(distances.begin(), distances.begin() + k, distances.end());
+  return distances[k];
+}
+
+}  // namespace
+
+double SceneExtent(const std::vector<SplatFitView>& views, const GaussianSplats& splats, double floor) {
+  const Eigen::Vector3d mean = CameraCentroid(views);
   double radius = 0;
   for (const SplatFitView& view : views) radius = std::max(radius, (view.camera.Centre().cast<double>() - mean).norm());
   // A forward-facing capture's cameras span a small part of the scene: the splats' own reach from
   // the cameras (the 95th percentile of their distances) bounds it from below.
-  std::vector<double> distances;
-  for (const Eigen::Vector3f& p : splats.position) distances.push_back((p.cast<double>() - mean).norm());
-  double reach = 0;
-  if (!distances.empty()) {
-    const size_t k = distances.size() * 95 / 100;
-    std::nth_element(distances.begin(), distances.begin() + k, distances.end());
-    reach = distances[k];
-  }
+  const double reach = DistancePercentile(splats, mean, 95);
   return std::max({floor, 1.1 * radius, 1.1 * reach});
 }
 
@@ -75,13 +87,8 @@ size_t AddBackdrop(const std::vector<SplatFitView>& views, int pixel_step, doubl
   if (pixel_step < 1) throw std::invalid_argument("backdrop pixel step must be >= 1");
   if (!(distance_factor > 1)) throw std::invalid_argument("backdrop distance factor must be > 1");
   if (splats->size() == 0 || views.empty()) throw std::invalid_argument("no splat or view to place a backdrop behind");
-  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
-  for (const SplatFitView& view : views) mean += view.camera.Centre().cast<double>() / views.size();
-  std::vector<double> distances;
-  for (const Eigen::Vector3f& p : splats->position) distances.push_back((p.cast<double>() - mean).norm());
-  const size_t k = distances.size() * 99 / 100;
-  std::nth_element(distances.begin(), distances.begin() + k, distances.end());
-  const double radius = distance_factor * distances[k];
+  const Eigen::Vector3d mean = CameraCentroid(views);
+  const double radius = distance_factor * DistancePercentile(*splats, mean, 99);
   // Discs already placed, hashed by cells of the spacing (the spacing differs little across views:
   // the same sphere, similar focal lengths).
   std::unordered_map<int64_t, std::vector<Eigen::Vector3f>> placed;

@@ -20,6 +20,7 @@
 #include "pipeline/core/atomic_file.h"
 #include "pipeline/core/capture_info.h"
 #include "pipeline/core/capture_shape.h"
+#include "pipeline/core/json_file.h"
 #include "pipeline/core/errors.h"
 #include "pipeline/core/image_io.h"
 #include "pipeline/core/ply_io.h"
@@ -37,6 +38,17 @@ constexpr char kFused[] = "dense/fused.ply";
 const std::vector<std::string> kInitNames = {"auto", "surfels", "fused"};
 const std::vector<std::string> kBackdropNames = {"auto", "on", "off"};
 const std::vector<std::string> kBackgroundNames = {"auto", "capture", "fit"};
+
+// The capture's kind as the runner decided it (capture.json, which also carries a plan.kind the
+// config set), else as the poses show it.
+std::string CaptureKind(const Workspace& workspace, const SparseModel& model) {
+  const nlohmann::json capture = ReadJsonOr(workspace.Path(kCaptureFile), nlohmann::json());
+  if (capture.is_object()) {
+    const CaptureShape shape = CaptureShape::FromJson(capture);
+    if (!shape.kind.empty()) return shape.kind;
+  }
+  return AnalyseCapture(model, CaptureHasAlpha(workspace)).kind;
+}
 
 // The mean colour (RGB) of the training photos' outermost pixel rows and columns: where a capture's
 // background shows, if anywhere; the fitted background's start.
@@ -164,7 +176,8 @@ class SplatFitStage : public Stage {
   }
 
   std::vector<std::string> Inputs(const StageContext& context) const override {
-    std::vector<std::string> inputs = {context.workspace.ImagesRelative(), context.workspace.SparseRelative(), kBackgroundFile};
+    std::vector<std::string> inputs = {context.workspace.ImagesRelative(), context.workspace.SparseRelative(), kBackgroundFile,
+                                       kCaptureFile};
     const std::string& init = context.params.String("init");
     if (init != "fused") inputs.push_back(kSurfels);
     if (init != "surfels") inputs.push_back(kFused);
@@ -225,7 +238,7 @@ class SplatFitStage : public Stage {
 
     const std::string& backdrop = context.params.String("backdrop");
     bool with_backdrop = backdrop == "on";
-    if (backdrop == "auto") with_backdrop = AnalyseCapture(model, CaptureHasAlpha(workspace)).kind == "forward_facing";
+    if (backdrop == "auto") with_backdrop = CaptureKind(workspace, model) == "forward_facing";
     if (with_backdrop) {
       const size_t before = splats.size();
       const size_t added = AddBackdrop(views, static_cast<int>(context.params.Int("backdrop_step")),
