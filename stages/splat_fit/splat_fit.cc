@@ -70,6 +70,21 @@ double DistancePercentile(const GaussianSplats& splats, const Eigen::Vector3d& c
   return distances[k];
 }
 
+// Per channel, the sum over the pixels of a (CV_32FC3) times b (CV_32FC3, the same channel, or
+// CV_32FC1, for every channel), without the full-frame temporaries cv::sum(a.mul(b)) makes.
+Eigen::Vector3d ChannelProductSums(const cv::Mat& a, const cv::Mat& b) {
+  const int b_channels = b.channels();
+  Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+  for (int y = 0; y < a.rows; ++y) {
+    const float* pa = a.ptr<float>(y);
+    const float* pb = b.ptr<float>(y);
+    for (int x = 0; x < a.cols; ++x) {
+      for (int c = 0; c < 3; ++c) sum[c] += pa[3 * x + c] * pb[b_channels == 3 ? 3 * x + c : x];
+    }
+  }
+  return sum;
+}
+
 }  // namespace
 
 double SceneExtent(const std::vector<SplatFitView>& views, const GaussianSplats& splats, double floor) {
@@ -357,16 +372,13 @@ SplatFitResult FitSplats(const std::vector<SplatFitView>& views, const Eigen::Ve
     }
     const PhotometricLoss loss = PhotometricLossAndGradient(*drawn, view.image, options.dssim_weight, &d_image);
     if (options.view_gains) {
-      const cv::Scalar d_gain = cv::sum(d_image.mul(gained));
+      const Eigen::Vector3d d_gain = ChannelProductSums(d_image, gained);
       for (int c = 0; c < 3; ++c) d_log_gain[c] = static_cast<float>(d_gain[c]);
       cv::multiply(d_image, cv::Scalar(gain[0], gain[1], gain[2]), d_image);
     }
     if (options.fit_background) {
       // image = splats + transmittance * background: d loss / d background = sum of d_image * T.
-      cv::Mat transmittance3;
-      cv::merge(std::vector<cv::Mat>(3, frame.transmittance), transmittance3);
-      const cv::Scalar sum = cv::sum(d_image.mul(transmittance3));
-      for (int c = 0; c < 3; ++c) d_background[c] = static_cast<float>(sum[c]);
+      d_background = ChannelProductSums(d_image, frame.transmittance).cast<float>();
     }
     window_l1 += loss.l1;
     window_se += loss.se;
