@@ -34,6 +34,7 @@ bool BlenderCaptureOptions::Check(std::string* error) const {
   if (!(camera_angle_x > 0.05 && camera_angle_x < 2.5)) return fail("camera_angle_x: must be in (0.05, 2.5) radians");
   if (radius != -1 && !(radius >= 2.5 && radius <= 100)) return fail("radius: must be -1 (automatic) or in [2.5, 100]");
   if (!(strength >= 0 && strength <= 1)) return fail("strength: must be in [0, 1]");
+  if (thin_parts < 0 || thin_parts > 200) return fail("thin-parts: must be in [0, 200], got " + std::to_string(thin_parts));
   return true;
 }
 
@@ -83,6 +84,7 @@ BlenderCaptureSummary WriteBlenderCapture(const std::string& folder, const Blend
   synth.sparse_points = 0;
   synth.degradation = options.degradation;
   synth.strength = options.strength;
+  synth.thin_parts = options.thin_parts;
   SynthScene scene = BuildSynthScene(synth);
   const double focal = 0.5 * options.size / std::tan(0.5 * options.camera_angle_x);
   // Principal point at the image centre, as the layout's loaders assume.

@@ -13,7 +13,7 @@
 // y up, z backwards); "camera_angle_x" at the top. Pixels are straight (not premultiplied) RGBA,
 // 8 bits; transparent pixels hold black, as Blender writes them. `degradation` (synth_degradations.h,
 // e.g. specular) makes the object harder in the ways real objects are (shiny parts whose colour
-// changes with the view).
+// changes with the view), and `thin_parts` adds fine structure (blades a few pixels wide at 800).
 #pragma once
 
 #include <cstdint>
@@ -35,6 +35,7 @@ struct BlenderCaptureOptions {
                             // bounding sphere spans 3/4 of the field of view (it stays inside every frame)
   SynthDegradation degradation = SynthDegradation::kNone;
   double strength = 0.0;    // in [0, 1]
+  int thin_parts = 0;       // thin blades standing out of the object (synth.h), in [0, 200]
 
   bool Check(std::string* error) const;  // error starts with the option's name
 };

@@ -144,7 +144,8 @@ bool SynthOptions::Check(std::string* error) const {
                  sparse_points, error) &&
          Require(texture_frequency > 0 && texture_frequency <= 64, "texture_frequency", "in (0, 64]",
                  texture_frequency, error) &&
-         Require(strength >= 0 && strength <= 1, "strength", "in [0, 1]", strength, error);
+         Require(strength >= 0 && strength <= 1, "strength", "in [0, 1]", strength, error) &&
+         Require(thin_parts >= 0 && thin_parts <= 200, "thin_parts", "in [0, 200]", thin_parts, error);
 }
 
 double StarShape::Radius(const Eigen::Vector3d& u) const {
@@ -331,7 +332,8 @@ nlohmann::json SynthSceneJson(const SynthScene& scene, const SynthOptions& optio
                   {"baseline", options.baseline}, {"textureless_wall", options.textureless_wall},
                   {"subdivision", options.subdivision}, {"sparse_points", options.sparse_points},
                   {"texture_frequency", options.texture_frequency},
-                  {"degradation", SynthDegradationName(options.degradation)}, {"strength", options.strength}};
+                  {"degradation", SynthDegradationName(options.degradation)}, {"strength", options.strength},
+                  {"thin_parts", options.thin_parts}};
   j["world_up"] = vec(Eigen::Vector3d::UnitZ());
   j["camera"] = {{"model", "PINHOLE"}, {"width", scene.camera.width}, {"height", scene.camera.height},
                  {"params", scene.camera.params}};

@@ -71,6 +71,9 @@ struct SynthOptions {
   double texture_frequency = 3.0;  // cycles per scene unit of the coarsest noise octave, in (0, 64]
   SynthDegradation degradation = SynthDegradation::kNone;  // for the stability matrix (synth_degradations.h)
   double strength = 0.0;       // of the degradation, in [0, 1]
+  int thin_parts = 0;          // object_ring: thin blades standing out of the object (fine structure
+                               // like a model's antennae or a plant's leaves: 3 cm wide at the root
+                               // tapering to 7.5 mm, 6 mm thick, 0.25-0.6 long), in [0, 200]
 
   // Returns false and sets `error` (starting with the YAML key) when a value is out of range.
   bool Check(std::string* error) const;

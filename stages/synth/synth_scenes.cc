@@ -219,10 +219,58 @@ void AppendBox(const Eigen::Vector3d& min, const Eigen::Vector3d& max, double ce
   AppendPart(positions, faces, parts, scene);
 }
 
+// A thin straight blade from `base` to `tip`: a closed box `width` wide at the base tapering to a
+// quarter of it at the tip, `thickness` thick, its flat side facing along `facing` (made
+// perpendicular to the blade).
+void AppendBlade(const Eigen::Vector3d& base, const Eigen::Vector3d& tip, const Eigen::Vector3d& facing, double width,
+                 double thickness, int part, SynthScene* scene) {
+  const Eigen::Vector3d along = (tip - base).normalized();
+  Eigen::Vector3d normal = facing - facing.dot(along) * along;
+  if (normal.norm() < 1e-6 * facing.norm()) normal = along.unitOrthogonal();  // facing along the blade
+  normal.normalize();
+  const Eigen::Vector3d side = along.cross(normal);
+  std::vector<Eigen::Vector3d> positions;
+  for (int end = 0; end < 2; ++end) {
+    const Eigen::Vector3d centre = end == 0 ? base : tip;
+    const double half_width = 0.5 * width * (end == 0 ? 1.0 : 0.25);
+    for (const double s : {-1.0, 1.0}) {
+      for (const double t : {-1.0, 1.0}) positions.push_back(centre + s * half_width * side + t * 0.5 * thickness * normal);
+    }
+  }
+  const Eigen::Vector3d middle = 0.5 * (base + tip);
+  const int quads[6][4] = {{0, 1, 3, 2}, {4, 5, 7, 6}, {0, 1, 5, 4}, {2, 3, 7, 6}, {0, 2, 6, 4}, {1, 3, 7, 5}};
+  std::vector<Eigen::Vector3i> faces;
+  for (const auto& q : quads) {
+    const Eigen::Vector3d outward = 0.25 * (positions[q[0]] + positions[q[1]] + positions[q[2]] + positions[q[3]]) - middle;
+    faces.push_back(Oriented({q[0], q[1], q[2]}, positions, outward));
+    faces.push_back(Oriented({q[0], q[2], q[3]}, positions, outward));
+  }
+  AppendPart(positions, faces, std::vector<int>(faces.size(), part), scene);
+}
+
 void BuildObjectRingGeometry(const SynthOptions& options, SynthScene* scene) {
   std::mt19937_64 rng(Mix64(static_cast<uint64_t>(options.seed) ^ 0x0B1EC7A11ull));
   const int object = AddPart("object", /*foreground=*/true, /*smooth=*/true, Eigen::Vector3d::Ones(), scene);
-  AppendStarShape(RandomStarShape(Eigen::Vector3d::Zero(), 1.0, &rng), options.subdivision, object, scene);
+  const StarShape shape = RandomStarShape(Eigen::Vector3d::Zero(), 1.0, &rng);
+  AppendStarShape(shape, options.subdivision, object, scene);
+  if (options.thin_parts > 0) {
+    // Fine structure: blades rooted a little inside the surface, standing out of it along a direction
+    // within 35 degrees of the normal-ish radial one, with their own rng (the object unchanged).
+    std::mt19937_64 blade_rng(Mix64(static_cast<uint64_t>(options.seed) ^ 0x7B1ADEull));
+    const int blades = AddPart("thin_parts", /*foreground=*/true, /*smooth=*/false, {1.0, 0.85, 0.45}, scene);
+    for (int i = 0; i < options.thin_parts; ++i) {
+      Eigen::Vector3d u(UniformIn(-1, 1, &blade_rng), UniformIn(-1, 1, &blade_rng), UniformIn(-1, 1, &blade_rng));
+      if (u.norm() < 1e-3) u = Eigen::Vector3d::UnitZ();
+      u.normalize();
+      const Eigen::Vector3d base = shape.center + 0.92 * shape.scale * shape.Radius(u) * u;
+      Eigen::Vector3d lean(UniformIn(-1, 1, &blade_rng), UniformIn(-1, 1, &blade_rng), UniformIn(-1, 1, &blade_rng));
+      const Eigen::Vector3d direction = (u + 0.6 * (lean - lean.dot(u) * u)).normalized();
+      const double length = UniformIn(0.25, 0.6, &blade_rng);
+      const Eigen::Vector3d facing(UniformIn(-1, 1, &blade_rng), UniformIn(-1, 1, &blade_rng), UniformIn(-1, 1, &blade_rng));
+      AppendBlade(base, base + (length + 0.08 * shape.scale * shape.Radius(u)) * direction,
+                  facing.norm() > 1e-3 ? facing : Eigen::Vector3d::UnitX(), 0.03, 0.006, blades, scene);
+    }
+  }
 
   double bounding_radius = 0;
   for (const Eigen::Vector3f& v : scene->mesh.vertices) bounding_radius = std::max(bounding_radius, double(v.norm()));
@@ -283,33 +331,6 @@ void BuildRoomGeometry(const SynthOptions& options, SynthScene* scene) {
     const double x = options.baseline * (static_cast<double>(i) / (options.views - 1) - 0.5);
     AddView(i, options.views, LookAt({x, 0, 1.4}, target, Eigen::Vector3d::UnitZ()), scene);
   }
-}
-
-// A thin straight blade from `base` to `tip`: a closed box `width` wide at the base tapering to a
-// quarter of it at the tip, `thickness` thick, its flat side facing along `facing` (made
-// perpendicular to the blade).
-void AppendBlade(const Eigen::Vector3d& base, const Eigen::Vector3d& tip, const Eigen::Vector3d& facing, double width,
-                 double thickness, int part, SynthScene* scene) {
-  const Eigen::Vector3d along = (tip - base).normalized();
-  const Eigen::Vector3d normal = (facing - facing.dot(along) * along).normalized();
-  const Eigen::Vector3d side = along.cross(normal);
-  std::vector<Eigen::Vector3d> positions;
-  for (int end = 0; end < 2; ++end) {
-    const Eigen::Vector3d centre = end == 0 ? base : tip;
-    const double half_width = 0.5 * width * (end == 0 ? 1.0 : 0.25);
-    for (const double s : {-1.0, 1.0}) {
-      for (const double t : {-1.0, 1.0}) positions.push_back(centre + s * half_width * side + t * 0.5 * thickness * normal);
-    }
-  }
-  const Eigen::Vector3d middle = 0.5 * (base + tip);
-  const int quads[6][4] = {{0, 1, 3, 2}, {4, 5, 7, 6}, {0, 1, 5, 4}, {2, 3, 7, 6}, {0, 2, 6, 4}, {1, 3, 7, 5}};
-  std::vector<Eigen::Vector3i> faces;
-  for (const auto& q : quads) {
-    const Eigen::Vector3d outward = 0.25 * (positions[q[0]] + positions[q[1]] + positions[q[2]] + positions[q[3]]) - middle;
-    faces.push_back(Oriented({q[0], q[1], q[2]}, positions, outward));
-    faces.push_back(Oriented({q[0], q[2], q[3]}, positions, outward));
-  }
-  AppendPart(positions, faces, std::vector<int>(faces.size(), part), scene);
 }
 
 void BuildForwardFacingGeometry(const SynthOptions& options, SynthScene* scene) {

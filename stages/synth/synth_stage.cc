@@ -46,7 +46,8 @@ std::optional<ParamError> OptionsFromParams(const Params& params, SynthOptions* 
                                                {"height", &options->height},
                                                {"supersample", &options->supersample},
                                                {"subdivision", &options->subdivision},
-                                               {"sparse_points", &options->sparse_points}};
+                                               {"sparse_points", &options->sparse_points},
+                                               {"thin_parts", &options->thin_parts}};
   for (const auto& [key, field] : ints) {
     if (params.Has(key)) *field = ClampToInt(params.Int(key));
   }
@@ -136,6 +137,9 @@ class SynthStage : public Stage {
          "highlights, sensor noise, fronds; stages/synth/synth_degradations.h)",
          {}},
         {"strength", ParamType::kDouble, "0", "of the degradation: 0 clean, 1 a hard case, in [0, 1]", {}},
+        {"thin_parts", ParamType::kInt, "0",
+         "object_ring: thin blades standing out of the object (fine structure, 7.5 mm to 3 cm wide on an object "
+         "of radius about 1), in [0, 200]", {}},
     };
   }
 
@@ -219,11 +223,11 @@ class SynthStage : public Stage {
 namespace {
 
 // `ibmr synth-blender OUT [--size N] [--train N] [--val N] [--test N] [--seed N] [--supersample N]
-// [--degradation NAME] [--strength X]`: the synthetic object capture in NeRF's Blender layout.
+// [--degradation NAME] [--strength X] [--thin-parts N]`: the synthetic object capture in NeRF's Blender layout.
 int SynthBlenderCommand(const std::vector<std::string>& args) {
   const std::string usage =
       "usage: ibmr synth-blender OUT [--size 800] [--train 100] [--val 100] [--test 200] [--seed 1] [--supersample 3]\n"
-      "                          [--degradation none|specular|...] [--strength 0]\n"
+      "                          [--degradation none|specular|...] [--strength 0] [--thin-parts 0]\n"
       "Writes a synthetic object on a transparent background in NeRF's Blender layout (transforms_{train,val,test}.json,\n"
       "train/ val/ test/ RGBA PNGs) into OUT; import it with format transforms.\n";
   if (args.empty() || args[0] == "--help" || args[0] == "-h") {
@@ -244,6 +248,7 @@ int SynthBlenderCommand(const std::vector<std::string>& args) {
       else if (flag == "--seed") options.seed = std::stoll(value, &used);
       else if (flag == "--supersample") options.supersample = std::stoi(value, &used);
       else if (flag == "--strength") options.strength = std::stod(value, &used);
+      else if (flag == "--thin-parts") options.thin_parts = std::stoi(value, &used);
       else if (flag == "--degradation") {
         if (!SynthDegradationFromName(value, &options.degradation)) {
           throw std::invalid_argument("--degradation: one of " + SynthDegradationNames() + ", got '" + value + "'");

@@ -15,6 +15,7 @@
 #include <map>
 #include <nlohmann/json.hpp>
 #include <opencv2/core.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include "pipeline/core/atomic_file.h"
 #include "pipeline/core/colmap_array_io.h"
@@ -127,6 +128,8 @@ TEST(SynthOptions, EachInvalidRangeNamesItsKey) {
       {"subdivision", [](SynthOptions* o) { o->subdivision = 8; }},
       {"sparse_points", [](SynthOptions* o) { o->sparse_points = -1; }},
       {"texture_frequency", [](SynthOptions* o) { o->texture_frequency = 0; }},
+      {"thin_parts", [](SynthOptions* o) { o->thin_parts = -1; }},
+      {"thin_parts", [](SynthOptions* o) { o->thin_parts = 201; }},
   };
   for (const auto& [key, mutate] : cases) {
     SynthOptions options;
@@ -346,6 +349,43 @@ TEST(SynthRender, ObjectRingSeesTheWholeObjectInEveryView) {
     cv::meanStdDev(values, mean, sigma, eroded);
     EXPECT_GT(sigma[0], 15.0) << "texture too weak in view " << index;
   }
+}
+
+// Fine structure on the object (thin_parts): blades standing out of it add foreground that is thin
+// (most of the added mask pixels lie within 2 pixels of the clean object's or of background on both
+// sides), the object itself unchanged, and the views still hold the whole object.
+TEST(SynthRender, ThinPartsStandOutOfTheObjectAsFineStructure) {
+  SynthOptions options = SmallRing();
+  options.width = 320;
+  options.height = 240;
+  SynthOptions clean_options = options;
+  options.thin_parts = 30;
+  const SynthScene scene = BuildSynthScene(options), clean = BuildSynthScene(clean_options);
+  int blade_part = -1;
+  for (size_t p = 0; p < scene.parts.size(); ++p) {
+    if (scene.parts[p].name == "thin_parts") blade_part = static_cast<int>(p);
+  }
+  ASSERT_GE(blade_part, 0);
+  EXPECT_EQ(std::count(scene.face_part.begin(), scene.face_part.end(), blade_part), 30 * 12);
+  EXPECT_EQ(scene.face_part.size(), clean.face_part.size() + 30 * 12) << "the object's own faces unchanged";
+  // The same camera for both (the automatic focal follows the bounding sphere, which the blades grow).
+  SynthScene same_camera = clean;
+  same_camera.camera = scene.camera;
+  int added = 0, thin = 0;
+  for (int index = 0; index < 2; ++index) {
+    const SynthView view = RenderSynthView(scene, index, options);
+    const SynthView object = RenderSynthView(same_camera, index, clean_options);
+    cv::Mat border = view.mask.clone();
+    border(cv::Rect(2, 2, options.width - 4, options.height - 4)).setTo(0);
+    EXPECT_EQ(cv::countNonZero(border), 0) << "view " << index << " touches the border";
+    const cv::Mat blades = view.mask & ~object.mask;
+    cv::Mat opened;
+    cv::morphologyEx(blades, opened, cv::MORPH_OPEN, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(5, 5)));
+    added += cv::countNonZero(blades);
+    thin += cv::countNonZero(blades) - cv::countNonZero(opened);  // gone under a 5x5 opening: under 5 px wide
+  }
+  EXPECT_GT(added, 300) << "the blades are seen";
+  EXPECT_GT(thin, 0.8 * added) << "and thin: " << thin << " of " << added << " added pixels";
 }
 
 TEST(SynthRender, RoomHasLargeDepthRangeAndOcclusions) {
