@@ -23,6 +23,9 @@ namespace testing_stages {
 
 inline std::atomic<int> produce_runs{0};
 inline std::atomic<int> consume_runs{0};
+// `produce` declares one parameter more, "added" (default 0), as a stage does that gains one in a
+// later version of the code.
+inline std::atomic<bool> produce_gains_a_parameter{false};
 
 class Produce : public Stage {
  public:
@@ -31,12 +34,14 @@ class Produce : public Stage {
   std::string Version() const override { return "1"; }
   HoldoutRole Role() const override { return HoldoutRole::kAllViews; }
   std::vector<ParamSpec> Parameters() const override {
-    return {{"value", ParamType::kInt, "1", "any integer >= 0"},
-            {"source", ParamType::kPath, "source.txt", "external input"},
-            {"threads", ParamType::kInt, "1", "resource knob", {}, false},
-            {"fail", ParamType::kBool, "false", "throw halfway"},
-            {"scale", ParamType::kDouble, "1", "any finite number"},
-            {"warn", ParamType::kBool, "false", "log two warnings"}};
+    std::vector<ParamSpec> specs = {{"value", ParamType::kInt, "1", "any integer >= 0"},
+                                    {"source", ParamType::kPath, "source.txt", "external input"},
+                                    {"threads", ParamType::kInt, "1", "resource knob", {}, false},
+                                    {"fail", ParamType::kBool, "false", "throw halfway"},
+                                    {"scale", ParamType::kDouble, "1", "any finite number"},
+                                    {"warn", ParamType::kBool, "false", "log two warnings"}};
+    if (produce_gains_a_parameter) specs.push_back({"added", ParamType::kInt, "0", "a parameter added later"});
+    return specs;
   }
   std::optional<ParamError> CheckParams(const Params& params) const override {
     if (params.Int("value") < 0) return ParamError{"value", "must be >= 0, got " + std::to_string(params.Int("value"))};

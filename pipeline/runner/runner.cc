@@ -225,7 +225,8 @@ StageContext Runner::MakeContext(const Stage& stage, const StageConfig& stage_co
   return context;
 }
 
-std::string Runner::CacheKey(const Stage& stage, const StageContext& context, nlohmann::json* input_hashes) const {
+std::string Runner::CacheKey(const Stage& stage, const StageContext& context, nlohmann::json* input_hashes,
+                             const nlohmann::json* params_override) const {
   *input_hashes = nlohmann::json::object();
   for (const std::string& input : stage.Inputs(context)) {
     const std::string path = Resolve(context.workspace, input);
@@ -235,7 +236,7 @@ std::string Runner::CacheKey(const Stage& stage, const StageContext& context, nl
   }
   nlohmann::json key_source = {{"stage", stage.Name()},
                                {"version", stage.Version()},
-                               {"params", context.params.ResultJson(stage.Parameters())},
+                               {"params", params_override ? *params_override : context.params.ResultJson(stage.Parameters())},
                                {"heldout", context.heldout_images},
                                {"inputs", *input_hashes}};
   // Only where a subset is scored, so that every other stage's key stays as it was.
@@ -254,7 +255,35 @@ std::string Runner::MissingOutput(const Stage& stage, const StageContext& contex
 
 bool Runner::Finished(const Stage& stage, const StageContext& context, const std::string& key) const {
   const auto record = ReadRecord(RecordPath(stage.Name()));
-  return record && record->status == "ok" && record->key == key && MissingOutput(stage, context).empty();
+  return record && record->status == "ok" && KeyMatches(stage, context, key, *record) && MissingOutput(stage, context).empty();
+}
+
+// A parameter a stage gains in a later version changes every key (the key holds every parameter),
+// though a run with it at its default computes what the record's run computed: every workspace
+// would redo the stage and all after it. So the record's key also matches when the only
+// parameters it lacks are at their defaults: the key is then recomputed over the record's
+// parameters alone. (A changed default, or a new parameter set away from its default, still
+// changes the key; a change of behaviour comes with a new Version().)
+bool Runner::KeyMatches(const Stage& stage, const StageContext& context, const std::string& key,
+                        const StageRecord& record) const {
+  if (record.key == key) return true;
+  if (record.version != stage.Version() || !record.params.is_object()) return false;
+  const nlohmann::json params = context.params.ResultJson(stage.Parameters());
+  const nlohmann::json defaults = DefaultParams(stage, config_.dir).ResultJson(stage.Parameters());
+  nlohmann::json recorded_set = nlohmann::json::object();
+  bool lacks_some = false;
+  for (auto it = params.begin(); it != params.end(); ++it) {
+    if (record.params.contains(it.key())) {
+      recorded_set[it.key()] = it.value();
+    } else if (defaults.contains(it.key()) && defaults[it.key()] == it.value()) {
+      lacks_some = true;
+    } else {
+      return false;
+    }
+  }
+  if (!lacks_some) return false;
+  nlohmann::json inputs;
+  return CacheKey(stage, context, &inputs, &recorded_set) == record.key;
 }
 
 std::string Runner::OwnStaleness(const Stage& stage, const StageContext& context, const std::string& key) const {
@@ -270,7 +299,7 @@ std::string Runner::OwnStaleness(const Stage& stage, const StageContext& context
            "); now it runs";
   }
   if (record->status != "ok") return "last run failed: " + record->error;
-  if (record->key == key) return MissingOutput(stage, context);
+  if (KeyMatches(stage, context, key, *record)) return MissingOutput(stage, context);
   if (record->version != stage.Version()) return "code version changed (" + record->version + " -> " + stage.Version() + ")";
   const nlohmann::json params = context.params.ResultJson(stage.Parameters());
   for (auto it = params.begin(); it != params.end(); ++it) {

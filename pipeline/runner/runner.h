@@ -15,6 +15,8 @@
 
 namespace ibmr {
 
+struct StageRecord;  // record.h
+
 struct RunOptions {
   std::string only;   // run just this stage
   std::string from;   // run this stage and all after it
@@ -94,7 +96,13 @@ class Runner {
   Workspace ModelWorkspace(size_t stages) const;
   // CaptureOf for the model folder `workspace` reads.
   std::optional<CaptureShape> CaptureIn(const Workspace& workspace) const;
-  std::string CacheKey(const Stage& stage, const StageContext& context, nlohmann::json* input_hashes) const;
+  // `params_override`: the parameters' JSON to key instead of the context's (KeyMatches).
+  std::string CacheKey(const Stage& stage, const StageContext& context, nlohmann::json* input_hashes,
+                       const nlohmann::json* params_override = nullptr) const;
+  // `key` is the record's, or differs from it only by parameters the record lacks that are at
+  // their defaults (a parameter added since the record's run).
+  bool KeyMatches(const Stage& stage, const StageContext& context, const std::string& key,
+                  const StageRecord& record) const;
   // Own staleness of one stage, ignoring upstream; "" when up to date.
   std::string OwnStaleness(const Stage& stage, const StageContext& context, const std::string& key) const;
   // "output 'x' is missing" for the first declared output not there, else "".

@@ -86,6 +86,24 @@ TEST_F(RunnerTest, ResourceKnobDoesNotMakeStale) {
   EXPECT_EQ(Run({"produce.threads=8"}), std::make_pair(0, 0));
 }
 
+// A stage that gains a parameter in a later version: a workspace run before it stays up to date
+// while the parameter is at its default (nothing else in the key changed), and setting it away
+// from the default reruns the stage as any parameter change does.
+TEST_F(RunnerTest, AParameterAddedLaterAtItsDefaultLeavesOldRunsUpToDate) {
+  Run({"produce.value=3"});
+  testing_stages::produce_gains_a_parameter = true;
+  for (const auto& s : Status({"produce.value=3"})) EXPECT_TRUE(s.up_to_date) << s.name << ": " << s.reason;
+  EXPECT_EQ(Run({"produce.value=3"}), std::make_pair(0, 0));
+  EXPECT_EQ(Run({"produce.value=3", "produce.added=0"}), std::make_pair(0, 0)) << "set, but to its default";
+  const auto status = Status({"produce.value=3", "produce.added=2"});
+  EXPECT_NE(status[0].reason.find("parameter 'added' changed"), std::string::npos) << status[0].reason;
+  EXPECT_EQ(Run({"produce.value=3", "produce.added=2"}), std::make_pair(1, 0)) << "a.txt the same: consume's input unchanged";
+  // Another parameter changed beside the default one: stale as ever.
+  EXPECT_EQ(Run({"produce.value=4", "produce.added=2"}), std::make_pair(1, 1));
+  testing_stages::produce_gains_a_parameter = false;
+  EXPECT_EQ(Run({"produce.value=4"}), std::make_pair(1, 0)) << "the record holds 'added': a parameter gone changes the key";
+}
+
 TEST_F(RunnerTest, InputContentChangeReruns) {
   Run();
   std::ofstream(dir_ / "source.txt") << "bye";
