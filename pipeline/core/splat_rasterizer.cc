@@ -26,9 +26,33 @@ constexpr int kScreenGrads = splat_tiles::kScreenGradients;
 
 float Sigmoid(float x) { return 1.0f / (1.0f + std::exp(-x)); }
 
-// Squared radius (in sigmas) beyond which exp(-r^2 / 2) < min_alpha: no opacity makes it drawn.
-float Cutoff(const SplatRasterOptions& options) {
-  return options.min_alpha > 0 ? 2.0f * std::log(1.0f / options.min_alpha) : 1e30f;
+float Cutoff(const SplatRasterOptions& options) { return SplatCutoffSquared(options); }
+
+// The disc is drawn within the cut-off circle u^2 + v^2 < cutoff of its plane, which lies inside
+// the extent square. The square's projected corners bound it loosely: a disc
+// turned 45 degrees on screen gets a box twice the ellipse's area, and every tile and row of that
+// box is walked for nothing. This intersects [x0, x1] x [y0, y1] with the exact box of the circle's
+// image, a conic: with M mapping (u, v, 1) to homogeneous pixels, the circle's dual conic is
+// D = M diag(R^2, R^2, -1) M^T, and the vertical lines x = t tangent to it solve
+// D00 - 2 t D02 + t^2 D22 = 0 (likewise y with D11, D12). The circle lies wholly in front of the
+// camera (the image an ellipse) exactly when D22 < 0, given the centre is in front; otherwise the
+// box is left as it was. Nothing drawn changes: every pixel dropped lies outside the circle.
+void TightenToCutoffCircle(const Eigen::Matrix3f& m_float, float cutoff, float* x0, float* x1, float* y0, float* y1) {
+  const Eigen::Matrix3d m = m_float.cast<double>();
+  const double r2 = cutoff;
+  const Eigen::Matrix3d d = m * Eigen::Vector3d(r2, r2, -1.0).asDiagonal() * m.transpose();
+  if (!(d(2, 2) < 0) || !(m(2, 2) > 0)) return;
+  const double disc_x = d(0, 2) * d(0, 2) - d(0, 0) * d(2, 2), disc_y = d(1, 2) * d(1, 2) - d(1, 1) * d(2, 2);
+  if (!(disc_x >= 0) || !(disc_y >= 0)) return;
+  constexpr double kPad = 1e-3;  // pixels: float rounding of the box's ends
+  const double sx = std::sqrt(disc_x), sy = std::sqrt(disc_y);
+  // D22 < 0: the smaller root takes + sqrt.
+  const double ex0 = (d(0, 2) + sx) / d(2, 2) - kPad, ex1 = (d(0, 2) - sx) / d(2, 2) + kPad;
+  const double ey0 = (d(1, 2) + sy) / d(2, 2) - kPad, ey1 = (d(1, 2) - sy) / d(2, 2) + kPad;
+  *x0 = std::max(*x0, static_cast<float>(ex0));
+  *x1 = std::min(*x1, static_cast<float>(ex1));
+  *y0 = std::max(*y0, static_cast<float>(ey0));
+  *y1 = std::min(*y1, static_cast<float>(ey1));
 }
 
 }  // namespace
@@ -72,7 +96,7 @@ void RenderSplats(const GaussianSplats& splats, const SplatCamera& camera, const
   k(1, 2) = camera.cy;
   const Eigen::Vector3f eye = camera.Centre();
   const float cutoff = Cutoff(options);
-  const float lowpass_reach = options.lowpass_sigma * std::min(std::sqrt(cutoff), options.extent_sigmas);
+  const float lowpass_reach = options.lowpass_sigma * std::sqrt(cutoff);  // the floor's reach (splat_rasterizer.h)
 
   tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 1024), [&](const tbb::blocked_range<size_t>& range) {
     float basis[16];
@@ -106,6 +130,7 @@ void RenderSplats(const GaussianSplats& splats, const SplatCamera& camera, const
         }
       }
       if (behind) continue;
+      TightenToCutoffCircle(m, cutoff, &x0, &x1, &y0, &y1);
       const Eigen::Vector2f centre(m(0, 2) / m(2, 2), m(1, 2) / m(2, 2));
       x0 = std::min(x0, centre.x() - lowpass_reach);
       x1 = std::max(x1, centre.x() + lowpass_reach);

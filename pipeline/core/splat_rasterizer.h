@@ -9,11 +9,16 @@
 // centre) and M = K H, a pixel x~ = (x, y, 1) sees the disc point (u, v) with (u, v, 1) / z = M^-1 x~,
 // z the depth of that point along the optical axis: a well-defined depth per splat and pixel. The
 // falloff is G = exp(-(u^2 + v^2) / 2), with 2DGS's screen-space floor max(G, exp(-|x - c|^2 /
-// (2 sigma^2))), c the projected centre, so that a disc seen edge-on still covers a pixel.
+// (2 sigma^2))), c the projected centre, so that a disc seen edge-on still covers a pixel. The disc
+// reaches as far as the circle u^2 + v^2 < R^2 of its plane, R^2 = SplatCutoffSquared (3 sigmas, or
+// less where exp(-R^2 / 2) < min_alpha could not be drawn at any opacity), the floor as far as
+// |x - c| < sigma R; the footprint box is the box of the circle's image (a conic: the box is exact,
+// where the 3-sigma square's projected corners give up to twice the area for a disc turned on
+// screen) joined with the floor's.
 //
 // Compositing (seed 000 §3, lines 5526-5610, the over operator; Kerbl et al., "3D Gaussian
 // Splatting", SIGGRAPH 2023, §6): the image is cut in 16x16-pixel tiles; per tile, the splats
-// whose 3-sigma footprint touches it, sorted front to back by their centres' depth, are composited
+// whose footprint touches it, sorted front to back by their centres' depth, are composited
 // with alpha_i = min(0.99, opacity_i G_i) (alphas below min_alpha, 1/255, skipped) until the transmittance
 // falls below 1e-4. The backward pass walks the same lists in reverse, recovering each
 // transmittance by division, and accumulates per splat the gradients of M^-1, of its projected
@@ -36,6 +41,8 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <algorithm>
+#include <cmath>
 #include <cstdint>
 #include <memory>
 #include <opencv2/core.hpp>
@@ -70,6 +77,13 @@ struct SplatRasterOptions {
   float min_alpha = 1.0f / 255.0f;
   int sh_degree = -1;                 // SH degree used (<= the splats'); -1: the splats' own
 };
+
+// The squared radius R^2 (in standard deviations, in the disc's plane) within which a disc is drawn:
+// extent_sigmas^2, or 2 ln(1 / min_alpha) where that is smaller (no opacity draws the falloff past it).
+inline float SplatCutoffSquared(const SplatRasterOptions& options) {
+  const float extent = options.extent_sigmas * options.extent_sigmas;
+  return options.min_alpha > 0 ? std::min(extent, 2.0f * std::log(1.0f / options.min_alpha)) : extent;
+}
 
 // Per drawn splat, what the tile loops read (copies of SplatFrame's per-splat values), in one
 // cache line: a tile's splats are far apart in memory, and each one read costs a miss.

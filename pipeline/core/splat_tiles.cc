@@ -47,7 +47,7 @@ constexpr int kTilePixels = kSplatTile * kSplatTile;
 constexpr float kMaxAlpha = 0.99f;
 constexpr float kMinTransmittance = 1e-4f;
 // Stands for "this falloff is not evaluated" in the exponent comparisons (ExpNonPositive of its
-// negative is 0): above any squared radius that passes a cut-off (at most 1e30, when min_alpha is 0).
+// negative is 0): above any squared radius that passes a cut-off (at most extent_sigmas^2).
 constexpr float kNotEvaluated = 1e38f;
 
 // What every splat of a view shares.
@@ -63,7 +63,7 @@ struct ViewConstants {
 
 ViewConstants Constants(const SplatRasterOptions& options) {
   ViewConstants c;
-  c.cutoff = options.min_alpha > 0 ? 2.0f * std::log(1.0f / options.min_alpha) : 1e30f;
+  c.cutoff = SplatCutoffSquared(options);
   c.half_cutoff = 0.5f * c.cutoff;
   c.inv_two_sigma2 = 1.0f / (2.0f * options.lowpass_sigma * options.lowpass_sigma);
   c.min_raw = options.min_alpha <= kMaxAlpha ? options.min_alpha : std::numeric_limits<float>::infinity();

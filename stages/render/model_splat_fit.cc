@@ -4,12 +4,14 @@
 // ray meets its plane, composited front to back. Drawn at the output size (the footprints carry
 // their own screen-space floor: no supersampling), over black with the transmittance left as the
 // coverage, so that the stage's fill composites the capture's background where the splats leave it
-// visible. The splats were fitted to every training view: a training view rendered leave-one-out
+// visible; or, where the fit fitted the background colour too (splat_fit/background.json "fitted"),
+// over that colour, which is then part of the model: every pixel covered. The splats were fitted to every training view: a training view rendered leave-one-out
 // still saw its own photo (MadeFromEveryPhoto).
 #include <filesystem>
 
 #include "pipeline/core/errors.h"
 #include "pipeline/core/gaussian_splats.h"
+#include "pipeline/core/json_file.h"
 #include "pipeline/core/splat_rasterizer.h"
 #include "stages/render/render_model.h"
 
@@ -22,9 +24,13 @@ namespace {
 class SplatFitModel : public RenderModel {
  public:
   SplatFitModel(ModelEntry entry, const Workspace& workspace)
-      : RenderModel(std::move(entry)), path_(workspace.Path("splat_fit/splats.ply")) {}
+      : RenderModel(std::move(entry)),
+        path_(workspace.Path("splat_fit/splats.ply")),
+        background_path_(workspace.Path("splat_fit/background.json")) {}
 
-  std::vector<std::string> Inputs(const StageContext&) const override { return {"splat_fit/splats.ply"}; }
+  std::vector<std::string> Inputs(const StageContext&) const override {
+    return {"splat_fit/splats.ply", "splat_fit/background.json"};
+  }
   std::string SourcePath(const Workspace& workspace) const override { return workspace.Relative(path_); }
   // At the output size: the frame's image, transmittance, depth and per-pixel counts (24 bytes), and
   // the per-splat projection (about 100 bytes a splat, counted against the pixels of a 1 Mpx view).
@@ -44,6 +50,16 @@ class SplatFitModel : public RenderModel {
       return std::string(e.what());
     }
     if (splats_.size() == 0) return path_ + " holds no splat";
+    const nlohmann::json background = ReadJsonOr(background_path_, nlohmann::json::object());
+    fitted_background_ = background.value("fitted", false);
+    if (fitted_background_) {
+      const nlohmann::json& rgb = background["rgb"];
+      if (!rgb.is_array() || rgb.size() != 3 || !rgb[0].is_number() || !rgb[1].is_number() || !rgb[2].is_number()) {
+        return background_path_ + ": \"rgb\" must be three numbers (re-run the splat_fit stage)";
+      }
+      for (int c = 0; c < 3; ++c) background_[c] = rgb[c].get<float>();
+      (*facts)["fitted_background"] = {background_[0], background_[1], background_[2]};
+    }
     (*facts)["splats"] = splats_.size();
     (*facts)["sh_degree"] = splats_.sh_degree;
     return std::nullopt;
@@ -52,7 +68,9 @@ class SplatFitModel : public RenderModel {
   ModelView Render(const RenderScene&, const DesiredView& view) const override {
     const SplatCamera camera = ToSplatCamera(view.camera, view.cam_from_world);
     SplatFrame frame;
-    RenderSplats(splats_, camera, SplatRasterOptions(), &frame);  // over black
+    SplatRasterOptions options;
+    if (fitted_background_) options.background = background_;  // else over black
+    RenderSplats(splats_, camera, options, &frame);
     ModelView drawn;
     drawn.fine.image.create(camera.height, camera.width, CV_8UC3);
     drawn.fine.coverage.create(camera.height, camera.width, CV_8UC1);
@@ -64,7 +82,7 @@ class SplatFitModel : public RenderModel {
       uint8_t* cover = drawn.fine.coverage.ptr<uint8_t>(y);
       for (int x = 0; x < camera.width; ++x) {
         for (int c = 0; c < 3; ++c) out[x][2 - c] = cv::saturate_cast<uint8_t>(255.0f * rgb[x][c]);
-        cover[x] = cv::saturate_cast<uint8_t>(255.0f * (1.0f - transmittance[x]));
+        cover[x] = fitted_background_ ? uint8_t{255} : cv::saturate_cast<uint8_t>(255.0f * (1.0f - transmittance[x]));
         covered += cover[x] > 0;
       }
     }
@@ -79,8 +97,10 @@ class SplatFitModel : public RenderModel {
   }
 
  private:
-  std::string path_;
+  std::string path_, background_path_;
   GaussianSplats splats_;
+  bool fitted_background_ = false;
+  Eigen::Vector3f background_ = Eigen::Vector3f::Zero();
 };
 
 }  // namespace

@@ -1,14 +1,20 @@
 // The render model registry (render_model.h, render_models.cc): entries parsed to their kinds,
 // names, options, @N details and fallbacks; unknown entries refused with the list of kinds; the
 // stage's `proxies` documentation and checks drawn from the registry; and the hole extension every
-// mesh model shares (ExtendIntoHoles of a raster).
+// mesh model shares (ExtendIntoHoles of a raster); the fitted splats drawn over the background
+// colour fitted with them.
 #include "stages/render/render_model.h"
 
 #include <gtest/gtest.h>
 
+#include <unistd.h>
+
+#include <filesystem>
 #include <set>
 
+#include "pipeline/core/atomic_file.h"
 #include "pipeline/core/errors.h"
+#include "pipeline/core/gaussian_splats.h"
 #include "pipeline/core/rasterizer.h"
 #include "pipeline/runner/config.h"
 
@@ -209,6 +215,46 @@ TEST(ExtendIntoHoles, ARasterTakesTheFacesOfTheDepthsItExtends) {
   const std::vector<uint8_t> none = ExtendIntoHoles(&untouched, 0);
   EXPECT_EQ(untouched.face_id, before.face_id);
   EXPECT_EQ(std::count(none.begin(), none.end(), 1), 0);
+}
+
+// Where splat_fit fitted the background colour with the splats (splat_fit/background.json
+// "fitted"), the colour is part of the model: drawn behind the splats, every pixel covered; where
+// it was given (the capture's), the model leaves it to the stage's fill: over black, the
+// transmittance as the coverage.
+TEST(SplatFitModel, DrawsTheBackgroundFittedWithTheSplats) {
+  const std::filesystem::path root =
+      std::filesystem::temp_directory_path() / ("ibmr_splat_fit_model_" + std::to_string(::getpid()));
+  std::filesystem::create_directories(root / "splat_fit");
+  GaussianSplats splats;
+  splats.Add({0, 0, 2}, RotationWithNormal({0, 0, -1}), {std::log(0.2f), std::log(0.2f)}, 0.99f, {1.0f, 0.5f, 0.25f});
+  WriteGaussianSplatsPly((root / "splat_fit/splats.ply").string(), splats, "test");
+  const Workspace workspace(root.string());
+  DesiredView view;
+  view.camera = Camera::Pinhole(64, 48, 60, 60, 32, 24);
+  for (const bool fitted : {true, false}) {
+    WriteFileAtomic((root / "splat_fit/background.json").string(),
+                    std::string("{\"rgb\": [0.2, 0.4, 0.8], \"fitted\": ") + (fitted ? "true" : "false") + "}\n");
+    const std::unique_ptr<RenderModel> model = MakeRenderModel("splat_fit", workspace);
+    nlohmann::json facts;
+    ASSERT_EQ(model->Prepare(RenderScene(), &facts), std::nullopt);
+    const ModelView drawn = model->Render(RenderScene(), view);
+    const cv::Vec3b corner = drawn.fine.image.at<cv::Vec3b>(0, 0), centre = drawn.fine.image.at<cv::Vec3b>(24, 32);
+    EXPECT_GE(centre[2], 245) << "the disc's red, nearly opaque at its centre";
+    if (fitted) {
+      EXPECT_EQ(corner, cv::Vec3b(204, 102, 51)) << "BGR of the fitted colour";
+      EXPECT_EQ(drawn.fine.covered_pixels, 64u * 48u);
+    } else {
+      EXPECT_EQ(corner, cv::Vec3b(0, 0, 0));
+      EXPECT_EQ(drawn.fine.coverage.at<uint8_t>(0, 0), 0);
+      EXPECT_LT(drawn.fine.covered_pixels, 64u * 48u / 2);
+    }
+  }
+  WriteFileAtomic((root / "splat_fit/background.json").string(), "{\"rgb\": [0.2], \"fitted\": true}\n");
+  nlohmann::json facts;
+  const auto error = MakeRenderModel("splat_fit", workspace)->Prepare(RenderScene(), &facts);
+  ASSERT_TRUE(error.has_value());
+  EXPECT_NE(error->find("background.json"), std::string::npos) << *error;
+  std::filesystem::remove_all(root);
 }
 
 }  // namespace

@@ -7,6 +7,9 @@
 //   splat_fit/splats.ply    the fitted splats in the layout Gaussian-splatting viewers read
 //                           (pipeline/core/gaussian_splats.h)
 //   splat_fit/curve.json    the fitting curve: training L1 and PSNR every 50 steps, splat count
+//   splat_fit/background.json  {"rgb": [r, g, b] in [0, 1], "fitted": bool}: the colour the splats
+//                           were fitted over; where fitted, part of the model (the render model
+//                           draws it behind the splats)
 // Its record holds the fit's statistics (no held-out view is read): splats, steps, final training
 // error, and forward / backward seconds per image megapixel per 100k splats.
 #include <spdlog/spdlog.h>
@@ -102,7 +105,8 @@ class SplatFitStage : public Stage {
   std::string Summary() const override {
     return "Oriented elliptical splats fitted to the training photos by gradient descent (splat_fit/splats.ply)";
   }
-  std::string Version() const override { return "4"; }
+  // 5: splat_fit/background.json; footprints cut at the circle of 3 sigmas (splat_rasterizer.h)
+  std::string Version() const override { return "5"; }
   HoldoutRole Role() const override { return HoldoutRole::kTrainingOnly; }
 
   std::vector<ParamSpec> Parameters() const override {
@@ -279,6 +283,11 @@ class SplatFitStage : public Stage {
       curve.push_back({{"iteration", p.iteration}, {"l1", p.l1}, {"psnr", p.psnr}, {"splats", p.splats}});
     }
     WriteFileAtomic(workspace.Path("splat_fit/curve.json"), nlohmann::json({{"curve", curve}}).dump(1) + "\n");
+    WriteFileAtomic(workspace.Path("splat_fit/background.json"),
+                    nlohmann::json({{"rgb", {result.background[0], result.background[1], result.background[2]}},
+                                    {"fitted", fit_options.fit_background}})
+                            .dump(1) +
+                        "\n");
 
     nlohmann::json& m = context.metrics;
     m["splats"] = splats.size();
