@@ -206,7 +206,7 @@ struct PixelByPixel {
 
 PixelByPixel DrawPixelByPixel(const SplatFrame& frame) {
   const SplatRasterOptions& options = frame.options;
-  const float cutoff = options.min_alpha > 0 ? 2.0f * std::log(1.0f / options.min_alpha) : 1e30f;
+  const float cutoff = SplatCutoffSquared(options);
   const float inv_two_sigma2 = 1.0f / (2.0f * options.lowpass_sigma * options.lowpass_sigma);
   PixelByPixel out;
   out.image.create(frame.height, frame.width, CV_32FC3);
@@ -355,6 +355,63 @@ TEST(SplatRaster, TilesAreFrontToBackAndSplatsBehindTheCameraAreIgnored) {
     }
     EXPECT_GT(frame.drawn, 0u);
   }
+}
+
+// The footprint box is the projected cut-off circle's (a conic's) box: every pixel a disc reaches
+// (in front of its plane's horizon, within the cut-off) lies in its box, and over discs turned
+// every way the boxes are much smaller than the extent square's projected corners give.
+TEST(SplatRaster, TheFootprintBoxHoldsEveryPixelTheDiscReachesAndLittleMore) {
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<float> unit(-1, 1);
+  GaussianSplats splats;
+  for (int i = 0; i < 300; ++i) {
+    const Eigen::Vector3f normal(unit(rng), unit(rng), unit(rng));
+    if (normal.norm() < 0.1f) continue;
+    splats.Add({0.8f * unit(rng), 0.6f * unit(rng), 2.5f + unit(rng)}, RotationWithNormal(normal.normalized()),
+               {std::log(0.02f + 0.04f * (1 + unit(rng))), std::log(0.02f + 0.04f * (1 + unit(rng)))}, 0.8f, {1, 1, 1});
+  }
+  SplatCamera camera;
+  camera.width = 160;
+  camera.height = 120;
+  camera.fx = camera.fy = 120;
+  camera.cx = 80;
+  camera.cy = 60;
+  const SplatRasterOptions options;
+  SplatFrame frame;
+  RenderSplats(splats, camera, options, &frame);
+  const double cutoff = SplatCutoffSquared(options);
+  double box_area = 0, corner_area = 0;
+  int reached = 0;
+  for (size_t i = 0; i < splats.size(); ++i) {
+    if (!frame.visible[i]) continue;
+    const Eigen::Matrix3d inverse = frame.m[i].cast<double>().inverse();
+    const Eigen::Vector4i& b = frame.box[i];
+    for (int row = 0; row < camera.height; ++row) {
+      for (int column = 0; column < camera.width; ++column) {
+        const Eigen::Vector3d w = inverse * Eigen::Vector3d(column + 0.5, row + 0.5, 1.0);
+        if (!(w.z() > 0)) continue;
+        const double u = w.x() / w.z(), v = w.y() / w.z();
+        if (u * u + v * v >= cutoff) continue;
+        ++reached;
+        ASSERT_TRUE(column >= b[0] && column <= b[2] && row >= b[1] && row <= b[3])
+            << "splat " << i << " reaches pixel " << column << ", " << row << " outside its box";
+      }
+    }
+    float x0 = 1e30f, y0 = 1e30f, x1 = -1e30f, y1 = -1e30f;  // the square's projected corners
+    for (const float a : {-options.extent_sigmas, options.extent_sigmas}) {
+      for (const float c : {-options.extent_sigmas, options.extent_sigmas}) {
+        const Eigen::Vector3f p = frame.m[i] * Eigen::Vector3f(a, c, 1.0f);
+        x0 = std::min(x0, p.x() / p.z()), x1 = std::max(x1, p.x() / p.z());
+        y0 = std::min(y0, p.y() / p.z()), y1 = std::max(y1, p.y() / p.z());
+      }
+    }
+    const auto clamp_x = [&](float x) { return std::clamp(x, 0.0f, static_cast<float>(camera.width)); };
+    const auto clamp_y = [&](float y) { return std::clamp(y, 0.0f, static_cast<float>(camera.height)); };
+    corner_area += (clamp_x(x1) - clamp_x(x0) + 1) * (clamp_y(y1) - clamp_y(y0) + 1);
+    box_area += (b[2] - b[0] + 1.0) * (b[3] - b[1] + 1.0);
+  }
+  EXPECT_GT(reached, 10000) << "the discs reach pixels";
+  EXPECT_LT(box_area, 0.85 * corner_area) << "boxes " << box_area << " px, corners' boxes " << corner_area << " px";
 }
 
 TEST(SplatRaster, AnOpaqueDiscCoversItsPixelsAtItsDepth) {
