@@ -25,13 +25,13 @@ namespace fs = std::filesystem;
 namespace ibmr {
 namespace {
 
-SplatCamera TestCamera() {
+SplatCamera TestCamera(int width = 48, int height = 40, float focal = 50) {
   SplatCamera camera;
-  camera.width = 48;
-  camera.height = 40;
-  camera.fx = camera.fy = 50;
-  camera.cx = 24;
-  camera.cy = 20;
+  camera.width = width;
+  camera.height = height;
+  camera.fx = camera.fy = focal;
+  camera.cx = 0.5f * width;
+  camera.cy = 0.5f * height;
   return camera;  // at the origin, looking along +z
 }
 
@@ -370,12 +370,7 @@ TEST(SplatRaster, TheFootprintBoxHoldsEveryPixelTheDiscReachesAndLittleMore) {
     splats.Add({0.8f * unit(rng), 0.6f * unit(rng), 2.5f + unit(rng)}, RotationWithNormal(normal.normalized()),
                {std::log(0.02f + 0.04f * (1 + unit(rng))), std::log(0.02f + 0.04f * (1 + unit(rng)))}, 0.8f, {1, 1, 1});
   }
-  SplatCamera camera;
-  camera.width = 160;
-  camera.height = 120;
-  camera.fx = camera.fy = 120;
-  camera.cx = 80;
-  camera.cy = 60;
+  const SplatCamera camera = TestCamera(160, 120, 120);
   const SplatRasterOptions options;
   SplatFrame frame;
   RenderSplats(splats, camera, options, &frame);
