@@ -30,7 +30,7 @@ using ibmr_e2e::CommandResult;
 using ibmr_e2e::RunCommand;
 
 const std::string kConfig = std::string(IBMR_SOURCE_DIR) + "/configs/synth_dense.yaml";
-const std::string kSmall = " --set synth.width=320 --set synth.height=240 --set synth.views=16";
+const std::string kSmall = " --set synth.width=320 --set synth.height=240 --set synth.views=16 --set splat_fit.iterations=30";
 
 std::string Ibmr(const std::string& args) { return std::string(IBMR_BINARY) + " " + args; }
 

@@ -1,7 +1,6 @@
 // Tile rasterizer of oriented elliptical splats, forward and backward (see splat_rasterizer.h).
 #include "pipeline/core/splat_rasterizer.h"
 
-#include <tbb/enumerable_thread_specific.h>
 #include <tbb/parallel_for.h>
 
 #include <Eigen/LU>
@@ -16,8 +15,11 @@
 
 namespace ibmr {
 
+// The backward pass's per-entry sums (one per entry of the tiles' lists) and, per splat, its
+// entries in list order (splat_start / splat_entries, compressed rows).
 struct SplatBackwardScratch {
-  tbb::enumerable_thread_specific<std::vector<splat_tiles::ScreenGradientSums>> buffers;
+  std::vector<splat_tiles::ScreenGradientSums> entries;
+  std::vector<uint32_t> splat_start, splat_entries, cursor;
 };
 
 namespace {
@@ -233,14 +235,18 @@ void BackwardSplats(const GaussianSplats& splats, const SplatCamera& camera, con
   const SplatRasterOptions& options = frame.options;
   const int tiles = frame.tiles_x * frame.tiles_y;
   if (!gradients->scratch) gradients->scratch = std::make_shared<SplatBackwardScratch>();
-  auto& buffers = gradients->scratch->buffers;
-  for (auto& buffer : buffers) buffer.resize(n, splat_tiles::ScreenGradientSums{});  // new splats: zero
-
-  tbb::parallel_for(0, tiles, [&](int t) {
-    auto& sums = buffers.local();
-    sums.resize(n, splat_tiles::ScreenGradientSums{});
-    splat_tiles::BackwardTile(frame, d_image, t, sums.data());
-  });
+  SplatBackwardScratch& scratch = *gradients->scratch;
+  const uint32_t total = frame.tile_start[tiles];
+  scratch.entries.resize(total);  // every entry written by its tile
+  tbb::parallel_for(0, tiles, [&](int t) { splat_tiles::BackwardTile(frame, d_image, t, scratch.entries.data()); });
+  // Each splat's entries in the lists' order (tile by tile): the sums below add them in that order
+  // whatever thread drew each tile.
+  scratch.splat_start.assign(n + 1, 0);
+  for (uint32_t k = 0; k < total; ++k) ++scratch.splat_start[frame.tile_splats[k] + 1];
+  for (size_t i = 0; i < n; ++i) scratch.splat_start[i + 1] += scratch.splat_start[i];
+  scratch.cursor.assign(scratch.splat_start.begin(), scratch.splat_start.end() - 1);
+  scratch.splat_entries.resize(total);
+  for (uint32_t k = 0; k < total; ++k) scratch.splat_entries[scratch.cursor[frame.tile_splats[k]]++] = k;
 
   // The per-splat screen quantities carried to the parameters.
   Eigen::Matrix3f k_transposed = Eigen::Matrix3f::Zero();
@@ -256,12 +262,9 @@ void BackwardSplats(const GaussianSplats& splats, const SplatCamera& camera, con
     for (size_t i = range.begin(); i != range.end(); ++i) {
       if (!frame.visible[i]) continue;
       float g[kScreenGrads] = {};
-      for (auto& buffer : buffers) {
-        if (buffer.size() <= i) continue;
-        for (int q = 0; q < kScreenGrads; ++q) {
-          g[q] += buffer[i].value[q];
-          buffer[i].value[q] = 0.0f;  // zero for the next call
-        }
+      for (uint32_t e = scratch.splat_start[i]; e < scratch.splat_start[i + 1]; ++e) {
+        const splat_tiles::ScreenGradientSums& entry = scratch.entries[scratch.splat_entries[e]];
+        for (int q = 0; q < kScreenGrads; ++q) g[q] += entry.value[q];
       }
       bool any = false;
       for (int q = 0; q < kScreenGrads; ++q) any = any || g[q] != 0.0f;

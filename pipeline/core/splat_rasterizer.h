@@ -131,7 +131,7 @@ struct SplatGradients {
   std::vector<float> sh;
   std::vector<float> screen;  // |d loss / d projected centre| in normalised device coordinates
                               // (3DGS's density statistic; the same at any resolution)
-  // Per-thread sums of the backward pass, kept from call to call (zero between calls).
+  // The backward pass's per-entry sums and their index, kept from call to call (no allocation per step).
   std::shared_ptr<struct SplatBackwardScratch> scratch;
   void Reset(const GaussianSplats& splats);  // sized to the splats, zero
 };

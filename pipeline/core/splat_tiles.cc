@@ -264,7 +264,7 @@ void ForwardTile(SplatFrame& frame, int tile) {
   }
 }
 
-void BackwardTile(const SplatFrame& frame, const cv::Mat& d_image, int tile, ScreenGradientSums* sums) {
+void BackwardTile(const SplatFrame& frame, const cv::Mat& d_image, int tile, ScreenGradientSums* entries) {
   const ViewConstants view = Constants(frame.options);
   const float inv_sigma2 = 2.0f * view.inv_two_sigma2;
   const TileGeometry geometry = Geometry(frame, tile);
@@ -302,7 +302,7 @@ void BackwardTile(const SplatFrame& frame, const cv::Mat& d_image, int tile, Scr
     if (jj >= kPrefetchAhead) {
       const uint32_t ahead = frame.tile_splats[start + jj - kPrefetchAhead];
       Prefetch(frame, ahead);
-      __builtin_prefetch(&sums[ahead], 1);
+      __builtin_prefetch(&entries[start + jj - kPrefetchAhead], 1);
     }
     const uint32_t i = frame.tile_splats[start + jj];
     const SplatInTile s = Load(frame, i, geometry.px0, geometry.py0, geometry.w, geometry.hgt);
@@ -374,7 +374,10 @@ void BackwardTile(const SplatFrame& frame, const cv::Mat& d_image, int tile, Scr
       touched += taken_count;
     }
     // A splat no pixel took adds nothing: its sums' cache line is left alone.
-    if (touched == 0) continue;
+    if (touched == 0) {
+      entries[start + jj] = ScreenGradientSums{};  // no pixel of this tile took it
+      continue;
+    }
     // Summed over lanes as a tree of vector additions (a scalar loop of 15 x 16 additions a splat
     // would cost as much as the rows).
     alignas(64) float lane_g[kScreenGradients][kRow];
@@ -392,8 +395,10 @@ void BackwardTile(const SplatFrame& frame, const cv::Mat& d_image, int tile, Scr
         for (int l = 0; l < width; ++l) lane_g[q][l] += lane_g[q][l + width];
       }
     }
-    for (int q = 0; q < kScreenGradients; ++q) sums[i].value[q] += lane_g[q][0];
+    for (int q = 0; q < kScreenGradients; ++q) entries[start + jj].value[q] = lane_g[q][0];
   }
+  // The splats behind every pixel's last: not reached from this tile.
+  for (uint32_t j = start + static_cast<uint32_t>(most); j < frame.tile_start[tile + 1]; ++j) entries[j] = ScreenGradientSums{};
 }
 
 }  // namespace IBMR_SPLAT_ISA

@@ -62,9 +62,11 @@ bool IsaSupported(Isa isa);
 Isa ActiveIsa();
 bool SetIsa(Isa isa);  // false (and unchanged) where unsupported
 
-// Per-splat gradient sums the backward pass accumulates: d/d M^-1 row-major (9), d/d the projected
-// centre (2), d/d colour (3), d/d opacity (1); one cache line a splat (the tiles add to them in
-// the order of their lists, far apart in memory).
+// The gradient sums of one splat over one tile's pixels, which the backward pass writes per entry
+// of the tiles' lists: d/d M^-1 row-major (9), d/d the projected centre (2), d/d colour (3), d/d
+// opacity (1); one cache line an entry. Summed per splat afterwards in the lists' order, so that
+// the gradients do not depend on which thread drew which tile (a fit gives the same bytes run
+// after run, as sharded runs must).
 inline constexpr int kScreenGradients = 15;
 struct alignas(64) ScreenGradientSums {
   float value[16] = {};  // kScreenGradients used
@@ -73,8 +75,8 @@ struct alignas(64) ScreenGradientSums {
 #define IBMR_SPLAT_TILE_DECLARATIONS                                                                         \
   /* Composites tile `tile` of `frame` front to back into its image, transmittance, depth and last. */      \
   void ForwardTile(SplatFrame& frame, int tile);                                                           \
-  /* Walks tile `tile`'s lists back to front, adding to `sums` (one per splat). */                       \
-  void BackwardTile(const SplatFrame& frame, const cv::Mat& d_image, int tile, ScreenGradientSums* sums);
+  /* Walks tile `tile`'s list back to front, writing entries[k] for each k of the list's range. */      \
+  void BackwardTile(const SplatFrame& frame, const cv::Mat& d_image, int tile, ScreenGradientSums* entries);
 
 namespace portable {
 IBMR_SPLAT_TILE_DECLARATIONS
@@ -89,7 +91,7 @@ IBMR_SPLAT_TILE_DECLARATIONS
 
 // The active build's.
 void ForwardTile(SplatFrame& frame, int tile);
-void BackwardTile(const SplatFrame& frame, const cv::Mat& d_image, int tile, ScreenGradientSums* sums);
+void BackwardTile(const SplatFrame& frame, const cv::Mat& d_image, int tile, ScreenGradientSums* entries);
 
 }  // namespace splat_tiles
 }  // namespace ibmr

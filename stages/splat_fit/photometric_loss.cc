@@ -32,8 +32,10 @@ PhotometricLoss PhotometricLossAndGradient(const cv::Mat& render, const cv::Mat&
     double l1 = 0, se = 0;
   };
   // L1: d / d pixel = sign(render - photo) (1 - lambda) / n.
-  const Sums sums = tbb::parallel_reduce(
-      tbb::blocked_range<int>(0, render.rows), Sums(),
+  // Deterministic: the same split and join order every run (the fit's bytes do not depend on the
+  // threads' timing).
+  const Sums sums = tbb::parallel_deterministic_reduce(
+      tbb::blocked_range<int>(0, render.rows, 16), Sums(),
       [&](const tbb::blocked_range<int>& rows, Sums s) {
         for (int y = rows.begin(); y != rows.end(); ++y) {
           const cv::Vec3f* r = render.ptr<cv::Vec3f>(y);
@@ -69,8 +71,8 @@ PhotometricLoss PhotometricLossAndGradient(const cv::Mat& render, const cv::Mat&
   Window(photo.mul(photo), &yy);
   Window(render.mul(photo), &xy);
   cv::Mat alpha(render.size(), CV_32FC3), beta(render.size(), CV_32FC3), gamma(render.size(), CV_32FC3);
-  const double ssim_sum = tbb::parallel_reduce(
-      tbb::blocked_range<int>(0, render.rows), 0.0,
+  const double ssim_sum = tbb::parallel_deterministic_reduce(
+      tbb::blocked_range<int>(0, render.rows, 16), 0.0,
       [&](const tbb::blocked_range<int>& rows, double ssim_sum) {
         for (int y = rows.begin(); y != rows.end(); ++y) {
           const cv::Vec3f *mx = mu_x.ptr<cv::Vec3f>(y), *my = mu_y.ptr<cv::Vec3f>(y), *sxx = xx.ptr<cv::Vec3f>(y),
