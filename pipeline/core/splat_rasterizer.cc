@@ -19,7 +19,7 @@ namespace ibmr {
 // entries in list order (splat_start / splat_entries, compressed rows).
 struct SplatBackwardScratch {
   std::vector<splat_tiles::ScreenGradientSums> entries;
-  std::vector<uint32_t> splat_start, splat_entries, cursor;
+  std::vector<uint32_t> splat_start, splat_entries;
 };
 
 namespace {
@@ -239,14 +239,23 @@ void BackwardSplats(const GaussianSplats& splats, const SplatCamera& camera, con
   const uint32_t total = frame.tile_start[tiles];
   scratch.entries.resize(total);  // every entry written by its tile
   tbb::parallel_for(0, tiles, [&](int t) { splat_tiles::BackwardTile(frame, d_image, t, scratch.entries.data()); });
-  // Each splat's entries in the lists' order (tile by tile): the sums below add them in that order
-  // whatever thread drew each tile.
-  scratch.splat_start.assign(n + 1, 0);
-  for (uint32_t k = 0; k < total; ++k) ++scratch.splat_start[frame.tile_splats[k] + 1];
-  for (size_t i = 0; i < n; ++i) scratch.splat_start[i + 1] += scratch.splat_start[i];
-  scratch.cursor.assign(scratch.splat_start.begin(), scratch.splat_start.end() - 1);
+  // Each splat's entries, one per tile of its box in row-major order (binning put it in exactly
+  // those tiles' lists): the sums below add them in that order whatever thread drew each tile.
+  scratch.splat_start.resize(n + 1);
+  scratch.splat_start[0] = 0;
+  for (size_t i = 0; i < n; ++i) {
+    const Eigen::Vector4i b = frame.box[i] / kSplatTile;
+    scratch.splat_start[i + 1] = scratch.splat_start[i] + (frame.visible[i] ? (b[2] - b[0] + 1) * (b[3] - b[1] + 1) : 0);
+  }
   scratch.splat_entries.resize(total);
-  for (uint32_t k = 0; k < total; ++k) scratch.splat_entries[scratch.cursor[frame.tile_splats[k]]++] = k;
+  tbb::parallel_for(0, tiles, [&](int t) {
+    const int tx = t % frame.tiles_x, ty = t / frame.tiles_x;
+    for (uint32_t k = frame.tile_start[t]; k < frame.tile_start[t + 1]; ++k) {
+      const uint32_t i = frame.tile_splats[k];
+      const Eigen::Vector4i b = frame.box[i] / kSplatTile;
+      scratch.splat_entries[scratch.splat_start[i] + (ty - b[1]) * (b[2] - b[0] + 1) + (tx - b[0])] = k;
+    }
+  });
 
   // The per-splat screen quantities carried to the parameters.
   Eigen::Matrix3f k_transposed = Eigen::Matrix3f::Zero();
