@@ -15,11 +15,9 @@
 
 namespace ibmr {
 
-// The backward pass's per-entry sums (one per entry of the tiles' lists) and, per splat, its
-// entries in list order (splat_start / splat_entries, compressed rows).
+// The backward pass's sums, one per splat and tile of its box (SplatFrame::entry_start).
 struct SplatBackwardScratch {
   std::vector<splat_tiles::ScreenGradientSums> entries;
-  std::vector<uint32_t> splat_start, splat_entries;
 };
 
 namespace {
@@ -183,6 +181,12 @@ void RenderSplats(const GaussianSplats& splats, const SplatCamera& camera, const
     }
   }
   for (int t = 0; t < tiles; ++t) frame->tile_start[t + 1] += frame->tile_start[t];
+  frame->entry_start.resize(n + 1);
+  frame->entry_start[0] = 0;
+  for (size_t i = 0; i < n; ++i) {
+    const Eigen::Vector4i b = frame->box[i] / kSplatTile;
+    frame->entry_start[i + 1] = frame->entry_start[i] + (frame->visible[i] ? (b[2] - b[0] + 1) * (b[3] - b[1] + 1) : 0);
+  }
   frame->tile_splats.resize(frame->tile_start[tiles]);
   {
     std::vector<uint32_t> fill(frame->tile_start.begin(), frame->tile_start.end() - 1);
@@ -236,26 +240,10 @@ void BackwardSplats(const GaussianSplats& splats, const SplatCamera& camera, con
   const int tiles = frame.tiles_x * frame.tiles_y;
   if (!gradients->scratch) gradients->scratch = std::make_shared<SplatBackwardScratch>();
   SplatBackwardScratch& scratch = *gradients->scratch;
-  const uint32_t total = frame.tile_start[tiles];
-  scratch.entries.resize(total);  // every entry written by its tile
+  // Every entry written by its tile, at the splat's own place (frame.entry_start): the sums below
+  // add a splat's entries in tile order whatever thread drew each tile.
+  scratch.entries.resize(frame.entry_start[n]);
   tbb::parallel_for(0, tiles, [&](int t) { splat_tiles::BackwardTile(frame, d_image, t, scratch.entries.data()); });
-  // Each splat's entries, one per tile of its box in row-major order (binning put it in exactly
-  // those tiles' lists): the sums below add them in that order whatever thread drew each tile.
-  scratch.splat_start.resize(n + 1);
-  scratch.splat_start[0] = 0;
-  for (size_t i = 0; i < n; ++i) {
-    const Eigen::Vector4i b = frame.box[i] / kSplatTile;
-    scratch.splat_start[i + 1] = scratch.splat_start[i] + (frame.visible[i] ? (b[2] - b[0] + 1) * (b[3] - b[1] + 1) : 0);
-  }
-  scratch.splat_entries.resize(total);
-  tbb::parallel_for(0, tiles, [&](int t) {
-    const int tx = t % frame.tiles_x, ty = t / frame.tiles_x;
-    for (uint32_t k = frame.tile_start[t]; k < frame.tile_start[t + 1]; ++k) {
-      const uint32_t i = frame.tile_splats[k];
-      const Eigen::Vector4i b = frame.box[i] / kSplatTile;
-      scratch.splat_entries[scratch.splat_start[i] + (ty - b[1]) * (b[2] - b[0] + 1) + (tx - b[0])] = k;
-    }
-  });
 
   // The per-splat screen quantities carried to the parameters.
   Eigen::Matrix3f k_transposed = Eigen::Matrix3f::Zero();
@@ -271,9 +259,8 @@ void BackwardSplats(const GaussianSplats& splats, const SplatCamera& camera, con
     for (size_t i = range.begin(); i != range.end(); ++i) {
       if (!frame.visible[i]) continue;
       float g[kScreenGrads] = {};
-      for (uint32_t e = scratch.splat_start[i]; e < scratch.splat_start[i + 1]; ++e) {
-        const splat_tiles::ScreenGradientSums& entry = scratch.entries[scratch.splat_entries[e]];
-        for (int q = 0; q < kScreenGrads; ++q) g[q] += entry.value[q];
+      for (uint32_t e = frame.entry_start[i]; e < frame.entry_start[i + 1]; ++e) {
+        for (int q = 0; q < kScreenGrads; ++q) g[q] += scratch.entries[e].value[q];
       }
       bool any = false;
       for (int q = 0; q < kScreenGrads; ++q) any = any || g[q] != 0.0f;

@@ -103,6 +103,9 @@ struct SplatFrame {
   cv::Mat depth;        // CV_32FC1: depth of the front-most splat with alpha >= 0.5 (0: none)
   std::vector<uint32_t> tile_start;   // tiles + 1 offsets into tile_splats
   std::vector<uint32_t> tile_splats;  // splat indices, front to back per tile
+  // Per splat + 1: offsets of its entries in splat-major order, one per tile of its box in
+  // row-major order (where the backward pass keeps each tile's sums for it; 0 for hidden splats).
+  std::vector<uint32_t> entry_start;
   std::vector<uint32_t> last;         // per pixel: how many of its tile's splats were walked
   // Per splat (valid where visible[i]):
   std::vector<uint8_t> visible;

@@ -107,6 +107,15 @@ constexpr int kPrefetchAhead = 8;
 // flags meanwhile.
 constexpr uint32_t kRecountEvery = 4;
 
+// Where the backward pass keeps splat i's sums over tile `tile`: its entries, one per tile of its
+// box in row-major order (SplatFrame::entry_start).
+inline uint32_t EntryOf(const SplatFrame& frame, uint32_t i, int tile) {
+  const Eigen::Vector4i& box = frame.box[i];
+  const int bx0 = box[0] / kSplatTile, bx1 = box[2] / kSplatTile, by0 = box[1] / kSplatTile;
+  const int tx = tile % frame.tiles_x, ty = tile / frame.tiles_x;
+  return frame.entry_start[i] + static_cast<uint32_t>((ty - by0) * (bx1 - bx0 + 1) + (tx - bx0));
+}
+
 inline void Prefetch(const SplatFrame& frame, uint32_t i) {
   __builtin_prefetch(&frame.tile_record[i]);
   __builtin_prefetch(&frame.box[i]);
@@ -302,7 +311,7 @@ void BackwardTile(const SplatFrame& frame, const cv::Mat& d_image, int tile, Scr
     if (jj >= kPrefetchAhead) {
       const uint32_t ahead = frame.tile_splats[start + jj - kPrefetchAhead];
       Prefetch(frame, ahead);
-      __builtin_prefetch(&entries[start + jj - kPrefetchAhead], 1);
+      __builtin_prefetch(&entries[EntryOf(frame, ahead, tile)], 1);
     }
     const uint32_t i = frame.tile_splats[start + jj];
     const SplatInTile s = Load(frame, i, geometry.px0, geometry.py0, geometry.w, geometry.hgt);
@@ -375,7 +384,7 @@ void BackwardTile(const SplatFrame& frame, const cv::Mat& d_image, int tile, Scr
     }
     // A splat no pixel took adds nothing: its sums' cache line is left alone.
     if (touched == 0) {
-      entries[start + jj] = ScreenGradientSums{};  // no pixel of this tile took it
+      entries[EntryOf(frame, i, tile)] = ScreenGradientSums{};  // no pixel of this tile took it
       continue;
     }
     // Summed over lanes as a tree of vector additions (a scalar loop of 15 x 16 additions a splat
@@ -395,10 +404,13 @@ void BackwardTile(const SplatFrame& frame, const cv::Mat& d_image, int tile, Scr
         for (int l = 0; l < width; ++l) lane_g[q][l] += lane_g[q][l + width];
       }
     }
-    for (int q = 0; q < kScreenGradients; ++q) entries[start + jj].value[q] = lane_g[q][0];
+    ScreenGradientSums& entry = entries[EntryOf(frame, i, tile)];
+    for (int q = 0; q < kScreenGradients; ++q) entry.value[q] = lane_g[q][0];
   }
   // The splats behind every pixel's last: not reached from this tile.
-  for (uint32_t j = start + static_cast<uint32_t>(most); j < frame.tile_start[tile + 1]; ++j) entries[j] = ScreenGradientSums{};
+  for (uint32_t j = start + static_cast<uint32_t>(most); j < frame.tile_start[tile + 1]; ++j) {
+    entries[EntryOf(frame, frame.tile_splats[j], tile)] = ScreenGradientSums{};
+  }
 }
 
 }  // namespace IBMR_SPLAT_ISA

@@ -62,9 +62,9 @@ bool IsaSupported(Isa isa);
 Isa ActiveIsa();
 bool SetIsa(Isa isa);  // false (and unchanged) where unsupported
 
-// The gradient sums of one splat over one tile's pixels, which the backward pass writes per entry
-// of the tiles' lists: d/d M^-1 row-major (9), d/d the projected centre (2), d/d colour (3), d/d
-// opacity (1); one cache line an entry. Summed per splat afterwards in the lists' order, so that
+// The gradient sums of one splat over one tile's pixels, which the backward pass writes per splat
+// and tile of its box (SplatFrame::entry_start): d/d M^-1 row-major (9), d/d the projected centre (2), d/d colour (3), d/d
+// opacity (1); one cache line an entry. Summed per splat afterwards in tile order, so that
 // the gradients do not depend on which thread drew which tile (a fit gives the same bytes run
 // after run, as sharded runs must).
 inline constexpr int kScreenGradients = 15;
@@ -75,7 +75,7 @@ struct alignas(64) ScreenGradientSums {
 #define IBMR_SPLAT_TILE_DECLARATIONS                                                                         \
   /* Composites tile `tile` of `frame` front to back into its image, transmittance, depth and last. */      \
   void ForwardTile(SplatFrame& frame, int tile);                                                           \
-  /* Walks tile `tile`'s list back to front, writing entries[k] for each k of the list's range. */      \
+  /* Walks tile `tile`'s list back to front, writing each splat's entry for the tile (entry_start). */ \
   void BackwardTile(const SplatFrame& frame, const cv::Mat& d_image, int tile, ScreenGradientSums* entries);
 
 namespace portable {
