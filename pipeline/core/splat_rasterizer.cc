@@ -26,8 +26,6 @@ constexpr int kScreenGrads = splat_tiles::kScreenGradients;
 
 float Sigmoid(float x) { return 1.0f / (1.0f + std::exp(-x)); }
 
-float Cutoff(const SplatRasterOptions& options) { return SplatCutoffSquared(options); }
-
 // The disc is drawn within the cut-off circle u^2 + v^2 < cutoff of its plane, which lies inside
 // the extent square. The square's projected corners bound it loosely: a disc
 // turned 45 degrees on screen gets a box twice the ellipse's area, and every tile and row of that
@@ -95,7 +93,7 @@ void RenderSplats(const GaussianSplats& splats, const SplatCamera& camera, const
   k(0, 2) = camera.cx;
   k(1, 2) = camera.cy;
   const Eigen::Vector3f eye = camera.Centre();
-  const float cutoff = Cutoff(options);
+  const float cutoff = SplatCutoffSquared(options);
   const float lowpass_reach = options.lowpass_sigma * std::sqrt(cutoff);  // the floor's reach (splat_rasterizer.h)
 
   tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 1024), [&](const tbb::blocked_range<size_t>& range) {
