@@ -7,6 +7,7 @@
 
 #include "pipeline/core/colmap_text_io.h"
 #include "pipeline/core/errors.h"
+#include "pipeline/core/sparse_image_names.h"
 
 namespace ibmr {
 
@@ -44,12 +45,16 @@ std::vector<std::string> StageContext::TrainingImageNames(const SparseModel& mod
 }
 
 std::vector<std::string> StageContext::TrainingImageNamesIfReadable() const {
-  if (!std::filesystem::exists(workspace.SparseDir() + "/images.txt")) return {};
-  try {
-    return TrainingImageNames(LoadModel());
-  } catch (const std::exception&) {
-    return {};
+  // Asked for by every stage's declared inputs and outputs: the names are read once per version of
+  // the model's files.
+  const SparseImageNames model = ReadSparseImageNamesCached(workspace.SparseDir());
+  std::vector<std::string> names;
+  if (!model.readable) return names;
+  for (const std::string& name : model.names) {
+    if (role == HoldoutRole::kTrainingOnly && IsHeldOut(name)) continue;
+    names.push_back(name);
   }
+  return names;
 }
 
 const std::string* StageContext::SkippedBy(const std::string& path) const {

@@ -23,6 +23,7 @@
 #include "pipeline/runner/record.h"
 #include "pipeline/runner/stage_warnings.h"
 #include "pipeline/core/process_memory.h"
+#include "pipeline/core/sparse_image_names.h"
 #include "pipeline/runner/resource_usage.h"
 #include "pipeline/runner/stage_lock.h"
 #include "pipeline/runner/terminal_progress.h"
@@ -47,15 +48,11 @@ std::string Resolve(const Workspace& workspace, const std::string& path) { retur
 bool Overlaps(const std::string& a, const std::string& b) { return PathWithin(a, b) || PathWithin(b, a); }
 
 std::vector<std::string> SortedImageNames(const Workspace& workspace) {
-  std::vector<std::string> names;
-  if (!fs::exists(workspace.SparseDir() + "/images.txt")) return names;
-  try {
-    const SparseModel model = ReadSparseModelText(workspace.SparseDir());
-    for (int id : model.ImageIdsByName()) names.push_back(model.images.at(id).name);
-  } catch (const std::exception& e) {
-    spdlog::warn("cannot read the image list for the holdout policy: {}", e.what());
+  const SparseImageNames model = ReadSparseImageNamesCached(workspace.SparseDir());
+  if (!model.readable && !model.error.empty()) {
+    spdlog::warn("cannot read the image list for the holdout policy: {}", model.error);
   }
-  return names;
+  return model.names;
 }
 
 // Throws ConfigError for a name of holdout.images that is not an image of the model: the view
