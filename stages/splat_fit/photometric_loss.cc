@@ -23,7 +23,7 @@ void Window(const cv::Mat& in, cv::Mat* out) {
 }  // namespace
 
 PhotometricLoss PhotometricLossAndGradient(const cv::Mat& render, const cv::Mat& photo, double dssim_weight,
-                                           cv::Mat* d_render) {
+                                           cv::Mat* d_render, PhotometricScratch* scratch) {
   CV_Assert(render.type() == CV_32FC3 && photo.type() == CV_32FC3 && render.size() == photo.size());
   d_render->create(render.size(), CV_32FC3);
   const double n = 3.0 * static_cast<double>(render.total());
@@ -64,13 +64,21 @@ PhotometricLoss PhotometricLossAndGradient(const cv::Mat& render, const cv::Mat&
   if (dssim_weight <= 0) return out;
 
   // SSIM's moments, its map, and the three maps its gradient is made of.
-  cv::Mat mu_x, mu_y, xx, yy, xy;
+  PhotometricScratch own;
+  PhotometricScratch& m = scratch != nullptr ? *scratch : own;
+  cv::Mat &mu_x = m.mu_x, &mu_y = m.mu_y, &xx = m.xx, &yy = m.yy, &xy = m.xy;
   Window(render, &mu_x);
   Window(photo, &mu_y);
-  Window(render.mul(render), &xx);
-  Window(photo.mul(photo), &yy);
-  Window(render.mul(photo), &xy);
-  cv::Mat alpha(render.size(), CV_32FC3), beta(render.size(), CV_32FC3), gamma(render.size(), CV_32FC3);
+  cv::multiply(render, render, m.product);
+  Window(m.product, &xx);
+  cv::multiply(photo, photo, m.product);
+  Window(m.product, &yy);
+  cv::multiply(render, photo, m.product);
+  Window(m.product, &xy);
+  m.alpha.create(render.size(), CV_32FC3);
+  m.beta.create(render.size(), CV_32FC3);
+  m.gamma.create(render.size(), CV_32FC3);
+  cv::Mat &alpha = m.alpha, &beta = m.beta, &gamma = m.gamma;
   const double ssim_sum = tbb::parallel_deterministic_reduce(
       tbb::blocked_range<int>(0, render.rows, 16), 0.0,
       [&](const tbb::blocked_range<int>& rows, double ssim_sum) {
@@ -96,7 +104,7 @@ PhotometricLoss PhotometricLossAndGradient(const cv::Mat& render, const cv::Mat&
       std::plus<double>());
   out.ssim = ssim_sum / n;
   out.loss += dssim_weight * (1.0 - out.ssim);
-  cv::Mat ga, gb, gg;
+  cv::Mat &ga = m.g_alpha, &gb = m.g_beta, &gg = m.g_gamma;
   Window(alpha, &ga);
   Window(beta, &gb);
   Window(gamma, &gg);

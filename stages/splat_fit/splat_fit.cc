@@ -345,6 +345,7 @@ SplatFitResult FitSplats(const std::vector<SplatFitView>& views, const Eigen::Ve
   SplatFrame frame;
   SplatGradients gradients;
   cv::Mat d_image, gained;
+  PhotometricScratch loss_scratch;  // the loss's images, kept from step to step
   // Per-view log gains (options.view_gains) and their Adam state: 3 floats a view.
   // Each view's Adam counts its own steps (a view's gain moves only when it is drawn).
   std::vector<float> log_gain(options.view_gains ? views.size() * 3 : 0, 0.0f), d_log_gain(3, 0.0f);
@@ -389,7 +390,7 @@ SplatFitResult FitSplats(const std::vector<SplatFitView>& views, const Eigen::Ve
       cv::multiply(frame.image, cv::Scalar(gain[0], gain[1], gain[2]), gained);
       drawn = &gained;
     }
-    const PhotometricLoss loss = PhotometricLossAndGradient(*drawn, view.image, options.dssim_weight, &d_image);
+    const PhotometricLoss loss = PhotometricLossAndGradient(*drawn, view.image, options.dssim_weight, &d_image, &loss_scratch);
     if (options.view_gains) {
       const Eigen::Vector3d d_gain = ChannelProductSums(d_image, gained);
       for (int c = 0; c < 3; ++c) d_log_gain[c] = static_cast<float>(d_gain[c]);
