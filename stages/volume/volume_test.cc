@@ -215,6 +215,18 @@ TEST(VolumeComposite, WarpsAgreeWithRaysInFront) {
       << "a camera between the planes";
 }
 
+// The objective's central difference in cell value i (step 2e-3), the cell left as it was.
+double CentralDifference(PlaneVolume* volume, const std::vector<LevelView>& level, const VolumeOptions& options,
+                         size_t i) {
+  const float h = 2e-3f, saved = volume->cells[i];
+  volume->cells[i] = saved + h;
+  const double plus = VolumeObjective(*volume, level, options, nullptr);
+  volume->cells[i] = saved - h;
+  const double minus = VolumeObjective(*volume, level, options, nullptr);
+  volume->cells[i] = saved;
+  return (plus - minus) / (2.0 * h);
+}
+
 // The analytic gradient of the objective (data term, smoothness, prior) against central finite
 // differences, for colour and opacity cells of every plane but the pinned far one.
 TEST(VolumeObjective, GradientMatchesFiniteDifferences) {
@@ -239,13 +251,7 @@ TEST(VolumeObjective, GradientMatchesFiniteDifferences) {
     for (int channel = 0; channel < 4; ++channel) {
       for (int trial = 0; trial < 3; ++trial) {
         const size_t i = k * volume.PlaneFloats() + (static_cast<size_t>(pick_y(rng)) * volume.Width() + pick_x(rng)) * 4 + channel;
-        const float h = 2e-3f, saved = volume.cells[i];
-        volume.cells[i] = saved + h;
-        const double plus = VolumeObjective(volume, level, options, nullptr);
-        volume.cells[i] = saved - h;
-        const double minus = VolumeObjective(volume, level, options, nullptr);
-        volume.cells[i] = saved;
-        const double numeric = (plus - minus) / (2.0 * h);
+        const double numeric = CentralDifference(&volume, level, options, i);
         EXPECT_NEAR(gradient[i], numeric, 2e-3 * std::abs(numeric) + 2e-6)
             << "plane " << k << " channel " << channel << " cell " << i;
         ++checked;
@@ -292,13 +298,7 @@ TEST(VolumeObjective, GradientMatchesFiniteDifferencesLookingBack) {
       std::shuffle(seen.begin(), seen.end(), rng);
       for (size_t t = 0; t < std::min<size_t>(3, seen.size()); ++t) {
         const size_t i = seen[t];
-        const float h = 2e-3f, saved = volume.cells[i];
-        volume.cells[i] = saved + h;
-        const double plus = VolumeObjective(volume, level, options, nullptr);
-        volume.cells[i] = saved - h;
-        const double minus = VolumeObjective(volume, level, options, nullptr);
-        volume.cells[i] = saved;
-        const double numeric = (plus - minus) / (2.0 * h);
+        const double numeric = CentralDifference(&volume, level, options, i);
         EXPECT_NEAR(gradient[i], numeric, 2e-3 * std::abs(numeric) + 2e-6) << "plane " << k << " channel " << channel;
         ++checked;
       }
