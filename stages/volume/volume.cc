@@ -119,7 +119,7 @@ double VolumeFitBytes(const VirtualCamera& virtual_camera, const std::vector<Vol
   const double buffers = options.optimizer == VolumeOptimizer::kAdam ? 4 : 2;  // cells, gradient (, two moments)
   double photos = 0;
   for (const VolumeView& view : views) photos += static_cast<double>(view.camera.width) * view.camera.height * 3 * 4;
-  const double bands = static_cast<double>(1 << 22) * 4;  // volume_fit.cc's kBandFloats
+  const double bands = static_cast<double>(kVolumeBandFloats) * sizeof(float);
   return cells * 4 * buffers + photos + bands;
 }
 

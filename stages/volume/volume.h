@@ -36,6 +36,7 @@
 //    background: no ray inside the volume leaves it empty). Training views only.
 #pragma once
 
+#include <cstddef>
 #include <opencv2/core.hpp>
 #include <string>
 #include <vector>
@@ -102,6 +103,10 @@ struct VirtualCamera {
 // Throws std::invalid_argument for no views or 0 < near < far violated.
 VirtualCamera ChooseVirtualCamera(const std::vector<VolumeView>& views, int reference, double near, double far,
                                   const VolumeOptions& options);
+
+// The data term's gradient works through a view in bands of rows whose per-plane samples hold at
+// most this many floats (volume_fit.cc); VolumeFitBytes counts them.
+inline constexpr size_t kVolumeBandFloats = size_t{1} << 22;
 
 // Bytes the fitting holds at the finest level: the cells, their gradient and Adam's two moments,
 // the photos as floats and the gradient bands.

@@ -11,9 +11,6 @@ namespace ibmr {
 
 namespace {
 
-// Gradient buffers hold this many floats per band of training rows at most (a band's per-plane
-// slots: kSlot floats per plane and pixel). volume.cc's VolumeFitBytes counts them.
-constexpr size_t kBandFloats = size_t{1} << 22;
 // A slot: the sample's B, G, R, alpha (replaced by dE/d of each in the backward pass), its position
 // x, y in the plane (x NaN: no sample), the transmittance in front of it, and one float of padding
 // (two slots per cache line).
@@ -40,7 +37,7 @@ void ViewDataTerm(const PlaneVolume& volume, const LevelView& view, const Volume
   const int w = view.camera.width, h = view.camera.height, planes = volume.Planes();
   const VolumeRays rays(volume, view.camera, view.cam_from_world);
   const float e = static_cast<float>(options.robust_epsilon);
-  const int band_rows = std::clamp(static_cast<int>(kBandFloats / (static_cast<size_t>(w) * planes * kSlot)), 1, h);
+  const int band_rows = std::clamp(static_cast<int>(kVolumeBandFloats / (static_cast<size_t>(w) * planes * kSlot)), 1, h);
   const size_t band_pixels = static_cast<size_t>(band_rows) * w;
   // slots[(k * band_pixels + p) * kSlot]: plane k's sample at pixel p of the band.
   std::vector<float>& slots = *scratch;  // reused across views: no fresh pages per view
@@ -57,22 +54,14 @@ void ViewDataTerm(const PlaneVolume& volume, const LevelView& view, const Volume
       for (int y = range.begin(); y < range.end(); ++y) {
         const float* photo = view.image.ptr<float>(y);
         float* row_slots = gradient != nullptr ? slots.data() + static_cast<size_t>(y - band) * w * kSlot : nullptr;
-        int active = 0;
         for (int x = 0; x < w; ++x) {
           ray[x] = rays.RayAt(x + 0.5, y + 0.5);
           covered[x] = rays.ReachesFarPlane(ray[x]) ? 1 : 0;
-          active += covered[x];
           t[x] = 1.f;
         }
         std::fill(colour.begin(), colour.end(), 0.f);
         // Front to back: the i-th plane along each pixel's ray, while light still passes.
         for (int i = 0; i < planes; ++i) {
-          if (active == 0) {  // every ray is spent: the planes left hold no sample of this row
-            if (row_slots != nullptr) {
-              for (int x = 0; x < w; ++x) row_slots[(rays.PlaneAt(ray[x], i) * band_pixels + x) * kSlot + 4] = NAN;
-            }
-            continue;
-          }
           for (int x = 0; x < w; ++x) {
             const int k = rays.PlaneAt(ray[x], i);
             float* slot = row_slots != nullptr ? row_slots + (k * band_pixels + x) * kSlot : nullptr;
@@ -92,7 +81,6 @@ void ViewDataTerm(const PlaneVolume& volume, const LevelView& view, const Volume
               slot[6] = t[x];
             }
             t[x] *= 1.f - cell[3];
-            if (t[x] <= kOpaqueTransmittance) --active;
           }
         }
         for (int x = 0; x < w; ++x) {
