@@ -34,27 +34,31 @@ SparseModel StageContext::LoadModel() const {
   return model;
 }
 
-std::vector<std::string> StageContext::TrainingImageNames(const SparseModel& model) const {
+namespace {
+
+// `sorted` without the views a kTrainingOnly stage must not see.
+std::vector<std::string> TrainingOf(const StageContext& context, const std::vector<std::string>& sorted) {
   std::vector<std::string> names;
-  for (int id : model.ImageIdsByName()) {
-    const std::string& name = model.images.at(id).name;
-    if (role == HoldoutRole::kTrainingOnly && IsHeldOut(name)) continue;
+  for (const std::string& name : sorted) {
+    if (context.role == HoldoutRole::kTrainingOnly && context.IsHeldOut(name)) continue;
     names.push_back(name);
   }
   return names;
+}
+
+}  // namespace
+
+std::vector<std::string> StageContext::TrainingImageNames(const SparseModel& model) const {
+  std::vector<std::string> sorted;
+  for (int id : model.ImageIdsByName()) sorted.push_back(model.images.at(id).name);
+  return TrainingOf(*this, sorted);
 }
 
 std::vector<std::string> StageContext::TrainingImageNamesIfReadable() const {
   // Asked for by every stage's declared inputs and outputs: the names are read once per version of
   // the model's files.
   const SparseImageNames model = ReadSparseImageNamesCached(workspace.SparseDir());
-  std::vector<std::string> names;
-  if (!model.readable) return names;
-  for (const std::string& name : model.names) {
-    if (role == HoldoutRole::kTrainingOnly && IsHeldOut(name)) continue;
-    names.push_back(name);
-  }
-  return names;
+  return model.readable ? TrainingOf(*this, model.names) : std::vector<std::string>();
 }
 
 const std::string* StageContext::SkippedBy(const std::string& path) const {
