@@ -168,23 +168,21 @@ void RenderSplats(const GaussianSplats& splats, const SplatCamera& camera, const
   });
 
   // Binning: each visible splat into the tiles its footprint touches, front to back per tile.
+  // entry_start: each splat's run of entries, one per tile of its box (the backward pass's sums).
   frame->tile_start.assign(tiles + 1, 0);
+  frame->entry_start.assign(n + 1, 0);
   frame->drawn = 0;
   for (size_t i = 0; i < n; ++i) {
+    frame->entry_start[i + 1] = frame->entry_start[i];
     if (!frame->visible[i]) continue;
     ++frame->drawn;
     const Eigen::Vector4i b = frame->box[i] / kSplatTile;
+    frame->entry_start[i + 1] += (b[2] - b[0] + 1) * (b[3] - b[1] + 1);
     for (int ty = b[1]; ty <= b[3]; ++ty) {
       for (int tx = b[0]; tx <= b[2]; ++tx) ++frame->tile_start[ty * frame->tiles_x + tx + 1];
     }
   }
   for (int t = 0; t < tiles; ++t) frame->tile_start[t + 1] += frame->tile_start[t];
-  frame->entry_start.resize(n + 1);
-  frame->entry_start[0] = 0;
-  for (size_t i = 0; i < n; ++i) {
-    const Eigen::Vector4i b = frame->box[i] / kSplatTile;
-    frame->entry_start[i + 1] = frame->entry_start[i] + (frame->visible[i] ? (b[2] - b[0] + 1) * (b[3] - b[1] + 1) : 0);
-  }
   frame->tile_splats.resize(frame->tile_start[tiles]);
   {
     std::vector<uint32_t> fill(frame->tile_start.begin(), frame->tile_start.end() - 1);
