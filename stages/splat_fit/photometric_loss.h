@@ -23,9 +23,9 @@ struct PhotometricLoss {
   double loss = 0;  // (1 - lambda) l1 + lambda (1 - ssim)
 };
 
-// The structural term's images (moments, products, the gradient's maps: 14 of the image's size),
-// kept by a caller that evaluates the loss step after step: fresh ones each step were 128 MB of
-// new pages per step at 1008x756, zeroed by the kernel (6% of a fit's time).
+// The structural term's images (moments, products, the gradient's maps: 12 of the image's size),
+// kept by a caller that evaluates the loss step after step: fresh ones each step (14 with the
+// products) were 128 MB of new pages per step at 1008x756, zeroed by the kernel (6% of a fit's time).
 struct PhotometricScratch {
   cv::Mat mu_x, mu_y, xx, yy, xy, product, alpha, beta, gamma, g_alpha, g_beta, g_gamma;
 };
